@@ -1,0 +1,183 @@
+"""The `jiggle` command line.
+
+Every user mistake (a bad file, a bad parameter) ends as one line on stderr naming the file, line or
+parameter and what was expected, with exit code 2; tracebacks are for jiggle's own bugs.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from importlib import resources
+
+from rig.errors import InputError
+
+EXIT_USER_ERROR = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own exit code is 2 too; keep the one-line style
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_USER_ERROR, f"jiggle: error: {message}\n")
+
+
+def _clip_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("clip reading")
+    g.add_argument("--skeleton", metavar="ASF", help="the ASF skeleton of an AMC clip (default: the one .asf beside it)")
+    g.add_argument("--animation", metavar="NAME|INDEX", help="glTF animation to play (default: the first)")
+    g.add_argument("--scale", type=float, metavar="M", help="BVH metres per file unit (default: CMU recognised, else guessed from height)")
+    g.add_argument("--tpose", choices=["auto", "skip", "keep"], default="auto",
+                   help="BVH first frame: auto drops a T-pose added by converters (CMU), skip always drops it, keep never (default: auto)")
+
+
+def _animation(value):
+    if value is None:
+        return None
+    return int(value) if value.lstrip("-").isdigit() else value
+
+
+def _load_clip(args):
+    from rig.mocap import load_clip
+    return load_clip(args.clip, skeleton=args.skeleton, animation=_animation(args.animation),
+                     scale=args.scale, tpose=args.tpose)
+
+
+def _positive(name):
+    def conv(v):
+        try:
+            x = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
+        if not x > 0 or x == float("inf"):
+            raise argparse.ArgumentTypeError(f"{name} must be a positive number, got {v!r}")
+        return x
+    return conv
+
+
+# ---------------------------------------------------------------------------------------- inspect
+def cmd_inspect(args) -> int:
+    from .describe import inspect_file, format_report
+    report = inspect_file(args.file, skeleton=args.skeleton, animation=_animation(args.animation),
+                          scale=args.scale, tpose=args.tpose)
+    print(json.dumps(report, indent=2) if args.json else format_report(report))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- play / demo
+def _play(clip, out_dir, drive, poses, render, fps=None):
+    from tqdm import tqdm
+
+    from .play import drive_kinematic, drive_physics, write_outputs
+
+    if fps is not None:
+        clip = clip.resample(fps)
+    times = clip.times
+    runner = drive_physics if drive == "physics" else drive_kinematic
+    with tqdm(total=len(times), unit="frame", desc=f"{clip.name} ({drive})", disable=None,
+              file=sys.stderr) as bar:
+        motion = runner(clip, times, progress=bar.update)
+    summary = write_outputs(clip, motion, out_dir, poses=poses, render=render)
+    print(f"{summary['frames']} frames of {clip.name!r} ({summary['duration_s']:.2f} s, "
+          f"{clip.num_joints} joints, {drive} drive) -> {os.path.abspath(out_dir)}")
+    for k, f in summary["files"].items():
+        print(f"  {k:13s} {os.path.join(out_dir, f)}")
+    if "rms_error_m" in summary:
+        print(f"  tracking RMS error {summary['rms_error_m'] * 100:.2f} cm")
+    return summary
+
+
+def cmd_play(args) -> int:
+    clip = _load_clip(args)
+    if args.start is not None or args.end is not None:
+        clip = clip.between(args.start or 0.0, args.end)
+    if args.speed is not None:
+        clip = clip.with_speed(args.speed)
+    _play(clip, args.out, args.drive, args.poses, not args.no_render, fps=args.fps)
+    return 0
+
+
+def default_scene() -> str:
+    return str(resources.files("scenes").joinpath("default.toml"))
+
+
+def cmd_demo(args) -> int:
+    from .scene import load_scene
+    scene = load_scene(args.scene or default_scene())
+    clip = scene.clip
+    if args.frames is not None:
+        clip = clip.frames(0, args.frames)
+    _play(clip, args.out, args.drive or scene.drive, args.poses, not args.no_render, fps=scene.fps)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    top = _Parser(prog="jiggle", description=(
+        "Physics-backed muscle jiggle and secondary motion for animated characters. "
+        "Today: read mocap clips (BVH, ASF/AMC, glTF), drive their skeletons through MuJoCo, "
+        "and look at the result."),
+        epilog="Run 'jiggle COMMAND --help' for a command's options. Exit codes: 0 done, 2 bad input, "
+               "130 interrupted.")
+    sub = top.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser("inspect", help="describe a clip, character or MuJoCo model file",
+                       description="Describe a file: for a clip (BVH, AMC, ASF, glTF/GLB animation) its joints, "
+                                   "frames, fps, duration, units and detected T-pose; for a character (glTF/GLB, OBJ, "
+                                   "PLY, STL) its vertices, faces, joints, skins and animations; for an MJCF its "
+                                   "bodies and joints.")
+    p.add_argument("file", help="the file to describe")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    _clip_options(p)
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("play", help="play a clip on its skeleton through MuJoCo and write pictures",
+                       description="Play a mocap clip on its own skeleton through MuJoCo and write to --out: "
+                                   "skeleton.png (the skeleton over time), trajectories.png (joint positions over "
+                                   "time), motion.npz (bone world transforms per frame) and summary.json.")
+    p.add_argument("clip", help="BVH, AMC (with its ASF), or glTF/GLB with animations")
+    p.add_argument("--out", default="out/play", help="output folder (default: out/play)")
+    p.add_argument("--start", type=float, metavar="S", help="start, seconds of the clip (default: 0)")
+    p.add_argument("--end", type=float, metavar="E", help="end, seconds of the clip (default: its end)")
+    p.add_argument("--fps", type=_positive("--fps"), help="output frame rate (default: the clip's)")
+    p.add_argument("--speed", type=_positive("--speed"), help="play this many times faster (default: 1)")
+    p.add_argument("--drive", choices=["kinematic", "physics"], default="kinematic",
+                   help="kinematic: MuJoCo poses the bones from the clip; physics: MuJoCo simulates the body "
+                        "on a floor following the clip (default: kinematic)")
+    p.add_argument("--poses", type=int, default=8, help="poses in the skeleton picture (default: 8)")
+    p.add_argument("--no-render", action="store_true", help="skip the 3D picture (plots and data only)")
+    _clip_options(p)
+    p.set_defaults(func=cmd_play)
+
+    p = sub.add_parser("demo", help="run the built-in demo (no files needed)",
+                       description="Run the built-in default scene: a skeleton doing jumping jacks, keyframed by "
+                                   "the project, played through MuJoCo; writes the skeleton picture, trajectory "
+                                   "plot and motion data to --out.")
+    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    p.add_argument("--scene", help="scene TOML (default: the built-in scenes/default.toml)")
+    p.add_argument("--frames", type=int, help="only the first N frames (for a quick check)")
+    p.add_argument("--drive", choices=["kinematic", "physics"], help="override the scene's skeleton drive")
+    p.add_argument("--poses", type=int, default=8, help="poses in the skeleton picture (default: 8)")
+    p.add_argument("--no-render", action="store_true", help="skip the 3D picture")
+    p.set_defaults(func=cmd_demo)
+    return top
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USER_ERROR
+    try:
+        return int(args.func(args) or 0)
+    except InputError as e:
+        print(f"jiggle: error: {e}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("jiggle: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
