@@ -1,0 +1,612 @@
+"""A character's skeleton from a skinned glTF 2.0 file (.glb or .gltf), and `describe_gltf`.
+
+This module also holds the glTF document reading shared with :mod:`rig.gltf_anim`: buffers (GLB
+binary chunk, external files, data URIs), accessors (byteStride, normalized integers, sparse),
+node transforms, and which nodes form the joint tree.
+
+Readings where glTF leaves a choice, stated once here:
+- Axes and units: glTF is Y-up metres; jiggle's world is Z-up, so every world transform is turned
+  by ``rig.bvh.Y_TO_Z_UP`` ((x, y, z) -> (x, -z, y)), as BVH files are.
+- Joints: the skin's joints plus the nodes needed to join them into a tree (every node on the path
+  from a joint up to the lowest common ancestor of the skin's joints in the same scene tree),
+  ordered parents-first (depth-first from that ancestor, children in file order). A joint's name is
+  its node's name; unnamed nodes are called ``node<index>`` and a repeated name gets ``_<index>``.
+- Transforms above the tree (scene roots such as a Z-up fix or an armature's scale) are accumulated
+  into the root joint.
+- Rigid frames: a Clip is rigid, glTF nodes may scale. A joint's world *position* is taken from the
+  full glTF matrices (exact for any scale); its world *rotation* is the product of the node rotations
+  from the root down (a ``matrix`` node contributes the rotation of its polar decomposition). A
+  child's local translation is its world offset from the parent expressed in the parent's rigid
+  frame, so scale is folded into the children's translations. Under uniform scale both are exact;
+  under non-uniform scale joint positions stay exact but the shear the scale puts on a bone's frame
+  is dropped (the frame is the unscaled rotation), and bone lengths that change with the scale show
+  up as animated translations.
+- Bind pose: the inverse of each joint's inverse bind matrix is its transform in the space of the
+  skinned mesh's vertices; the mesh sits in the world at the world transform of the first node that
+  uses the skin (identity if no node does), so bind world = that transform @ inverse(IBM). Nodes
+  added to close the tree (not in the skin) take their rest world transform as bind.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import os
+import struct
+import urllib.parse
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quat
+from .bvh import Y_TO_Z_UP
+from .clip import Clip
+from .errors import InputError, require_file
+
+_COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+_NORM_DIV = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0, 5125: 4294967295.0}
+_NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+Z_UP = np.eye(4)
+Z_UP[:3, :3] = quat.to_matrix(Y_TO_Z_UP)  # glTF world (Y-up) -> jiggle world (Z-up)
+Z_UP.setflags(write=False)
+
+
+# ---------------------------------------------------------------------------------- the document
+class GltfDocument:
+    """A parsed glTF file: the pygltflib model plus its buffers as bytes.
+
+    Attributes
+    ----------
+    path : the file.
+    gltf : pygltflib.GLTF2.
+    node_parent : (N,) int, parent node of each node or -1.
+    node_names : (N,) unique names (see module docstring).
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        import pygltflib
+
+        self.path = require_file(path, "glTF file")
+        with open(self.path, "rb") as fh:
+            data = fh.read()
+        bin_chunk = None
+        if data[:4] == b"glTF":
+            json_text, bin_chunk = self._split_glb(data)
+        else:
+            try:
+                json_text = data.decode("utf-8-sig")
+                obj = json.loads(json_text)
+            except (UnicodeDecodeError, json.JSONDecodeError):
+                raise InputError("not a glTF file: neither a GLB binary (magic 'glTF') nor JSON text",
+                                 self.path) from None
+            if not isinstance(obj, dict) or "asset" not in obj:
+                raise InputError("not a glTF file: JSON without the required 'asset' object", self.path,
+                                 field="asset")
+        try:
+            self.gltf = pygltflib.GLTF2.from_json(json_text)
+        except Exception as e:  # pygltflib/dataclasses_json raise many types for malformed JSON
+            raise InputError(f"not a valid glTF document ({type(e).__name__}: {e})", self.path) from None
+        version = str(getattr(self.gltf.asset, "version", "") or "")
+        if not version.startswith("2"):
+            raise InputError(f"glTF version {version or '(none)'} is not supported; expected 2.x", self.path,
+                             field="asset.version")
+        self._bin = bin_chunk
+        self._buffers: dict[int, bytes] = {}
+        self._accessors: dict[int, np.ndarray] = {}
+        g = self.gltf
+        n = len(g.nodes)
+        parent = np.full(n, -1, dtype=np.int64)
+        for i, nd in enumerate(g.nodes):
+            for c in nd.children or []:
+                if not 0 <= c < n:
+                    raise InputError(f"child {c} is not a node index (0..{n - 1})", self.path,
+                                     field=f"nodes[{i}].children")
+                if parent[c] >= 0:
+                    raise InputError(f"node {c} has two parents ({parent[c]} and {i}); glTF nodes form trees",
+                                     self.path, field=f"nodes[{i}].children")
+                parent[c] = i
+        for i in range(n):  # a cycle never reaches a root
+            k, steps = i, 0
+            while k >= 0:
+                k, steps = parent[k], steps + 1
+                if steps > n:
+                    raise InputError(f"node {i} is in a cycle of the node hierarchy", self.path, field="nodes")
+        self.node_parent = parent
+        names, seen = [], set()
+        for i, nd in enumerate(g.nodes):
+            s = nd.name or f"node{i}"
+            if s in seen:
+                s = f"{s}_{i}"
+            seen.add(s)
+            names.append(s)
+        self.node_names = names
+
+    def _split_glb(self, data: bytes) -> tuple[str, bytes | None]:
+        if len(data) < 20:
+            raise InputError("GLB file is shorter than its 12-byte header and first chunk", self.path)
+        _, version, length = struct.unpack_from("<4sII", data, 0)
+        if version != 2:
+            raise InputError(f"GLB container version {version}; expected 2", self.path, field="header")
+        length = min(length, len(data))
+        pos, json_text, bin_chunk = 12, None, None
+        while pos + 8 <= length:
+            size, kind = struct.unpack_from("<II", data, pos)
+            body = data[pos + 8:pos + 8 + size]
+            if len(body) < size:
+                raise InputError(f"GLB chunk at byte {pos} is truncated ({len(body)} of {size} bytes)", self.path)
+            if kind == 0x4E4F534A:  # "JSON"
+                json_text = body.decode("utf-8", errors="replace")
+            elif kind == 0x004E4942 and bin_chunk is None:  # "BIN\0"
+                bin_chunk = body
+            pos += 8 + size + (-size % 4)
+        if json_text is None:
+            raise InputError("GLB file has no JSON chunk", self.path)
+        return json_text, bin_chunk
+
+    # -------------------------------------------------------------------------------- buffers
+    def buffer(self, i: int) -> bytes:
+        if i in self._buffers:
+            return self._buffers[i]
+        g = self.gltf
+        if not 0 <= i < len(g.buffers):
+            raise InputError(f"buffer {i} does not exist ({len(g.buffers)} buffers)", self.path, field="buffers")
+        b = g.buffers[i]
+        where = f"buffers[{i}]"
+        if b.uri is None:
+            if self._bin is None:
+                raise InputError("buffer without a uri, but the file has no GLB binary chunk", self.path, field=where)
+            data = self._bin
+        elif b.uri.startswith("data:"):
+            head, _, payload = b.uri.partition(",")
+            if ";base64" not in head:
+                raise InputError("data URI is not base64", self.path, field=f"{where}.uri")
+            try:
+                data = base64.b64decode(payload, validate=False)
+            except ValueError as e:
+                raise InputError(f"data URI is not valid base64 ({e})", self.path, field=f"{where}.uri") from None
+        else:
+            ext = os.path.join(os.path.dirname(self.path), urllib.parse.unquote(b.uri))
+            if not os.path.isfile(ext):
+                raise InputError(f"external buffer file {b.uri!r} not found (looked for {ext})", self.path,
+                                 field=f"{where}.uri")
+            with open(ext, "rb") as fh:
+                data = fh.read()
+        if b.byteLength is not None and len(data) < b.byteLength:
+            raise InputError(f"buffer holds {len(data)} bytes, byteLength says {b.byteLength}", self.path, field=where)
+        self._buffers[i] = data
+        return data
+
+    def _view(self, i: int, what: str) -> tuple[bytes, int, int, int | None]:
+        g = self.gltf
+        if not 0 <= i < len(g.bufferViews):
+            raise InputError(f"bufferView {i} does not exist", self.path, field=what)
+        bv = g.bufferViews[i]
+        data = self.buffer(bv.buffer)
+        start = bv.byteOffset or 0
+        if start + bv.byteLength > len(data):
+            raise InputError(f"bufferView {i} ends at byte {start + bv.byteLength}, past its buffer's "
+                             f"{len(data)} bytes", self.path, field=f"bufferViews[{i}]")
+        return data, start, bv.byteLength, bv.byteStride
+
+    def _read(self, view: int, offset: int, count: int, ctype: int, ncomp: int, what: str) -> np.ndarray:
+        data, start, length, stride = self._view(view, what)
+        dt = np.dtype(_COMPONENT[ctype]).newbyteorder("<")
+        elem = dt.itemsize * ncomp
+        stride = stride or elem
+        need = offset + stride * (count - 1) + elem if count else 0
+        if need > length:
+            raise InputError(f"reads {need} bytes from bufferView {view}, which holds {length}", self.path, field=what)
+        arr = np.ndarray((count, ncomp), dtype=dt, buffer=data, offset=start + offset, strides=(stride, dt.itemsize))
+        return np.array(arr)
+
+    def accessor(self, i: int, what: str = "") -> np.ndarray:
+        """(count, components) float64 values of accessor `i` (normalized integers mapped to [-1, 1]
+        or [0, 1] as the spec says; sparse substitution applied). Cached; do not modify."""
+        if i in self._accessors:
+            return self._accessors[i]
+        g = self.gltf
+        what = what or f"accessors[{i}]"
+        if i is None or not 0 <= i < len(g.accessors):
+            raise InputError(f"accessor {i} does not exist ({len(g.accessors)} accessors)", self.path, field=what)
+        a = g.accessors[i]
+        if a.componentType not in _COMPONENT or a.type not in _NCOMP:
+            raise InputError(f"unknown componentType {a.componentType} / type {a.type!r}", self.path,
+                             field=f"accessors[{i}]")
+        nc = _NCOMP[a.type]
+        if a.type in ("MAT2", "MAT3") and np.dtype(_COMPONENT[a.componentType]).itemsize < 4:
+            raise InputError("MAT2/MAT3 accessors of 1- or 2-byte components (column padding) are not supported",
+                             self.path, field=f"accessors[{i}]")
+        if a.bufferView is None:
+            out = np.zeros((a.count, nc), dtype=np.float64)
+        else:
+            out = self._read(a.bufferView, a.byteOffset or 0, a.count, a.componentType, nc,
+                             f"accessors[{i}]").astype(np.float64)
+        sp = a.sparse
+        if sp is not None and sp.count:
+            idx = self._read(sp.indices.bufferView, sp.indices.byteOffset or 0, sp.count,
+                             sp.indices.componentType, 1, f"accessors[{i}].sparse.indices")[:, 0].astype(np.int64)
+            val = self._read(sp.values.bufferView, sp.values.byteOffset or 0, sp.count, a.componentType, nc,
+                             f"accessors[{i}].sparse.values").astype(np.float64)
+            if np.any(idx >= a.count):
+                raise InputError("sparse index past the accessor's count", self.path, field=f"accessors[{i}].sparse")
+            out[idx] = val
+        if a.normalized and a.componentType in _NORM_DIV:
+            out = out / _NORM_DIV[a.componentType]
+            if a.componentType in (5120, 5122):
+                out = np.maximum(out, -1.0)
+        out.setflags(write=False)
+        self._accessors[i] = out
+        return out
+
+    # -------------------------------------------------------------------------------- nodes
+    def node_trs(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Rest local transform of node `i`: translation (3,), rotation (4,) w,x,y,z, scale (3,), and the
+        node's 4x4 `matrix` when it gives one (then T, R, S are its decomposition, R the polar rotation)."""
+        nd = self.gltf.nodes[i]
+        if nd.matrix is not None:
+            m = np.asarray(nd.matrix, dtype=float)
+            if m.shape != (16,) or not np.all(np.isfinite(m)):
+                raise InputError("matrix must be 16 finite numbers", self.path, field=f"nodes[{i}].matrix")
+            m = m.reshape(4, 4).T  # glTF stores column-major
+            r = polar_rotation(m[:3, :3])
+            s = np.einsum("ij,ij->j", quat.to_matrix(r), m[:3, :3])
+            return m[:3, 3].copy(), r, s, m
+        t = np.zeros(3) if nd.translation is None else np.asarray(nd.translation, float)
+        r = quat.IDENTITY.copy() if nd.rotation is None else quat.from_xyzw(np.asarray(nd.rotation, float))
+        s = np.ones(3) if nd.scale is None else np.asarray(nd.scale, float)
+        if t.shape != (3,) or r.shape != (4,) or s.shape != (3,) or not np.all(np.isfinite(np.r_[t, r, s])):
+            raise InputError("translation/rotation/scale must be 3/4/3 finite numbers", self.path, field=f"nodes[{i}]")
+        if np.linalg.norm(r) < 1e-12:
+            raise InputError("rotation is a zero quaternion", self.path, field=f"nodes[{i}].rotation")
+        return t, quat.normalize(r), s, None
+
+    def ancestors(self, i: int) -> list[int]:
+        """Nodes above `i`, nearest first."""
+        out = []
+        k = self.node_parent[i]
+        while k >= 0:
+            out.append(int(k))
+            k = self.node_parent[k]
+        return out
+
+    def skin_users(self, skin: int) -> list[int]:
+        return [i for i, nd in enumerate(self.gltf.nodes) if nd.skin == skin]
+
+    def contents(self) -> str:
+        """One line saying what the file holds, for error messages."""
+        g = self.gltf
+        return (f"{len(g.scenes)} scene(s), {len(g.nodes)} node(s), {len(g.meshes)} mesh(es), "
+                f"{len(g.skins)} skin(s), {len(g.animations)} animation(s)")
+
+
+def polar_rotation(m: np.ndarray) -> np.ndarray:
+    """The rotation (4,) w,x,y,z nearest to a 3x3 linear map (its polar factor, det fixed to +1)."""
+    u, _, vt = np.linalg.svd(m)
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    return quat.from_matrix(u @ np.diag([1.0, 1.0, d]) @ vt)
+
+
+def trs_matrix(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) = T @ R @ S from translation (..., 3), rotation (..., 4) w,x,y,z, scale (..., 3)."""
+    m = np.zeros(t.shape[:-1] + (4, 4))
+    m[..., :3, :3] = quat.to_matrix(r) * s[..., None, :]
+    m[..., :3, 3] = t
+    m[..., 3, 3] = 1.0
+    return m
+
+
+def joint_tree(doc: GltfDocument, joints: list[int]) -> tuple[list[int], np.ndarray]:
+    """The tree holding `joints`: node indices ordered parents-first, and (J,) int32 parent index in
+    that order (-1 for a root). See the module docstring for which nodes are added."""
+    groups: dict[int, list[int]] = {}
+    for j in dict.fromkeys(int(x) for x in joints):
+        chain = [j] + doc.ancestors(j)
+        groups.setdefault(chain[-1], []).append(j)
+    keep: set[int] = set()
+    tops = []
+    for top, members in sorted(groups.items()):
+        chains = [([m] + doc.ancestors(m))[::-1] for m in members]  # top first
+        depth = 0
+        while all(len(c) > depth for c in chains) and len({c[depth] for c in chains}) == 1:
+            depth += 1
+        lca = chains[0][depth - 1]
+        tops.append(lca)
+        for c in chains:
+            keep.update(c[depth - 1:])
+    order: list[int] = []
+    parents: list[int] = []
+    pos: dict[int, int] = {}
+
+    def visit(i: int, parent: int):
+        pos[i] = len(order)
+        order.append(i)
+        parents.append(parent)
+        for c in doc.gltf.nodes[i].children or []:
+            if c in keep:
+                visit(c, pos[i])
+
+    for t in tops:
+        visit(t, -1)
+    return order, np.asarray(parents, dtype=np.int32)
+
+
+def world_chain(nodes: list[int], local_m: dict[int, np.ndarray]) -> np.ndarray:
+    """Product of local matrices along `nodes` (root first): (4, 4), or (T, 4, 4) when some
+    `local_m[i]` is (T, 4, 4)."""
+    m = np.eye(4)
+    for i in nodes:
+        m = m @ local_m[i]
+    return m
+
+
+def rigid_locals(parents: np.ndarray, above: np.ndarray, local_m: np.ndarray, local_r: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rigid local transforms of a joint tree whose glTF transforms may scale.
+
+    Parameters
+    ----------
+    parents : (J,) int, parents first.
+    above : (T, J, 4, 4) world matrix (Z-up) of each root joint's parent node, used for roots only.
+    local_m : (T, J, 4, 4) glTF local matrix of each joint (T @ R @ S or the node's matrix).
+    local_r : (T, J, 4) w,x,y,z rotation of each joint's local transform.
+
+    Returns
+    -------
+    rotations (T, J, 4), translations (T, J, 3) metres in the Clip convention, and the full world
+    matrices (T, J, 4, 4).
+    """
+    T, J = local_r.shape[:2]
+    world_m = np.empty((T, J, 4, 4))
+    world_r = np.empty((T, J, 4))
+    rot = np.empty((T, J, 4))
+    tra = np.empty((T, J, 3))
+    for j, p in enumerate(parents):
+        if p < 0:
+            world_m[:, j] = above[:, j] @ local_m[:, j]
+            up = np.stack([polar_rotation(a[:3, :3]) for a in above[:, j]])
+            world_r[:, j] = quat.mul(up, local_r[:, j])
+            rot[:, j] = world_r[:, j]
+            tra[:, j] = world_m[:, j, :3, 3]
+        else:
+            world_m[:, j] = world_m[:, p] @ local_m[:, j]
+            world_r[:, j] = quat.mul(world_r[:, p], local_r[:, j])
+            rot[:, j] = local_r[:, j]
+            # Scale above this joint lives in the parent's matrix: fold it into the translation.
+            tra[:, j] = quat.rotate(quat.conj(world_r[:, p]), world_m[:, j, :3, 3] - world_m[:, p, :3, 3])
+    return rot, tra, world_m
+
+
+# ---------------------------------------------------------------------------------- the skeleton
+def _ro(a, dtype=np.float64) -> np.ndarray:
+    a = np.array(a, dtype=dtype, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class CharacterSkeleton:
+    """A skinned character's joint tree and bind pose (Z-up, metres). Arrays are read-only.
+
+    Attributes
+    ----------
+    joint_names : (J,) node names (see the module docstring for unnamed or repeated names).
+    parents : (J,) int32, parent index or -1, parents first.
+    nodes : (J,) int64, glTF node index of each joint.
+    skin_joint : (J,) int64, index of the joint in the skin's `joints` list, -1 for nodes added to
+        close the tree.
+    bind_world : (J, 4, 4) float64, rigid world transform of each joint in the bind pose (rotation
+        orthonormal, position exact), metres.
+    bind_rotations : (J, 4) float64 w,x,y,z, bind-pose local rotation (parent frame; world for a root).
+    bind_translations : (J, 3) float64 metres, bind-pose local translation.
+    rest_rotations : (J, 4) float64 w,x,y,z, local rotation from the node TRS (the file's rest pose).
+    rest_translations : (J, 3) float64 metres, local translation from the node TRS (scale folded in).
+    inverse_bind_matrices : (J, 4, 4) float64, as stored in the file (glTF Y-up mesh space; identity for
+        added nodes), kept for skinning.
+    mesh_world : (4, 4) float64, Z-up world transform of the skinned mesh's vertex space.
+    name, source : file stem and path.
+    """
+
+    joint_names: tuple[str, ...]
+    parents: np.ndarray
+    nodes: np.ndarray
+    skin_joint: np.ndarray
+    bind_world: np.ndarray
+    bind_rotations: np.ndarray
+    bind_translations: np.ndarray
+    rest_rotations: np.ndarray
+    rest_translations: np.ndarray
+    inverse_bind_matrices: np.ndarray
+    mesh_world: np.ndarray
+    name: str = ""
+    source: str = ""
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        set_("joint_names", tuple(self.joint_names))
+        set_("parents", _ro(self.parents, np.int32))
+        for k in ("nodes", "skin_joint"):
+            set_(k, _ro(getattr(self, k), np.int64))
+        for k in ("bind_world", "bind_rotations", "bind_translations", "rest_rotations", "rest_translations",
+                  "inverse_bind_matrices", "mesh_world"):
+            set_(k, _ro(getattr(self, k)))
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joint_names)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise InputError(f"no joint named {name!r}; joints are {', '.join(self.joint_names)}",
+                             self.source or None) from None
+
+    @property
+    def bind_positions(self) -> np.ndarray:
+        """(J, 3) metres, world joint positions in the bind pose."""
+        return self.bind_world[:, :3, 3]
+
+    def to_clip(self, fps: float = 30.0) -> Clip:
+        """A one-frame Clip of the bind pose (offsets and rest rotations are the bind-local transforms),
+        so the character's skeleton feeds `sim.skeleton.Skeleton`. `fps` only labels the frame."""
+        return Clip(joint_names=self.joint_names, parents=self.parents, offsets=self.bind_translations,
+                    rest_rotations=self.bind_rotations, rotations=self.bind_rotations[None],
+                    translations=self.bind_translations[None], fps=fps, name=self.name, source=self.source,
+                    meta={"format": "glTF skin bind pose", **self.meta})
+
+
+def _mesh_world(doc: GltfDocument, skin: int) -> np.ndarray:
+    users = doc.skin_users(skin)
+    if not users:
+        return Z_UP.copy()
+    n = users[0]
+    chain = ([n] + doc.ancestors(n))[::-1]
+    return Z_UP @ world_chain(chain, {i: _local_matrix(doc, i) for i in chain})
+
+
+def _local_matrix(doc: GltfDocument, i: int) -> np.ndarray:
+    t, r, s, m = doc.node_trs(i)
+    return m if m is not None else trs_matrix(t, r, s)
+
+
+def read_gltf_skeleton(path: str | os.PathLike, skin: int = 0) -> CharacterSkeleton:
+    """Read skin number `skin` of a glTF/GLB file: joints, bind pose and rest pose (Z-up, metres)."""
+    doc = GltfDocument(path)
+    g = doc.gltf
+    if not g.skins:
+        raise InputError(f"the file has no skin (it holds {doc.contents()}); a character needs a skinned mesh",
+                         doc.path, field="skins")
+    if not isinstance(skin, (int, np.integer)) or not 0 <= skin < len(g.skins):
+        raise InputError(f"skin {skin!r} does not exist; the file has skins 0..{len(g.skins) - 1}", doc.path,
+                         field="skin")
+    sk = g.skins[skin]
+    if not sk.joints:
+        raise InputError("the skin lists no joints", doc.path, field=f"skins[{skin}].joints")
+    for k in sk.joints:
+        if not 0 <= k < len(g.nodes):
+            raise InputError(f"joint {k} is not a node index", doc.path, field=f"skins[{skin}].joints")
+    order, parents = joint_tree(doc, list(sk.joints))
+    J = len(order)
+    skin_joint = np.array([sk.joints.index(n) if n in sk.joints else -1 for n in order])
+    if sk.inverseBindMatrices is not None:
+        ibm_raw = doc.accessor(sk.inverseBindMatrices, f"skins[{skin}].inverseBindMatrices")
+        if ibm_raw.shape != (len(sk.joints), 16):
+            raise InputError(f"expected {len(sk.joints)} MAT4 inverse bind matrices, found {ibm_raw.shape[0]} "
+                             f"of {ibm_raw.shape[1]} values", doc.path, field=f"skins[{skin}].inverseBindMatrices")
+        ibm_skin = ibm_raw.reshape(-1, 4, 4).transpose(0, 2, 1)  # column-major
+    else:
+        ibm_skin = np.broadcast_to(np.eye(4), (len(sk.joints), 4, 4))  # spec: identity when absent
+
+    # Rest pose from the node TRS.
+    trs = [doc.node_trs(n) for n in order]
+    local_m = np.stack([m if m is not None else trs_matrix(t, r, s) for t, r, s, m in trs])[None]
+    local_r = np.stack([r for _, r, _, _ in trs])[None]
+    above = np.empty((1, J, 4, 4))
+    for j, n in enumerate(order):
+        chain = doc.ancestors(n)[::-1]
+        above[0, j] = Z_UP @ world_chain(chain, {i: _local_matrix(doc, i) for i in chain}) \
+            if parents[j] < 0 else np.eye(4)
+    rest_rot, rest_tra, rest_world = rigid_locals(parents, above, local_m, local_r)
+
+    # Bind pose from the inverse bind matrices.
+    mesh_world = _mesh_world(doc, skin)
+    ibm = np.stack([ibm_skin[k] if k >= 0 else np.eye(4) for k in skin_joint])
+    bind_full = np.empty((J, 4, 4))
+    for j in range(J):
+        if skin_joint[j] >= 0:
+            try:
+                bind_full[j] = mesh_world @ np.linalg.inv(ibm[j])
+            except np.linalg.LinAlgError:
+                raise InputError(f"inverse bind matrix of joint {doc.node_names[order[j]]!r} is singular",
+                                 doc.path, field=f"skins[{skin}].inverseBindMatrices") from None
+        else:
+            bind_full[j] = rest_world[0, j]
+    bind_r = np.stack([polar_rotation(b[:3, :3]) for b in bind_full])
+    bind_world = np.zeros((J, 4, 4))
+    bind_world[:, :3, :3] = quat.to_matrix(bind_r)
+    bind_world[:, :3, 3] = bind_full[:, :3, 3]
+    bind_world[:, 3, 3] = 1.0
+    b_rot = np.empty((J, 4))
+    b_tra = np.empty((J, 3))
+    for j, p in enumerate(parents):
+        if p < 0:
+            b_rot[j], b_tra[j] = bind_r[j], bind_full[j, :3, 3]
+        else:
+            inv_p = quat.conj(bind_r[p])
+            b_rot[j] = quat.mul(inv_p, bind_r[j])
+            b_tra[j] = quat.rotate(inv_p, bind_full[j, :3, 3] - bind_full[p, :3, 3])
+    return CharacterSkeleton(
+        joint_names=[doc.node_names[n] for n in order], parents=parents, nodes=order, skin_joint=skin_joint,
+        bind_world=bind_world, bind_rotations=quat.canonical(b_rot), bind_translations=b_tra,
+        rest_rotations=rest_rot[0], rest_translations=rest_tra[0], inverse_bind_matrices=ibm,
+        mesh_world=mesh_world, name=os.path.splitext(os.path.basename(doc.path))[0], source=doc.path,
+        meta={"skin": int(skin), "skin_name": sk.name or ""})
+
+
+# ---------------------------------------------------------------------------------- inspect
+def _triangles(mode: int, n: int) -> int:
+    if mode == 4:
+        return n // 3
+    if mode in (5, 6):
+        return max(n - 2, 0)
+    return 0
+
+
+def describe_gltf(path: str | os.PathLike) -> dict:
+    """What a glTF/GLB file holds, for `jiggle inspect`.
+
+    Returns a dict: format, vertices and faces (triangles) summed over every mesh primitive, meshes,
+    primitives, skins ([{name, joints}]), joints (count in the first skin), joint_names (first skin,
+    tree order), animations ([{name, duration_s, channels}]), height_m (z extent of every mesh
+    instance's vertices placed by its node, Z-up metres; skinned meshes at their bind placement) and
+    bounds_m (min xyz then max xyz).
+    """
+    doc = GltfDocument(path)
+    g = doc.gltf
+    verts = faces = prims = 0
+    for mi, m in enumerate(g.meshes):
+        for pi, p in enumerate(m.primitives):
+            prims += 1
+            pos = getattr(p.attributes, "POSITION", None)
+            nv = g.accessors[pos].count if pos is not None and 0 <= pos < len(g.accessors) else 0
+            verts += nv
+            mode = 4 if p.mode is None else p.mode
+            n_idx = g.accessors[p.indices].count if p.indices is not None else nv
+            faces += _triangles(mode, n_idx)
+    pts = []
+    for i, nd in enumerate(g.nodes):
+        if nd.mesh is None or not 0 <= nd.mesh < len(g.meshes):
+            continue
+        chain = ([i] + doc.ancestors(i))[::-1]
+        w = Z_UP @ world_chain(chain, {k: _local_matrix(doc, k) for k in chain})
+        for pi, p in enumerate(g.meshes[nd.mesh].primitives):
+            pos = getattr(p.attributes, "POSITION", None)
+            if pos is None:
+                continue
+            v = doc.accessor(pos, f"meshes[{nd.mesh}].primitives[{pi}].attributes.POSITION")
+            pts.append(v @ w[:3, :3].T + w[:3, 3])
+    pts = np.concatenate(pts) if pts else np.zeros((0, 3))
+    anims = []
+    for ai, a in enumerate(g.animations):
+        t_max = 0.0
+        for si, s in enumerate(a.samplers):
+            acc = g.accessors[s.input] if s.input is not None and 0 <= s.input < len(g.accessors) else None
+            if acc is not None and acc.max:
+                t_max = max(t_max, float(acc.max[0]))
+            elif acc is not None:
+                t_max = max(t_max, float(doc.accessor(s.input).max(initial=0.0)))
+        anims.append({"name": a.name or f"animation{ai}", "duration_s": round(t_max, 6),
+                      "channels": len(a.channels)})
+    skins = [{"name": s.name or f"skin{k}", "joints": len(s.joints or [])} for k, s in enumerate(g.skins)]
+    names: list[str] = []
+    if g.skins and g.skins[0].joints:
+        order, _ = joint_tree(doc, list(g.skins[0].joints))
+        names = [doc.node_names[n] for n in order]
+    return {
+        "format": "GLB" if doc._bin is not None or str(doc.path).lower().endswith(".glb") else "glTF",
+        "vertices": int(verts), "faces": int(faces), "meshes": len(g.meshes), "primitives": prims,
+        "skins": skins, "joints": skins[0]["joints"] if skins else 0, "joint_names": names,
+        "animations": anims,
+        "height_m": round(float(np.ptp(pts[:, 2])), 4) if len(pts) else 0.0,
+        "bounds_m": (pts.min(0).round(4).tolist() + pts.max(0).round(4).tolist()) if len(pts) else [],
+    }
