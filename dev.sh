@@ -1,0 +1,84 @@
+#!/usr/bin/env bash
+# jiggle's one entry point for a fresh machine (Debian, Python >= 3.11):
+#   ./dev.sh demo [jiggle demo options]   install everything, run the built-in demo (writes out/demo/)
+#   ./dev.sh test [pytest options]        install everything, run the whole test suite
+#   ./dev.sh install                      install only
+# Installs, when missing: the system GL libraries for headless rendering (as root, or via sudo -n),
+# a virtual environment in .venv with jiggle and its test extras. Re-installs when pyproject.toml changes.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+say() { printf 'dev.sh: %s\n' "$*" >&2; }
+die() { say "$*"; exit 2; }
+
+SYSTEM_PKGS=(libegl1 libgl1-mesa-dri libopengl0)
+
+pick_python() {
+  for py in "${PYTHON:-}" python3.11 python3.12 python3.13 python3; do
+    [ -n "$py" ] || continue
+    command -v "$py" >/dev/null 2>&1 || continue
+    if "$py" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' 2>/dev/null; then
+      echo "$py"; return 0
+    fi
+  done
+  return 1
+}
+
+apt_install() {
+  local runner=()
+  if [ "$(id -u)" != 0 ]; then
+    if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
+      runner=(sudo -n)
+    else
+      die "missing system packages: $*. Run as root: apt-get update && apt-get install -y $*"
+    fi
+  fi
+  say "installing system packages: $*"
+  DEBIAN_FRONTEND=noninteractive "${runner[@]}" apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive "${runner[@]}" apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
+
+system_deps() {
+  command -v dpkg-query >/dev/null 2>&1 || { say "not a Debian system: make sure EGL and Mesa (${SYSTEM_PKGS[*]}) are installed"; return 0; }
+  local missing=()
+  for p in "${SYSTEM_PKGS[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  local py; py=$(pick_python) || true
+  if [ -z "$py" ]; then
+    missing+=(python3 python3-venv)
+  elif ! "$py" -c 'import ensurepip, venv' 2>/dev/null; then
+    missing+=("$(basename "$py")-venv")
+  fi
+  [ ${#missing[@]} -eq 0 ] || apt_install "${missing[@]}"
+}
+
+install() {
+  system_deps
+  local py; py=$(pick_python) || die "Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"
+  if [ ! -x .venv/bin/python ]; then
+    say "creating .venv with $("$py" --version)"
+    "$py" -m venv .venv
+  fi
+  local stamp=.venv/.jiggle-install hash
+  hash=$(sha256sum pyproject.toml | cut -d' ' -f1)
+  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$hash" ]; then
+    say "installing jiggle and its dependencies into .venv (a few minutes the first time)"
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e '.[test]'
+    echo "$hash" > "$stamp"
+  fi
+}
+
+# Headless rendering through Mesa EGL (MuJoCo and VTK).
+export MUJOCO_GL="${MUJOCO_GL:-egl}"
+export VTK_DEFAULT_OPENGL_WINDOW="${VTK_DEFAULT_OPENGL_WINDOW:-vtkEGLRenderWindow}"
+export PYOPENGL_PLATFORM="${PYOPENGL_PLATFORM:-egl}"
+
+cmd="${1:-}"; [ $# -gt 0 ] && shift
+case "$cmd" in
+  install) install ;;
+  demo)    install; exec .venv/bin/jiggle demo "$@" ;;
+  test)    install; exec .venv/bin/python -m pytest "$@" ;;
+  *) echo "usage: ./dev.sh demo|test|install [options]" >&2; exit 2 ;;
+esac
