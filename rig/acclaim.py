@@ -169,6 +169,19 @@ def _euler(angles_xyz: np.ndarray, order: str) -> np.ndarray:
     return quat.from_euler(a[..., idx[::-1]], order[::-1], degrees=False)
 
 
+def _rzryrx(ang: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) of M = Rz(az) Ry(ay) Rx(ax) for angles (..., 3) = (ax, ay, az) in
+    radians. The product of the three half-angle quaternions written out: ~10x faster than
+    SciPy's from_euler on the 80k rotations of a long AMC."""
+    h = 0.5 * np.asarray(ang, float)
+    cx, cy, cz = np.moveaxis(np.cos(h), -1, 0)
+    sx, sy, sz = np.moveaxis(np.sin(h), -1, 0)
+    return np.stack([cz * cy * cx + sz * sy * sx,
+                     cz * cy * sx - sz * sy * cx,
+                     cz * sy * cx + sz * cy * sx,
+                     sz * cy * cx - cz * sy * sx], axis=-1)
+
+
 def _make_clip(asf: AsfSkeleton, names, parents, offsets, rotations, translations, ends, fps,
                name, source, meta) -> Clip:
     """Scale to metres and turn Y-up into Z-up, as rig.bvh does."""
@@ -507,7 +520,6 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
     ncols = {"root": len(asf.root.order)}
     ncols.update({b.name: len(b.dof) for b in asf.bones})
     rows: dict[str, list[str]] = {n: [] for n, c in ncols.items() if c > 0}
-    row_lines: dict[str, list[int]] = {n: [] for n in rows}
     frame_lines: list[int] = []
     seen: set[str] = set()
     expect = set(rows)
@@ -545,7 +557,6 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
         seen.add(name)
         if ncols[name]:
             rows[name].append(rest)
-            row_lines[name].append(i + 1)
     if prev_frame is None:
         raise InputError("the file has no frames; a clip needs at least one", p, len(lines) or None, "frame")
     if seen != expect:
@@ -559,9 +570,12 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
         except ValueError:
             v = None
         if v is None or not np.all(np.isfinite(v)):
-            for ln, txt in zip(row_lines[name], rows[name]):
-                for tok in txt.split():
-                    _num(tok, p, ln, name)
+            # Rare path: find the offending line again (not tracked per line on the fast path).
+            for ln in range(start, len(lines)):
+                parts = lines[ln].split()
+                if parts and parts[0] == name:
+                    for tok in parts[1:]:
+                        _num(tok, p, ln + 1, name)
         return v.reshape(F, ncols[name])
 
     to_rad = np.pi / 180.0 if degrees else 1.0
@@ -583,15 +597,16 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
             if rot_order:
                 m = quat.from_euler(v[:, rot_cols[::-1]] * to_rad, rot_order[::-1], degrees=False)
                 rotations[:, 0] = quat.mul(quat.mul(axes[0], m), quat.conj(axes[0]))
+        ang = np.zeros((F, J, 3))  # rx, ry, rz of every bone, radians (zero where no dof)
+        rotating = []
         for k, b in enumerate(asf.bones):
             if not b.dof:
                 continue
             j = k + 1
             v = values(b.name)
-            ang = np.zeros((F, 3))
             for c, d in enumerate(b.dof):
                 if d[0] == "r":
-                    ang[:, "xyz".index(d[1])] = v[:, c] * to_rad
+                    ang[:, j, "xyz".index(d[1])] = v[:, c] * to_rad
                 elif d[0] == "t":  # a move of the bone's start, in its axis frame C
                     e = np.zeros(3)
                     e["xyz".index(d[1])] = 1.0
@@ -601,8 +616,11 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
                         if parents[ch] == j:
                             translations[:, ch] += v[:, c, None] * b.direction
             if any(d[0] == "r" for d in b.dof):
-                m = quat.from_euler(ang[:, ::-1], "ZYX", degrees=False)  # Rz Ry Rx
-                rotations[:, j] = quat.mul(quat.mul(axes[j], m), quat.conj(axes[j]))
+                rotating.append(j)
+        if rotating:  # all bones in one call: M = Rz Ry Rx, then L = C M C^-1
+            m = _rzryrx(ang[:, rotating])
+            c = axes[rotating]
+            rotations[:, rotating] = quat.mul(quat.mul(c, m), quat.conj(c))
     meta = {"format": "ASF/AMC", "frames_in_file": F, "angles": "degrees" if degrees else "radians",
             "fps": f"{fps:g} (given)" if fps != CMU_FPS else f"{CMU_FPS:g} (CMU default)"}
     return _make_clip(asf, names, parents, offsets, rotations, translations, ends, fps,
