@@ -279,10 +279,12 @@ class GltfDocument:
 
 
 def polar_rotation(m: np.ndarray) -> np.ndarray:
-    """The rotation (4,) w,x,y,z nearest to a 3x3 linear map (its polar factor, det fixed to +1)."""
+    """The rotations (..., 4) w,x,y,z nearest to linear maps (..., 3, 3) (polar factor, det fixed to +1)."""
     u, _, vt = np.linalg.svd(m)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    return quat.from_matrix(u @ np.diag([1.0, 1.0, d]) @ vt)
+    d = np.where(np.linalg.det(u @ vt) < 0, -1.0, 1.0)
+    u = u.copy()
+    u[..., :, 2] *= d[..., None]
+    return quat.from_matrix(u @ vt)
 
 
 def trs_matrix(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -362,7 +364,7 @@ def rigid_locals(parents: np.ndarray, above: np.ndarray, local_m: np.ndarray, lo
     for j, p in enumerate(parents):
         if p < 0:
             world_m[:, j] = above[:, j] @ local_m[:, j]
-            up = np.stack([polar_rotation(a[:3, :3]) for a in above[:, j]])
+            up = polar_rotation(above[:, j, :3, :3])
             world_r[:, j] = quat.mul(up, local_r[:, j])
             rot[:, j] = world_r[:, j]
             tra[:, j] = world_m[:, j, :3, 3]
@@ -521,7 +523,7 @@ def read_gltf_skeleton(path: str | os.PathLike, skin: int = 0) -> CharacterSkele
                                  doc.path, field=f"skins[{skin}].inverseBindMatrices") from None
         else:
             bind_full[j] = rest_world[0, j]
-    bind_r = np.stack([polar_rotation(b[:3, :3]) for b in bind_full])
+    bind_r = polar_rotation(bind_full[:, :3, :3])
     bind_world = np.zeros((J, 4, 4))
     bind_world[:, :3, :3] = quat.to_matrix(bind_r)
     bind_world[:, :3, 3] = bind_full[:, :3, 3]
