@@ -1,0 +1,104 @@
+"""The command line: help, inspect, demo/play outputs, and bad input as one line with exit code 2."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import asset
+from sim.cli import main
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["inspect", "--help"], ["play", "--help"], ["demo", "--help"]])
+def test_help_is_complete(capsys, argv):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "usage: jiggle" in out
+    if argv[0] == "play":
+        for opt in ("--out", "--start", "--end", "--fps", "--speed", "--drive", "--skeleton", "--animation",
+                    "--scale", "--tpose"):
+            assert opt in out
+
+
+def test_inspect_bvh_text_and_json(capsys):
+    path = str(asset("mocap/cmu_bvh/01_01.bvh"))
+    code, out, _ = run(capsys, "inspect", path)
+    assert code == 0 and "tpose: detected and skipped" in out and "frames: 2751" in out
+    code, out, _ = run(capsys, "inspect", path, "--json")
+    rep = json.loads(out)
+    assert rep["joints"] == 31 and rep["fps"] == 120.0 and rep["duration_s"] == pytest.approx(2750 / 120)
+    assert rep["units"].startswith("CMU units")
+
+
+def test_inspect_mjcf(capsys):
+    code, out, _ = run(capsys, "inspect", str(asset("mjcf/humanoid_CMU.xml")), "--json")
+    rep = json.loads(out)
+    assert code == 0 and rep["nq"] == 63 and rep["joint_types"] == {"free": 1, "hinge": 56}
+
+
+def test_demo_writes_pictures_and_motion(capsys, tmp_path):
+    out_dir = tmp_path / "demo"
+    code, out, err = run(capsys, "demo", "--out", str(out_dir), "--frames", "40", "--poses", "4")
+    assert code == 0, err
+    for f in ("skeleton.png", "trajectories.png", "motion.npz", "summary.json"):
+        assert (out_dir / f).stat().st_size > 0
+    data = np.load(out_dir / "motion.npz")
+    assert data["joint_world"].shape == (40, 21, 4, 4) and data["times"].shape == (40,)
+    assert np.all(np.isfinite(data["joint_world"]))
+    # the render smoke test: without working GL, VTK crashes or draws nothing
+    import imageio.v3 as iio
+    img = iio.imread(out_dir / "skeleton.png")
+    assert img.shape[0] > 100 and len(np.unique(img.reshape(-1, img.shape[-1]), axis=0)) > 50
+    assert not list(out_dir.glob(".*tmp*")), "temporary files left behind"
+
+
+def test_play_clip_range_and_fps(capsys, tmp_path):
+    path = str(asset("mocap/cmu_bvh/09_11.bvh"))
+    code, _, err = run(capsys, "play", path, "--out", str(tmp_path), "--start", "0.2", "--end", "0.7",
+                       "--fps", "30", "--no-render")
+    assert code == 0, err
+    data = np.load(tmp_path / "motion.npz")
+    np.testing.assert_allclose(data["times"], np.arange(16) / 30.0)
+    assert json.loads((tmp_path / "summary.json").read_text())["frames"] == 16
+
+
+def test_bad_input_is_one_line_and_exit_2(capsys, tmp_path):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 3 Xrotation Yrotation Zrotation\n}\n"
+                   "MOTION\nFrames: 2\nFrame Time: 0.1\n0 0 0\n0 x 0\n")
+    code, out, err = run(capsys, "inspect", str(bad))
+    assert code == 2 and out == ""
+    assert err.strip() == f"jiggle: error: {bad}:11: expected a number for a channel value, found 'x'"
+    code, _, err = run(capsys, "play", str(tmp_path / "missing.bvh"))
+    assert code == 2 and "missing.bvh: clip file not found" in err
+    code, _, err = run(capsys, "inspect", str(tmp_path / "notes.txt"))
+    assert code == 2
+    (tmp_path / "notes.txt").write_text("hi")
+    code, _, err = run(capsys, "inspect", str(tmp_path / "notes.txt"))
+    assert code == 2 and "unknown file type" in err
+    with pytest.raises(SystemExit) as e:
+        main(["play", str(bad), "--fps", "-3"])
+    assert e.value.code == 2
+
+
+def test_console_script_exit_code_without_traceback(tmp_path):
+    exe = shutil.which("jiggle", path=os.path.dirname(sys.executable))
+    if exe is None:
+        pytest.skip("the jiggle console script is not installed in this environment")
+    bad = tmp_path / "zero.bvh"
+    bad.write_text("HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 3 Xrotation Yrotation Zrotation\n}\n"
+                   "MOTION\nFrames: 0\nFrame Time: 0.1\n")
+    r = subprocess.run([exe, "inspect", str(bad)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and f"{bad}:8:" in r.stderr
