@@ -55,6 +55,18 @@ def _positive(name):
     return conv
 
 
+def _count(name):
+    def conv(v):
+        try:
+            n = int(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a whole number, got {v!r}") from None
+        if n < 1:
+            raise argparse.ArgumentTypeError(f"{name} must be at least 1, got {v!r}")
+        return n
+    return conv
+
+
 # ---------------------------------------------------------------------------------------- inspect
 def cmd_inspect(args) -> int:
     from .describe import inspect_file, format_report
@@ -144,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--drive", choices=["kinematic", "physics"], default="kinematic",
                    help="kinematic: MuJoCo poses the bones from the clip; physics: MuJoCo simulates the body "
                         "on a floor following the clip (default: kinematic)")
-    p.add_argument("--poses", type=int, default=8, help="poses in the skeleton picture (default: 8)")
+    p.add_argument("--poses", type=_count("--poses"), default=8, help="poses in the skeleton picture (default: 8)")
     p.add_argument("--no-render", action="store_true", help="skip the 3D picture (plots and data only)")
     _clip_options(p)
     p.set_defaults(func=cmd_play)
@@ -155,9 +167,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "plot and motion data to --out.")
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument("--scene", help="scene TOML (default: the built-in scenes/default.toml)")
-    p.add_argument("--frames", type=int, help="only the first N frames (for a quick check)")
+    p.add_argument("--frames", type=_count("--frames"), help="only the first N frames (for a quick check)")
     p.add_argument("--drive", choices=["kinematic", "physics"], help="override the scene's skeleton drive")
-    p.add_argument("--poses", type=int, default=8, help="poses in the skeleton picture (default: 8)")
+    p.add_argument("--poses", type=_count("--poses"), default=8, help="poses in the skeleton picture (default: 8)")
     p.add_argument("--no-render", action="store_true", help="skip the 3D picture")
     p.set_defaults(func=cmd_demo)
     return top
