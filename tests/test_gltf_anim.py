@@ -164,6 +164,7 @@ def _tiny(layout: str = "plain") -> tuple[pygltflib.GLTF2, bytes]:
     """A 3-node chain Armature (scale 2) > hip > knee > foot with two animations.
 
     'step': hip translation STEP at t = 0, 1, 2 with x = 0, 1, 2.
+    'armature': the Armature (above the skin's joints) moves 1 unit up (+Y) in 1 s, LINEAR.
     'cubic': hip translation CUBICSPLINE t = 0, 1: x from 0 to 1, out-tangent 2 at the first key,
              knee rotation CUBICSPLINE about +Z, t = 0, 2: identity to 90 degrees, out-tangent
              (0, 0, 0.3, 0) at the first key, in-tangent (0, 0, 0.1, 0) at the second.
@@ -190,6 +191,7 @@ def _tiny(layout: str = "plain") -> tuple[pygltflib.GLTF2, bytes]:
     v_step = add(_f32([[0, 0, 0], [1, 0, 0], [2, 0, 0]]), F, "VEC3", 3)
     t_c1 = add(_f32([0, 1]), F, "SCALAR", 2, minmax=(0, 1))
     t_c2 = add(_f32([0, 2]), F, "SCALAR", 2, minmax=(0, 2))
+    v_arm = add(_f32([[0, 0, 0], [0, 1, 0]]), F, "VEC3", 2)
     # CUBICSPLINE output per key: in-tangent, value, out-tangent.
     hip_cubic = [[0, 0, 0], [0, 0, 0], [2, 0, 0], [0, 0, 0], [1, 0, 0], [0, 0, 0]]
     knee_cubic = [[0, 0, 0, 0], [0, 0, 0, 1], [0, 0, 0.3, 0], [0, 0, 0.1, 0], [0, 0, s45, s45], [0, 0, 0, 0]]
@@ -220,7 +222,10 @@ def _tiny(layout: str = "plain") -> tuple[pygltflib.GLTF2, bytes]:
                 channels=[pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(
                     node=1, path="translation")),
                     pygltflib.AnimationChannel(sampler=1, target=pygltflib.AnimationChannelTarget(
-                        node=2, path="rotation"))])],
+                        node=2, path="rotation"))]),
+            pygltflib.Animation(name="armature", samplers=[pygltflib.AnimationSampler(input=t_c1, output=v_arm)],
+                                channels=[pygltflib.AnimationChannel(
+                                    sampler=0, target=pygltflib.AnimationChannelTarget(node=0, path="translation"))])],
         accessors=accs, bufferViews=views, buffers=[pygltflib.Buffer(byteLength=len(blob))])
     return g, blob
 
@@ -283,13 +288,25 @@ def test_cubicspline_by_hand(tmp_path, layout):
     np.testing.assert_allclose(wp[0, 2] - wp[0, 1], [0, 0, 2], atol=1e-12 if layout == "plain" else 1e-4)
 
 
+def test_animated_node_above_the_skeleton_moves_the_root(tmp_path):
+    clip = read_gltf_animation(_write(tmp_path, "glb"), "armature", fps=4)
+    _, wp = clip.world()
+    # The Armature's own translation is not scaled by its scale; +Y (glTF up) is +Z.
+    np.testing.assert_allclose(wp[:, 0], [[0, 0, z] for z in (0, 0.25, 0.5, 0.75, 1.0)], atol=1e-12)
+    np.testing.assert_allclose(wp[:, 1, 2], wp[:, 0, 2] - 2.0, atol=1e-12)
+    # Without the skin, the joints are the animated nodes and what joins them: only the Armature.
+    alone = read_gltf_animation(_write(tmp_path, "datauri"), "cubic", skin=None)
+    assert alone.joint_names == ("hip", "knee")
+    assert read_gltf_animation(_write(tmp_path, "glb"), "armature", skin=None).joint_names == ("Armature",)
+
+
 # ------------------------------------------------------------------ errors
 def test_errors(tmp_path):
     p = _write(tmp_path, "glb")
-    with pytest.raises(InputError, match=r"no animation named 'walk'.*0: 'step', 1: 'cubic'") as e:
+    with pytest.raises(InputError, match=r"no animation named 'walk'.*0: 'step', 1: 'cubic', 2: 'armature'") as e:
         read_gltf_animation(p, "walk")
     assert e.value.path == str(p) and e.value.field == "animation"
-    with pytest.raises(InputError, match=r"index 5 is out of range.*1: 'cubic'"):
+    with pytest.raises(InputError, match=r"index 5 is out of range.*2: 'armature'"):
         read_gltf_animation(p, 5)
     with pytest.raises(InputError, match="not found"):
         read_gltf_animation(tmp_path / "absent.glb")
