@@ -53,30 +53,37 @@ def test_bone_directions_follow_the_clip(cmu):
     to child body) is within its REST difference + 1 degree of the clip's.
 
     Rest-pose alignment transfers rotations, so the rest difference between the two skeletons (up
-    to 11 degrees at the hip joints, which have no joint to correct it, and 8-10 degrees at the
-    clavicles) is carried along; everything beyond it is tracking error of the joints. Bones whose
-    rest directions agree within 3 degrees stay within 3 degrees on every frame."""
+    to 11.2 degrees at the hip joints, which have no joint to correct it, 8-10 degrees at the
+    clavicles, 5 at the upper neck) is carried along; anything beyond it is tracking error of the
+    joints (measured: under 0.4 degrees). Bones whose rest directions agree within 3 degrees stay
+    within 3 degrees on every frame."""
     clip, drive, _, _, pos = cmu
     _, cpos = clip.world()
+    _, crest = clip.rest_world()
+    _, mrest = drive.kinematics(drive.model.qpos0[None])
     names = drive.body_names
-    checked = 0
-    worst = 0.0
-    for body, child in [(b, c) for b in drive.mapping.values() for c in drive.mapping.values()
-                        if drive.model.body_parentid[names.index(c) + 1] == names.index(b) + 1]:
-        jb, jc = clip.index(_key(drive, body)), clip.index(_key(drive, child))
-        mj = pos[:, names.index(child)] - pos[:, names.index(body)]
-        ref = cpos[:, jc] - cpos[:, jb]
-        if np.linalg.norm(mj[0]) < 1e-6 or np.linalg.norm(ref[0]) < 1e-6:
-            continue  # lclavicle etc. start where thorax's children start: no bone between them
-        err = _angle_deg(mj, ref)
-        rest = _angle_deg(drive._rest_xpos[names.index(child) + 1] - drive._rest_xpos[names.index(body) + 1],
-                          clip.rest_world()[1][jc] - clip.rest_world()[1][jb])
+    parent = {names[b - 1]: names[drive.model.body_parentid[b] - 1]
+              for b in range(1, drive.model.nbody) if drive.model.body_parentid[b] > 0}
+    by_body = {v: k for k, v in drive.mapping.items()}
+    checked, worst = 0, 0.0
+    for child, body in parent.items():
+        if child not in by_body or body not in by_body:
+            continue
+        ib, ic = names.index(body), names.index(child)
+        jb, jc = clip.index(by_body[body]), clip.index(by_body[child])
+        rest_mj, rest_clip = mrest[0, ic] - mrest[0, ib], crest[jc] - crest[jb]
+        if np.linalg.norm(rest_mj) < 1e-6 or np.linalg.norm(rest_clip) < 1e-6:
+            # root -> lhipjoint, rhipjoint, lowerback start at the root in both skeletons; the
+            # model hangs the thumbs on the hand, but in the ASF lthumb starts where lhand does.
+            continue
+        rest = _angle_deg(rest_mj, rest_clip)
+        err = _angle_deg(pos[:, ic] - pos[:, ib], cpos[:, jc] - cpos[:, jb])
         assert err.max() <= rest + 1.0, (body, child, err.max(), rest)
         if rest < 3.0:
             assert err.max() < 3.0, (body, child, err.max())
         worst = max(worst, float(err.max()))
         checked += 1
-    assert checked >= 22
+    assert checked == 25  # 30 parent-child pairs less those five
     assert worst < 12.0
 
 
@@ -123,7 +130,8 @@ def test_root_follows_the_clip(cmu):
     # Rest offset: both roots are the pelvis; only the overlay of two different skeletons is left.
     assert np.linalg.norm(drive.rest_offset) < 0.05
     # The root's world rotation is the clip's delta applied to the model's rest rotation.
-    target = quat.mul(d_root, drive._rest_xquat[1])
+    rest_rot, _ = drive.kinematics(drive.model.qpos0[None])
+    target = quat.mul(d_root, rest_rot[0, drive.body_names.index("root")])
     assert np.degrees(quat.angle(quat.mul(quat.conj(target), rot[:, 0]))).max() < 1e-6
     # The model stands on the floor like the clip: the lowest body z over the take is near 0.
     assert -0.05 < pos[..., 2].min() < 0.1
