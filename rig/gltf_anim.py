@@ -93,6 +93,8 @@ def _choose(doc: GltfDocument, animation) -> int:
         hits = [k for k, a in enumerate(anims) if a.name == animation]
         if not hits:
             hits = [k for k, n in enumerate(names) if n == animation]
+        if not hits and animation.strip().isdigit():  # an index typed on the command line
+            return _choose(doc, int(animation))
         if not hits:
             raise InputError(f"no animation named {animation!r}; the file has {listing}", doc.path,
                              field="animation")
@@ -170,7 +172,8 @@ def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = N
     Parameters
     ----------
     path : .glb or .gltf (external or data-URI buffers).
-    animation : name or index; None for the first.
+    animation : name or index (a string of digits that is no animation's name counts as an index);
+        None for the first.
     fps : frames per second to sample at; None for the key rate or 30 (module docstring).
     skin : which skin's joints form the skeleton; None for the animated nodes instead.
     """

@@ -610,5 +610,5 @@ def describe_gltf(path: str | os.PathLike) -> dict:
         "skins": skins, "joints": skins[0]["joints"] if skins else 0, "joint_names": names,
         "animations": anims,
         "height_m": round(float(np.ptp(pts[:, 2])), 4) if len(pts) else 0.0,
-        "bounds_m": (pts.min(0).round(4).tolist() + pts.max(0).round(4).tolist()) if len(pts) else [],
+        "bounds_m": ((pts.min(0).round(4) + 0.0).tolist() + (pts.max(0).round(4) + 0.0).tolist()) if len(pts) else [],
     }

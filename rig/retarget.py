@@ -207,6 +207,10 @@ def retarget(clip: Clip, clip_map: JointMap, character: CharacterSkeleton, chara
     Returns a Clip with the character's joints (T frames at the clip's fps); ``meta`` records the
     scale, the roles used, the yaw alignment and the vertical offset.
     """
+    if contact not in ("per_frame", "constant"):
+        raise InputError(f"contact must be 'per_frame' or 'constant', got {contact!r}", field="contact")
+    if not np.isfinite(floor):
+        raise InputError(f"floor must be a finite height in metres, got {floor}", field="floor")
     mc = clip_map.resolve(clip.joint_names, f"of clip {clip.name!r}")
     mk = character_map.resolve(character.joint_names, f"of character {character.name!r}")
     used = set(mc) & set(mk)
@@ -294,10 +298,8 @@ def retarget(clip: Clip, clip_map: JointMap, character: CharacterSkeleton, chara
         w = np.exp(-(c_clip - c_clip.min(axis=1, keepdims=True)) / 0.02)
         w /= w.sum(axis=1, keepdims=True)
         lift = np.sum(w * (scale * c_clip - c_char), axis=1)
-    elif contact == "constant":
-        lift = np.full(T, -float(c_char.min()))
     else:
-        raise InputError(f"contact must be 'per_frame' or 'constant', got {contact!r}", field="contact")
+        lift = np.full(T, -float(c_char.min()))
     translations[:, hip_root, 2] += lift
 
     meta = {"format": "retargeted", "from": clip.name, "from_format": clip.meta.get("format", ""),

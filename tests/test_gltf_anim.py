@@ -308,6 +308,11 @@ def test_errors(tmp_path):
     assert e.value.path == str(p) and e.value.field == "animation"
     with pytest.raises(InputError, match=r"index 5 is out of range.*2: 'armature'"):
         read_gltf_animation(p, 5)
+    assert read_gltf_animation(p, "1").meta["animation"] == "cubic"  # an index typed as text
+    with pytest.raises(InputError, match=r"index 7 is out of range"):
+        read_gltf_animation(p, "7")
+    with pytest.raises(InputError, match="fps must be a positive number"):
+        read_gltf_animation(p, fps=0)
     with pytest.raises(InputError, match="not found"):
         read_gltf_animation(tmp_path / "absent.glb")
     bad = tmp_path / "bad.glb"
@@ -348,3 +353,60 @@ def test_glb_header_is_checked(tmp_path):
     p.write_bytes(struct.pack("<4sII", b"glTF", 1, 20) + b"\0" * 8)
     with pytest.raises(InputError, match="version 1"):
         read_gltf_animation(p)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("uniform", [True, False])
+def test_scaled_chain_positions_are_exact(tmp_path, seed, uniform):
+    """Random 5-node chain with scale on every node, two LINEAR keys: at the key times the clip's
+    joint positions equal the product of the glTF matrices, for uniform and non-uniform scale; the
+    joint rotations equal the normalised matrix frames when the scale is uniform."""
+    rng = np.random.default_rng(seed)
+    n, keys = 5, 2
+    trs = []
+    for _ in range(n):
+        t = rng.uniform(-0.5, 0.5, (keys, 3))
+        q = rng.normal(size=(keys, 4))
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        sc = rng.uniform(0.5, 2.0, (keys, 1)) * np.ones((1, 3)) if uniform else rng.uniform(0.5, 2.0, (keys, 3))
+        trs.append((t, q, sc))
+    times = _f32([0.0, 0.5])
+    blob = times + b"".join(_f32(a) for tr in trs for a in tr)
+    F = pygltflib.FLOAT
+    views = [pygltflib.BufferView(buffer=0, byteOffset=0, byteLength=8)]
+    accs = [pygltflib.Accessor(bufferView=0, componentType=F, type="SCALAR", count=2, min=[0], max=[0.5])]
+    samplers, channels, off = [], [], 8
+    for i, tr in enumerate(trs):
+        for a, path in zip(tr, ("translation", "rotation", "scale")):
+            views.append(pygltflib.BufferView(buffer=0, byteOffset=off, byteLength=a.size * 4))
+            accs.append(pygltflib.Accessor(bufferView=len(views) - 1, componentType=F,
+                                           type="VEC4" if path == "rotation" else "VEC3", count=2))
+            off += a.size * 4
+            samplers.append(pygltflib.AnimationSampler(input=0, output=len(accs) - 1))
+            channels.append(pygltflib.AnimationChannel(sampler=len(samplers) - 1,
+                                                       target=pygltflib.AnimationChannelTarget(node=i, path=path)))
+    g = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0"), scenes=[pygltflib.Scene(nodes=[0])],
+                        nodes=[pygltflib.Node(name=f"j{i}", children=[i + 1] if i + 1 < n else []) for i in range(n)],
+                        skins=[pygltflib.Skin(joints=list(range(1, n)))],
+                        animations=[pygltflib.Animation(samplers=samplers, channels=channels)],
+                        accessors=accs, bufferViews=views, buffers=[pygltflib.Buffer(byteLength=len(blob))])
+    g.set_binary_blob(blob)
+    p = tmp_path / "chain.glb"
+    g.save_binary(str(p))
+    clip = read_gltf_animation(p, fps=2.0)  # frames at the two keys
+    assert clip.joint_names == tuple(f"j{i}" for i in range(1, n)) and clip.num_frames == 2
+    wr, wp = clip.world()
+    for k in range(keys):
+        m = np.eye(4)
+        for i, (t, q, sc) in enumerate(trs):
+            local = np.eye(4)
+            tq = np.asarray(np.float32(q[k]), float)
+            local[:3, :3] = _rot_xyzw(tq) @ np.diag(np.float32(sc[k]))
+            local[:3, 3] = np.float32(t[k])
+            m = m @ local
+            if i == 0:
+                continue  # j0 is above the skin's joints: folded into the root
+            np.testing.assert_allclose(wp[k, i - 1], Y_UP_TO_Z_UP @ m[:3, 3], atol=1e-9)
+            if uniform:
+                lin = Y_UP_TO_Z_UP @ m[:3, :3]
+                np.testing.assert_allclose(quat.to_matrix(wr[k, i - 1]), lin / np.linalg.norm(lin[:, 0]), atol=1e-9)
