@@ -405,6 +405,7 @@ class CharacterSkeleton:
         added nodes), kept for skinning.
     mesh_world : (4, 4) float64, Z-up world transform of the skinned mesh's vertex space.
     name, source : file stem and path.
+    meta : the skin's index and name.
     """
 
     joint_names: tuple[str, ...]
