@@ -26,7 +26,9 @@ motion is transferred onto it by rest-pose alignment:
     Three non-orthogonal axes: Gauss-Newton on the rotation-vector error.
     Angles are unwrapped over time; hinge ``range`` limits are not applied (kinematics only).
   * slide joints stay at ``qpos0`` (the clip's non-root translations are not transferred).
-  Bodies without a mapped clip joint keep their joints at ``qpos0`` and follow their parent.
+  Bodies without a mapped clip joint keep their joints at ``qpos0`` and follow their parent; a
+  model without a free joint stays where ``qpos0`` puts its root (fixed base), only its joints
+  turn.
 
 Both sides must be Z-up (jiggle's readers convert clips; MuJoCo models usually are). The
 constructor checks it by numbers: gravity must point down -z when the model has gravity, and the
