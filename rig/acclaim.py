@@ -33,6 +33,7 @@ Readings where the format is loose, stated once here:
 from __future__ import annotations
 
 import glob
+import numbers
 import os
 from dataclasses import dataclass
 
@@ -495,7 +496,7 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
     p = require_file(path, "AMC motion file")
     if not isinstance(asf, AsfSkeleton):
         asf = read_asf(asf)
-    if not isinstance(fps, (int, float)) or not np.isfinite(fps) or fps <= 0:
+    if not isinstance(fps, numbers.Real) or isinstance(fps, bool) or not np.isfinite(fps) or fps <= 0:
         raise InputError(f"fps must be a positive number, got {fps!r}", field="fps")
     lines = _read_text(p, "AMC")
 

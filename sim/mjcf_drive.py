@@ -18,12 +18,13 @@ motion is transferred onto it by rest-pose alignment:
     rest positions of all mapped joints (least squares: the mean difference), so a model standing at
     z = 1 m and a clip whose rest root sits at the origin still land on the same floor.
   * ball joint: ``Q_b`` itself.
-  * 1 to 3 hinges: angles with ``R(a1, q1) R(a2, q2) R(a3, q3) = Q_b`` (MuJoCo composes a body's joints
+  * hinges: angles with ``R(a1, q1) R(a2, q2) R(a3, q3) = Q_b`` (MuJoCo composes a body's joints
     in order, axes in the body frame). Three orthonormal axes: an exact Euler decomposition in the
     hinges' own frame. One or two hinges cannot reach every rotation: the angles are the
     projection, the reachable rotation at the least angle from ``Q_b`` (closed forms: the twist
     about one axis; the top singular pair of a 2x2 matrix for two, see :func:`hinge_angles`).
-    Three non-orthogonal axes: Gauss-Newton on the rotation-vector error.
+    Other hinge sets (three non-orthogonal axes, more than three): Gauss-Newton on the
+    rotation-vector error.
     Angles are unwrapped over time; hinge ``range`` limits are not applied (kinematics only).
   * slide joints stay at ``qpos0`` (the clip's non-root translations are not transferred).
   Bodies without a mapped clip joint keep their joints at ``qpos0`` and follow their parent; a
@@ -287,15 +288,16 @@ class MjcfDrive:
 def hinge_angles(q: np.ndarray, axes: np.ndarray, iterations: int = 20) -> np.ndarray:
     """Hinge angles (N, k) radians such that R(a1, t1) ... R(ak, tk) best equals rotations q (N, 4).
 
-    axes : (k, 3) hinge axes in the body frame (normalised here), 1 <= k <= 3, composed in order
+    axes : (k, 3) hinge axes in the body frame (normalised here), k >= 1, composed in order
         (intrinsic, as MuJoCo composes a body's joints).
 
     "Best" is the least rotation angle between the two, i.e. the largest |<q, q(t)>| of the unit
     quaternions. One hinge: the twist of q about its axis (exact optimum). Two hinges: with
     half-angle (c_i, s_i), <q, q1 q2> = (c1, s1) M (c2, s2)^T for a 2x2 M, so the optimum is the
     top singular pair of M (exact, any two axes). Three orthonormal axes: exact Euler decomposition
-    in the hinges' frame. Three other axes: Gauss-Newton on the rotation-vector error from the
-    twists about each axis in turn. Angles wrapped to (-pi, pi], then unwrapped along N.
+    in the hinges' frame. Any other set (three non-orthogonal, or more than three): Gauss-Newton on
+    the rotation-vector error from the twists about each axis in turn. Angles are wrapped to
+    (-pi, pi], then unwrapped along N.
     """
     q = np.asarray(q, float)
     a = np.asarray(axes, float)
@@ -304,8 +306,6 @@ def hinge_angles(q: np.ndarray, axes: np.ndarray, iterations: int = 20) -> np.nd
     n = q.shape[0]
     if k == 0:
         return np.zeros((n, 0))
-    if k > 3:
-        raise ValueError(f"at most 3 hinges per body are decomposed, got {k}")
     if k == 1:
         ang = (2.0 * np.arctan2(q[:, 1:] @ a[0], q[:, 0]))[:, None]
     elif k == 2:
@@ -314,7 +314,7 @@ def hinge_angles(q: np.ndarray, axes: np.ndarray, iterations: int = 20) -> np.nd
                       np.stack([q[:, 1:] @ a[0], q @ a12], -1)], -2)  # (N, 2, 2)
         u, _, vt = np.linalg.svd(M)
         ang = 2.0 * np.stack([np.arctan2(u[:, 1, 0], u[:, 0, 0]), np.arctan2(vt[:, 0, 1], vt[:, 0, 0])], -1)
-    elif np.allclose(a @ a.T, np.eye(3), atol=1e-6):
+    elif k == 3 and np.allclose(a @ a.T, np.eye(3), atol=1e-6):
         # Columns a1, a2, a3 (the third flipped if needed to make B a proper rotation):
         # R(ai, t) = B R(ei, t) B^T, so B^T Q B = Rx(t1) Ry(t2) Rz(t3), intrinsic "XYZ".
         third = np.cross(a[0], a[1])
@@ -337,7 +337,8 @@ def hinge_angles(q: np.ndarray, axes: np.ndarray, iterations: int = 20) -> np.nd
 
 
 def _compose(a: np.ndarray, ang: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
-    """R(a1, t1) ... R(ak, tk) as (N, 4), and the partial products from the right [R_k, R_{k-1}R_k..]."""
+    """R(a1, t1) ... R(ak, tk) as (N, 4), and tails (k + 1 of them) with tails[i] = R_i ... R_k
+    (0-based; tails[k] is the identity)."""
     n, k = ang.shape
     out = quat.identity((n,))
     tails = [quat.identity((n,))]
