@@ -99,12 +99,44 @@ def _play(clip, out_dir, drive, poses, render, fps=None):
     return summary
 
 
+def _joint_map(given, joint_names, option, owner):
+    """A joint map from --clip-map/--character-map, else the first built-in preset that fits."""
+    from rig.retarget import JointMap, presets
+    if given is not None:
+        jm = JointMap.load(given)
+        jm.resolve(joint_names, owner)
+        return jm
+    for name in presets():
+        jm = JointMap.load(name)
+        try:
+            jm.resolve(joint_names, owner)
+            return jm
+        except InputError:
+            continue
+    raise InputError(f"no built-in joint map ({', '.join(presets())}) fits the skeleton of {owner}; "
+                     f"write one (see rig/retarget.py) and pass it with {option}", field=option)
+
+
+def _retarget_onto_character(clip, args):
+    from rig.gltf_skeleton import read_gltf_skeleton
+    from rig.retarget import retarget
+    character = read_gltf_skeleton(args.character)
+    clip_map = _joint_map(args.clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
+    char_map = _joint_map(args.character_map, character.joint_names, "--character-map", args.character)
+    out = retarget(clip, clip_map, character, char_map)
+    print(f"retargeted {clip.name!r} ({clip_map.name} map) onto {os.path.basename(args.character)} "
+          f"({char_map.name} map)")
+    return out
+
+
 def cmd_play(args) -> int:
     clip = _load_clip(args)
     if args.start is not None or args.end is not None:
         clip = clip.between(args.start or 0.0, args.end)
     if args.speed is not None:
         clip = clip.with_speed(args.speed)
+    if args.character is not None:
+        clip = _retarget_onto_character(clip, args)
     _play(clip, args.out, args.drive, args.poses, not args.no_render, fps=args.fps)
     return 0
 
@@ -158,6 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "on a floor following the clip (default: kinematic)")
     p.add_argument("--poses", type=_count("--poses"), default=8, help="poses in the skeleton picture (default: 8)")
     p.add_argument("--no-render", action="store_true", help="skip the 3D picture (plots and data only)")
+    g = p.add_argument_group("retargeting onto a character's skeleton")
+    g.add_argument("--character", metavar="GLB", help="skinned glTF/GLB whose skeleton plays the clip instead of the clip's own")
+    g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
+    g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
     _clip_options(p)
     p.set_defaults(func=cmd_play)
 

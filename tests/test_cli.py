@@ -102,3 +102,18 @@ def test_console_script_exit_code_without_traceback(tmp_path):
     r = subprocess.run([exe, "inspect", str(bad)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     assert "Traceback" not in r.stderr and f"{bad}:8:" in r.stderr
+
+
+def test_play_retargeted_onto_a_character(capsys, tmp_path):
+    clip = str(asset("mocap/cmu_bvh/02_03.bvh"))
+    code, out, err = run(capsys, "play", clip, "--character", str(asset("characters/CesiumMan.glb")),
+                         "--out", str(tmp_path), "--no-render", "--end", "0.5")
+    assert code == 0, err
+    assert "cmu map" in out and "cesiumman map" in out
+    data = np.load(tmp_path / "motion.npz")
+    assert list(data["joint_names"][:2]) == ["Skeleton_torso_joint_1", "Skeleton_torso_joint_2"]
+    assert data["joint_world"].shape == (61, 19, 4, 4)
+    # no preset fits RiggedFigure: say which option to use, exit 2
+    code, _, err = run(capsys, "play", clip, "--character", str(asset("characters/RiggedFigure.glb")),
+                       "--out", str(tmp_path), "--no-render")
+    assert code == 2 and "--character-map" in err
