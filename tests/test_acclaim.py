@@ -419,3 +419,80 @@ def test_fuzz_asf(data, fuzz_dir):
         asf.rest_clip()
         read_amc(amc, asf)
     _only_input_errors(run)
+
+
+# ---------------------------------------------------------------------------------------- no assets
+TINY_ASF = """# a two-bone skeleton: dofs listed out of order, a subset, and a length dof
+:version 1.10
+:name tiny
+:units
+  mass 1.0
+  length 1.0
+  angle deg
+:root
+  order TX TY TZ RX RY RZ
+  axis XYZ
+  position 0 0 0
+  orientation 0 0 0
+:bonedata
+  begin
+    id 1
+    name a
+    direction 0 1 0
+    length 10
+    axis 0 0 90 XYZ
+    dof rz rx l
+    limits (-180 180) (-90 90)
+           (-inf inf)
+  end
+  begin
+    id 2
+    name b
+    direction 1 0 0
+    length 5
+    axis 10 20 30 XYZ
+    dof ry
+  end
+:hierarchy
+  begin
+    root a
+    a b
+  end
+"""
+TINY_AMC = """:FULLY-SPECIFIED
+:DEGREES
+1
+root 1 2 3 10 -20 30
+a 30 40 2
+b 50
+"""
+
+
+def test_tiny_skeleton_by_hand(tmp_path):
+    """World positions of a hand-made skeleton against matrices written out independently:
+    M = Rz Ry Rx whatever the dof order, L = C M C^-1, `l` lengthens the bone, inches -> metres,
+    Y-up -> Z-up."""
+    from scipy.spatial.transform import Rotation
+    (tmp_path / "tiny.asf").write_text(TINY_ASF)
+    (tmp_path / "tiny.amc").write_text(TINY_AMC)
+    clip = load_clip(tmp_path / "tiny.amc")  # finds tiny.asf beside it
+    assert clip.joint_names == ("root", "a", "b") and clip.fps == 120.0
+
+    def R(axis, deg):
+        return Rotation.from_euler(axis, deg, degrees=True).as_matrix()
+
+    L_root = R("z", 30) @ R("y", -20) @ R("x", 10)
+    C_a = R("z", 90)
+    L_a = C_a @ (R("z", 30) @ R("x", 40)) @ C_a.T
+    C_b = R("z", 30) @ R("y", 20) @ R("x", 10)
+    L_b = C_b @ R("y", 50) @ C_b.T
+    root = np.array([1.0, 2, 3])
+    b = root + L_root @ L_a @ np.array([0.0, 12, 0])  # length 10 + l 2
+    tip = b + L_root @ L_a @ L_b @ np.array([5.0, 0, 0])
+    yz = lambda v: np.array([v[0], -v[2], v[1]]) * 0.0254  # noqa: E731
+    wr, wp = clip.world()
+    np.testing.assert_allclose(wp[0], [yz(root), yz(root), yz(b)], atol=1e-12)
+    np.testing.assert_allclose(clip.end_world(wr, wp)[0, 0], yz(tip), atol=1e-12)
+    asf = read_asf(tmp_path / "tiny.asf")
+    assert asf.bone("a").limits[2] == (-np.inf, np.inf)
+    assert asf.bone("a").dof == ("rz", "rx", "l")
