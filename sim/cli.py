@@ -77,21 +77,31 @@ def cmd_inspect(args) -> int:
 
 
 # ---------------------------------------------------------------------------------------- play / demo
-def _play(clip, out_dir, drive, poses, render, fps=None):
+def _play(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_map=None):
     from tqdm import tqdm
 
-    from .play import drive_kinematic, drive_physics, write_outputs
+    from .play import drive_kinematic, drive_mjcf, drive_physics, write_outputs
 
     if fps is not None:
         clip = clip.resample(fps)
     times = clip.times
-    runner = drive_physics if drive == "physics" else drive_kinematic
+    if mjcf is not None:
+        if drive == "physics":
+            raise InputError("--mjcf drives the user's model kinematically; --drive physics uses the model "
+                             "jiggle builds from the clip", field="--drive")
+        body_map = None
+        if joint_map is not None:
+            from .mjcf_drive import read_body_map
+            body_map = read_body_map(joint_map)
+        runner = lambda c, t, progress: drive_mjcf(c, t, mjcf, body_map, progress=progress)  # noqa: E731
+    else:
+        runner = drive_physics if drive == "physics" else drive_kinematic
     with tqdm(total=len(times), unit="frame", desc=f"{clip.name} ({drive})", disable=None,
               file=sys.stderr) as bar:
         motion = runner(clip, times, progress=bar.update)
-    summary = write_outputs(clip, motion, out_dir, poses=poses, render=render)
+    summary = write_outputs(motion, clip.name, out_dir, poses=poses, render=render, source=clip.source)
     print(f"{summary['frames']} frames of {clip.name!r} ({summary['duration_s']:.2f} s, "
-          f"{clip.num_joints} joints, {drive} drive) -> {os.path.abspath(out_dir)}")
+          f"{summary['joints']} joints, {summary['drive']} drive) -> {os.path.abspath(out_dir)}")
     for k, f in summary["files"].items():
         print(f"  {k:13s} {os.path.join(out_dir, f)}")
     if "rms_error_m" in summary:
@@ -137,7 +147,8 @@ def cmd_play(args) -> int:
         clip = clip.with_speed(args.speed)
     if args.character is not None:
         clip = _retarget_onto_character(clip, args)
-    _play(clip, args.out, args.drive, args.poses, not args.no_render, fps=args.fps)
+    _play(clip, args.out, args.drive, args.poses, not args.no_render, fps=args.fps, mjcf=args.mjcf,
+          joint_map=args.joint_map)
     return 0
 
 
@@ -194,6 +205,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--character", metavar="GLB", help="skinned glTF/GLB whose skeleton plays the clip instead of the clip's own")
     g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
     g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
+    g = p.add_argument_group("your own MuJoCo model")
+    g.add_argument("--mjcf", metavar="XML", help="drive this MJCF instead of the model built from the clip "
+                   "(e.g. dm_control's humanoid_CMU.xml with a CMU AMC clip)")
+    g.add_argument("--joint-map", metavar="TOML", help="clip joint -> MJCF body names, a [joints] table "
+                   "(default: clip joints drive the bodies of the same name)")
     _clip_options(p)
     p.set_defaults(func=cmd_play)
 

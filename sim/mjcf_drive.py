@@ -379,3 +379,22 @@ def _inv_left_jacobian(phi: np.ndarray) -> np.ndarray:
     ts = np.where(small, 1.0, t)
     c = np.where(small, 1.0 / 12.0, 1.0 / ts**2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts)))
     return np.eye(3) - 0.5 * K + c[..., None, None] * (K @ K)
+
+
+def read_body_map(path: str | os.PathLike) -> dict[str, str]:
+    """Read a clip-joint -> MJCF-body map from TOML: a ``[joints]`` table of ``clip_joint = "body"``."""
+    import tomllib
+
+    p = require_file(path, "joint map")
+    try:
+        with open(p, "rb") as fh:
+            doc = tomllib.load(fh)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"not valid TOML: {e}", p) from None
+    table = doc.get("joints")
+    if not isinstance(table, dict) or not table:
+        raise InputError('expected a [joints] table of clip_joint = "body" entries', p, field="joints")
+    for k, v in table.items():
+        if not isinstance(v, str) or not v:
+            raise InputError(f"expected a body name, found {v!r}", p, field=f"joints.{k}")
+    return dict(table)

@@ -18,18 +18,29 @@ from .skeleton import Skeleton, transforms
 
 @dataclass(frozen=True)
 class Motion:
-    """Bone world transforms sampled at output frames.
+    """Bone world transforms sampled at output frames, with the tree they belong to.
 
     times : (N,) seconds from the clip's start.
     rotations : (N, J, 4) world rotations, w,x,y,z.
     positions : (N, J, 3) world joint positions, metres, Z-up.
+    joint_names : (J,) names; parents : (J,) parent index or -1.
+    end_parents : (E,) joint of each end site; end_points : (N, E, 3) metres.
     info : facts about how it was made (drive, tracking error, ...).
     """
 
     times: np.ndarray
     rotations: np.ndarray
     positions: np.ndarray
+    joint_names: tuple[str, ...]
+    parents: np.ndarray
+    end_parents: np.ndarray
+    end_points: np.ndarray
     info: dict
+
+
+def _clip_motion(clip: Clip, times, rot, pos, info) -> Motion:
+    return Motion(times, rot, pos, clip.joint_names, clip.parents, clip.end_parents,
+                  clip.end_world(rot, pos), info)
 
 
 def drive_kinematic(clip: Clip, times: np.ndarray, progress=None, chunk: int = 256) -> Motion:
@@ -42,7 +53,7 @@ def drive_kinematic(clip: Clip, times: np.ndarray, progress=None, chunk: int = 2
         rot[a:b], pos[a:b] = sk.kinematics(sk.qpos_at(times[a:b]))
         if progress is not None:
             progress(b - a)
-    return Motion(times, rot, pos, {"drive": "kinematic", "body_mass_kg": round(sk.total_mass, 2)})
+    return _clip_motion(clip, times, rot, pos, {"drive": "kinematic", "body_mass_kg": round(sk.total_mass, 2)})
 
 
 def drive_physics(clip: Clip, times: np.ndarray, progress=None) -> Motion:
@@ -58,40 +69,60 @@ def drive_physics(clip: Clip, times: np.ndarray, progress=None) -> Motion:
             done[0] = k
 
     res = drive.run(times, progress=report)
-    return Motion(times, res.rotations, res.positions, {"drive": "physics", **res.summary()})
+    return _clip_motion(clip, times, res.rotations, res.positions, {"drive": "physics", **res.summary()})
 
 
-def write_outputs(clip: Clip, motion: Motion, out_dir: str, poses: int = 8, render: bool = True) -> dict:
+def drive_mjcf(clip: Clip, times: np.ndarray, xml_path: str, joint_map: dict[str, str] | None = None,
+               progress=None) -> Motion:
+    """A user's MuJoCo model posed from the clip (see sim.mjcf_drive); joints are the model's bodies."""
+    from .mjcf_drive import MjcfDrive
+
+    drive = MjcfDrive(xml_path, clip, joint_map)
+    rot, pos = drive.world(times)
+    if progress is not None:
+        progress(len(times))
+    parents = np.asarray(drive.model.body_parentid[1:], dtype=np.int64) - 1  # world (0) becomes -1
+    return Motion(times, rot, pos, drive.body_names, parents, np.zeros(0, np.int64),
+                  np.zeros((len(times), 0, 3)),
+                  {"drive": "kinematic", "mjcf": os.path.abspath(xml_path),
+                   "mapped_joints": len(drive.mapping),
+                   "rest_misalignment_deg": round(float(drive.rest_misalignment_deg), 3),
+                   "body_mass_kg": round(float(np.sum(drive.model.body_mass)), 2)})
+
+
+def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, render: bool = True,
+                  source: str = "") -> dict:
     """Write `skeleton.png` (film strip), `trajectories.png`, `motion.npz` and `summary.json`.
 
     motion.npz keys: times (N,) s; joint_names (J,); parents (J,); joint_world (N, J, 4, 4) metres,
-    Z-up; end_sites (N, E, 3) metres. Returns the summary.
+    Z-up; end_sites (N, E, 3) metres; fps. Returns the summary.
     """
     from .plots import plot_joint_trajectories
 
     os.makedirs(out_dir, exist_ok=True)
-    ends = clip.end_world(motion.rotations, motion.positions)
     files = {}
+    times = motion.times
+    fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
     with atomic_path(os.path.join(out_dir, "motion.npz")) as tmp:
-        np.savez_compressed(tmp, times=motion.times, joint_names=np.array(clip.joint_names),
-                            parents=clip.parents, joint_world=transforms(motion.rotations, motion.positions),
-                            end_sites=ends, fps=clip.fps)
+        np.savez_compressed(tmp, times=times, joint_names=np.array(motion.joint_names),
+                            parents=motion.parents, joint_world=transforms(motion.rotations, motion.positions),
+                            end_sites=motion.end_points, fps=fps)
     files["motion"] = "motion.npz"
-    picks = _trajectory_joints(clip, motion.positions)
+    picks = _trajectory_joints(motion.positions)
     with atomic_path(os.path.join(out_dir, "trajectories.png")) as tmp:
-        plot_joint_trajectories(motion.times, motion.positions[:, picks], [clip.joint_names[j] for j in picks],
-                                tmp, title=f"{clip.name}: joint trajectories ({motion.info['drive']} drive)")
+        plot_joint_trajectories(times, motion.positions[:, picks], [motion.joint_names[j] for j in picks],
+                                tmp, title=f"{name}: joint trajectories ({motion.info['drive']} drive)")
     files["trajectories"] = "trajectories.png"
     if render:
         from .render import render_skeleton_over_time
         with atomic_path(os.path.join(out_dir, "skeleton.png")) as tmp:
-            render_skeleton_over_time(np.concatenate([motion.positions, ends], axis=1), clip.parents,
-                                      clip.end_parents, motion.times, tmp, poses=poses,
-                                      title=f"{clip.name}: skeleton over time")
+            render_skeleton_over_time(np.concatenate([motion.positions, motion.end_points], axis=1),
+                                      motion.parents, motion.end_parents, times, tmp, poses=poses,
+                                      title=f"{name}: skeleton over time")
         files["skeleton"] = "skeleton.png"
     summary = {
-        "clip": clip.name, "source": clip.source, "joints": clip.num_joints,
-        "frames": int(len(motion.times)), "fps": clip.fps, "duration_s": float(motion.times[-1] - motion.times[0]),
+        "clip": name, "source": source, "joints": len(motion.joint_names),
+        "frames": int(len(times)), "fps": round(float(fps), 6), "duration_s": float(times[-1] - times[0]),
         "root_travel_m": float(np.linalg.norm(motion.positions[-1, 0, :2] - motion.positions[0, 0, :2])),
         "height_range_m": [float(motion.positions[..., 2].min()), float(motion.positions[..., 2].max())],
         **motion.info, "files": files,
@@ -102,19 +133,19 @@ def write_outputs(clip: Clip, motion: Motion, out_dir: str, poses: int = 8, rend
     return summary
 
 
-def _trajectory_joints(clip: Clip, positions: np.ndarray, k: int = 6) -> list[int]:
+def _trajectory_joints(positions: np.ndarray, k: int = 6) -> list[int]:
     """The root and the joints that move most relative to it (hands, feet, head), at most k.
 
     positions : (N, J, 3) world joint positions over the clip.
     """
     rel = positions - positions[:, :1]
     spread = np.linalg.norm(rel.max(axis=0) - rel.min(axis=0), axis=1)
-    _, rest = clip.rest_world()
+    first = positions[0]
     picks = [0]
     for j in np.argsort(-spread):
         if len(picks) >= k:
             break
-        # skip joints within 10 cm of one already picked at rest (a hand and its finger)
-        if all(np.linalg.norm(rest[j] - rest[i]) > 0.1 for i in picks):
+        # skip joints within 10 cm of one already picked (a hand and its finger)
+        if all(np.linalg.norm(first[j] - first[i]) > 0.1 for i in picks):
             picks.append(int(j))
     return picks

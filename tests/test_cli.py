@@ -117,3 +117,20 @@ def test_play_retargeted_onto_a_character(capsys, tmp_path):
     code, _, err = run(capsys, "play", clip, "--character", str(asset("characters/RiggedFigure.glb")),
                        "--out", str(tmp_path), "--no-render")
     assert code == 2 and "--character-map" in err
+
+
+def test_play_drives_a_user_mjcf(capsys, tmp_path):
+    amc = str(asset("mocap/cmu_amc/01_01.amc"))
+    xml = str(asset("mjcf/humanoid_CMU.xml"))
+    code, _, err = run(capsys, "play", amc, "--mjcf", xml, "--end", "0.25", "--out", str(tmp_path), "--no-render")
+    assert code == 0, err
+    data = np.load(tmp_path / "motion.npz")
+    assert data["joint_world"].shape == (31, 31, 4, 4) and "lfemur" in list(data["joint_names"])
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["mjcf"].endswith("humanoid_CMU.xml") and summary["mapped_joints"] >= 25
+    bad_map = tmp_path / "map.toml"
+    bad_map.write_text('[joints]\nlfemur = "no_such_body"\n')
+    code, _, err = run(capsys, "play", amc, "--mjcf", xml, "--joint-map", str(bad_map), "--out", str(tmp_path))
+    assert code == 2 and "no_such_body" in err and "lfemur" in err
+    code, _, err = run(capsys, "play", amc, "--mjcf", xml, "--drive", "physics", "--out", str(tmp_path))
+    assert code == 2 and "--drive" in err
