@@ -47,7 +47,8 @@ class BodyShape:
 
 
 def _fmt(v) -> str:
-    return " ".join(f"{x:.9g}" for x in np.ravel(v))
+    # 17 significant digits: the text round-trips float64 exactly, so MuJoCo FK matches Clip.world
+    return " ".join(f"{x:.17g}" for x in np.ravel(v))
 
 
 def mjcf_names(clip: Clip) -> list[str]:
