@@ -296,6 +296,7 @@ class PhysicsResult:
 
 # ---------------------------------------------------------------------------------------- drive
 def _quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions -> (..., 3) rotation vectors (axis times angle in radians, <= pi)."""
     q = quat.canonical(q)
     s = np.linalg.norm(q[..., 1:], axis=-1)
     ang = 2.0 * np.arctan2(s, q[..., 0])
@@ -317,7 +318,7 @@ class PhysicsDrive:
     root_timeconst : seconds, time constant of the root servo (sag under the whole weight is
         ``9.81 * root_timeconst**2`` metres).
     root_dampratio : damping ratio of the root servo (1: critical).
-    floor_percentile : percentile of the lowest foot point over the clip used as floor height.
+    floor_percentile : the percentile :func:`estimate_floor` uses (planted band and fallback).
 
     Step-level use: :meth:`reset` to a time, then :meth:`step` / :meth:`advance`; read the current
     state with :meth:`pose` and :meth:`foot_contacts`. :meth:`run` does all that for many times.
@@ -369,7 +370,7 @@ class PhysicsDrive:
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.body_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in names])
-        # root servo: each root's subtree mass, and its free joint's dof address
+        # root servo: each root's body, free joint addresses and subtree bodies
         self._root_bodies = self.body_ids[self.roots]
         self._root_dof = np.array([m.jnt_dofadr[m.body_jntadr[b]] for b in self._root_bodies])
         self._root_qpos = np.array([m.jnt_qposadr[m.body_jntadr[b]] for b in self._root_bodies])
@@ -430,6 +431,7 @@ class PhysicsDrive:
 
     @property
     def foot_joints(self) -> tuple[str, ...]:
+        """Names of the foot (ankle) joints, in the order of the per-foot arrays."""
         return tuple(self.clip.joint_names[j] for j in self.foot_idx)
 
     # ------------------------------------------------------------------ targets
@@ -454,9 +456,10 @@ class PhysicsDrive:
         of its subtree (xfrc_applied, world), each body's share being its mass times the
         acceleration of a rigid motion: ``m_b (a + alpha x (c_b - p_root))``.
 
-        Spread over the bodies, not as one wrench on the root body: a CMU root weighs 30 g and holds
-        its children by the joint welds, whose impedance lets 1e-4 of a body's unconstrained
-        acceleration through; a torque of the whole body's size on 30 g made that leak explode.
+        Spread over the bodies, not as one wrench on the root body: a CMU root is a 30 g sphere
+        holding its children by the joint welds, whose impedance lets 1e-4 of a body's
+        unconstrained acceleration through; a torque of the whole body's size on those 30 g blew
+        the simulation up within 10 ms. Spread by mass it acts like a gravity field on the body.
         """
         d = self.data
         d.xfrc_applied[:] = 0.0
