@@ -291,6 +291,21 @@ class PhysicsResult:
         """Newtons, the body's weight."""
         return self.total_mass * GRAVITY
 
+    def summary(self) -> dict:
+        """The run's figures as plain JSON-ready values (units in the keys), for reports."""
+        return {
+            "body_mass_kg": round(self.total_mass, 3),
+            "floor_height_m": round(self.floor_height, 5),
+            "foot_joints": list(self.foot_joints),
+            "rms_joint_error_m": round(self.rms_error, 5),
+            "max_joint_error_m": round(float(np.max(self.joint_error)), 5),
+            "max_foot_penetration_m": round(self.max_penetration, 5),
+            "mean_foot_force_over_weight": round(self.mean_foot_force_ratio, 4),
+            "mean_root_assist_z_over_weight": round(float(np.mean(self.root_assist_force[:, 2]) / self.weight), 4),
+            "physics_timestep_s": round(self.timestep, 6),
+            "simulation_wall_s": round(self.wall_time, 3),
+        }
+
     @property
     def mean_foot_force_ratio(self) -> float:
         """Mean over frames of the feet's total normal force divided by the body's weight (over a

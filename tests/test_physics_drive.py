@@ -1,6 +1,7 @@
 """Physics drive: MuJoCo follows a clip on a floor (sim/physics_drive.py)."""
 from __future__ import annotations
 
+import json
 import time
 
 import mujoco
@@ -142,6 +143,9 @@ def test_run_09_11_tracks_stands_and_carries_the_body():
     assert np.all(res.foot_force.max(axis=0) > 1.5 * weight)
     assert np.any(total == 0.0)
     assert 0.75 < res.mean_foot_force_ratio < 1.25
+    summary = json.loads(json.dumps(res.summary()))  # plain values for summary.json
+    assert summary["rms_joint_error_m"] == pytest.approx(res.rms_error, abs=1e-5)
+    assert summary["mean_foot_force_over_weight"] == pytest.approx(res.mean_foot_force_ratio, abs=1e-4)
     # no force from a foot that stayed more than 2 cm above the floor over a whole interval
     assert np.all(res.foot_force[res.foot_lowest > 0.02] == 0.0)
     touching = res.foot_contact_count > 0
