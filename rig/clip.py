@@ -19,6 +19,9 @@ from . import quat
 from .errors import InputError
 
 
+TRANSLATION_NOISE = 1e-6  # metres: translation changes below this are exporter noise, not motion
+
+
 def _frozen(a, dtype=np.float64) -> np.ndarray:
     a = np.array(a, dtype=dtype, copy=True)
     a.setflags(write=False)
@@ -129,9 +132,22 @@ class Clip:
 
     @property
     def animated_translation(self) -> np.ndarray:
-        """(J,) bool, joints whose local translation changes over the clip (roots always)."""
-        moving = np.any(np.abs(self.translations - self.offsets) > 1e-9, axis=(0, 2))
+        """(J,) bool, joints whose local translation changes over the clip (roots always).
+
+        A change under a micrometre is float noise in exported keys (glTF exporters write every
+        joint's translation channel), not motion.
+        """
+        moving = np.ptp(self.translations, axis=0).max(axis=1) > TRANSLATION_NOISE
         return moving | (self.parents < 0)
+
+    @property
+    def bone_translations(self) -> np.ndarray:
+        """(J, 3) metres, the local translation a joint keeps over the clip (its mean over time) where
+        it is not animated, else its rest offset. Files may key a constant translation that differs
+        from the rest offset (CesiumMan: by up to 3 mm); the bones are where the motion puts them."""
+        held = np.where(self.animated_translation[:, None], self.offsets, self.translations.mean(axis=0))
+        held.setflags(write=False)
+        return held
 
     # ------------------------------------------------------------------ sampling
     def sample(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

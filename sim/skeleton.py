@@ -96,8 +96,10 @@ def bone_roles(clip: Clip) -> list[list[str]]:
         if clip.parents[j] >= 0:
             top[clip.parents[j]] = max(top[clip.parents[j]], top[j])
 
+    bone = clip.bone_translations
+
     def length(j: int, k: int) -> float:
-        tip = clip.offsets[kids[j][k]] if k < len(kids[j]) else ends[j][k - len(kids[j])]
+        tip = bone[kids[j][k]] if k < len(kids[j]) else ends[j][k - len(kids[j])]
         return float(np.linalg.norm(tip))
 
     for root in np.nonzero(clip.parents < 0)[0]:
@@ -121,7 +123,7 @@ def bone_roles(clip: Clip) -> list[list[str]]:
         while stack:
             j = stack.pop()
             at_root.append(j)
-            stack += [c for c in kids[j] if np.linalg.norm(clip.offsets[c]) < 1e-4]
+            stack += [c for c in kids[j] if np.linalg.norm(bone[c]) < 1e-4]
         for j in at_root:
             for k, c in enumerate(kids[j]):
                 if c not in path and c not in at_root:
@@ -155,11 +157,12 @@ def build_mjcf(clip: Clip, shape: BodyShape = BodyShape(), floor_height: float |
     ends = [[o for e, o in zip(clip.end_parents, clip.end_offsets) if e == j] for j in range(clip.num_joints)]
 
     roles = bone_roles(clip)
+    bone = clip.bone_translations  # body positions: where the clip keeps each joint
     fixed = {"trunk": shape.trunk_radius, "neck": shape.neck_radius, "head": shape.head_radius}
 
     def geoms(j: int) -> list[str]:
         g = []
-        tips = [clip.offsets[c] for c in kids[j]] + ends[j]
+        tips = [bone[c] for c in kids[j]] + ends[j]
         for k, tip in enumerate(tips):
             length = float(np.linalg.norm(tip))
             if length < 1e-4:
@@ -178,7 +181,7 @@ def build_mjcf(clip: Clip, shape: BodyShape = BodyShape(), floor_height: float |
 
     def body(j: int, depth: int) -> list[str]:
         pad = "  " * depth
-        lines = [f'{pad}<body name={quoteattr(names[j])} pos="{_fmt(clip.offsets[j])}" '
+        lines = [f'{pad}<body name={quoteattr(names[j])} pos="{_fmt(bone[j])}" '
                  f'quat="{_fmt(clip.rest_rotations[j])}">']
         if clip.parents[j] < 0:
             lines.append(f'{pad}  <freejoint name={quoteattr(names[j] + "_free")}/>')
@@ -238,6 +241,7 @@ class Skeleton:
         self.data = mujoco.MjData(self.model)
         names = mjcf_names(clip)
         self.body_ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names])
+        self._bone = clip.bone_translations
         self._layout = []  # (joint index, kind, qpos address)
         for j, n in enumerate(names):
             if clip.parents[j] < 0:
@@ -269,7 +273,7 @@ class Skeleton:
                 q[:, a:a + 4] = quat.mul(quat.conj(clip.rest_rotations[j]), rotations[:, j])
             else:  # slide axes live in the body frame, rotated by the rest rotation
                 q[:, a:a + 3] = quat.rotate(quat.conj(clip.rest_rotations[j]),
-                                            translations[:, j] - clip.offsets[j])
+                                            translations[:, j] - self._bone[j])
         return q
 
     def qpos_at(self, times: np.ndarray) -> np.ndarray:
