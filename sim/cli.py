@@ -104,8 +104,11 @@ def _play(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_map=No
           f"{summary['joints']} joints, {summary['drive']} drive) -> {os.path.abspath(out_dir)}")
     for k, f in summary["files"].items():
         print(f"  {k:13s} {os.path.join(out_dir, f)}")
-    if "rms_error_m" in summary:
-        print(f"  tracking RMS error {summary['rms_error_m'] * 100:.2f} cm")
+    if "rms_joint_error_m" in summary:
+        print(f"  tracking error: RMS {summary['rms_joint_error_m'] * 100:.2f} cm, max "
+              f"{summary['max_joint_error_m'] * 100:.2f} cm; deepest foot below the floor "
+              f"{summary['max_foot_penetration_m'] * 1000:.1f} mm; feet carry "
+              f"{summary['mean_foot_force_over_weight']:.2f} x body weight on average")
     return summary
 
 

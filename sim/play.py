@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,6 +26,8 @@ class Motion:
     joint_names : (J,) names; parents : (J,) parent index or -1.
     end_parents : (E,) joint of each end site; end_points : (N, E, 3) metres.
     info : facts about how it was made (drive, tracking error, ...).
+    arrays : per-frame data of the drive saved beside the transforms (physics: foot_force (N, F)
+        newtons, foot_joints (F,), joint_error (N, J) metres).
     """
 
     times: np.ndarray
@@ -36,11 +38,12 @@ class Motion:
     end_parents: np.ndarray
     end_points: np.ndarray
     info: dict
+    arrays: dict = field(default_factory=dict)
 
 
-def _clip_motion(clip: Clip, times, rot, pos, info) -> Motion:
+def _clip_motion(clip: Clip, times, rot, pos, info, arrays=None) -> Motion:
     return Motion(times, rot, pos, clip.joint_names, clip.parents, clip.end_parents,
-                  clip.end_world(rot, pos), info)
+                  clip.end_world(rot, pos), info, arrays or {})
 
 
 def drive_kinematic(clip: Clip, times: np.ndarray, progress=None, chunk: int = 256) -> Motion:
@@ -69,7 +72,9 @@ def drive_physics(clip: Clip, times: np.ndarray, progress=None) -> Motion:
             done[0] = k
 
     res = drive.run(times, progress=report)
-    return _clip_motion(clip, times, res.rotations, res.positions, {"drive": "physics", **res.summary()})
+    return _clip_motion(clip, times, res.rotations, res.positions, {"drive": "physics", **res.summary()},
+                        {"foot_force": res.foot_force, "foot_joints": np.array(res.foot_joints),
+                         "joint_error": res.joint_error})
 
 
 def drive_mjcf(clip: Clip, times: np.ndarray, xml_path: str, joint_map: dict[str, str] | None = None,
@@ -95,7 +100,7 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
     """Write `skeleton.png` (film strip), `trajectories.png`, `motion.npz` and `summary.json`.
 
     motion.npz keys: times (N,) s; joint_names (J,); parents (J,); joint_world (N, J, 4, 4) metres,
-    Z-up; end_sites (N, E, 3) metres; fps. Returns the summary.
+    Z-up; end_sites (N, E, 3) metres; fps; plus the drive's `Motion.arrays`. Returns the summary.
     """
     from .plots import plot_joint_trajectories
 
@@ -106,7 +111,7 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
     with atomic_path(os.path.join(out_dir, "motion.npz")) as tmp:
         np.savez_compressed(tmp, times=times, joint_names=np.array(motion.joint_names),
                             parents=motion.parents, joint_world=transforms(motion.rotations, motion.positions),
-                            end_sites=motion.end_points, fps=fps)
+                            end_sites=motion.end_points, fps=fps, **motion.arrays)
     files["motion"] = "motion.npz"
     picks = _trajectory_joints(motion.positions)
     with atomic_path(os.path.join(out_dir, "trajectories.png")) as tmp:

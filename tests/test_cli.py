@@ -134,3 +134,16 @@ def test_play_drives_a_user_mjcf(capsys, tmp_path):
     assert code == 2 and "no_such_body" in err and "lfemur" in err
     code, _, err = run(capsys, "play", amc, "--mjcf", xml, "--drive", "physics", "--out", str(tmp_path))
     assert code == 2 and "--drive" in err
+
+
+def test_play_physics_drive_saves_foot_forces(capsys, tmp_path):
+    code, out, err = run(capsys, "play", str(asset("mocap/cmu_bvh/09_11.bvh")), "--drive", "physics",
+                         "--end", "0.6", "--out", str(tmp_path), "--no-render")
+    assert code == 0, err
+    assert "tracking error: RMS" in out
+    data = np.load(tmp_path / "motion.npz")
+    n = data["times"].shape[0]
+    assert data["foot_force"].shape == (n, 2) and data["joint_error"].shape == (n, 31)
+    assert np.all(np.isfinite(data["joint_world"])) and data["foot_force"].max() > 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["drive"] == "physics" and summary["rms_joint_error_m"] < 0.05
