@@ -1,6 +1,6 @@
 """Parse 01_01.bvh (2 MB, 2752 frames) and evaluate world transforms of every frame through MuJoCo,
-against a straightforward NumPy forward kinematics of the same clip (per frame, per joint, 4x4
-matrices from the channel values), all measured in this one run.
+against a straightforward NumPy forward kinematics of the same clip (tests/bvh_reference.py: per
+frame, per joint, 4x4 matrices from the channel values), all measured in this one run.
 
     .venv/bin/python benchmarks/bench_mocap_fk.py [path/to/clip.bvh]
 
@@ -17,6 +17,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+import bvh_reference  # noqa: E402  the tests' independent FK: 4x4 matrices per joint per frame
 
 from rig.bvh import read_bvh  # noqa: E402
 from sim.skeleton import Skeleton  # noqa: E402
@@ -33,67 +36,6 @@ def best(fn, repeats=3):
     return min(times), out
 
 
-def _axis_matrix(axis: str, deg: np.ndarray) -> np.ndarray:
-    a = np.radians(deg)
-    c, s = np.cos(a), np.sin(a)
-    m = np.eye(4)
-    i, j = {"X": (1, 2), "Y": (2, 0), "Z": (0, 1)}[axis]
-    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
-    return m
-
-
-def numpy_fk(clip_values: np.ndarray, layout, parents) -> np.ndarray:
-    """The straightforward reference: a loop over frames and joints with 4x4 matrix products.
-
-    clip_values : (F, C) raw channel values; layout : per joint (offset, [(channel, column)]).
-    Returns (F, J, 4, 4) world matrices in file units and axes.
-    """
-    F, J = clip_values.shape[0], len(layout)
-    out = np.empty((F, J, 4, 4))
-    for f in range(F):
-        for j, (offset, chans) in enumerate(layout):
-            local = np.eye(4)
-            local[:3, 3] = offset
-            for name, col in chans:
-                if name.endswith("position"):
-                    local[{"X": 0, "Y": 1, "Z": 2}[name[0]], 3] = clip_values[f, col]
-                else:
-                    local = local @ _axis_matrix(name[0], clip_values[f, col])
-            out[f, j] = local if parents[j] < 0 else out[f, parents[j]] @ local
-    return out
-
-
-def raw_layout(path: Path):
-    """Channel layout and values straight from the file, for the reference."""
-    tok = path.read_text().split()
-    layout, parents, stack, col, i = [], [], [], 0, 0
-    while tok[i] != "MOTION":
-        t = tok[i]
-        if t in ("ROOT", "JOINT"):
-            parents.append(stack[-1] if stack else -1)
-            layout.append([None, []])
-            stack.append(len(layout) - 1)
-            i += 3
-        elif t == "End":
-            i += 8
-        elif t == "OFFSET":
-            layout[stack[-1]][0] = np.array(tok[i + 1:i + 4], float)
-            i += 4
-        elif t == "CHANNELS":
-            n = int(tok[i + 1])
-            layout[stack[-1]][1] = [(c, col + k) for k, c in enumerate(tok[i + 2:i + 2 + n])]
-            col += n
-            i += 2 + n
-        elif t == "}":
-            stack.pop()
-            i += 1
-        else:
-            i += 1
-    frames = int(tok[i + 2])
-    values = np.array(tok[i + 6:], float).reshape(frames, -1)
-    return layout, parents, values
-
-
 def main(path: Path = DEFAULT) -> None:
     if not path.exists():
         print(f"skipped: {path} not found (../shared/assets is absent)")
@@ -102,11 +44,9 @@ def main(path: Path = DEFAULT) -> None:
     t_build, sk = best(lambda: Skeleton(clip))
     t_mj, (rot, pos) = best(lambda: sk.world())
     t_np_vec, _ = best(lambda: clip.world())
-    layout, parents, values = raw_layout(path)
-    t_ref, ref = best(lambda: numpy_fk(values, layout, parents), repeats=1)
-    scale = clip.meta["metres_per_unit"]
-    ref_pos = np.stack([ref[..., 0, 3], -ref[..., 2, 3], ref[..., 1, 3]], -1) * scale
-    err = np.abs(ref_pos - pos).max()
+    joints, _, values, _ = bvh_reference.parse(path.read_text())
+    t_ref, ref = best(lambda: bvh_reference.world_positions(joints, values), repeats=1)
+    err = np.abs(bvh_reference.to_zup_metres(ref, clip.meta["metres_per_unit"]) - pos).max()
     total = t_parse + t_build + t_mj
     F, J = clip.num_frames, clip.num_joints
     print(f"clip: {path.name}, {F} frames x {J} joints ({path.stat().st_size / 1e6:.1f} MB)")

@@ -43,6 +43,7 @@ from . import quat
 from .bvh import Y_TO_Z_UP
 from .clip import Clip
 from .errors import InputError, require_file
+from .frozen import frozen_array
 
 INCH = 0.0254  # metres
 CMU_FPS = 120.0  # CMU captured at 120 frames per second; AMC files do not store a rate
@@ -51,12 +52,6 @@ _AXES = "XYZ"
 
 
 # ---------------------------------------------------------------------------------------- types
-def _ro(a, dtype=np.float64) -> np.ndarray:
-    a = np.array(a, dtype=dtype, copy=True)
-    a.setflags(write=False)
-    return a
-
-
 @dataclass(frozen=True, eq=False)
 class AsfRoot:
     """The ``:root`` section.
@@ -307,7 +302,7 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
                              f"orientation", p, ln, "root")
     if order is None:
         raise InputError("the :root section has no 'order'", p, section_line["root"], "root order")
-    root = AsfRoot(order, axis, _ro(position), _ro(orientation))
+    root = AsfRoot(order, axis, frozen_array(position), frozen_array(orientation))
 
     bones = _parse_bones(sections["bonedata"], p, to_rad)
     by_name = {b.name: k for k, b in enumerate(bones)}
@@ -461,8 +456,8 @@ def _finish_bone(cur: dict, p: str, ln: int, bones: list[AsfBone]) -> AsfBone:
         raise InputError("direction is the zero vector", p, dline, "direction")
     if cur["limits"] and len(cur["limits"]) != len(cur["dof"]):
         raise InputError(f"{len(cur['limits'])} limits for {len(cur['dof'])} dofs", p, ln, "limits")
-    return AsfBone(id=cur["id"], name=cur["name"], direction=_ro(d), length=float(cur["length"]),
-                   axis=_ro(cur["axis"]), axis_order=cur["axis_order"], dof=cur["dof"],
+    return AsfBone(id=cur["id"], name=cur["name"], direction=frozen_array(d), length=float(cur["length"]),
+                   axis=frozen_array(cur["axis"]), axis_order=cur["axis_order"], dof=cur["dof"],
                    limits=tuple(cur["limits"]), line=cur["line"])
 
 

@@ -17,15 +17,10 @@ import numpy as np
 
 from . import quat
 from .errors import InputError
+from .frozen import frozen_array
 
 
 TRANSLATION_NOISE = 1e-6  # metres: translation changes below this are exporter noise, not motion
-
-
-def _frozen(a, dtype=np.float64) -> np.ndarray:
-    a = np.array(a, dtype=dtype, copy=True)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,13 +61,13 @@ class Clip:
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
         set_("joint_names", tuple(str(n) for n in self.joint_names))
-        set_("parents", _frozen(self.parents, np.int32))
-        set_("offsets", _frozen(self.offsets))
-        set_("rest_rotations", _frozen(self.rest_rotations))
-        set_("rotations", _frozen(quat.make_continuous(quat.normalize(np.asarray(self.rotations, float)))))
-        set_("translations", _frozen(self.translations))
-        set_("end_parents", _frozen(self.end_parents, np.int32))
-        set_("end_offsets", _frozen(np.reshape(self.end_offsets, (-1, 3))))
+        set_("parents", frozen_array(self.parents, np.int32))
+        set_("offsets", frozen_array(self.offsets))
+        set_("rest_rotations", frozen_array(self.rest_rotations))
+        set_("rotations", frozen_array(quat.make_continuous(quat.normalize(np.asarray(self.rotations, float)))))
+        set_("translations", frozen_array(self.translations))
+        set_("end_parents", frozen_array(self.end_parents, np.int32))
+        set_("end_offsets", frozen_array(np.reshape(self.end_offsets, (-1, 3))))
         set_("fps", float(self.fps))
         set_("meta", dict(self.meta))
         J = len(self.joint_names)

@@ -41,6 +41,7 @@ from . import quat
 from .bvh import Y_TO_Z_UP
 from .clip import Clip
 from .errors import InputError, require_file
+from .frozen import frozen_array
 
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _NORM_DIV = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0, 5125: 4294967295.0}
@@ -378,12 +379,6 @@ def rigid_locals(parents: np.ndarray, above: np.ndarray, local_m: np.ndarray, lo
 
 
 # ---------------------------------------------------------------------------------- the skeleton
-def _ro(a, dtype=np.float64) -> np.ndarray:
-    a = np.array(a, dtype=dtype, copy=True)
-    a.setflags(write=False)
-    return a
-
-
 @dataclass(frozen=True, eq=False)
 class CharacterSkeleton:
     """A skinned character's joint tree and bind pose (Z-up, metres). Arrays are read-only.
@@ -426,12 +421,12 @@ class CharacterSkeleton:
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
         set_("joint_names", tuple(self.joint_names))
-        set_("parents", _ro(self.parents, np.int32))
+        set_("parents", frozen_array(self.parents, np.int32))
         for k in ("nodes", "skin_joint"):
-            set_(k, _ro(getattr(self, k), np.int64))
+            set_(k, frozen_array(getattr(self, k), np.int64))
         for k in ("bind_world", "bind_rotations", "bind_translations", "rest_rotations", "rest_translations",
                   "inverse_bind_matrices", "mesh_world"):
-            set_(k, _ro(getattr(self, k)))
+            set_(k, frozen_array(getattr(self, k)))
 
     @property
     def num_joints(self) -> int:

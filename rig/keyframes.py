@@ -31,14 +31,14 @@ matters for the jiggle downstream.
 from __future__ import annotations
 
 import os
-import tomllib
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from . import quat
 from .clip import Clip
-from .errors import InputError, require_file
+from .errors import InputError
+from .tomlfile import read_toml
 
 
 def _vec3(v, path: str, field: str) -> np.ndarray:
@@ -53,14 +53,7 @@ def _vec3(v, path: str, field: str) -> np.ndarray:
 
 def read_keyframes(path: str | os.PathLike) -> Clip:
     """Read a keyframed TOML clip (see module docstring) into a :class:`Clip`."""
-    p = require_file(path, "keyframe file")
-    try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"not valid TOML: {e}", p) from None
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file; expected TOML", p) from None
+    p, doc = read_toml(path, "keyframe file")
 
     fps = doc.get("fps", 60)
     if not isinstance(fps, (int, float)) or not np.isfinite(fps) or fps <= 0:

@@ -383,14 +383,9 @@ def _inv_left_jacobian(phi: np.ndarray) -> np.ndarray:
 
 def read_body_map(path: str | os.PathLike) -> dict[str, str]:
     """Read a clip-joint -> MJCF-body map from TOML: a ``[joints]`` table of ``clip_joint = "body"``."""
-    import tomllib
+    from rig.tomlfile import read_toml
 
-    p = require_file(path, "joint map")
-    try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise InputError(f"not valid TOML: {e}", p) from None
+    p, doc = read_toml(path, "joint map")
     table = doc.get("joints")
     if not isinstance(table, dict) or not table:
         raise InputError('expected a [joints] table of clip_joint = "body" entries', p, field="joints")

@@ -17,11 +17,11 @@ Layout (paths relative to the scene file)::
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass
 
 from rig.clip import Clip
-from rig.errors import InputError, require_file
+from rig.errors import InputError
+from rig.tomlfile import read_toml
 
 _KNOWN = {"name": None, "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
           "skeleton": {"drive"}, "output": {"fps"}}
@@ -39,12 +39,7 @@ class Scene:
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
-    p = require_file(path, "scene file")
-    try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"not valid TOML: {e}", p) from None
+    p, doc = read_toml(path, "scene file")
     for key, sub in doc.items():
         if key not in _KNOWN:
             raise InputError(f"unknown section; expected one of {', '.join(_KNOWN)}", p, field=key)
