@@ -27,7 +27,7 @@ import numpy as np
 from . import quat
 from .clip import Clip
 from .errors import InputError
-from .gltf_skeleton import GltfDocument, Z_UP, joint_tree, rigid_locals, trs_matrix
+from .gltf_io import GltfDocument, Z_UP, joint_tree, rigid_locals, trs_matrix
 
 _WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
 _INTERP = ("LINEAR", "STEP", "CUBICSPLINE")

@@ -1,6 +1,4 @@
 """BVH reader: hierarchies and channel layouts against an independent FK, CMU facts, bad input, fuzz."""
-import os
-import random
 
 import numpy as np
 import pytest

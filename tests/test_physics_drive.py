@@ -4,7 +4,6 @@ from __future__ import annotations
 import json
 import time
 
-import mujoco
 import numpy as np
 import pytest
 from conftest import CMU_BVH, asset
