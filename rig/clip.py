@@ -23,6 +23,15 @@ from .frozen import frozen_array
 TRANSLATION_NOISE = 1e-6  # metres: translation changes below this are exporter noise, not motion
 
 
+def joint_index(joint_names: tuple[str, ...], name: str, source: str = "") -> int:
+    """Index of joint `name`, or an InputError listing the joints (naming `source` when given)."""
+    try:
+        return joint_names.index(name)
+    except ValueError:
+        raise InputError(f"no joint named {name!r}; joints are {', '.join(joint_names)}",
+                         source or None) from None
+
+
 @dataclass(frozen=True, eq=False)
 class Clip:
     """A skeletal motion.
@@ -116,11 +125,7 @@ class Clip:
         return self.translations[:, 0]
 
     def index(self, name: str) -> int:
-        try:
-            return self.joint_names.index(name)
-        except ValueError:
-            raise InputError(f"no joint named {name!r}; joints are {', '.join(self.joint_names)}",
-                             self.source or None) from None
+        return joint_index(self.joint_names, name, self.source)
 
     def children(self, j: int) -> list[int]:
         return [int(c) for c in np.nonzero(self.parents == j)[0]]

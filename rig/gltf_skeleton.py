@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quat
-from .clip import Clip
+from .clip import Clip, joint_index
 from .errors import InputError
 from .frozen import frozen_array
 from .gltf_io import GltfDocument, Z_UP, joint_tree, polar_rotation, rigid_locals, trs_matrix, world_chain
@@ -76,11 +76,7 @@ class CharacterSkeleton:
         return len(self.joint_names)
 
     def index(self, name: str) -> int:
-        try:
-            return self.joint_names.index(name)
-        except ValueError:
-            raise InputError(f"no joint named {name!r}; joints are {', '.join(self.joint_names)}",
-                             self.source or None) from None
+        return joint_index(self.joint_names, name, self.source)
 
     @property
     def bind_positions(self) -> np.ndarray:
