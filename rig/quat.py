@@ -146,6 +146,14 @@ def make_continuous(q: np.ndarray, axis: int = 0) -> np.ndarray:
     return np.moveaxis(q * sign[..., None], 0, axis)
 
 
+def to_rotvec(q: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions -> (..., 3) rotation vectors (axis times angle in radians, <= pi)."""
+    q = canonical(q)
+    s = np.linalg.norm(q[..., 1:], axis=-1)
+    ang = 2.0 * np.arctan2(s, q[..., 0])
+    return q[..., 1:] * np.where(s > 1e-12, ang / np.where(s > 1e-12, s, 1.0), 2.0)[..., None]
+
+
 def angle(q: np.ndarray) -> np.ndarray:
     """Rotation angle in radians, in [0, pi]."""
     return 2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0]))

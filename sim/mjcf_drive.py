@@ -50,6 +50,8 @@ from rig import quat
 from rig.clip import Clip
 from rig.errors import InputError, require_file
 
+from .skeleton import body_poses
+
 MAX_REST_MISALIGNMENT_DEG = 45.0  # Kabsch angle above which the two rest poses are not comparable
 
 
@@ -268,16 +270,7 @@ class MjcfDrive:
     def kinematics(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World rotations (N, B, 4) w,x,y,z and positions (N, B, 3) metres of every body but the
         world (order of `body_names`) for qpos (N, nq), by mj_kinematics."""
-        m, d = self.model, self.data
-        n = qpos.shape[0]
-        rot = np.empty((n, m.nbody - 1, 4))
-        pos = np.empty((n, m.nbody - 1, 3))
-        for i in range(n):
-            d.qpos[:] = qpos[i]
-            mujoco.mj_kinematics(m, d)
-            rot[i] = d.xquat[1:]
-            pos[i] = d.xpos[1:]
-        return rot, pos
+        return body_poses(self.model, self.data, qpos, np.arange(1, self.model.nbody))
 
     def world(self, times: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Body world rotations (N, B, 4) and positions (N, B, 3) metres at `times` seconds
@@ -355,7 +348,7 @@ def _gauss_newton(q: np.ndarray, a: np.ndarray, ang: np.ndarray, iterations: int
     for _ in range(iterations):
         r, tails = _compose(a, ang)
         err_q = quat.canonical(quat.mul(quat.conj(r), q))  # in the frame after all joints
-        e = Rotation.from_quat(quat.to_xyzw(err_q)).as_rotvec()  # (N, 3)
+        e = quat.to_rotvec(err_q)  # (N, 3)
         # d/dt_i of R: axis a_i seen from the end frame, b_i = (R_{i+1} ... R_k)^T a_i; then
         # de/dt_i = -Jl^-1(e) b_i (the inverse left Jacobian of SO(3)), exact for large errors too.
         B = np.stack([quat.rotate(quat.conj(tails[i + 1]), np.broadcast_to(a[i], e.shape))

@@ -71,6 +71,7 @@ import numpy as np
 from rig import quat
 from rig.clip import Clip
 from rig.errors import InputError
+from rig.frozen import frozen_array
 
 from .skeleton import BodyShape, Skeleton, build_mjcf, mjcf_names
 
@@ -92,12 +93,6 @@ MAX_CONTACT_POINTS = 8  # contact points kept per foot and frame in the result
 
 class PhysicsDivergedError(RuntimeError):
     """The simulation blew up (MuJoCo warning, non-finite state, or a body far off the clip)."""
-
-
-def _frozen(a, dtype=np.float64) -> np.ndarray:
-    a = np.array(a, dtype=dtype, copy=True)
-    a.setflags(write=False)
-    return a
 
 
 # ---------------------------------------------------------------------------------------- feet
@@ -170,11 +165,6 @@ def _geom_lowest(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) 
     end = data.geom_xpos[geoms] - (half * np.sign(axis[:, 2]))[:, None] * axis  # lower end of the segment
     end[:, 2] -= r
     return end
-
-
-def _geom_lowest_z(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) -> np.ndarray:
-    """(G,) lowest world z (metres) of capsule or sphere geoms at the current kinematics."""
-    return _geom_lowest(model, data, geoms)[:, 2]
 
 
 PLANTED_SPEED = 0.3  # m/s: a foot whose lowest point moves slower than this is planted
@@ -267,8 +257,8 @@ class PhysicsResult:
     def __post_init__(self):
         for k in ("times", "rotations", "positions", "reference_positions", "joint_error", "foot_force",
                   "foot_contact_points", "foot_lowest", "root_assist_force"):
-            object.__setattr__(self, k, _frozen(getattr(self, k)))
-        object.__setattr__(self, "foot_contact_count", _frozen(self.foot_contact_count, np.int32))
+            object.__setattr__(self, k, frozen_array(getattr(self, k)))
+        object.__setattr__(self, "foot_contact_count", frozen_array(self.foot_contact_count, np.int32))
         object.__setattr__(self, "foot_joints", tuple(self.foot_joints))
 
     @property
@@ -314,14 +304,6 @@ class PhysicsResult:
 
 
 # ---------------------------------------------------------------------------------------- drive
-def _quat_to_rotvec(q: np.ndarray) -> np.ndarray:
-    """(..., 4) unit quaternions -> (..., 3) rotation vectors (axis times angle in radians, <= pi)."""
-    q = quat.canonical(q)
-    s = np.linalg.norm(q[..., 1:], axis=-1)
-    ang = 2.0 * np.arctan2(s, q[..., 0])
-    return q[..., 1:] * np.where(s > 1e-12, ang / np.where(s > 1e-12, s, 1.0), 2.0)[..., None]
-
-
 class PhysicsDrive:
     """MuJoCo follows a clip with its skeleton's body standing on a floor.
 
@@ -466,7 +448,7 @@ class PhysicsDrive:
         self.model.eq_data[self._joint_eq, 3:6] = tra[3, ch]
         self.model.eq_data[self._joint_eq, 6:10] = rot[3, ch]
         # a root's local transform is its world transform; angular velocity in the world frame
-        w = _quat_to_rotvec(quat.mul(rot[2, r], quat.conj(rot[1, r]))) / (tb - ta)
+        w = quat.to_rotvec(quat.mul(rot[2, r], quat.conj(rot[1, r]))) / (tb - ta)
         v = (tra[2, r] - tra[1, r]) / (tb - ta)
         self._root_target[:] = np.concatenate([tra[0, r], rot[0, r], v, w], axis=1)
 
@@ -488,7 +470,7 @@ class PhysicsDrive:
             v = d.qvel[a:a + 3]  # free joint: world linear velocity of the body origin
             w = d.xmat[b].reshape(3, 3) @ d.qvel[a + 3:a + 6]  # free joint: angular velocity, body frame
             acc = self._root_kp * (tp - d.xpos[b]) + self._root_kd * (tv - v)
-            err = _quat_to_rotvec(quat.mul(tq, quat.conj(d.xquat[b])))  # world rotation vector
+            err = quat.to_rotvec(quat.mul(tq, quat.conj(d.xquat[b])))  # world rotation vector
             alpha = self._root_kp * err + self._root_kd * (tw - w)
             bodies = self._root_subtree[i]
             arm = d.xipos[bodies] - d.xpos[b]
@@ -641,7 +623,7 @@ class PhysicsDrive:
         return force, [np.array(p).reshape(-1, 3) for p in pts]
 
     def _lowest(self) -> np.ndarray:
-        return np.array([_geom_lowest_z(self.model, self.data, g).min() for g in self.foot_geoms]) \
+        return np.array([_geom_lowest(self.model, self.data, g)[:, 2].min() for g in self.foot_geoms]) \
             - self.floor_height
 
     # ------------------------------------------------------------------ whole runs

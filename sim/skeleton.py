@@ -282,16 +282,7 @@ class Skeleton:
 
     def kinematics(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World rotations (N, J, 4) w,x,y,z and positions (N, J, 3) metres for qpos (N, nq)."""
-        m, d, ids = self.model, self.data, self.body_ids
-        n = qpos.shape[0]
-        rot = np.empty((n, len(ids), 4))
-        pos = np.empty((n, len(ids), 3))
-        for i in range(n):
-            d.qpos[:] = qpos[i]
-            mujoco.mj_kinematics(m, d)
-            rot[i] = d.xquat[ids]
-            pos[i] = d.xpos[ids]
-        return rot, pos
+        return body_poses(self.model, self.data, qpos, self.body_ids)
 
     def world(self, times: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """World rotations (N, J, 4) and positions (N, J, 3) at `times` seconds (default: every
@@ -301,6 +292,21 @@ class Skeleton:
         else:
             q = self.qpos_at(times)
         return self.kinematics(q)
+
+
+def body_poses(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray, bodies: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations (N, B, 4) w,x,y,z and positions (N, B, 3) metres of `bodies` (B,) for each
+    row of qpos (N, nq), by mj_kinematics (overwrites `data`)."""
+    n = qpos.shape[0]
+    rot = np.empty((n, len(bodies), 4))
+    pos = np.empty((n, len(bodies), 3))
+    for i in range(n):
+        data.qpos[:] = qpos[i]
+        mujoco.mj_kinematics(model, data)
+        rot[i] = data.xquat[bodies]
+        pos[i] = data.xpos[bodies]
+    return rot, pos
 
 
 def transforms(rot: np.ndarray, pos: np.ndarray) -> np.ndarray:

@@ -26,6 +26,14 @@ def test_mul_rotate_matrix_match_scipy():
     np.testing.assert_allclose(np.abs(np.sum(back * a, axis=1)), 1.0, atol=1e-12)
 
 
+def test_rotation_vectors_match_scipy():
+    q = random_quats(50)
+    want = Rotation.from_quat(quat.to_xyzw(q)).as_rotvec()
+    np.testing.assert_allclose(quat.to_rotvec(q), want, atol=1e-12)
+    np.testing.assert_allclose(quat.to_rotvec(-q), want, atol=1e-12)  # same rotation, either sign
+    np.testing.assert_allclose(quat.to_rotvec(quat.identity((2,))), 0.0)
+
+
 def test_euler_is_intrinsic_in_listed_order():
     # BVH "Zrotation Yrotation Xrotation" = Rz @ Ry @ Rx (column vectors)
     z, y, x = np.radians([30.0, -50.0, 70.0])
