@@ -14,7 +14,8 @@ from rig.clip import Clip
 from rig.errors import InputError
 from sim.physics_drive import (GRAVITY, PhysicsDivergedError, PhysicsDrive, PhysicsResult, estimate_floor,
                                find_feet)
-from sim.skeleton import BodyShape, Skeleton, bone_roles
+from rig.bone_roles import bone_roles
+from sim.skeleton import BodyShape, Skeleton
 
 # A two-bone leg standing still: hip (root) -> knee -> ankle, a flat foot bone to a toe end site.
 # The hip sits 8 cm ahead of the ankle so that the centre of mass (~5 cm ahead) lies between the
