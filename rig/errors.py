@@ -53,3 +53,9 @@ def require_file(path: str | os.PathLike, what: str = "file") -> str:
     if not os.access(p, os.R_OK):
         raise InputError(f"{what} is not readable", p)
     return p
+
+
+class JiggleWarning(UserWarning):
+    """Something in the user's input was repaired or looks wrong, and jiggle went on (for example
+    weights renormalised, degenerate faces dropped, an implausible height). The CLI prints these as
+    one line: ``jiggle: warning: ...``."""

@@ -1,0 +1,409 @@
+"""A skinned character: rest skin, faces, skeleton, bind transforms and top-k skin weights.
+
+Built once when a scene loads and never changed while a clip plays. Posing takes bone world
+transforms (from the MuJoCo skeleton driver, `sim.skeleton.Skeleton.world`) in the character's joint
+order and returns skinned vertex positions:
+
+    skin matrix of joint j  S_j = W_j(t) @ inverse(B_j)
+    vertex                  x_v = sum_i w_vi S_{j_vi} @ rest_v          (LBS; DQS optional)
+
+where W_j(t) is the rigid world transform of joint j and B_j its bind matrix, the transform that
+takes the joint's space to the rest skin. For a glTF file B_j = mesh placement @ inverse(IBM_j), so
+S_j equals the spec's "global transform x inverse bind matrix" applied to the file's vertices.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .clip import Clip, joint_index
+from .errors import InputError, JiggleWarning
+from .frozen import frozen_array
+
+PLAUSIBLE_HEIGHT_M = (0.5, 2.6)
+"""A human-like character outside this height (metres) was probably read in the wrong unit."""
+
+
+@dataclass(frozen=True, eq=False)
+class Character:
+    """A skinned character in jiggle's world (Z-up, metres). Arrays are read-only.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64 metres, rest skin (the bind pose).
+    faces : (F, 3) int32 vertex indices, counter-clockwise seen from outside where the source says so.
+    normals : (V, 3) float64 unit rest normals.
+    uvs : (V, 2) float32 texture coordinates, or None when the source has none.
+    joint_names : (J,) joint names, parents first.
+    parents : (J,) int32 parent index or -1.
+    bind_world : (J, 4, 4) float64 rigid world transform of each joint in the bind pose, metres.
+    bind_matrices : (J, 4, 4) float64 transform from each joint's space to the rest skin; equals
+        `bind_world` unless the file's inverse bind matrices scale or shear.
+    joints : (V, k) int32 joint index of each influence, strongest first.
+    weights : (V, k) float32 influence weights, rows summing to 1, descending.
+    skeleton : one-frame Clip of the bind pose, to drive with `sim.skeleton.Skeleton`.
+    name, source : a label and the file it came from ("" when generated).
+    meta : how it was made: {"weights": "file" | "bone heat", "unit_scale": metres per file unit, ...}.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray | None
+    joint_names: tuple[str, ...]
+    parents: np.ndarray
+    bind_world: np.ndarray
+    bind_matrices: np.ndarray
+    joints: np.ndarray
+    weights: np.ndarray
+    skeleton: Clip
+    name: str = ""
+    source: str = ""
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        set_("joint_names", tuple(self.joint_names))
+        for k in ("vertices", "normals", "bind_world", "bind_matrices"):
+            set_(k, frozen_array(getattr(self, k)))
+        set_("faces", frozen_array(self.faces, np.int32))
+        set_("parents", frozen_array(self.parents, np.int32))
+        set_("joints", frozen_array(self.joints, np.int32))
+        set_("weights", frozen_array(self.weights, np.float32))
+        if self.uvs is not None:
+            set_("uvs", frozen_array(self.uvs, np.float32))
+        V, J = len(self.vertices), len(self.joint_names)
+        assert self.vertices.shape == (V, 3) and self.normals.shape == (V, 3)
+        assert self.joints.shape == self.weights.shape == (V, self.joints.shape[1])
+        assert self.bind_world.shape == self.bind_matrices.shape == (J, 4, 4) and self.parents.shape == (J,)
+        assert self.skeleton.joint_names == self.joint_names
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def num_vertices(self) -> int:
+        return len(self.vertices)
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def influences(self) -> int:
+        """k, the number of influences kept per vertex."""
+        return self.joints.shape[1]
+
+    @property
+    def height(self) -> float:
+        """Extent of the rest skin along z, metres."""
+        return float(np.ptp(self.vertices[:, 2])) if self.num_vertices else 0.0
+
+    def index(self, name: str) -> int:
+        return joint_index(self.joint_names, name, self.source)
+
+    @property
+    def bind_positions(self) -> np.ndarray:
+        """(J, 3) metres, joint positions in the bind pose."""
+        return self.bind_world[:, :3, 3]
+
+    def dominant_joint(self) -> np.ndarray:
+        """(V,) int32, the strongest influence of each vertex."""
+        return self.joints[:, 0]
+
+    # ------------------------------------------------------------------ posing
+    def skin_matrices(self, world: np.ndarray) -> np.ndarray:
+        """Skin matrices (..., J, 4, 4) from rigid joint world transforms `world` (..., J, 4, 4) metres
+        (e.g. `sim.skeleton.transforms(*skeleton.world(times))`), in the character's joint order."""
+        world = np.asarray(world, dtype=np.float64)
+        if world.shape[-3:] != (self.num_joints, 4, 4):
+            raise ValueError(f"world transforms must be (..., {self.num_joints}, 4, 4), got {world.shape}")
+        return world @ np.linalg.inv(self.bind_matrices)
+
+    def skinner(self, device: str = "cpu"):
+        """A `rig.skinning.Skinner` holding this character's rest skin and weights on `device`."""
+        from .skinning import Skinner
+        return Skinner(self.vertices, self.joints, self.weights, faces=self.faces, device=device)
+
+    def pose(self, world: np.ndarray, method: str = "lbs", device: str = "cpu") -> np.ndarray:
+        """Skinned vertex positions (N, V, 3) float32 metres for joint world transforms (N, J, 4, 4)."""
+        world = np.asarray(world, dtype=np.float64)
+        single = world.ndim == 3
+        mats = self.skin_matrices(world[None] if single else world)
+        sk = self.skinner(device)
+        out = np.stack([sk.skin(m, method=method) for m in mats]) if len(mats) else \
+            np.zeros((0, self.num_vertices, 3), np.float32)
+        return out[0] if single else out
+
+    def joint_order(self, names) -> np.ndarray:
+        """(J,) index into `names` of each of the character's joints (to reorder a driver's bodies);
+        InputError naming the first joint missing from `names`."""
+        lookup = {n: i for i, n in enumerate(names)}
+        missing = [n for n in self.joint_names if n not in lookup]
+        if missing:
+            raise InputError(f"the motion has no joint {missing[0]!r} of the character "
+                             f"({len(missing)} of {self.num_joints} missing); retarget the clip onto the character",
+                             self.source or None, field="joints")
+        return np.array([lookup[n] for n in self.joint_names])
+
+    def with_weights(self, joints: np.ndarray, weights: np.ndarray, how: str) -> "Character":
+        """The same character with other skin weights (V, k); `how` is recorded in meta["weights"]."""
+        return replace(self, joints=joints, weights=weights, meta={**self.meta, "weights": how})
+
+
+# ---------------------------------------------------------------------------------- helpers
+def rest_clip(joint_names, parents, bind_world: np.ndarray, name: str = "", source: str = "",
+              fps: float = 30.0) -> Clip:
+    """One-frame Clip whose rest pose has world transforms `bind_world` (J, 4, 4) (rigid part used)."""
+    from . import quat
+    from .gltf_io import polar_rotation
+    r = polar_rotation(bind_world[:, :3, :3])
+    p = bind_world[:, :3, 3]
+    rot = np.empty_like(r)
+    tra = np.empty_like(p)
+    for j, pa in enumerate(parents):
+        if pa < 0:
+            rot[j], tra[j] = r[j], p[j]
+        else:
+            inv = quat.conj(r[pa])
+            rot[j] = quat.mul(inv, r[j])
+            tra[j] = quat.rotate(inv, p[j] - p[pa])
+    rot = quat.canonical(rot)
+    return Clip(joint_names=tuple(joint_names), parents=parents, offsets=tra, rest_rotations=rot,
+                rotations=rot[None], translations=tra[None], fps=fps, name=name, source=source,
+                meta={"format": "bind pose"})
+
+
+def check_height(height: float, path: str | None, unit_option: str = "--unit") -> None:
+    """Warn when a character's height (metres) is implausible for a body, suggesting the unit option."""
+    lo, hi = PLAUSIBLE_HEIGHT_M
+    if lo <= height <= hi:
+        return
+    hint = ""
+    for unit, s in (("cm", 0.01), ("mm", 0.001), ("in", 0.0254)):
+        if lo <= height * s <= hi:
+            hint = f"; if the file is in {unit}, pass {unit_option} {unit}"
+            break
+    where = f"{path}: " if path else ""
+    warnings.warn(f"{where}the body is {height:.4g} m tall, outside the plausible "
+                  f"{lo}-{hi} m{hint}", JiggleWarning, stacklevel=3)
+
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+
+
+def unit_scale(unit: str | float | None, path: str | None = None) -> float:
+    """Metres per file unit from a name in UNITS or a positive number; None means metres."""
+    if unit is None:
+        return 1.0
+    if isinstance(unit, str) and unit in UNITS:
+        return UNITS[unit]
+    try:
+        s = float(unit)
+    except (TypeError, ValueError):
+        s = float("nan")
+    if not np.isfinite(s) or s <= 0:
+        raise InputError(f"unit must be one of {', '.join(UNITS)} or a positive number of metres per unit, "
+                         f"got {unit!r}", path, field="unit")
+    return s
+
+
+def nearest_joint(points: np.ndarray, joint_positions: np.ndarray) -> np.ndarray:
+    """(P,) index of the nearest joint to each point (P, 3)."""
+    from scipy.spatial import cKDTree
+    return cKDTree(joint_positions).query(points)[1].astype(np.int32)
+
+
+def clean_weights(joints: np.ndarray, weights: np.ndarray, num_joints: int, positions: np.ndarray,
+                  joint_positions: np.ndarray, k: int, path: str | None, what: str
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Validate raw skin weights (V, m) from a file and keep the top k, renormalised.
+
+    Errors: joint indices outside [0, num_joints) on an influence with non-zero weight, NaN or
+    negative weights. Warnings: rows whose weights do not sum to 1 within 1e-3 (renormalised),
+    rows with no weight at all (given to the nearest joint).
+    """
+    from .skinning import normalise_weights
+    joints = np.asarray(joints)
+    weights = np.asarray(weights, dtype=np.float64)
+    if not np.all(np.isfinite(weights)):
+        bad = int(np.argwhere(~np.isfinite(weights))[0, 0])
+        raise InputError(f"weights are not finite (NaN or infinite), first at vertex {bad}", path, field=what)
+    if np.any(weights < -1e-6):
+        bad = int(np.argwhere(weights < -1e-6)[0, 0])
+        raise InputError(f"negative weights, first at vertex {bad}", path, field=what)
+    weights = np.maximum(weights, 0.0)
+    live = weights > 0
+    out_of_range = live & ((joints < 0) | (joints >= num_joints))
+    if np.any(out_of_range):
+        v, c = np.argwhere(out_of_range)[0]
+        raise InputError(f"joint index {int(joints[v, c])} at vertex {int(v)} is out of range: the skin has "
+                         f"{num_joints} joints (0..{num_joints - 1})", path, field=what)
+    joints = np.where(live, joints, 0)
+    total = weights.sum(1)
+    empty = total <= 0
+    if np.any(empty):
+        n = int(empty.sum())
+        warnings.warn(f"{path + ': ' if path else ''}{what}: {n} vertices have no weight; each is bound to "
+                      f"its nearest joint", JiggleWarning, stacklevel=3)
+        joints = joints.copy()
+        weights = weights.copy()
+        joints[empty, 0] = nearest_joint(positions[empty], joint_positions)
+        weights[empty, 0] = 1.0
+        total = weights.sum(1)
+    off = np.abs(total - 1.0) > 1e-3
+    if np.any(off):
+        warnings.warn(f"{path + ': ' if path else ''}{what}: the weights of {int(off.sum())} vertices do not sum "
+                      f"to 1 (from {total[off].min():.4g} to {total[off].max():.4g}); renormalised",
+                      JiggleWarning, stacklevel=3)
+    return normalise_weights(joints, weights, k=k)
+
+
+def drop_degenerate_faces(vertices: np.ndarray, faces: np.ndarray, path: str | None) -> np.ndarray:
+    """Faces (F, 3) without repeated indices or zero area; warns how many were dropped."""
+    f = np.asarray(faces)
+    if len(f) == 0:
+        return f.reshape(0, 3)
+    rep = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    v = vertices[f]
+    area2 = np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    scale = max(float(np.ptp(vertices, axis=0).max()), 1e-12) if len(vertices) else 1.0
+    bad = rep | (area2 <= (1e-12 * scale) ** 2)
+    if np.any(bad):
+        warnings.warn(f"{path + ': ' if path else ''}{int(bad.sum())} of {len(f)} faces are degenerate "
+                      f"(repeated vertex or zero area) and were dropped", JiggleWarning, stacklevel=3)
+    return f[~bad]
+
+
+def require_finite_positions(vertices: np.ndarray, path: str | None, what: str = "positions") -> None:
+    bad = ~np.all(np.isfinite(vertices), axis=1)
+    if np.any(bad):
+        raise InputError(f"{int(bad.sum())} vertex positions are not finite (NaN or infinite), first at vertex "
+                         f"{int(np.argmax(bad))}", path, field=what)
+
+
+def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Clip | None = None,
+                   k: int = 4, unit: str | float | None = None, up: str = "auto", skin: int = 0) -> Character:
+    """Read a character from a file.
+
+    path : a skinned .glb/.gltf (its own skeleton and weights), or an unskinned .glb/.gltf, .obj, .ply
+        or .stl mesh, which gets automatic weights (bone heat) from `skeleton`: a clip file (its rest
+        pose), an MJCF .xml, a skinned glTF, or a Clip. An unskinned glTF with no skeleton given
+        is an error that says so.
+    k : influences kept per vertex.
+    unit : metres per file unit ("m", "cm", "mm", "in", "ft" or a number); None: metres. A height
+        outside 0.5-2.6 m warns and suggests a unit.
+    up : axis that is up in an OBJ/PLY/STL file, "y", "z" or "auto" (the longer of the y and z
+        extents, since a standing body is taller than it is deep); glTF is always Y-up.
+    """
+    from .mesh_io import MESH_EXTENSIONS, read_mesh
+    p = os.fspath(path)
+    ext = os.path.splitext(p)[1].lower()
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 8:
+        raise InputError(f"k (influences per vertex) must be a whole number from 1 to 8, got {k!r}", field="k")
+    if ext in (".glb", ".gltf"):
+        from .gltf_character import gltf_has_skin, read_gltf_character
+        if gltf_has_skin(p) and skeleton is None:
+            return read_gltf_character(p, skin=skin, k=k, unit=unit)
+        if gltf_has_skin(p):
+            warnings.warn(f"{p}: the file's own skin is ignored: weights are computed from the given skeleton",
+                          JiggleWarning, stacklevel=2)
+    elif ext not in MESH_EXTENSIONS:
+        raise InputError(f"unknown character format {ext or '(no extension)'!r}; expected .glb, .gltf or one of "
+                         f"{', '.join(MESH_EXTENSIONS)}", p)
+    mesh = read_mesh(p, unit=unit, up=up)
+    if skeleton is None:
+        raise InputError("the mesh has no skin: give a skeleton (a clip, an MJCF or a skinned glTF) to compute "
+                         "automatic weights from", p, field="skeleton")
+    clip = skeleton if isinstance(skeleton, Clip) else load_skeleton(skeleton)
+    warnings.warn(f"{p}: no skin in the file; computing automatic weights (bone heat) from the skeleton of "
+                  f"{clip.source or clip.name or 'the given clip'}", JiggleWarning, stacklevel=2)
+    return auto_weighted(mesh.vertices, mesh.faces, clip, k=k, name=mesh.name, source=p, uvs=mesh.uvs,
+                         meta={"unit_scale": mesh.unit_scale, "up": mesh.up})
+
+
+def load_skeleton(path: str | os.PathLike) -> Clip:
+    """The rest pose of a skeleton file as a one-frame Clip: a clip (.bvh, .amc, .asf, .toml, glTF
+    animation), an MJCF model (.xml, bodies at qpos0) or a skinned glTF (its bind pose)."""
+    from .errors import require_file
+    p = require_file(path, "skeleton file")
+    ext = os.path.splitext(p)[1].lower()
+    if ext == ".xml":
+        from .mjcf_skeleton import read_mjcf_skeleton
+        return read_mjcf_skeleton(p)
+    if ext in (".glb", ".gltf"):
+        from .gltf_character import gltf_has_skin
+        if gltf_has_skin(p):
+            from .gltf_skeleton import read_gltf_skeleton
+            return read_gltf_skeleton(p).to_clip()
+    if ext == ".toml":
+        from .keyframes import read_keyframes
+        c = read_keyframes(p)
+    else:
+        from .mocap import load_clip
+        c = load_clip(p)
+    return rest_pose(c)
+
+
+def rest_pose(clip: Clip) -> Clip:
+    """A one-frame clip of `clip`'s rest pose (offsets, rest rotations)."""
+    return replace(clip, rotations=clip.rest_rotations[None], translations=clip.offsets[None])
+
+
+def auto_weighted(vertices: np.ndarray, faces: np.ndarray, clip: Clip, k: int = 4, name: str = "",
+                  source: str = "", uvs: np.ndarray | None = None, meta: dict | None = None) -> Character:
+    """A Character from a mesh (V, 3) / (F, 3) standing in the rest pose of `clip`'s skeleton (same
+    space: Z-up metres), with automatic weights by bone heat diffusion (rig.bone_heat)."""
+    from .bone_heat import bone_heat_weights
+    from .normals import vertex_normals
+    path = source or None
+    v = np.asarray(vertices, dtype=np.float64)
+    require_finite_positions(v, path)
+    f = drop_degenerate_faces(v, faces, path)
+    bind = _rest_transforms(clip)
+    check_overlap(v, bind[:, :3, 3], path)
+    rot, pos = clip.rest_world()
+    joints, weights, report = bone_heat_weights(v, f, pos, clip.parents, k=k, end_positions=end_sites(clip))
+    return Character(vertices=v, faces=f, normals=vertex_normals(v, f), uvs=uvs, joint_names=clip.joint_names,
+                     parents=clip.parents, bind_world=bind, bind_matrices=bind, joints=joints, weights=weights,
+                     skeleton=rest_pose(clip), name=name or clip.name, source=source,
+                     meta={"weights": "bone heat", "bone_heat": report, **(meta or {})})
+
+
+def end_sites(clip: Clip) -> np.ndarray:
+    """(J, 3) rest world position of each joint's end site (the farthest one when a joint has
+    several), NaN rows for joints without one."""
+    rot, pos = clip.rest_world()
+    out = np.full((clip.num_joints, 3), np.nan)
+    if len(clip.end_parents):
+        tips = clip.end_world(rot[None], pos[None])[0]
+        far = np.full(clip.num_joints, -1.0)
+        for e, tip in zip(clip.end_parents, tips):
+            d = float(np.linalg.norm(tip - pos[e]))
+            if d > far[e]:
+                far[e], out[e] = d, tip
+    return out
+
+
+def check_overlap(vertices: np.ndarray, joint_positions: np.ndarray, path: str | None) -> None:
+    """InputError when the skeleton does not sit inside the mesh's bounds (a unit or axis mix-up)."""
+    lo, hi = vertices.min(0), vertices.max(0)
+    pad = 0.1 * (hi - lo).max()
+    inside = np.all((joint_positions >= lo - pad) & (joint_positions <= hi + pad), axis=1)
+    if inside.mean() < 0.5:
+        h_mesh = float(hi[2] - lo[2])
+        h_skel = float(np.ptp(joint_positions[:, 2]))
+        raise InputError(f"the skeleton does not fit the mesh: only {int(inside.sum())} of {len(inside)} joints lie "
+                         f"within the mesh's bounds (mesh {h_mesh:.4g} m tall, skeleton {h_skel:.4g} m); check "
+                         f"the mesh's unit and up axis (--unit, --up)", path, field="skeleton")
+
+
+def _rest_transforms(clip: Clip) -> np.ndarray:
+    from . import quat
+    r, p = clip.rest_world()
+    m = np.zeros((clip.num_joints, 4, 4))
+    m[:, :3, :3] = quat.to_matrix(r)
+    m[:, :3, 3] = p
+    m[:, 3, 3] = 1.0
+    return m
