@@ -2,8 +2,6 @@
 evaluation, meshes with automatic weights, and bad input."""
 from __future__ import annotations
 
-import json
-import struct
 import warnings
 
 import numpy as np
