@@ -1,0 +1,335 @@
+"""Skinning: linear blend (LBS) and dual-quaternion (DQS) skinning of a rest mesh by skin matrices.
+
+A skin matrix ``M_j`` (4x4, column vectors, metres) takes a rest-pose point to joint ``j``'s posed
+frame: ``M_j = world_j @ inverse(bind_j)``. Each vertex has ``k`` influences (joint, weight).
+
+- :func:`lbs_numpy`, :func:`dqs_numpy`: vectorised float64 references (no input checks: they are
+  what the kernels are measured against).
+- :class:`Skinner`: the Warp launcher (kernels in :mod:`rig.skinning_kernels`); the rest mesh and
+  influences are uploaded once, each call uploads only the matrices.
+- :func:`normalise_weights`: top-k influences, renormalised, sorted by descending weight.
+
+Dual quaternions in NumPy are (..., 8): real part w, x, y, z then dual part w, x, y, z (the project's
+w-first order, see :mod:`rig.quat`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from rig import quat
+from rig import skinning_kernels as kernels
+from rig.errors import InputError
+from rig.normals import VertexNormals
+
+METHODS = ("lbs", "dqs")
+
+
+# ---------------------------------------------------------------------------------------------
+# input checks
+
+
+def check_influences(rest, joints, weights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validated copies: rest (V, 3) float64, joints (V, k) int64, weights (V, k) float64.
+
+    Raises InputError (a ValueError) naming the parameter: wrong shapes, non-finite rest
+    positions, non-integer or negative joints, negative or NaN weights, vertices whose weights
+    are all zero. Joint indices above the skeleton are caught where J is known (the matrices).
+    """
+    rest = np.asarray(rest)
+    joints = np.asarray(joints)
+    weights = np.asarray(weights)
+    if rest.ndim != 2 or rest.shape[1] != 3 or not np.issubdtype(rest.dtype, np.number):
+        raise InputError(f"expected a (V, 3) float array, got shape {rest.shape} "
+                         f"dtype {rest.dtype}", field="rest")
+    V = rest.shape[0]
+    if joints.ndim != 2 or joints.shape[0] != V:
+        raise InputError(f"expected shape (V, k) with V = {V}, got {joints.shape}", field="joints")
+    if weights.shape != joints.shape:
+        raise InputError(f"expected the shape of joints {joints.shape}, got {weights.shape}",
+                         field="weights")
+    if V and joints.shape[1] == 0:
+        raise InputError("every vertex needs at least one influence (k >= 1)", field="joints")
+    if not np.issubdtype(joints.dtype, np.integer):
+        raise InputError(f"expected an integer array, got dtype {joints.dtype}", field="joints")
+    if not np.issubdtype(weights.dtype, np.number):
+        raise InputError(f"expected a float array, got dtype {weights.dtype}", field="weights")
+    if not np.all(np.isfinite(rest)):
+        raise InputError("rest positions contain NaN or inf", field="rest")
+    if joints.size and joints.min() < 0:
+        raise InputError(f"joint indices must be >= 0, found {joints.min()}", field="joints")
+    weights = weights.astype(np.float64)
+    bad = ~np.isfinite(weights) | (weights < 0.0)
+    if np.any(bad):
+        rows = np.unique(np.nonzero(bad)[0])
+        raise InputError(f"{rows.size} vertices have negative, NaN or inf weights "
+                         f"(first: {rows[:5].tolist()})", field="weights")
+    empty = np.nonzero(weights.sum(axis=1) <= 0.0)[0]
+    if empty.size:
+        raise InputError(f"{empty.size} vertices have all-zero weights (first: "
+                         f"{empty[:5].tolist()}); give them an influence or drop them",
+                         field="weights")
+    return rest.astype(np.float64), joints.astype(np.int64), weights
+
+
+def check_matrices(matrices, num_joints_needed: int = 0) -> np.ndarray:
+    """Skin matrices as a (J, 4, 4) float64 array, J > the largest joint index in use.
+
+    num_joints_needed : the largest joint index referenced by the influences, plus one.
+    """
+    m = np.asarray(matrices)
+    if m.ndim != 3 or m.shape[1:] != (4, 4) or not np.issubdtype(m.dtype, np.number):
+        raise InputError(f"expected a (J, 4, 4) float array, got shape {m.shape} dtype {m.dtype}",
+                         field="matrices")
+    if m.shape[0] < num_joints_needed:
+        raise InputError(f"joint index {num_joints_needed - 1} is out of range [0, {m.shape[0]}) "
+                         f"for {m.shape[0]} skin matrices", field="joints")
+    m = m.astype(np.float64)
+    if not np.all(np.isfinite(m)):
+        bad = np.unique(np.nonzero(~np.isfinite(m))[0])
+        raise InputError(f"NaN or inf in the matrices of joints {bad[:5].tolist()}",
+                         field="matrices")
+    return m
+
+
+def _needed(joints: np.ndarray) -> int:
+    return int(joints.max()) + 1 if joints.size else 0
+
+
+# ---------------------------------------------------------------------------------------------
+# NumPy references
+
+
+def matrices_to_dual_quats(matrices) -> np.ndarray:
+    """Unit dual quaternions of the rigid part of skin matrices.
+
+    Parameters
+    ----------
+    matrices : (J, 4, 4) float, metres. The rotation is the polar factor of the upper 3x3 block, so
+        exporter scales of 1 +- 1e-6 are dropped; a mirrored block (det < 0) gets the nearest
+        rotation (its smallest singular direction flipped). The translation is the last column.
+
+    Returns
+    -------
+    (J, 8) float64: real w, x, y, z (the rotation q), dual w, x, y, z (= 0.5 * (0, t) * q).
+    """
+    m = np.asarray(matrices, np.float64)
+    u, _, vt = np.linalg.svd(m[:, :3, :3])
+    # singular values come sorted descending: a mirror is undone along the last, smallest one
+    flip = np.ones((m.shape[0], 3))
+    flip[:, 2] = np.sign(np.linalg.det(u @ vt))
+    r = (u * flip[:, None, :]) @ vt
+    real = quat.from_matrix(r)
+    t = np.concatenate([np.zeros((m.shape[0], 1)), m[:, :3, 3]], axis=1)
+    return np.concatenate([real, 0.5 * quat.mul(t, real)], axis=1)
+
+
+def lbs_numpy(rest, joints, weights, matrices) -> np.ndarray:
+    """Linear blend skinning: p = sum_i w_i * M_{j_i} @ [rest, 1].
+
+    Parameters
+    ----------
+    rest : (V, 3) float, metres.
+    joints : (V, k) int, indices into matrices.
+    weights : (V, k) float, >= 0; used as given (see :func:`normalise_weights`).
+    matrices : (J, 4, 4) float, skin matrices, metres.
+
+    Returns
+    -------
+    (V, 3) float64, metres.
+    """
+    rest, weights = np.asarray(rest, np.float64), np.asarray(weights, np.float64)
+    m = np.asarray(matrices, np.float64)[np.asarray(joints)]  # (V, k, 4, 4)
+    posed = np.einsum("vkab,vb->vka", m[..., :3, :3], rest) + m[..., :3, 3]
+    return np.einsum("vk,vka->va", weights, posed)
+
+
+def dqs_numpy(rest, joints, weights, matrices) -> np.ndarray:
+    """Dual-quaternion skinning (Kavan et al. 2008), same parameters and result as :func:`lbs_numpy`.
+
+    Each vertex blends its joints' dual quaternions (:func:`matrices_to_dual_quats`) after flipping
+    them into the hemisphere of its largest-weight influence, normalises the blend by the real
+    part's length and applies it to the rest position. Weights need not sum to 1.
+    """
+    rest, weights = np.asarray(rest, np.float64), np.asarray(weights, np.float64)
+    dq = matrices_to_dual_quats(matrices)[np.asarray(joints)]  # (V, k, 8)
+    real, dual = dq[..., :4], dq[..., 4:]
+    pivot = np.take_along_axis(real, np.argmax(weights, axis=1)[:, None, None], axis=1)
+    w = np.where(np.sum(real * pivot, axis=-1) < 0.0, -weights, weights)
+    br = np.einsum("vk,vkq->vq", w, real)
+    bd = np.einsum("vk,vkq->vq", w, dual)
+    n = np.linalg.norm(br, axis=1, keepdims=True)
+    r, d = br / n, bd / n
+    # translation = vector part of 2 * d * conj(r); exact for the blended, non-unit dual part too
+    t = 2.0 * (r[:, :1] * d[:, 1:] - d[:, :1] * r[:, 1:] + np.cross(r[:, 1:], d[:, 1:]))
+    return quat.rotate(r, rest) + t
+
+
+# ---------------------------------------------------------------------------------------------
+# weights
+
+
+def normalise_weights(joints, weights, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Keep each vertex's k largest influences and renormalise them to sum 1.
+
+    Parameters
+    ----------
+    joints : (V, m) int, joint indices (any m >= 0).
+    weights : (V, m) float, >= 0, not NaN.
+    k : influences kept per vertex.
+
+    Returns
+    -------
+    joints : (V, k) int32, sorted by descending weight; slots with weight 0 (dropped or padding
+        when m < k) hold joint 0, so they never index a missing joint.
+    weights : (V, k) float32, each row summing to 1.
+
+    Raises
+    ------
+    InputError (ValueError) naming how many vertices have all-zero weights: there is no sensible
+    joint to give them, the caller must decide.
+    """
+    joints = np.asarray(joints)
+    weights = np.asarray(weights)
+    if k < 1:
+        raise InputError(f"k must be >= 1, got {k}", field="k")
+    if joints.ndim != 2 or weights.shape != joints.shape:
+        raise InputError(f"expected joints and weights of one shape (V, m), got {joints.shape} "
+                         f"and {weights.shape}", field="weights")
+    if not np.issubdtype(joints.dtype, np.integer):
+        raise InputError(f"expected an integer array, got dtype {joints.dtype}", field="joints")
+    weights = weights.astype(np.float64)
+    bad = ~np.isfinite(weights) | (weights < 0.0)
+    if np.any(bad):
+        raise InputError(f"{np.unique(np.nonzero(bad)[0]).size} vertices have negative, NaN or "
+                         f"inf weights", field="weights")
+    V, m = joints.shape
+    if m < k:
+        joints = np.concatenate([joints, np.zeros((V, k - m), joints.dtype)], axis=1)
+        weights = np.concatenate([weights, np.zeros((V, k - m))], axis=1)
+    order = np.argsort(-weights, axis=1, kind="stable")[:, :k]
+    joints = np.take_along_axis(joints, order, axis=1)
+    weights = np.take_along_axis(weights, order, axis=1)
+    total = weights.sum(axis=1)
+    empty = np.nonzero(total <= 0.0)[0]
+    if empty.size:
+        raise InputError(f"{empty.size} vertices have all-zero weights (first: "
+                         f"{empty[:5].tolist()})", field="weights")
+    joints = np.where(weights > 0.0, joints, 0)
+    return joints.astype(np.int32), (weights / total[:, None]).astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Warp launcher
+
+
+@dataclass(frozen=True)
+class SkinModel:
+    """The rest mesh and influences on the device; built once, never changed.
+
+    rest : (V,) wp.vec3, metres. joints : (V*k,) int32, each vertex's influences sorted by
+    descending weight (DQS pivots on the first). weights : (V*k,) float32. k : influences per
+    vertex. num_joints_needed : largest joint index + 1 (0 when V == 0).
+    """
+
+    rest: wp.array
+    joints: wp.array
+    weights: wp.array
+    k: int
+    num_vertices: int
+    num_joints_needed: int
+
+
+class Skinner:
+    """LBS and DQS of one rest mesh with Warp.
+
+    Parameters
+    ----------
+    rest : (V, 3) float, rest positions, metres.
+    joints : (V, k) int, joint index of each influence.
+    weights : (V, k) float, >= 0, not NaN, not all zero in a row. LBS uses them as given (rows
+        should sum to 1, see :func:`normalise_weights`); DQS is insensitive to their scale.
+    faces : optional (F, 3) int triangles, for :meth:`normals`.
+    device : Warp device for the model, the scratch buffers and every launch.
+
+    Each call uploads only the (J, 4, 4) skin matrices; the positions buffer is reused.
+    """
+
+    def __init__(self, rest, joints, weights, faces=None, device="cpu"):
+        rest, joints, weights = check_influences(rest, joints, weights)
+        order = np.argsort(-weights, axis=1, kind="stable")
+        joints = np.take_along_axis(joints, order, axis=1)
+        weights = np.take_along_axis(weights, order, axis=1)
+        self.device = wp.get_device(device)
+        V, k = joints.shape
+        self.model = SkinModel(
+            rest=wp.array(rest.astype(np.float32), dtype=wp.vec3, device=self.device),
+            joints=wp.array(joints.astype(np.int32).ravel(), dtype=wp.int32, device=self.device),
+            weights=wp.array(weights.astype(np.float32).ravel(), dtype=wp.float32,
+                             device=self.device),
+            k=int(k), num_vertices=int(V), num_joints_needed=_needed(joints))
+        self.vertex_normals = None if faces is None else VertexNormals(faces, V)
+        self._positions = wp.empty(V, dtype=wp.vec3, device=self.device)
+        self._matrices = None
+        self._real = None
+        self._dual = None
+
+    @property
+    def num_vertices(self) -> int:
+        return self.model.num_vertices
+
+    def lbs(self, matrices) -> np.ndarray:
+        """Linear blend skinning. matrices : (J, 4, 4) float -> (V, 3) float32, metres."""
+        return self.skin(matrices, "lbs")
+
+    def dqs(self, matrices) -> np.ndarray:
+        """Dual-quaternion skinning. matrices : (J, 4, 4) float -> (V, 3) float32, metres."""
+        return self.skin(matrices, "dqs")
+
+    def skin(self, matrices, method: str = "lbs") -> np.ndarray:
+        """Skinned positions, (V, 3) float32, metres, a new array (the device buffer is reused)."""
+        out = self.launch(matrices, method).numpy()
+        # on the CPU .numpy() is a view of the scratch buffer the next call overwrites
+        return out.copy() if self.device.is_cpu else out
+
+    def launch(self, matrices, method: str = "lbs") -> wp.array:
+        """Skin on the device; returns the wrapper's (V,) wp.vec3 buffer, valid until the next call.
+
+        For callers that keep working on the device (e.g. deformers in series).
+        """
+        if method not in METHODS:
+            raise InputError(f"expected one of {METHODS}, got {method!r}", field="method")
+        self._upload(matrices)
+        model = self.model
+        if model.num_vertices == 0:
+            return self._positions
+        if method == "lbs":
+            wp.launch(kernels.lbs, dim=model.num_vertices, device=self.device,
+                      inputs=[model.rest, model.joints, model.weights, model.k, self._matrices],
+                      outputs=[self._positions])
+        else:
+            J = self._matrices.shape[0]
+            wp.launch(kernels.dual_quats_from_matrices, dim=J, device=self.device,
+                      inputs=[self._matrices], outputs=[self._real, self._dual])
+            wp.launch(kernels.dqs, dim=model.num_vertices, device=self.device,
+                      inputs=[model.rest, model.joints, model.weights, model.k,
+                              self._real, self._dual],
+                      outputs=[self._positions])
+        return self._positions
+
+    def normals(self, positions) -> np.ndarray:
+        """Unit vertex normals of skinned positions (V, 3) or (N, V, 3), from the faces given."""
+        if self.vertex_normals is None:
+            raise InputError("the Skinner was built without faces", field="faces")
+        return self.vertex_normals(positions)
+
+    def _upload(self, matrices) -> None:
+        m = check_matrices(matrices, self.model.num_joints_needed).astype(np.float32)
+        J = m.shape[0]
+        if self._matrices is None or self._matrices.shape[0] != J:
+            self._matrices = wp.empty(J, dtype=wp.mat44, device=self.device)
+            self._real = wp.empty(J, dtype=wp.quat, device=self.device)
+            self._dual = wp.empty(J, dtype=wp.quat, device=self.device)
+        self._matrices.assign(m)
