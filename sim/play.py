@@ -96,8 +96,10 @@ def drive_mjcf(clip: Clip, times: np.ndarray, xml_path: str, joint_map: dict[str
 
 
 def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, render: bool = True,
-                  source: str = "") -> dict:
-    """Write `skeleton.png` (film strip), `trajectories.png`, `motion.npz` and `summary.json`.
+                  source: str = "", character=None, skin_method: str = "lbs") -> dict:
+    """Write `skeleton.png` (film strip), `trajectories.png`, `motion.npz` and `summary.json`; with a
+    `character` (rig.character.Character) also `character.png`, the skinned character at the same
+    poses as the skeleton strip, and a "character" entry in the summary.
 
     motion.npz keys: times (N,) s; joint_names (J,); parents (J,); joint_world (N, J, 4, 4) metres,
     Z-up; end_sites (N, E, 3) metres; fps; plus the drive's `Motion.arrays`. Returns the summary.
@@ -125,17 +127,40 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
                                       motion.parents, motion.end_parents, times, tmp, poses=poses,
                                       title=f"{name}: skeleton over time")
         files["skeleton"] = "skeleton.png"
+    extra = {}
+    if character is not None:
+        extra["character"] = _character_outputs(character, motion, name, out_dir, poses, render, skin_method, files)
     summary = {
         "clip": name, "source": source, "joints": len(motion.joint_names),
         "frames": int(len(times)), "fps": round(float(fps), 6), "duration_s": float(times[-1] - times[0]),
         "root_travel_m": float(np.linalg.norm(motion.positions[-1, 0, :2] - motion.positions[0, 0, :2])),
         "height_range_m": [float(motion.positions[..., 2].min()), float(motion.positions[..., 2].max())],
-        **motion.info, "files": files,
+        **motion.info, **extra, "files": files,
     }
     with atomic_path(os.path.join(out_dir, "summary.json")) as tmp:
         with open(tmp, "w") as fh:
             json.dump(summary, fh, indent=2)
     return summary
+
+
+def _character_outputs(character, motion: Motion, name: str, out_dir: str, poses: int, render: bool,
+                       method: str, files: dict) -> dict:
+    from .skin_pass import skin_motion
+    n = len(motion.times)
+    frames = np.unique(np.linspace(0, n - 1, min(poses, n)).round().astype(int))
+    skinned = skin_motion(character, motion, method=method, frames=frames)
+    if not np.all(np.isfinite(skinned)):
+        raise FloatingPointError("skinning produced non-finite vertices")  # a bug, never user input
+    if render:
+        from .render import render_skin_over_time
+        with atomic_path(os.path.join(out_dir, "character.png")) as tmp:
+            render_skin_over_time(skinned, character.faces, motion.times[frames], tmp,
+                                  title=f"{name}: {character.name or 'character'} skinned ({method.upper()})")
+        files["character"] = "character.png"
+    return {"name": character.name, "source": character.source, "vertices": character.num_vertices,
+            "faces": int(len(character.faces)), "joints": character.num_joints,
+            "weights": character.meta.get("weights", ""), "skinning": method,
+            "height_m": round(character.height, 4)}
 
 
 def _trajectory_joints(positions: np.ndarray, k: int = 6) -> list[int]:

@@ -65,3 +65,45 @@ def render_skeleton_over_time(points: np.ndarray, parents: np.ndarray, end_paren
     pl.screenshot(path)
     pl.close()
     return path
+
+
+def render_skin_over_time(positions: np.ndarray, faces: np.ndarray, times: np.ndarray, path: str,
+                          spacing: float | None = None, size: tuple[int, int] = (1600, 600),
+                          title: str = "") -> str:
+    """A film strip of a skinned character: one posed mesh per frame side by side, coloured by time.
+
+    positions : (P, V, 3) metres, the skinned vertices of the P poses to show.
+    faces : (F, 3) vertex indices.
+    times : (P,) seconds of each pose, for the labels and colours.
+    Writes a PNG to `path` and returns it.
+    """
+    import pyvista as pv
+
+    P = len(positions)
+    centre = positions.mean(axis=1) * np.array([1.0, 1.0, 0.0])
+    centred = positions - centre[:, None]
+    if spacing is None:
+        spacing = 1.2 * max(float(np.ptp(centred[..., 0], axis=1).max()), 0.5)
+    cells = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
+    pl = pv.Plotter(off_screen=True, window_size=list(size))
+    pl.set_background("white")
+    span = max(float(times[-1] - times[0]), 1e-9) if P else 1.0
+    for k in range(P):
+        c = (times[k] - times[0]) / span
+        mesh = pv.PolyData(centred[k] + np.array([k * spacing, 0.0, 0.0]), cells)
+        pl.add_mesh(mesh, color=(0.55 + 0.35 * c, 0.62, 0.85 - 0.35 * c), smooth_shading=True)
+        top = float(centred[k][:, 2].max())
+        pl.add_point_labels([[k * spacing, 0.0, top + 0.12]], [f"{times[k]:.2f} s"], font_size=14,
+                            text_color="black", shape=None, show_points=False)
+    width = spacing * max(P - 1, 0)
+    floor_z = float(positions[..., 2].min())
+    pl.add_mesh(pv.Plane(center=(width / 2, 0, floor_z), direction=(0, 0, 1), i_size=width + 1.2 * spacing,
+                         j_size=1.0), color=(0.85, 0.85, 0.85))
+    pl.view_vector((0.0, -1.0, 0.25), viewup=(0.0, 0.0, 1.0))
+    pl.reset_camera()
+    pl.camera.zoom(1.9)
+    if title:
+        pl.add_title(title, font_size=12, color="black")
+    pl.screenshot(path)
+    pl.close()
+    return path
