@@ -386,15 +386,28 @@ def end_sites(clip: Clip) -> np.ndarray:
     return out
 
 
+def body_character(clip: Clip, options=None, k: int = 4) -> Character:
+    """A body generated around `clip`'s rest pose (rig.body) with automatic weights; its fat volumes
+    and how it was made are in meta["body"]."""
+    from .body import BodyOptions, generate_body
+    options = options or BodyOptions()
+    body = generate_body(clip, options)
+    return auto_weighted(body.vertices, body.faces, clip, k=k, name=f"{clip.name} body" if clip.name else "body",
+                         meta={"generated": True, "body": body, "body_options": options})
+
+
 def check_overlap(vertices: np.ndarray, joint_positions: np.ndarray, path: str | None) -> None:
-    """InputError when the skeleton does not sit inside the mesh's bounds (a unit or axis mix-up)."""
+    """InputError when the skeleton does not sit inside the mesh's bounds, or is of another size
+    (a unit or axis mix-up)."""
     lo, hi = vertices.min(0), vertices.max(0)
     pad = 0.1 * (hi - lo).max()
     inside = np.all((joint_positions >= lo - pad) & (joint_positions <= hi + pad), axis=1)
-    if inside.mean() < 0.5:
+    size_mesh = float((hi - lo).max())
+    size_skel = float(np.ptp(joint_positions, axis=0).max())
+    if inside.mean() < 0.5 or not 0.3 <= size_skel / max(size_mesh, 1e-12) <= 2.0:
         h_mesh = float(hi[2] - lo[2])
         h_skel = float(np.ptp(joint_positions[:, 2]))
-        raise InputError(f"the skeleton does not fit the mesh: only {int(inside.sum())} of {len(inside)} joints lie "
+        raise InputError(f"the skeleton does not fit the mesh: {int(inside.sum())} of {len(inside)} joints lie "
                          f"within the mesh's bounds (mesh {h_mesh:.4g} m tall, skeleton {h_skel:.4g} m); check "
                          f"the mesh's unit and up axis (--unit, --up)", path, field="skeleton")
 

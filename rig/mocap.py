@@ -6,7 +6,7 @@ import os
 from .clip import Clip
 from .errors import InputError, require_file
 
-CLIP_EXTENSIONS = (".bvh", ".amc", ".asf", ".glb", ".gltf")
+CLIP_EXTENSIONS = (".bvh", ".amc", ".asf", ".glb", ".gltf", ".toml")
 
 
 def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
@@ -16,7 +16,7 @@ def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = N
 
     path : .bvh; .amc (its .asf from `skeleton`, else the one .asf beside it); .asf alone (its rest
         pose as a one-frame clip); .glb/.gltf with animations (`animation` by name or index, default
-        the first).
+        the first); .toml keyframes (rig.keyframes, as the built-in demo motion).
     scale : metres per file unit for BVH (None: recognise CMU or guess, see rig.bvh).
     tpose : BVH first-frame handling, "auto", "skip" or "keep".
     """
@@ -35,5 +35,8 @@ def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = N
     if ext in (".glb", ".gltf"):
         from .gltf_anim import read_gltf_animation
         return read_gltf_animation(p, animation)
+    if ext == ".toml":
+        from .keyframes import read_keyframes
+        return read_keyframes(p)
     raise InputError(f"unknown clip format {ext or '(no extension)'!r}; expected one of "
                      f"{', '.join(CLIP_EXTENSIONS)}", p)

@@ -31,6 +31,36 @@ def _clip_options(p: argparse.ArgumentParser) -> None:
                    help="BVH first frame: auto drops a T-pose added by converters (CMU), skip always drops it, keep never (default: auto)")
 
 
+def _character_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("character and generated body")
+    if p.prog.split()[-1] != "body":
+        g.add_argument("--no-character", action="store_true", help="skeleton only: no body, no skinning")
+        g.add_argument("--skinning", choices=["lbs", "dqs"], default="lbs",
+                       help="linear blend or dual-quaternion skinning (default: lbs)")
+    g.add_argument("--influences", type=_count("--influences"), default=4, metavar="K",
+                   help="skin weights kept per vertex (default: 4)")
+    g.add_argument("--resolution", type=_count("--resolution"), metavar="N",
+                   help="generated body: target vertex count, 10000-40000 useful (default: 20000)")
+    from rig.body import BodyOptions
+    for name, what in (("belly", "belly"), ("chest", "chest"), ("glutes", "glutes"), ("upper-arms", "upper arms")):
+        default = getattr(BodyOptions(), name.replace("-", "_"))
+        g.add_argument(f"--{name}", type=_non_negative(f"--{name}"), metavar="M",
+                       help=f"generated body: fat on the {what}, metres it pushes the skin out; 0 for none "
+                            f"(default: {default:g})")
+
+
+def _non_negative(name):
+    def conv(v):
+        try:
+            x = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
+        if not 0 <= x < float("inf"):
+            raise argparse.ArgumentTypeError(f"{name} must be zero or more, got {v!r}")
+        return x
+    return conv
+
+
 def _animation(value):
     if value is None:
         return None
@@ -77,7 +107,8 @@ def cmd_inspect(args) -> int:
 
 
 # ---------------------------------------------------------------------------------------- play / demo
-def _play(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_map=None):
+def _play(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_map=None, character=None,
+          skinning="lbs"):
     from tqdm import tqdm
 
     from .play import drive_kinematic, drive_mjcf, drive_physics, write_outputs
@@ -99,11 +130,16 @@ def _play(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_map=No
     with tqdm(total=len(times), unit="frame", desc=f"{clip.name} ({drive})", disable=None,
               file=sys.stderr) as bar:
         motion = runner(clip, times, progress=bar.update)
-    summary = write_outputs(motion, clip.name, out_dir, poses=poses, render=render, source=clip.source)
+    summary = write_outputs(motion, clip.name, out_dir, poses=poses, render=render, source=clip.source,
+                            character=character, skin_method=skinning)
     print(f"{summary['frames']} frames of {clip.name!r} ({summary['duration_s']:.2f} s, "
           f"{summary['joints']} joints, {summary['drive']} drive) -> {os.path.abspath(out_dir)}")
     for k, f in summary["files"].items():
         print(f"  {k:13s} {os.path.join(out_dir, f)}")
+    if "character" in summary:
+        c = summary["character"]
+        print(f"  character: {c['name'] or 'generated body'}, {c['vertices']} vertices, {c['joints']} joints, "
+              f"weights from {c['weights']}, {c['skinning'].upper()} skinning")
     if "rms_joint_error_m" in summary:
         print(f"  tracking error: RMS {summary['rms_joint_error_m'] * 100:.2f} cm, max "
               f"{summary['max_joint_error_m'] * 100:.2f} cm; deepest foot below the floor "
@@ -133,7 +169,7 @@ def _joint_map(given, joint_names, option, owner):
 def _retarget_onto_character(clip, args):
     from rig.gltf_skeleton import read_gltf_skeleton
     from rig.retarget import retarget
-    character = read_gltf_skeleton(args.character)
+    character = read_gltf_skeleton(args.character, args.skin)
     clip_map = _joint_map(args.clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
     char_map = _joint_map(args.character_map, character.joint_names, "--character-map", args.character)
     out = retarget(clip, clip_map, character, char_map)
@@ -148,11 +184,43 @@ def cmd_play(args) -> int:
         clip = clip.between(args.start or 0.0, args.end)
     if args.speed is not None:
         clip = clip.with_speed(args.speed)
+    character = None
     if args.character is not None:
-        clip = _retarget_onto_character(clip, args)
+        from rig.character import load_character
+        from rig.gltf_character import gltf_has_skin
+        if args.character.lower().endswith((".glb", ".gltf")) and gltf_has_skin(args.character):
+            clip = _retarget_onto_character(clip, args)
+            character = load_character(args.character, k=args.influences, unit=args.unit, skin=args.skin)
+        else:
+            # a mesh standing in the clip's rest pose: the clip's skeleton skins it
+            character = load_character(args.character, skeleton=clip, k=args.influences, unit=args.unit,
+                                       up=args.up)
+    elif not args.no_character and args.mjcf is None:
+        character = _generated_character(clip, args)
+    if character is not None and args.mjcf is not None:
+        raise InputError("--mjcf poses the user's model, whose bodies do not skin a character; add "
+                         "--no-character", field="--mjcf")
     _play(clip, args.out, args.drive, args.poses, not args.no_render, fps=args.fps, mjcf=args.mjcf,
-          joint_map=args.joint_map)
+          joint_map=args.joint_map, character=character, skinning=args.skinning)
     return 0
+
+
+def _body_options(args):
+    from rig.body import BodyOptions
+    kw = {k: getattr(args, k) for k in ("resolution", "belly", "chest", "glutes", "upper_arms")
+          if getattr(args, k, None) is not None}
+    return BodyOptions(**kw)
+
+
+def _generated_character(clip, args, quiet=False):
+    import time
+    from rig.character import body_character
+    t = time.perf_counter()
+    character = body_character(clip, _body_options(args), k=args.influences)
+    if not quiet:
+        print(f"generated a body for {clip.name!r}: {character.num_vertices} vertices, automatic weights "
+              f"({time.perf_counter() - t:.1f} s)", file=sys.stderr)
+    return character
 
 
 def default_scene() -> str:
@@ -165,7 +233,27 @@ def cmd_demo(args) -> int:
     clip = scene.clip
     if args.frames is not None:
         clip = clip.frames(0, args.frames)
-    _play(clip, args.out, args.drive or scene.drive, args.poses, not args.no_render, fps=scene.fps)
+    character = None if args.no_character else _generated_character(clip, args)
+    _play(clip, args.out, args.drive or scene.drive, args.poses, not args.no_render, fps=scene.fps,
+          character=character, skinning=args.skinning)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- body
+def cmd_body(args) -> int:
+    from .body_outputs import write_body_outputs
+    if args.skeleton_file is None:
+        from .scene import load_scene
+        clip = load_scene(default_scene()).clip
+    else:
+        from rig.character import load_skeleton
+        clip = load_skeleton(args.skeleton_file)
+    character = _generated_character(clip, args)
+    files = write_body_outputs(character, args.out, render=not args.no_render)
+    print(f"body for {clip.name!r}: {character.num_vertices} vertices, {len(character.faces)} faces, "
+          f"{character.height:.3f} m tall, {character.num_joints} joints -> {os.path.abspath(args.out)}")
+    for k, f in files.items():
+        print(f"  {k:13s} {os.path.join(args.out, f)}")
     return 0
 
 
@@ -205,9 +293,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--poses", type=_count("--poses"), default=8, help="poses in the skeleton picture (default: 8)")
     p.add_argument("--no-render", action="store_true", help="skip the 3D picture (plots and data only)")
     g = p.add_argument_group("retargeting onto a character's skeleton")
-    g.add_argument("--character", metavar="GLB", help="skinned glTF/GLB whose skeleton plays the clip instead of the clip's own")
+    g.add_argument("--character", metavar="FILE", help="the character to skin: a skinned glTF/GLB (the clip is "
+                   "retargeted onto its skeleton), or an OBJ/PLY/STL/unskinned glTF mesh standing in the clip's "
+                   "rest pose (automatic weights). Default: a body generated around the clip's skeleton")
     g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
     g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
+    g.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of a glTF character (default: 0)")
+    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per unit "
+                   "(default: m)")
+    g.add_argument("--up", choices=["auto", "y", "z"], default="auto",
+                   help="up axis of an OBJ/PLY/STL character (default: auto, the longer of y and z)")
+    _character_options(p)
     g = p.add_argument_group("your own MuJoCo model")
     g.add_argument("--mjcf", metavar="XML", help="drive this MJCF instead of the model built from the clip "
                    "(e.g. dm_control's humanoid_CMU.xml with a CMU AMC clip)")
@@ -226,7 +322,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--drive", choices=["kinematic", "physics"], help="override the scene's skeleton drive")
     p.add_argument("--poses", type=_count("--poses"), default=8, help="poses in the skeleton picture (default: 8)")
     p.add_argument("--no-render", action="store_true", help="skip the 3D picture")
+    _character_options(p)
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("body", help="generate a body mesh around a skeleton, with automatic weights",
+                       description="Generate a smooth, closed body around a skeleton (proportions from its bone "
+                                   "lengths, optional fat volumes) with automatic weights, and write body.png "
+                                   "(front and side), weights.png (coloured by dominant joint), body.ply and "
+                                   "body.json to --out.")
+    p.add_argument("skeleton_file", nargs="?", metavar="SKELETON",
+                   help="a clip (BVH, AMC, ASF, glTF), an MJCF model or a skinned glTF (default: the demo's skeleton)")
+    p.add_argument("--out", default="out/body", help="output folder (default: out/body)")
+    p.add_argument("--no-render", action="store_true", help="skip the pictures")
+    _character_options(p)
+    p.set_defaults(func=cmd_body)
     return top
 
 
@@ -236,8 +345,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USER_ERROR
+    import warnings
+    from rig.errors import JiggleWarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, JiggleWarning):
+            print(f"jiggle: warning: {message}", file=sys.stderr)
+        else:
+            sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():  # restored afterwards, for callers that run main() in-process
+            warnings.simplefilter("always", JiggleWarning)
+            warnings.showwarning = show
+            return int(args.func(args) or 0)
     except InputError as e:
         print(f"jiggle: error: {e}", file=sys.stderr)
         return EXIT_USER_ERROR

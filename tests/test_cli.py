@@ -18,7 +18,8 @@ def run(capsys, *argv):
     return code, out, err
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["inspect", "--help"], ["play", "--help"], ["demo", "--help"]])
+@pytest.mark.parametrize("argv", [["--help"], ["inspect", "--help"], ["play", "--help"], ["demo", "--help"],
+                                  ["body", "--help"]])
 def test_help_is_complete(capsys, argv):
     with pytest.raises(SystemExit) as e:
         main(argv)
@@ -51,8 +52,10 @@ def test_demo_writes_pictures_and_motion(capsys, tmp_path):
     out_dir = tmp_path / "demo"
     code, out, err = run(capsys, "demo", "--out", str(out_dir), "--frames", "40", "--poses", "4")
     assert code == 0, err
-    for f in ("skeleton.png", "trajectories.png", "motion.npz", "summary.json"):
+    for f in ("skeleton.png", "trajectories.png", "motion.npz", "summary.json", "character.png"):
         assert (out_dir / f).stat().st_size > 0
+    summary = json.loads((out_dir / "summary.json").read_text())
+    assert summary["character"]["weights"] == "bone heat" and 10000 <= summary["character"]["vertices"] <= 40000
     data = np.load(out_dir / "motion.npz")
     assert data["joint_world"].shape == (40, 21, 4, 4) and data["times"].shape == (40,)
     assert np.all(np.isfinite(data["joint_world"]))
@@ -113,6 +116,8 @@ def test_play_retargeted_onto_a_character(capsys, tmp_path):
     data = np.load(tmp_path / "motion.npz")
     assert list(data["joint_names"][:2]) == ["Skeleton_torso_joint_1", "Skeleton_torso_joint_2"]
     assert data["joint_world"].shape == (61, 19, 4, 4)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["character"]["weights"] == "file" and summary["character"]["vertices"] == 3273
     # no preset fits RiggedFigure: say which option to use, exit 2
     code, _, err = run(capsys, "play", clip, "--character", str(asset("characters/RiggedFigure.glb")),
                        "--out", str(tmp_path), "--no-render")
@@ -147,3 +152,44 @@ def test_play_physics_drive_saves_foot_forces(capsys, tmp_path):
     assert np.all(np.isfinite(data["joint_world"])) and data["foot_force"].max() > 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["drive"] == "physics" and summary["rms_joint_error_m"] < 0.05
+
+
+def test_body_command_writes_mesh_pictures_and_facts(capsys, tmp_path):
+    code, out, err = run(capsys, "body", "--out", str(tmp_path), "--resolution", "10000", "--belly", "0.03")
+    assert code == 0, err
+    facts = json.loads((tmp_path / "body.json").read_text())
+    assert facts["watertight"] and facts["euler_number"] == 2 and facts["weights"] == "bone heat"
+    assert facts["options"]["belly"] == 0.03 and any(f["name"] == "belly" for f in facts["fat"])
+    import trimesh
+    mesh = trimesh.load(tmp_path / "body.ply", process=False)
+    assert len(mesh.vertices) == facts["vertices"] and mesh.is_watertight
+    import imageio.v3 as iio
+    for f in ("body.png", "weights.png"):
+        img = iio.imread(tmp_path / f)
+        assert len(np.unique(img.reshape(-1, img.shape[-1]), axis=0)) > 50, f
+    code, _, err = run(capsys, "body", str(tmp_path / "missing.bvh"), "--out", str(tmp_path))
+    assert code == 2 and "missing.bvh" in err
+    with pytest.raises(SystemExit) as e:
+        main(["body", "--belly", "-1", "--out", str(tmp_path)])
+    assert e.value.code == 2 and "--belly must be zero or more" in capsys.readouterr().err
+
+
+def test_play_with_a_mesh_character_warns_and_skins(capsys, tmp_path):
+    """An OBJ standing in the clip's rest pose, in centimetres: automatic weights, a warning on stderr."""
+    from rig.body import BodyOptions, generate_body
+    from rig.keyframes import read_keyframes
+    scene = os.path.join(os.path.dirname(__file__), "..", "scenes", "motions", "jumping_jacks.toml")
+    clip = read_keyframes(scene)
+    body = generate_body(clip, BodyOptions(resolution=10000))
+    import trimesh
+    obj = tmp_path / "me.obj"
+    trimesh.Trimesh(body.vertices * 100, body.faces, process=False).export(obj)
+    code, out, err = run(capsys, "play", scene, "--character", str(obj), "--out", str(tmp_path), "--no-render",
+                         "--end", "0.3")
+    assert code == 2 and "does not fit the mesh" in err and "--unit" in err, err
+    code, out, err = run(capsys, "play", scene, "--character", str(obj), "--unit", "cm", "--up", "z",
+                         "--out", str(tmp_path), "--no-render", "--end", "0.3")
+    assert code == 0, err
+    assert "jiggle: warning:" in err and "automatic weights" in err
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["character"]["vertices"] == len(body.vertices)
