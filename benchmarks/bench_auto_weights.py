@@ -4,10 +4,8 @@ skeleton of 01_01.bvh, stage by stage, and the solve against a fresh factorisati
 
     .venv/bin/python benchmarks/bench_auto_weights.py [path/to/clip.bvh] [--vertices 30000]
 
-The body is a stand-in until `rig.body.generate_body` lands: the union of capsules along the bones
-(radius by bone role), meshed by marching cubes on a signed distance field (pyvista) at the grid
-step that gives about a quarter of the requested vertex count, then subdivided once. The issue's
-budget is 10 s in total for this size on 2 cores.
+The body is the one jiggle generates for the skeleton (rig.body, `--vertices` as its resolution).
+The issue's budget is 10 s in total for this size on 2 cores.
 """
 from __future__ import annotations
 
@@ -23,48 +21,16 @@ sys.path.insert(0, str(ROOT))
 
 from rig.bone_heat import (bone_heat_weights, bone_segments, closest_visible, cotangent_laplacian,  # noqa: E402
                            segment_distances, solve_heat, weld)
-from rig.bone_roles import bone_roles  # noqa: E402
+from rig.body import BodyOptions, generate_body  # noqa: E402
 from rig.bvh import read_bvh  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
-RADIUS = {"trunk": 0.11, "neck": 0.05, "head": 0.09, "limb": 0.05}  # metres, stand-in body only
 
 
-def capsule_body(clip, rest_pos, ends, vertices: int) -> tuple[np.ndarray, np.ndarray]:
-    """Stand-in body: (V, 3) vertices, (F, 3) faces, V near `vertices`, Z-up metres."""
-    import pyvista as pv
-    import trimesh
-
-    a, b, r = [], [], []
-    for j, roles in enumerate(bone_roles(clip)):
-        tips = [rest_pos[c] for c in clip.children(j)] + [e for e, p in zip(ends, clip.end_parents) if p == j]
-        for tip, role in zip(tips, roles):
-            if np.linalg.norm(tip - rest_pos[j]) > 1e-4:
-                a.append(rest_pos[j]), b.append(tip), r.append(RADIUS[role])
-    a, b, r = np.array(a), np.array(b), np.array(r)
-    lo, hi = np.minimum(a, b).min(0) - r.max() - 0.02, np.maximum(a, b).max(0) + r.max() + 0.02
-
-    def mesh(step):
-        dims = np.ceil((hi - lo) / step).astype(int) + 1
-        grid = pv.ImageData(dimensions=dims, spacing=(step,) * 3, origin=lo)
-        sdf = (segment_distances(np.asarray(grid.points), a, b) - r).min(axis=1)
-        surf = grid.contour([0.0], scalars=sdf, method="flying_edges").triangulate().clean()
-        return np.asarray(surf.points, np.float64), surf.faces.reshape(-1, 4)[:, 1:].astype(np.int64)
-
-    # The distance field costs grid points x capsules: mesh a quarter of the vertices, then split
-    # every triangle in four (midpoint subdivision roughly quadruples the vertices).
-    step = 0.04
-    v, f = mesh(step)
-    v, f = mesh(step * np.sqrt(len(v) / (vertices / 4)))  # vertex count goes as 1 / step^2
-    return trimesh.remesh.subdivide(v, f)
-
-
-def body_mesh(clip, rest_pos, ends, vertices: int) -> tuple[np.ndarray, np.ndarray, str]:
-    """The body to weight: (V, 3) vertices, (F, 3) faces and what it is."""
-    v, f = capsule_body(clip, rest_pos, ends, vertices)
-    # rig/body.py (generate_body) is another engineer's work in progress; use it here once it lands.
-    note = "rig.body exists, not used yet" if (ROOT / "rig" / "body.py").exists() else "rig.body not available"
-    return v, f, f"capsule stand-in ({note})"
+def body_mesh(clip, vertices: int) -> tuple[np.ndarray, np.ndarray, str]:
+    """The body to weight: the generated body (rig.body) at about `vertices` vertices."""
+    body = generate_body(clip, BodyOptions(resolution=vertices))
+    return body.vertices, body.faces, "generated body (rig.body)"
 
 
 def best(fn, repeats=3):
@@ -90,7 +56,7 @@ def main(path: Path = DEFAULT, vertices: int = 30000) -> None:
     ends = np.full((clip.num_joints, 3), np.nan)
     ends[clip.end_parents] = end_world
     t = time.perf_counter()
-    v, f, what = body_mesh(clip, rest_pos, end_world, vertices)
+    v, f, what = body_mesh(clip, vertices)
     t_body = time.perf_counter() - t
 
     # End to end, as a caller runs it.
