@@ -86,6 +86,9 @@ class BodyOptions:
     blend : scale of every smooth-union radius (0 = hard union with creases at the joints).
     smoothing_iterations : Taubin passes (one lambda and one mu step each) after contouring.
     project : after smoothing, put the vertices back on the implicit surface (two Newton steps).
+    arm_angle : degrees; an upper arm hanging closer than this to straight down is swung out to it
+        in the plane of the body before building (the bind pose, ``Body.bind``), so the arm stands
+        clear of the trunk and its weights do not reach into the side; 0 builds in the rest pose.
     """
 
     resolution: int = 20000
@@ -98,6 +101,7 @@ class BodyOptions:
     blend: float = 1.0
     smoothing_iterations: int = 10
     project: bool = True
+    arm_angle: float = 40.0
 
 
 @dataclass(frozen=True)
@@ -130,6 +134,8 @@ class Body:
     stature : metres, the stature estimate all unspecified sizes are fractions of.
     voxel : metres, the grid spacing the surface was contoured at.
     timings : seconds per stage ("field", "contour", "cleanup", "smoothing", ...).
+    bind : one-frame Clip of the pose the body was built in (the rest pose, with hanging arms swung
+        out to ``BodyOptions.arm_angle``); skin it from this pose.
     """
 
     vertices: np.ndarray
@@ -140,6 +146,7 @@ class Body:
     stature: float = 0.0
     voxel: float = 0.0
     timings: dict = field(default_factory=dict)
+    bind: Clip | None = None
 
 
 def clip_from_mjcf(path: str | os.PathLike) -> Clip:
@@ -161,6 +168,7 @@ def generate_body(clip: Clip, options: BodyOptions = BodyOptions()) -> Body:
     """
     import time
     t0 = time.perf_counter()
+    clip = bind_pose(clip, options.arm_angle)
     pieces, sk = layout(clip, options)
     timings = {"layout": time.perf_counter() - t0}
 
@@ -194,7 +202,43 @@ def generate_body(clip: Clip, options: BodyOptions = BodyOptions()) -> Body:
     timings["total"] = time.perf_counter() - t0
     return Body(vertices=frozen_array(v), faces=frozen_array(f, np.int32), fat=tuple(_fat_records(pieces)),
                 joint_positions=frozen_array(sk.pos[:sk.J]), front=frozen_array(sk.front),
-                stature=float(sk.stature), voxel=float(h), timings=timings)
+                stature=float(sk.stature), voxel=float(h), timings=timings, bind=clip)
+
+
+def bind_pose(clip: Clip, arm_angle: float = 40.0) -> Clip:
+    """A one-frame clip of the rest pose with every upper arm that hangs within `arm_angle` degrees
+    of straight down swung out sideways (about the body's front axis) to that angle."""
+    from . import quat
+    rest = replace(clip, rotations=clip.rest_rotations[None], translations=clip.offsets[None])
+    if arm_angle <= 0:
+        return rest
+    sk = _analyse(rest)
+    world_r, _ = rest.rest_world()
+    local = rest.rest_rotations.copy()
+    changed = False
+    for ch in sk.chains:
+        if ch.kind != "arm":
+            continue
+        u, tip = _upper_arm(sk, ch)
+        d = sk.pos[tip] - sk.pos[u]
+        d /= np.linalg.norm(d)
+        hang = np.degrees(np.arccos(np.clip(-d @ UP, -1.0, 1.0)))
+        if hang >= arm_angle:
+            continue
+        side = np.sign((sk.pos[u] - sk.pos[sk.spine[-1]]) @ sk.left) if sk.spine else 1.0
+        turn = np.radians(arm_angle - hang)
+        # the sign that moves the hand away from the body's mid-plane
+        best = max((quat.from_axis_angle(sk.front, a) for a in (turn, -turn)),
+                   key=lambda q: side * (quat.rotate(q, d) @ sk.left))
+        new_world = quat.mul(best, world_r[u])
+        p = clip.parents[u]
+        local[u] = quat.mul(quat.conj(world_r[p]), new_world) if p >= 0 else new_world
+        changed = True
+    if not changed:
+        return rest
+    local = quat.canonical(local)
+    return replace(rest, rest_rotations=local, rotations=local[None],
+                   meta={**rest.meta, "bind_pose": f"arms swung out to {arm_angle:g} deg"})
 
 
 def layout(clip: Clip, options: BodyOptions = BodyOptions()) -> tuple[list, "_Skeleton"]:

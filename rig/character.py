@@ -387,12 +387,13 @@ def end_sites(clip: Clip) -> np.ndarray:
 
 
 def body_character(clip: Clip, options=None, k: int = 4) -> Character:
-    """A body generated around `clip`'s rest pose (rig.body) with automatic weights; its fat volumes
-    and how it was made are in meta["body"]."""
+    """A body generated around `clip`'s skeleton (rig.body) with automatic weights, bound in the pose
+    it was built in (`Body.bind`: the rest pose, hanging arms swung out); its fat volumes and how it
+    was made are in meta["body"]."""
     from .body import BodyOptions, generate_body
     options = options or BodyOptions()
     body = generate_body(clip, options)
-    return auto_weighted(body.vertices, body.faces, clip, k=k, name=f"{clip.name} body" if clip.name else "body",
+    return auto_weighted(body.vertices, body.faces, body.bind, k=k, name=f"{clip.name} body" if clip.name else "body",
                          meta={"generated": True, "body": body, "body_options": options})
 
 

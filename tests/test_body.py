@@ -108,7 +108,7 @@ def test_joints_inside_and_body_spans_the_skeleton(name):
     clip, body = body_of(name, resolution=COARSE)
     check_closed_genus0(body)
     v, f = body.vertices, body.faces
-    joints, ends = skeleton_points(clip)
+    joints, ends = skeleton_points(body.bind)  # the pose it was built in
     np.testing.assert_allclose(body.joint_positions, joints)
     assert signed_distance(v, f, joints).min() > 0  # every joint inside
     if len(ends):  # end sites are bone tips: inside or on the surface
@@ -198,7 +198,7 @@ def test_render_mesh_writes_a_png_of_the_requested_size(tmp_path):
     from PIL import Image
     from sim.mesh_render import render_mesh
     clip, body = body_of("demo", resolution=COARSE)
-    joints, ends = skeleton_points(clip)
+    joints, ends = skeleton_points(body.bind)  # the pose it was built in
     bones = np.array([(joints[p], joints[j]) for j, p in enumerate(clip.parents) if p >= 0])
     path = tmp_path / "body.png"
     out = render_mesh(body.vertices, body.faces, path, views=("front", "side"), title="demo",
@@ -211,3 +211,54 @@ def test_render_mesh_writes_a_png_of_the_requested_size(tmp_path):
     render_mesh(body.vertices, body.faces, path, scalars=labels, views=("iso",), size=(300, 300))
     assert np.asarray(Image.open(path)).shape[:2] == (300, 300)
     assert not list(tmp_path.glob(".*tmp*"))  # the temporary file was renamed
+
+
+def _upper_arm_hang_deg(clip) -> list[float]:
+    """Angle of each upper arm from straight down, degrees, in the clip's rest pose."""
+    from rig.body import _analyse, _upper_arm
+    sk = _analyse(clip)
+    out = []
+    for ch in sk.chains:
+        if ch.kind == "arm":
+            u, tip = _upper_arm(sk, ch)
+            d = sk.pos[tip] - sk.pos[u]
+            out.append(float(np.degrees(np.arccos(-d[2] / np.linalg.norm(d)))))
+    return out
+
+
+def test_hanging_arms_are_swung_out_for_the_bind_pose():
+    from rig.body import bind_pose
+    clip = demo_clip()
+    assert max(_upper_arm_hang_deg(clip)) < 5, "the demo's arms hang straight down at rest"
+    bind = bind_pose(clip, 40.0)
+    np.testing.assert_allclose(_upper_arm_hang_deg(bind), 40.0, atol=1e-6)
+    # only the arms moved: legs, spine and head keep their rest positions
+    _, p0 = clip.rest_world()
+    _, p1 = bind.rest_world()
+    moved = np.linalg.norm(p1 - p0, axis=1) > 1e-9
+    assert {clip.joint_names[j] for j in np.nonzero(moved)[0]} == {"l_forearm", "l_hand", "r_forearm", "r_hand"}
+    # hands go outwards, away from the body's mid-plane
+    for side in ("l_hand", "r_hand"):
+        j = clip.index(side)
+        assert abs(p1[j, 0]) > abs(p0[j, 0]) + 0.2
+    # a T-pose is left alone; 0 keeps the rest pose
+    cmu = cmu_clip()
+    np.testing.assert_allclose(bind_pose(cmu, 40.0).rest_rotations, cmu.rest_rotations)
+    np.testing.assert_allclose(bind_pose(clip, 0.0).rest_rotations, clip.rest_rotations)
+
+
+def test_generated_character_is_bound_in_its_build_pose():
+    """The body's character skins back to its rest skin at the bind pose and follows the clip."""
+    from rig.character import body_character
+    from sim.play import drive_kinematic
+    from sim.skin_pass import skin_motion
+    clip = demo_clip()
+    c = body_character(clip, BodyOptions(resolution=COARSE))
+    np.testing.assert_allclose(c.pose(c.bind_world), c.vertices, atol=1e-5)
+    motion = drive_kinematic(clip, clip.times[:31])
+    skinned = skin_motion(c, motion, frames=[0, 30])
+    assert np.all(np.isfinite(skinned))
+    # at 0.5 s the arms are up: the highest vertex is a hand, well above the head's top at rest
+    assert skinned[1][:, 2].max() > c.vertices[:, 2].max() + 0.3
+    # the feet stay on the floor within a few cm
+    assert abs(skinned[0][:, 2].min() - c.vertices[:, 2].min()) < 0.05
