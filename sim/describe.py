@@ -39,7 +39,8 @@ def describe_mesh(path: str) -> dict:
     return {"kind": "character", "format": os.path.splitext(path)[1][1:].upper(), "vertices": int(len(v)),
             "faces": int(len(m.faces)), "joints": 0, "skins": 0, "animations": [],
             "bounds_m": v.min(0).round(4).tolist() + v.max(0).round(4).tolist() if len(v) else [],
-            "note": "no skeleton: weights are computed from a skeleton you give (next milestone)"}
+            "note": "no skin: 'jiggle play CLIP --character FILE' computes automatic weights from the clip's "
+                    "skeleton (bone heat); --unit and --up say the file's unit and up axis"}
 
 
 def describe_mjcf(path: str) -> dict:
