@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .clip import Clip, joint_index
+from .clip import Clip, joint_index, local_from_world
 from .errors import InputError, JiggleWarning
 from .frozen import frozen_array
 
@@ -153,23 +153,11 @@ class Character:
 
 
 # ---------------------------------------------------------------------------------- helpers
-def rest_clip(joint_names, parents, bind_world: np.ndarray, name: str = "", source: str = "",
+def bind_clip(joint_names, parents, bind_world: np.ndarray, name: str = "", source: str = "",
               fps: float = 30.0) -> Clip:
     """One-frame Clip whose rest pose has world transforms `bind_world` (J, 4, 4) (rigid part used)."""
-    from . import quat
     from .gltf_io import polar_rotation
-    r = polar_rotation(bind_world[:, :3, :3])
-    p = bind_world[:, :3, 3]
-    rot = np.empty_like(r)
-    tra = np.empty_like(p)
-    for j, pa in enumerate(parents):
-        if pa < 0:
-            rot[j], tra[j] = r[j], p[j]
-        else:
-            inv = quat.conj(r[pa])
-            rot[j] = quat.mul(inv, r[j])
-            tra[j] = quat.rotate(inv, p[j] - p[pa])
-    rot = quat.canonical(rot)
+    rot, tra = local_from_world(parents, polar_rotation(bind_world[:, :3, :3]), bind_world[:, :3, 3])
     return Clip(joint_names=tuple(joint_names), parents=parents, offsets=tra, rest_rotations=rot,
                 rotations=rot[None], translations=tra[None], fps=fps, name=name, source=source,
                 meta={"format": "bind pose"})

@@ -23,6 +23,22 @@ from .frozen import frozen_array
 TRANSLATION_NOISE = 1e-6  # metres: translation changes below this are exporter noise, not motion
 
 
+def local_from_world(parents: np.ndarray, world_rot: np.ndarray, world_pos: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Local rotations (J, 4) w,x,y,z and translations (J, 3) of a joint tree from its world
+    rotations (J, 4) and positions (J, 3); roots keep their world transform. Parents first."""
+    rot = np.empty_like(world_rot)
+    tra = np.empty_like(world_pos)
+    for j, p in enumerate(parents):
+        if p < 0:
+            rot[j], tra[j] = world_rot[j], world_pos[j]
+        else:
+            inv = quat.conj(world_rot[p])
+            rot[j] = quat.mul(inv, world_rot[j])
+            tra[j] = quat.rotate(inv, world_pos[j] - world_pos[p])
+    return quat.canonical(rot), tra
+
+
 def joint_index(joint_names: tuple[str, ...], name: str, source: str = "") -> int:
     """Index of joint `name`, or an InputError listing the joints (naming `source` when given)."""
     try:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quat
-from .clip import Clip, joint_index
+from .clip import Clip, joint_index, local_from_world
 from .errors import InputError
 from .frozen import frozen_array
 from .gltf_io import GltfDocument, Z_UP, joint_tree, polar_rotation, rigid_locals, trs_matrix, world_chain
@@ -163,18 +163,10 @@ def read_gltf_skeleton(path: str | os.PathLike, skin: int = 0) -> CharacterSkele
     bind_world[:, :3, :3] = quat.to_matrix(bind_r)
     bind_world[:, :3, 3] = bind_full[:, :3, 3]
     bind_world[:, 3, 3] = 1.0
-    b_rot = np.empty((J, 4))
-    b_tra = np.empty((J, 3))
-    for j, p in enumerate(parents):
-        if p < 0:
-            b_rot[j], b_tra[j] = bind_r[j], bind_full[j, :3, 3]
-        else:
-            inv_p = quat.conj(bind_r[p])
-            b_rot[j] = quat.mul(inv_p, bind_r[j])
-            b_tra[j] = quat.rotate(inv_p, bind_full[j, :3, 3] - bind_full[p, :3, 3])
+    b_rot, b_tra = local_from_world(parents, bind_r, bind_full[:, :3, 3])
     return CharacterSkeleton(
         joint_names=[doc.node_names[n] for n in order], parents=parents, nodes=order, skin_joint=skin_joint,
-        bind_world=bind_world, bind_rotations=quat.canonical(b_rot), bind_translations=b_tra,
+        bind_world=bind_world, bind_rotations=b_rot, bind_translations=b_tra,
         rest_rotations=rest_rot[0], rest_translations=rest_tra[0], inverse_bind_matrices=ibm,
         mesh_world=mesh_world, name=os.path.splitext(os.path.basename(doc.path))[0], source=doc.path,
         meta={"skin": int(skin), "skin_name": sk.name or ""})

@@ -12,7 +12,7 @@ import os
 import numpy as np
 
 from . import quat
-from .clip import Clip
+from .clip import Clip, local_from_world
 from .errors import InputError, require_file
 
 
@@ -32,16 +32,7 @@ def read_mjcf_skeleton(path: str | os.PathLike) -> Clip:
     names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(b)) or f"body{b}" for b in ids]
     parents = np.array([b - 1 if b > 0 else -1 for b in m.body_parentid[ids]], dtype=np.int32)
     wr, wp = d.xquat[ids].copy(), d.xpos[ids].copy()
-    rot = np.empty_like(wr)
-    tra = np.empty_like(wp)
-    for j, pa in enumerate(parents):
-        if pa < 0:
-            rot[j], tra[j] = wr[j], wp[j]
-        else:
-            inv = quat.conj(wr[pa])
-            rot[j] = quat.mul(inv, wr[j])
-            tra[j] = quat.rotate(inv, wp[j] - wp[pa])
-    rot = quat.canonical(rot)
+    rot, tra = local_from_world(parents, wr, wp)
     has_child = np.zeros(len(ids), bool)
     has_child[parents[parents >= 0]] = True
     end_parents, end_offsets = [], []

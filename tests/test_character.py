@@ -10,7 +10,7 @@ import trimesh
 
 import gltf_reference
 from conftest import asset
-from rig.character import Character, auto_weighted, load_character, load_skeleton, rest_clip
+from rig.character import Character, auto_weighted, load_character, load_skeleton, bind_clip
 from rig.errors import InputError, JiggleWarning
 from rig.gltf_anim import read_gltf_animation
 from sim.skeleton import Skeleton, transforms
@@ -99,7 +99,7 @@ def _two_bone_tube():
     pos = np.array([[0.0, 0, 1.0], [0.2, 0, 1.0], [0.4, 0, 1.0]])
     bind = np.tile(np.eye(4), (3, 1, 1))
     bind[:, :3, 3] = pos
-    clip = rest_clip(["a", "b", "c"], np.array([-1, 0, 1]), bind, name="chain")
+    clip = bind_clip(["a", "b", "c"], np.array([-1, 0, 1]), bind, name="chain")
     return mesh, clip
 
 
@@ -254,7 +254,7 @@ def test_glb_without_skin_needs_a_skeleton(tmp_path):
         load_character(path)
     bind = np.tile(np.eye(4), (2, 1, 1))
     bind[1, :3, 3] = [0, 0, 0.5]
-    clip = rest_clip(["hip", "spine"], np.array([-1, 0]), bind)
+    clip = bind_clip(["hip", "spine"], np.array([-1, 0]), bind)
     with pytest.warns(JiggleWarning, match="no skin in the file; computing automatic weights"):
         c = load_character(path, skeleton=clip)
     assert c.meta["weights"] == "bone heat" and c.num_vertices == 16
