@@ -19,6 +19,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from timing import best  # noqa: E402  (benchmarks/timing.py)
+
 from rig.bone_heat import (bone_heat_weights, bone_segments, closest_visible, cotangent_laplacian,  # noqa: E402
                            segment_distances, solve_heat, weld)
 from rig.body import BodyOptions, generate_body  # noqa: E402
@@ -31,15 +33,6 @@ def body_mesh(clip, vertices: int) -> tuple[np.ndarray, np.ndarray, str]:
     """The body to weight: the generated body (rig.body) at about `vertices` vertices."""
     body = generate_body(clip, BodyOptions(resolution=vertices))
     return body.vertices, body.faces, "generated body (rig.body)"
-
-
-def best(fn, repeats=3):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def main(path: Path = DEFAULT, vertices: int = 30000) -> None:

@@ -11,7 +11,6 @@ is 10 s for a body at the default resolution.
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,18 +18,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from timing import best  # noqa: E402  (benchmarks/timing.py)
+
 from rig.body import BodyOptions, at_least_voxel, evaluate_field, generate_body, grid_around, layout  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
-
-
-def best(fn, repeats=3):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def load(path: Path):

@@ -10,7 +10,6 @@ plus MuJoCo evaluation together.
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,21 +18,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+from timing import best  # noqa: E402  (benchmarks/timing.py)
+
 import bvh_reference  # noqa: E402  the tests' independent FK: 4x4 matrices per joint per frame
 
 from rig.bvh import read_bvh  # noqa: E402
 from sim.skeleton import Skeleton  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
-
-
-def best(fn, repeats=3):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def main(path: Path = DEFAULT) -> None:

@@ -21,20 +21,12 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from timing import best  # noqa: E402  (benchmarks/timing.py)
+
 from rig.normals import VertexNormals  # noqa: E402
 from rig.skinning import Skinner, dqs_numpy, lbs_numpy  # noqa: E402
 
 V, K, J = 100_000, 4, 31
-
-
-def best(fn, repeats=5):
-    fn()  # warm-up: compile, caches, allocations
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def grid(n: int):
@@ -61,16 +53,16 @@ def main(device: str = "cpu") -> None:
     t_build = time.perf_counter()
     skinner = Skinner(rest, joints, weights, device=device)
     t_build = time.perf_counter() - t_build
-    t_lbs, lbs = best(lambda: skinner.lbs(matrices))
-    t_lbs_np, lbs_ref = best(lambda: lbs_numpy(rest, joints, weights, matrices))
-    t_dqs, dqs = best(lambda: skinner.dqs(matrices))
-    t_dqs_np, dqs_ref = best(lambda: dqs_numpy(rest, joints, weights, matrices))
-    t_launch, _ = best(lambda: skinner.launch(matrices, "lbs"))
+    t_lbs, lbs = best(lambda: skinner.lbs(matrices), repeats=5, warmup=True)
+    t_lbs_np, lbs_ref = best(lambda: lbs_numpy(rest, joints, weights, matrices), repeats=5, warmup=True)
+    t_dqs, dqs = best(lambda: skinner.dqs(matrices), repeats=5, warmup=True)
+    t_dqs_np, dqs_ref = best(lambda: dqs_numpy(rest, joints, weights, matrices), repeats=5, warmup=True)
+    t_launch, _ = best(lambda: skinner.launch(matrices, "lbs"), repeats=5, warmup=True)
 
     n = int(round(V ** 0.5))
     positions, faces = grid(n)
     normals = VertexNormals(faces, len(positions))
-    t_normals, _ = best(lambda: normals(positions.astype(np.float32)))
+    t_normals, _ = best(lambda: normals(positions.astype(np.float32)), repeats=5, warmup=True)
 
     print(f"{V} vertices x {K} influences, {J} joints, device {skinner.device}")
     print(f"{'stage':46s} {'seconds':>9s}")

@@ -51,7 +51,6 @@ for the jiggle that later issues simulate on them.
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -147,16 +146,6 @@ class Body:
     voxel: float = 0.0
     timings: dict = field(default_factory=dict)
     bind: Clip | None = None
-
-
-def clip_from_mjcf(path: str | os.PathLike) -> Clip:
-    """The skeleton of a MuJoCo model (bodies at qpos0, Z-up metres) as a one-frame Clip.
-
-    Thin alias of :func:`rig.mjcf_skeleton.read_mjcf_skeleton` (which also gives leaf bodies an end
-    site at the tip of their geoms), kept here so body generation has one import for MJCF files.
-    """
-    from .mjcf_skeleton import read_mjcf_skeleton
-    return read_mjcf_skeleton(path)
 
 
 def generate_body(clip: Clip, options: BodyOptions = BodyOptions()) -> Body:

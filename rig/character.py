@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .clip import Clip, joint_index, local_from_world
+from .clip import Clip, joint_index, local_from_world, transforms
 from .errors import InputError, JiggleWarning
 from .frozen import frozen_array
 
@@ -115,7 +115,7 @@ class Character:
     # ------------------------------------------------------------------ posing
     def skin_matrices(self, world: np.ndarray) -> np.ndarray:
         """Skin matrices (..., J, 4, 4) from rigid joint world transforms `world` (..., J, 4, 4) metres
-        (e.g. `sim.skeleton.transforms(*skeleton.world(times))`), in the character's joint order."""
+        (e.g. `rig.clip.transforms(*skeleton.world(times))`), in the character's joint order."""
         world = np.asarray(world, dtype=np.float64)
         if world.shape[-3:] != (self.num_joints, 4, 4):
             raise ValueError(f"world transforms must be (..., {self.num_joints}, 4, 4), got {world.shape}")
@@ -292,9 +292,10 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
         raise InputError(f"k (influences per vertex) must be a whole number from 1 to 8, got {k!r}", field="k")
     if ext in (".glb", ".gltf"):
         from .gltf_character import gltf_has_skin, read_gltf_character
-        if gltf_has_skin(p) and skeleton is None:
+        skinned = gltf_has_skin(p)
+        if skinned and skeleton is None:
             return read_gltf_character(p, skin=skin, k=k, unit=unit)
-        if gltf_has_skin(p):
+        if skinned:
             warnings.warn(f"{p}: the file's own skin is ignored: weights are computed from the given skeleton",
                           JiggleWarning, stacklevel=2)
     elif ext not in MESH_EXTENSIONS:
@@ -349,7 +350,7 @@ def auto_weighted(vertices: np.ndarray, faces: np.ndarray, clip: Clip, k: int = 
     v = np.asarray(vertices, dtype=np.float64)
     require_finite_positions(v, path)
     f = drop_degenerate_faces(v, faces, path)
-    bind = _rest_transforms(clip)
+    bind = transforms(*clip.rest_world())
     check_overlap(v, bind[:, :3, 3], path)
     rot, pos = clip.rest_world()
     joints, weights, report = bone_heat_weights(v, f, pos, clip.parents, k=k, end_positions=end_sites(clip))
@@ -399,13 +400,3 @@ def check_overlap(vertices: np.ndarray, joint_positions: np.ndarray, path: str |
         raise InputError(f"the skeleton does not fit the mesh: {int(inside.sum())} of {len(inside)} joints lie "
                          f"within the mesh's bounds (mesh {h_mesh:.4g} m tall, skeleton {h_skel:.4g} m); check "
                          f"the mesh's unit and up axis (--unit, --up)", path, field="skeleton")
-
-
-def _rest_transforms(clip: Clip) -> np.ndarray:
-    from . import quat
-    r, p = clip.rest_world()
-    m = np.zeros((clip.num_joints, 4, 4))
-    m[:, :3, :3] = quat.to_matrix(r)
-    m[:, :3, 3] = p
-    m[:, 3, 3] = 1.0
-    return m

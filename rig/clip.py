@@ -39,6 +39,15 @@ def local_from_world(parents: np.ndarray, world_rot: np.ndarray, world_pos: np.n
     return quat.canonical(rot), tra
 
 
+def transforms(rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) homogeneous matrices from world rotations (..., 4) and positions (..., 3)."""
+    out = np.zeros(rot.shape[:-1] + (4, 4))
+    out[..., :3, :3] = quat.to_matrix(rot)
+    out[..., :3, 3] = pos
+    out[..., 3, 3] = 1.0
+    return out
+
+
 def joint_index(joint_names: tuple[str, ...], name: str, source: str = "") -> int:
     """Index of joint `name`, or an InputError listing the joints (naming `source` when given)."""
     try:

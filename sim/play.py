@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig.clip import Clip
+from rig.clip import Clip, transforms
 from .atomic import atomic_path
-from .skeleton import Skeleton, transforms
+from .skeleton import Skeleton
 
 
 @dataclass(frozen=True)

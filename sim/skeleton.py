@@ -230,12 +230,3 @@ def body_poses(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray, bod
         rot[i] = data.xquat[bodies]
         pos[i] = data.xpos[bodies]
     return rot, pos
-
-
-def transforms(rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) homogeneous matrices from world rotations (..., 4) and positions (..., 3)."""
-    out = np.zeros(rot.shape[:-1] + (4, 4))
-    out[..., :3, :3] = quat.to_matrix(rot)
-    out[..., :3, 3] = pos
-    out[..., 3, 3] = 1.0
-    return out

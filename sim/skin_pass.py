@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from rig.character import Character
+from rig.clip import transforms
 from .play import Motion
-from .skeleton import transforms
 
 
 def skin_motion(character: Character, motion: Motion, method: str = "lbs", device: str = "cpu",

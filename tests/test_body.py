@@ -28,8 +28,8 @@ def cmu_clip():
 
 
 def mjcf_clip():
-    from rig.body import clip_from_mjcf
-    return clip_from_mjcf(asset("mjcf/humanoid_CMU.xml"))
+    from rig.mjcf_skeleton import read_mjcf_skeleton
+    return read_mjcf_skeleton(asset("mjcf/humanoid_CMU.xml"))
 
 
 def cesium_clip():

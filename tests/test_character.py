@@ -13,7 +13,8 @@ from conftest import asset
 from rig.character import Character, auto_weighted, load_character, load_skeleton, bind_clip
 from rig.errors import InputError, JiggleWarning
 from rig.gltf_anim import read_gltf_animation
-from sim.skeleton import Skeleton, transforms
+from rig.clip import transforms
+from sim.skeleton import Skeleton
 
 CHARACTERS = ["CesiumMan", "RiggedFigure"]
 
