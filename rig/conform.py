@@ -19,9 +19,9 @@ adjustment p_r - p of such a ray is scaled by 1 - |dir . theta| (1 along the pla
 continuous with the rays that point away), and its target is clipped at the plane, so the two
 muscles of a pair never cross it.
 
-Rays that miss the skin, or hit it farther than `reach` times the ellipsoid's radius in that
-direction (a thin muscle's inward rays would otherwise cross the body to the far side), keep the
-ellipsoid's vertex.
+Rays that miss the skin, hit it farther than `reach` times the ellipsoid's radius in that direction
+(a thin muscle's inward rays would otherwise cross the body to the far side), or hit skin outside
+the muscle's own bone region (a deltoid's rays reaching the neck), keep the ellipsoid's vertex.
 """
 from __future__ import annotations
 
@@ -40,21 +40,25 @@ class ConformReport:
     misses: int
 
 
-def first_hits(mesh, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """(N,) distance along each unit ray (origins, directions (N, 3)) to the first hit on the trimesh
-    `mesh`, inf where it misses. Uses embree through trimesh when it is installed."""
+def first_hits(mesh, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (N,) along each unit ray (origins, directions (N, 3)) to its first hit on the trimesh
+    `mesh` (inf where it misses) and the triangle hit (N,) (-1 where it misses). Uses embree through
+    trimesh when it is installed."""
     dist = np.full(len(origins), np.inf)
+    tri = np.full(len(origins), -1, dtype=np.int64)
     if len(origins) == 0:
-        return dist
-    loc, ray, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
+        return dist, tri
+    loc, ray, index_tri = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
     if len(ray):
         d = np.einsum("ij,ij->i", loc - origins[ray], directions[ray])
         dist[ray] = np.where(d >= 0, d, np.inf)
-    return dist
+        tri[ray] = index_tri
+    return dist, tri
 
 
 def conform(ellipsoid: Ellipsoid, points: np.ndarray, skin_mesh, *, nu: float = 3.0,
-            plane: tuple[np.ndarray, np.ndarray] | None = None, reach: float = 3.0
+            plane: tuple[np.ndarray, np.ndarray] | None = None, reach: float = 3.0,
+            allowed: np.ndarray | None = None, faces: np.ndarray | None = None, smoothing: int = 0
             ) -> tuple[np.ndarray, ConformReport]:
     """Reshape the ellipsoid's mesh vertices `points` (N, 3) toward the skin.
 
@@ -62,6 +66,11 @@ def conform(ellipsoid: Ellipsoid, points: np.ndarray, skin_mesh, *, nu: float = 
     nu : attenuation along the major axis (> 0).
     plane : (point, normal) of a pair's partition plane, normal unit and pointing to this muscle's side.
     reach : hits farther than `reach` x the ellipsoid's radius along the ray are ignored.
+    allowed : (F,) bool over the skin's triangles: hits elsewhere are ignored (the muscle conforms to
+        the skin of its own bone, not to a neighbouring limb or the trunk seen past a joint).
+    faces, smoothing : the mesh's triangles and a number of smoothing passes over the displacement
+        (each vertex's move averaged half-and-half with its neighbours'): a ray that slips into a fold
+        of the skin makes a spike that the lofted muscle cannot follow; smoothing keeps it a bulge.
     Returns the conformed points (N, 3) and a ConformReport.
     """
     p = np.asarray(points, dtype=np.float64)
@@ -75,7 +84,10 @@ def conform(ellipsoid: Ellipsoid, points: np.ndarray, skin_mesh, *, nu: float = 
     direction = np.zeros_like(p)
     direction[ok] = radial[ok] / r[ok, None]
     dist = np.full(len(p), np.inf)
-    dist[ok] = first_hits(skin_mesh, foot[ok], direction[ok])
+    tri = np.full(len(p), -1, dtype=np.int64)
+    dist[ok], tri[ok] = first_hits(skin_mesh, foot[ok], direction[ok])
+    if allowed is not None:
+        dist[(tri < 0) | ~np.asarray(allowed, bool)[np.maximum(tri, 0)]] = np.inf
     # the ellipsoid's own extent along each ray, to judge how far a hit may be
     local_dir = (direction @ ellipsoid.axes.T) / ellipsoid.radii
     own = 1.0 / np.maximum(np.linalg.norm(local_dir, axis=1), 1e-12)
@@ -94,6 +106,16 @@ def conform(ellipsoid: Ellipsoid, points: np.ndarray, skin_mesh, *, nu: float = 
     conformed = foot + (1.0 - np.exp((d - 1.0) * nu))[:, None] * (target - foot)
     # the pair attenuation scales the adjustment (the change from the ellipsoid), so an attenuated
     # ray keeps the ellipsoid's vertex rather than collapsing onto the axis
-    out = p.copy()
-    out[hit] = p[hit] + weight[hit, None] * (conformed[hit] - p[hit])
+    move = np.zeros_like(p)
+    move[hit] = weight[hit, None] * (conformed[hit] - p[hit])
+    if smoothing and faces is not None and len(p):
+        import scipy.sparse as sp
+        f = np.asarray(faces)
+        i, j = np.concatenate([f[:, 0], f[:, 1], f[:, 2]]), np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
+        adj = sp.coo_matrix((np.ones(2 * len(i)), (np.r_[i, j], np.r_[j, i])), shape=(len(p), len(p))).tocsr()
+        adj.data[:] = 1.0
+        adj = sp.diags(1.0 / np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)) @ adj
+        for _ in range(smoothing):
+            move = 0.5 * move + 0.5 * (adj @ move)
+    out = p + move
     return out, ConformReport(hits=int(hit.sum()), misses=int(len(p) - hit.sum()))
