@@ -8,7 +8,11 @@ The eigenvectors of the covariance give the ellipsoid's axes and the square root
 the half-lengths, as in the paper (no extra scale factor: the paper reads the fit as the Gaussian that
 best explains the points, one standard deviation per axis; conforming then inflates it toward the
 skin). A region flatter than `thickness_min` (a patch of skin, or a region with few triangles) gets that
-half-thickness, and is pushed inward so that its outer side stays where the patch was.
+half-thickness, and is pushed inward so that its outer side stays where the patch was: at the skin's
+height in the middle of the patch (an area-weighted average over the triangles near the mean, Gaussian
+weights of width MIDDLE_WIDTH tangential standard deviations). The mean itself lies above a hollow
+patch (the skin between a belly and the ribs): measured from the mean, a hollow's outer side would
+poke out of the skin.
 """
 from __future__ import annotations
 
@@ -17,6 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .frozen import frozen_array
+
+MIDDLE_WIDTH = 0.5
+"""Width of the weights that measure a flat patch's height at its middle, in tangential standard deviations."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,10 +114,12 @@ def fit_ellipsoid(vertices: np.ndarray, faces: np.ndarray, *, along: np.ndarray,
     short = thickness_min - radii
     for k in (1, 2):
         if short[k] > 0:
-            # a flat patch: the fitted sheet lies in the skin; keep its outer side there
+            # a flat patch: the fitted sheet lies in the skin; keep its outer side at the skin's
+            # height (along axes[k], outward) in the middle of the patch
             if outward is not None:
                 sign = 1.0 if axes[k] @ outward >= 0 else -1.0
-                centre -= sign * short[k] * axes[k] * (abs(axes[k] @ outward))
+                middle = _middle_height(vertices, faces, mean, axes, np.maximum(radii, thickness_min), k)
+                centre -= sign * (thickness_min - sign * middle) * axes[k] * (abs(axes[k] @ outward))
             radii[k] = thickness_min
     radii[0] = max(radii[0], thickness_min)
     order = np.argsort(radii[1:])[::-1] + 1  # keep radii descending after the minimum was applied
@@ -119,3 +128,16 @@ def fit_ellipsoid(vertices: np.ndarray, faces: np.ndarray, *, along: np.ndarray,
         radii = radii[[0, 2, 1]]
         axes[2] = np.cross(axes[0], axes[1])
     return Ellipsoid(centre=centre, axes=axes, radii=radii)
+
+
+def _middle_height(vertices: np.ndarray, faces: np.ndarray, mean: np.ndarray, axes: np.ndarray,
+                   radii: np.ndarray, k: int) -> float:
+    """Height along axes[k] above `mean` of the skin triangles near the patch's middle: their centroids'
+    heights averaged with weights area x exp(-q^2 / (2 MIDDLE_WIDTH^2)), q the tangential distance
+    from the mean in standard deviations `radii` along the other two axes."""
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    rel = tri.mean(axis=1) - mean
+    q2 = sum(((rel @ axes[i]) / radii[i]) ** 2 for i in range(3) if i != k)
+    weight = area * np.exp(-0.5 * q2 / MIDDLE_WIDTH ** 2)
+    return float(weight @ (rel @ axes[k]) / weight.sum()) if weight.sum() > 0 else 0.0

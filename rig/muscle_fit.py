@@ -206,6 +206,15 @@ def _chain(parents: np.ndarray, top: int, bottom: int) -> list[int] | None:
     return path[::-1]
 
 
+def _collapsed_into(parents: np.ndarray, pos: np.ndarray, j: int) -> int:
+    """The joint that starts `j`'s bone segments: j itself, or the ancestor it sits on through
+    zero-length links (the tolerance of rig.segmentation.bone_segments, 1e-6 of the skeleton's size)."""
+    eps = 1e-6 * max(float(np.ptp(pos, axis=0).max()), 1e-9)
+    while parents[j] >= 0 and np.linalg.norm(pos[j] - pos[parents[j]]) <= eps:
+        j = int(parents[j])
+    return j
+
+
 def fit_musculature(character: Character, template="human", options: FitOptions = FitOptions(), *,
                     roles: dict | None = None, front: np.ndarray | None = None) -> Musculature:
     """Fit `template` (a Template, a built-in name or a path) to `character`.
@@ -264,7 +273,10 @@ def fit_musculature(character: Character, template="human", options: FitOptions 
                 skip(m.name, f"its bone {label} has zero length")
             continue
         segs = seg.segments
-        on_chain = np.isin(segs.parent, chain[:-1]) & np.isin(segs.child, chain[1:])
+        # a chain joint at its parent's place (CMU's LowerBack on Hips) starts no segment of its own:
+        # rig.segmentation collapsed it, and its bone is the segment from the joint it collapsed into
+        starts = chain[:-1] + [_collapsed_into(character.parents, pos, j) for j in chain[:-1]]
+        on_chain = np.isin(segs.parent, starts) & np.isin(segs.child, chain[1:])
         bone = _Bone(label=label, parent=p_joint, child=c_joint, start=start, end=end,
                      frame=bone_frame(start, end, front),
                      faces=np.nonzero(np.isin(face_region, np.nonzero(on_chain)[0]))[0])

@@ -59,7 +59,8 @@ class PoseShapes:
     local: np.ndarray
 
     def __post_init__(self):
-        for k in ("bones", "angles", "local"):
+        object.__setattr__(self, "bones", frozen_array(self.bones, np.int64))  # indexes `world` in cvs()
+        for k in ("angles", "local"):
             object.__setattr__(self, k, frozen_array(getattr(self, k)))
 
     def local_cvs(self, angles) -> np.ndarray:
