@@ -92,7 +92,6 @@ class FittedMuscle:
     vertices, faces : (n, 3) conformed mesh, (f, 3) int32.
     joints : (4,) int32 joints carrying origin, origin hinge, insertion hinge, insertion.
     points : (4, 3) those points at bind.
-    tendons : (2, 3, 3) origin -> hinge -> belly start, belly end -> hinge -> insertion.
     region : (k,) int32 skin triangles fitted.
     plane : (point (3,), normal (3,)) of the pair's partition plane on this muscle's side, or None.
     report : the conforming rays' hits and misses.
@@ -110,17 +109,23 @@ class FittedMuscle:
     faces: np.ndarray
     joints: np.ndarray
     points: np.ndarray
-    tendons: np.ndarray
     region: np.ndarray
     plane: tuple | None
     report: ConformReport
     spec: object
 
     def __post_init__(self):
-        for k in ("vertices", "points", "tendons"):
+        for k in ("vertices", "points"):
             object.__setattr__(self, k, frozen_array(getattr(self, k)))
         for k in ("faces", "joints", "region"):
             object.__setattr__(self, k, frozen_array(getattr(self, k), np.int32))
+
+    @property
+    def tendons(self) -> np.ndarray:
+        """(2, 3, 3) metres: origin -> hinge -> belly start, belly end -> hinge -> insertion."""
+        ends = self.ellipsoid.ends
+        p = self.points
+        return np.stack([[p[0], p[1], ends[0]], [ends[1], p[2], p[3]]])
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,11 +286,11 @@ def fit_musculature(character: Character, template="human", options: FitOptions 
                      frame=bone_frame(start, end, front),
                      faces=np.nonzero(np.isin(face_region, np.nonzero(on_chain)[0]))[0])
         for m in pair.muscles:
-            pieces = _sub_region(bone, m, pair, centroids)
+            plane = _plane(bone, pair, m)
+            pieces = _sub_region(bone, m, plane, centroids)
             if len(pieces) == 0:
                 skip(m.name, f"its region on {label} is empty")
                 continue
-            plane = _plane(bone, pair, m)
             strips = _strips(V, F, pieces, bone, m.count) if m.kind == "multi_belly" else [pieces]
             for k, faces in enumerate(strips):
                 name = m.name if len(strips) == 1 else f"{m.name}_{k + 1}"
@@ -300,7 +305,7 @@ def fit_musculature(character: Character, template="human", options: FitOptions 
         raise InputError("no muscle of the template could be fitted to this character", character.source or None)
 
     t2 = time.perf_counter()
-    specs = [MuscleSpec(name=f.name, kind="fat" if f.kind == "fat" else "muscle", group=f.group, bone=f.bone,
+    specs = [MuscleSpec(name=f.name, kind=f.kind, group=f.group, bone=f.bone,
                         bones=f.joints, points=f.points, ends=f.ellipsoid.ends, up=f.ellipsoid.axes[1],
                         surface=f.vertices, rim_scale=f.spec.rim_scale, bulge_scale=f.spec.bulge_scale,
                         main_scale=f.spec.main_scale, bulge_position=f.spec.bulge_position, tone=f.spec.tone,
@@ -348,7 +353,7 @@ def _face_regions(region: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out
 
 
-def _sub_region(bone: _Bone, m, pair, centroids: np.ndarray) -> np.ndarray:
+def _sub_region(bone: _Bone, m, plane, centroids: np.ndarray) -> np.ndarray:
     """The bone region's triangles within the muscle's span along the bone, sector about it and side of
     the pair's partition plane."""
     faces = bone.faces
@@ -358,7 +363,6 @@ def _sub_region(bone: _Bone, m, pair, centroids: np.ndarray) -> np.ndarray:
     if m.sector is not None:
         ang = np.degrees(np.arctan2(c @ bone.frame[2], c @ bone.frame[1]))
         keep &= (ang - m.sector[0]) % 360.0 <= m.sector[1] - m.sector[0]
-    plane = _plane(bone, pair, m)
     if plane is not None:
         keep &= (centroids[faces] - plane[0]) @ plane[1] >= 0
     return faces[keep]
@@ -415,8 +419,7 @@ def _fit_one(name, m, pair, bone: _Bone, faces, plane, V, F, normals, skin, role
                        bone.point(m.insertion.position, bone.end)])
     joints = np.array([joint(m.origin, bone.parent), joint(m.o_hinge, bone.parent),
                        joint(m.i_hinge, bone.parent), joint(m.insertion, bone.child)], dtype=np.int32)
-    tendons = np.stack([[points[0], points[1], ends[0]], [ends[1], points[2], points[3]]])
     return FittedMuscle(name=name, kind="fat" if m.kind == "fat" else "muscle", group=group, side=m.type,
                         bone=bone.parent, bone_label=bone.label, ellipsoid=e, vertices=conformed, faces=tri,
-                        joints=joints, points=points, tendons=tendons, region=faces, plane=plane, report=report,
+                        joints=joints, points=points, region=faces, plane=plane, report=report,
                         spec=m)

@@ -17,6 +17,7 @@ skeleton; only the change of shape is interpolated.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -63,6 +64,13 @@ class PoseShapes:
         for k in ("angles", "local"):
             object.__setattr__(self, k, frozen_array(getattr(self, k)))
 
+    @cached_property
+    def _rbf(self):
+        """The interpolant over several parameters, solved once (not per evaluated frame)."""
+        from scipy.interpolate import RBFInterpolator
+        return RBFInterpolator(self.angles, self.local.reshape(len(self.angles), -1), kernel="thin_plate_spline",
+                               degree=1)
+
     def local_cvs(self, angles) -> np.ndarray:
         """(M, C, 3) CVs in the bones' frames for parameters `angles` (D,)."""
         q = np.atleast_1d(np.asarray(angles, float))
@@ -77,8 +85,7 @@ class PoseShapes:
             w = float(np.clip((q[0] - x[i - 1]) / (x[i] - x[i - 1]), 0.0, 1.0))
             out = (1.0 - w) * y[i - 1] + w * y[i]
         else:
-            from scipy.interpolate import RBFInterpolator
-            out = RBFInterpolator(self.angles, flat, kernel="thin_plate_spline", degree=1)(q[None])[0]
+            out = self._rbf(q[None])[0]
         return out.reshape(self.local.shape[1:])
 
     def cvs(self, world: np.ndarray, angles) -> np.ndarray:

@@ -49,6 +49,15 @@ def _character_options(p: argparse.ArgumentParser) -> None:
                             f"(default: {default:g})")
 
 
+def _mesh_options(g) -> None:
+    """How to read a character file: --skin, --unit, --up (play and fit)."""
+    g.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of a glTF character (default: 0)")
+    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per unit "
+                   "(default: m)")
+    g.add_argument("--up", choices=["auto", "y", "z"], default="auto",
+                   help="up axis of an OBJ/PLY/STL character (default: auto, the longer of y and z)")
+
+
 def _non_negative(name):
     def conv(v):
         try:
@@ -350,11 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "rest pose (automatic weights). Default: a body generated around the clip's skeleton")
     g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
     g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
-    g.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of a glTF character (default: 0)")
-    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per unit "
-                   "(default: m)")
-    g.add_argument("--up", choices=["auto", "y", "z"], default="auto",
-                   help="up axis of an OBJ/PLY/STL character (default: auto, the longer of y and z)")
+    _mesh_options(g)
     _character_options(p)
     g = p.add_argument_group("your own MuJoCo model")
     g.add_argument("--mjcf", metavar="XML", help="drive this MJCF instead of the model built from the clip "
@@ -412,9 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--volume", choices=["exact", "sqrt", "thesis", "none"], default="exact",
                    help="how muscles keep their volume when they stretch (default: exact)")
     p.add_argument("--skeleton", metavar="FILE", help="the skeleton of a mesh character (clip, ASF, MJCF)")
-    p.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of a glTF character (default: 0)")
-    p.add_argument("--unit", metavar="UNIT", help="the character file's unit (default: m)")
-    p.add_argument("--up", choices=["auto", "y", "z"], default="auto", help="up axis of a mesh (default: auto)")
+    _mesh_options(p)
     _character_options(p)
     p.set_defaults(func=cmd_fit)
     return top

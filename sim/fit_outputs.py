@@ -14,7 +14,7 @@ import numpy as np
 
 from rig.muscle_fit import Musculature
 from .atomic import atomic_path
-from .mesh_render import SKIN, VIEWS, _frame_camera
+from .mesh_render import SKIN, VIEWS, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
@@ -138,7 +138,7 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] = (180
                 pl.add_mesh(mesh, color=colour, smooth_shading=True, specular=0.3)
             pl.add_mesh(tendons, color=(0.92, 0.92, 0.85))
             pl.add_mesh(skin.copy(deep=False), color=SKIN, opacity=0.22, smooth_shading=True)
-        _frame_camera(pl, v, np.asarray(VIEWS[view], float), np.array([0.0, 0.0, 1.0]), size[0] / len(panels) / size[1])
+        frame_camera(pl, v, np.asarray(VIEWS[view], float), np.array([0.0, 0.0, 1.0]), size[0] / len(panels) / size[1])
         pl.add_text(title, position="lower_left", font_size=10, color="black")
         if i == 0:
             pl.add_text(f"{ch.name or 'character'}: {len(mus.muscles)} muscles", position="upper_left",

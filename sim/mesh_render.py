@@ -77,7 +77,7 @@ def render_mesh(vertices: np.ndarray, faces: np.ndarray, path: str | os.PathLike
             pl.add_mesh(bones[1], color=(0.8, 0.15, 0.15))
         direction = VIEWS[view] if isinstance(view, str) else tuple(float(x) for x in view)
         up = (0.0, 1.0, 0.0) if isinstance(view, str) and view == "top" else (0.0, 0.0, 1.0)
-        _frame_camera(pl, v if len(v) else np.zeros((1, 3)), np.asarray(direction, float), np.asarray(up),
+        frame_camera(pl, v if len(v) else np.zeros((1, 3)), np.asarray(direction, float), np.asarray(up),
                       size[0] / len(views) / size[1])
         pl.add_text(view if isinstance(view, str) else "view", position="lower_left", font_size=10,
                     color="black")
@@ -89,7 +89,7 @@ def render_mesh(vertices: np.ndarray, faces: np.ndarray, path: str | os.PathLike
     return os.fspath(path)
 
 
-def _frame_camera(pl, points: np.ndarray, direction: np.ndarray, up: np.ndarray, aspect: float) -> None:
+def frame_camera(pl, points: np.ndarray, direction: np.ndarray, up: np.ndarray, aspect: float) -> None:
     """Parallel projection looking along -direction, framing the points tightly (5% margin).
     aspect : width / height of the viewport."""
     d = direction / np.linalg.norm(direction)
