@@ -1,0 +1,179 @@
+"""Launcher of the shell deformers (kernel :func:`rig.shell_kernels.shells`, math in :mod:`rig.shells`).
+
+The per-muscle table and the culled (vertex, muscle) pairs are uploaded once; each frame uploads only
+the M ellipsoids, curves and active flags (float32) and runs one launch over the vertices, taking the
+skinned points as a device array and returning the wrapper's device buffer.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from rig import shell_kernels as kernels
+from rig.errors import InputError
+from rig.shells import ShellFrames, ShellTable
+
+
+@dataclass(frozen=True)
+class ShellModel:
+    """The deformers on the device; built once, never changed.
+
+    pair_offsets : (V + 1,) int32 CSR offsets. pair_muscle : (P,) int32. pair_weight : (P,) float32.
+    sticky, hard, drop_off, weight, slippage : (M,) float32. mode, star_index : (M,) int32.
+    star : (max(S, 1), 17, 32) float32 (one zero table stands in when S == 0).
+    """
+
+    pair_offsets: wp.array
+    pair_muscle: wp.array
+    pair_weight: wp.array
+    sticky: wp.array
+    hard: wp.array
+    drop_off: wp.array
+    weight: wp.array
+    slippage: wp.array
+    mode: wp.array
+    star_index: wp.array
+    star: wp.array
+    num_vertices: int
+    num_pairs: int
+    num_muscles: int
+
+
+def check_pairs(pair_offsets, pair_muscle, pair_weight, num_muscles: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validated CSR pairs: offsets (V + 1,) int32, muscle (P,) int32, weight (P,) float32.
+
+    Raises InputError naming the array: wrong shapes or dtypes, offsets not starting at 0, not
+    non-decreasing or not ending at P, muscles out of [0, M) or not strictly ascending within a
+    vertex (the series order), weights outside [0, 1] or NaN.
+    """
+    off = np.asarray(pair_offsets)
+    mus = np.asarray(pair_muscle)
+    wts = np.asarray(pair_weight)
+    if off.ndim != 1 or off.shape[0] < 1 or not np.issubdtype(off.dtype, np.integer):
+        raise InputError(f"expected (V + 1,) integers, got shape {off.shape} dtype {off.dtype}",
+                         field="pair_offsets")
+    if mus.ndim != 1 or not np.issubdtype(mus.dtype, np.integer):
+        raise InputError(f"expected (P,) integers, got shape {mus.shape} dtype {mus.dtype}",
+                         field="pair_muscle")
+    P = mus.shape[0]
+    if wts.shape != (P,) or not np.issubdtype(wts.dtype, np.number):
+        raise InputError(f"expected ({P},) floats (one per pair), got shape {wts.shape} dtype {wts.dtype}",
+                         field="pair_weight")
+    if off[0] != 0 or off[-1] != P or np.any(np.diff(off) < 0):
+        raise InputError(f"expected non-decreasing offsets from 0 to P = {P}, got {off[0]} .. {off[-1]}",
+                         field="pair_offsets")
+    if P and (mus.min() < 0 or mus.max() >= num_muscles):
+        raise InputError(f"expected muscle indices in [0, {num_muscles}), got [{mus.min()}, {mus.max()}]",
+                         field="pair_muscle")
+    # within a vertex the muscles must ascend: a step that does not ascend must start a vertex
+    starts = np.zeros(P, bool)
+    starts[off[:-1][off[:-1] < P]] = True
+    if P > 1 and np.any((np.diff(mus) <= 0) & ~starts[1:]):
+        raise InputError("expected strictly ascending muscles within each vertex", field="pair_muscle")
+    w = wts.astype(np.float64)
+    if not np.all((w >= 0.0) & (w <= 1.0)):
+        raise InputError("expected painted weights in [0, 1] (no NaN)", field="pair_weight")
+    return off.astype(np.int32), mus.astype(np.int32), w.astype(np.float32)
+
+
+class ShellDeformer:
+    """All muscles' shell deformers on one skin, in series, with Warp.
+
+    Parameters
+    ----------
+    table : the M muscles' parameters and star tables (:func:`rig.shells.shell_table`).
+    pair_offsets : (V + 1,) int, CSR over the skin's V vertices (:func:`rig.shells.cull_pairs`).
+    pair_muscle : (P,) int, strictly ascending within each vertex.
+    pair_weight : (P,) float in [0, 1], the painted weights w_i.
+    device : Warp device for the model, the buffers and every launch.
+    """
+
+    def __init__(self, table: ShellTable, pair_offsets, pair_muscle, pair_weight, device="cpu"):
+        if not isinstance(table, ShellTable):
+            raise InputError(f"expected a ShellTable, got {type(table).__name__}", field="table")
+        M = table.num_muscles
+        off, mus, wts = check_pairs(pair_offsets, pair_muscle, pair_weight, M)
+        self.device = wp.get_device(device)
+        star = table.star if table.star.shape[0] else np.zeros((1,) + table.star.shape[1:], np.float32)
+
+        def f32(a):
+            return wp.array(np.asarray(a, np.float32), dtype=wp.float32, device=self.device)
+
+        def i32(a):
+            return wp.array(np.asarray(a, np.int32), dtype=wp.int32, device=self.device)
+
+        self.model = ShellModel(
+            pair_offsets=i32(off), pair_muscle=i32(mus), pair_weight=f32(wts),
+            sticky=f32(table.sticky), hard=f32(table.hard), drop_off=f32(table.drop_off),
+            weight=f32(table.weight), slippage=f32(table.slippage), mode=i32(table.mode),
+            star_index=i32(table.star_index),
+            star=wp.array(np.asarray(star, np.float32), dtype=wp.float32, device=self.device),
+            num_vertices=int(off.shape[0] - 1), num_pairs=int(mus.shape[0]), num_muscles=int(M))
+        V = self.model.num_vertices
+        self._points_out = wp.empty(V, dtype=wp.vec3, device=self.device)
+        self._E = [wp.empty(M, dtype=wp.mat44, device=self.device) for _ in range(4)]
+        self._active = wp.empty(M, dtype=wp.int32, device=self.device)
+        self._curve = None
+
+    @property
+    def num_vertices(self) -> int:
+        return self.model.num_vertices
+
+    def deform(self, points, frames: ShellFrames) -> np.ndarray:
+        """points : (V, 3) float, metres -> (V, 3) float32, metres, a new array."""
+        p = np.asarray(points)
+        if p.shape != (self.num_vertices, 3):
+            raise InputError(f"expected shape ({self.num_vertices}, 3), got {p.shape}", field="points")
+        pts = wp.array(p.astype(np.float32), dtype=wp.vec3, device=self.device)
+        out = self.launch(pts, frames).numpy()
+        # on the CPU .numpy() is a view of the buffer the next call overwrites
+        return out.copy() if self.device.is_cpu else out
+
+    def launch(self, points: wp.array, frames: ShellFrames) -> wp.array:
+        """Deform on the device; returns the wrapper's (V,) wp.vec3 buffer, valid until the next call.
+
+        points : (V,) wp.vec3 on this deformer's device, metres (e.g. :meth:`rig.skinning.Skinner.launch`).
+        frames : this frame's ellipsoids of the M muscles; active muscles must be finite.
+        """
+        model = self.model
+        if not isinstance(points, wp.array) or points.dtype != wp.vec3 or points.shape != (model.num_vertices,):
+            shape = getattr(points, "shape", None)
+            raise InputError(f"expected a ({model.num_vertices},) wp.vec3 array, got {type(points).__name__} "
+                             f"shape {shape}", field="points")
+        self._upload(frames)
+        if model.num_vertices == 0:
+            return self._points_out
+        if model.num_pairs == 0:
+            wp.copy(self._points_out, points)
+            return self._points_out
+        wp.launch(kernels.shells, dim=model.num_vertices, device=self.device,
+                  inputs=[model.pair_offsets, model.pair_muscle, model.pair_weight,
+                          model.sticky, model.hard, model.drop_off, model.weight, model.slippage,
+                          model.mode, model.star_index, model.star,
+                          *self._E, self._curve, self._active, points],
+                  outputs=[self._points_out])
+        return self._points_out
+
+    def _upload(self, frames: ShellFrames) -> None:
+        if not isinstance(frames, ShellFrames):
+            raise InputError(f"expected ShellFrames, got {type(frames).__name__}", field="frames")
+        M = self.model.num_muscles
+        if frames.num_muscles != M:
+            raise InputError(f"expected frames of {M} muscles, got {frames.num_muscles}", field="frames")
+        on = frames.active
+        mats = (frames.E_ref, frames.E_ref_inv, frames.E_cur, frames.E_cur_inv)
+        for name, E in zip(("E_ref", "E_ref_inv", "E_cur", "E_cur_inv"), mats):
+            if not np.all(np.isfinite(E[on])):
+                raise InputError("NaN or inf in an active muscle's matrix (mark it inactive)", field=name)
+        if not np.all(np.isfinite(frames.curve[on])):
+            raise InputError("NaN or inf in an active muscle's curve (mark it inactive)", field="curve")
+        for buf, E in zip(self._E, mats):
+            buf.assign(E.astype(np.float32))
+        K = frames.curve.shape[1]
+        if self._curve is None or self._curve.shape != (M, K):
+            self._curve = wp.empty((M, K), dtype=wp.vec3, device=self.device)
+        self._curve.assign(frames.curve.astype(np.float32))
+        self._active.assign(on.astype(np.int32))

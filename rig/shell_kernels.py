@@ -1,0 +1,161 @@
+"""Warp kernel for the shell deformers of all muscles, applied in series per vertex.
+
+The launch wrapper is :class:`rig.shell_deformer.ShellDeformer`; the NumPy reference is
+:func:`rig.shells.shell_numpy` and the math (relative basic / stretch / trajectory displacements,
+shells, star offsets) is in the docstring of :mod:`rig.shells`. Everything is float32. The
+(vertex, muscle) pairs are CSR: vertex ``v`` owns pairs ``pair_offsets[v] .. pair_offsets[v+1] - 1``
+in ascending muscle order. Ellipsoids are 4x4 affine matrices (local unit sphere -> world, metres);
+``wp.transform_point`` applies the full 3x4 part of a mat44.
+"""
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+MODE_BASIC = wp.constant(0)
+MODE_STRETCH = wp.constant(1)
+MODE_TRAJECTORY = wp.constant(2)
+
+TINY_R = wp.constant(1.0e-9)
+"""Below this local radius a point has no direction: no projection term (as in rig.shells)."""
+STAR_NT = wp.constant(17)
+STAR_NP = wp.constant(32)
+THETA_SCALE = wp.constant((17 - 1) / math.pi)
+PHI_SCALE = wp.constant(32 / (2.0 * math.pi))
+PI = wp.constant(math.pi)
+
+
+@wp.func
+def falloff(x: float):
+    """(1 - x^2)^2 with x clamped to [0, 1]: 1 below 0, 0 above 1, C1 at both ends."""
+    c = wp.clamp(x, 0.0, 1.0)
+    return (1.0 - c * c) * (1.0 - c * c)
+
+
+@wp.func
+def shell_beta(rho: float, h: float, d: float):
+    inner = 1.0 + h * d
+    if rho <= inner:
+        return 1.0
+    if rho >= 1.0 + d:
+        return 0.0
+    # here inner < rho < 1 + d, so (1 - h) d > 0 up to rounding; the max keeps h ~ 1 finite
+    return falloff((rho - inner) / wp.max((1.0 - h) * d, 1.0e-30))
+
+
+@wp.func
+def shell_alpha(rho: float, d: float):
+    if rho <= 1.0:
+        return 1.0
+    if rho >= 1.0 + d:
+        return 0.0
+    return falloff((rho - 1.0) / d)
+
+
+@wp.func
+def star_delta(star: wp.array3d(dtype=wp.float32), table: int, u: wp.vec3):
+    """Bilinear delta(u) of star table `table` (-1: none -> 0) in (theta, phi), phi periodic."""
+    if table < 0:
+        return 0.0
+    # atan2(|u_xy|, u_z) == acos(u_z) for unit u, without acos's float32 error near the poles
+    theta = wp.atan2(wp.sqrt(u[0] * u[0] + u[1] * u[1]), u[2])
+    phi = wp.atan2(u[1], u[0])
+    ti = theta * THETA_SCALE
+    i0 = wp.clamp(int(wp.floor(ti)), 0, STAR_NT - 2)
+    ft = wp.clamp(ti - float(i0), 0.0, 1.0)
+    pj = (phi + PI) * PHI_SCALE
+    j0f = wp.floor(pj)
+    fp = wp.clamp(pj - j0f, 0.0, 1.0)
+    j0 = ((int(j0f) % STAR_NP) + STAR_NP) % STAR_NP
+    j1 = (j0 + 1) % STAR_NP
+    a = (1.0 - fp) * star[table, i0, j0] + fp * star[table, i0, j1]
+    b = (1.0 - fp) * star[table, i0 + 1, j0] + fp * star[table, i0 + 1, j1]
+    return (1.0 - ft) * a + ft * b
+
+
+@wp.func
+def local_rho(p_l: wp.vec3, star: wp.array3d(dtype=wp.float32), table: int):
+    """(u, delta) of a local point: unit direction (0 when r < TINY_R) and star offset."""
+    r = wp.length(p_l)
+    u = wp.vec3(0.0, 0.0, 0.0)
+    if r >= TINY_R:
+        u = p_l / r
+    return u, star_delta(star, table, u)
+
+
+@wp.func
+def project(p_l: wp.vec3, u: wp.vec3, delta: float, s: float, h: float, d: float):
+    """q(p_l) = p_l + beta(rho) (r_s - r) u, unweighted; u = 0 leaves p_l unchanged."""
+    r = wp.length(p_l)
+    r_s = 1.0 + delta + (1.0 - s) * d
+    return p_l + (shell_beta(r - delta, h, d) * (r_s - r)) * u
+
+
+@wp.kernel
+def shells(
+    # model
+    pair_offsets: wp.array(dtype=wp.int32),
+    pair_muscle: wp.array(dtype=wp.int32),
+    pair_weight: wp.array(dtype=wp.float32),
+    sticky: wp.array(dtype=wp.float32),
+    hard: wp.array(dtype=wp.float32),
+    drop_off: wp.array(dtype=wp.float32),
+    weight: wp.array(dtype=wp.float32),
+    slippage: wp.array(dtype=wp.float32),
+    mode: wp.array(dtype=wp.int32),
+    star_index: wp.array(dtype=wp.int32),
+    star: wp.array3d(dtype=wp.float32),
+    # state in
+    E_ref: wp.array(dtype=wp.mat44),
+    E_ref_inv: wp.array(dtype=wp.mat44),
+    E_cur: wp.array(dtype=wp.mat44),
+    E_cur_inv: wp.array(dtype=wp.mat44),
+    curve: wp.array2d(dtype=wp.vec3),
+    active: wp.array(dtype=wp.int32),
+    points: wp.array(dtype=wp.vec3),
+    # out
+    points_out: wp.array(dtype=wp.vec3),
+):
+    """points_out[v] = points[v] with the vertex's pairs applied in series: p <- p + D_pair(p)."""
+    v = wp.tid()
+    p = points[v]
+    K = curve.shape[1]
+    for i in range(pair_offsets[v], pair_offsets[v + 1]):
+        m = pair_muscle[i]
+        # inactive muscles (NaN CVs, degenerate frames) may hold NaN matrices: never read them
+        if active[m] != 0:
+            k = weight[m] * pair_weight[i]
+            s = sticky[m]
+            h = hard[m]
+            d = drop_off[m]
+            table = star_index[m]
+            p_l = wp.transform_point(E_ref_inv[m], p)
+            u, delta = local_rho(p_l, star, table)
+            q = project(p_l, u, delta, s, h, d)
+            mo = mode[m]
+            D = wp.vec3(0.0, 0.0, 0.0)
+            if mo == MODE_BASIC:
+                pc_l = wp.transform_point(E_cur_inv[m], p)
+                uc, delta_c = local_rho(pc_l, star, table)
+                qc = project(pc_l, uc, delta_c, s, h, d)
+                D = wp.transform_point(E_cur[m], qc) - wp.transform_point(E_ref[m], q)
+            else:
+                al = shell_alpha(wp.length(p_l) - delta, d)
+                # a = 0 wherever alpha = 0 (also for l = 0): nothing beyond the drop-off shell moves
+                a = float(0.0)
+                if al > 0.0:
+                    a = wp.pow(al, slippage[m])
+                if mo == MODE_STRETCH:
+                    # (E_cur - E_ref) (q, 1): the difference first, exactly 0 when they are equal
+                    D = a * wp.transform_point(E_cur[m] - E_ref[m], q)
+                else:
+                    x = a * float(K - 1)
+                    j = wp.min(int(x), K - 2)
+                    f = x - float(j)
+                    c0 = curve[m, j]
+                    c = c0 + f * (curve[m, j + 1] - c0)
+                    dL = E_cur[m] - E_ref[m]
+                    D = (c - curve[m, 0]) + a * wp.transform_vector(dL, q)
+            p = p + k * D
+    points_out[v] = p
