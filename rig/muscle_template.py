@@ -31,6 +31,7 @@ XML, the paper's layout (``.xml``)::
           <sections rim="1" bulge="1" main="1" bulgePosition="0.25"/>
           <shape tone="1" nu="3" thicknessMin="0.004" depth="0.03" count="1"/>
           <jiggle frequency="7" damping="0.5" goalTendon="0.9" goalBelly="0.4" density="1060"/>
+          <shell sticky="1" hard="0.5" dropOff="1" weight="1" slippage="1" mode="stretch"/>
         </muscle>
       </boneMusclePair>
     </musculoskeletalTemplate>
@@ -53,9 +54,11 @@ TOML (``.toml``)::
     span = [0.25, 1.0]
     tone = 1.0
     jiggle = { frequency = 7.0, damping = 0.5, goal_tendon = 0.9, goal_belly = 0.4, density = 1060.0 }
+    shell = { sticky = 1.0, hard = 0.5, drop_off = 1.0, weight = 1.0, slippage = 1.0, mode = "stretch" }
 
 Everything but the bone and a muscle's name is optional; a missing value takes its default (the
-jiggle defaults depend on the kind). Writers write every value that is set, so a file read back
+jiggle and shell defaults depend on the kind; a partial ``jiggle`` or ``shell`` table takes the rest
+of its values from the kind's default). Writers write every value that is set, so a file read back
 gives an equal :class:`Template`. Unknown elements, attributes and keys are errors (a typo must not
 pass silently), and every number is checked against its range; errors name the file, the field
 (``pair[3].muscle[1].tone``, in the TOML spelling for both forms) and, in XML, the line.
@@ -87,6 +90,10 @@ e_front; angles about the bone go from e_front toward e_side, degrees):
   (``count`` bellies in a row along the span, like the rectus abdominis).
 - jiggle : default particle parameters for the simulation (frequency Hz and damping ratio of the
   goal springs, goal weights at the tendons and the belly, density kg/m^3).
+- shell : the muscle's skin deformer (:class:`rig.shells.ShellParams`: sticky s, hard h, drop_off d
+  in local units of the muscle's radius, weight w, slippage l, mode basic/stretch/trajectory);
+  default :func:`rig.shells.default_shell` of the kind. The per-vertex painted weights are not part
+  of the template (they belong to a character: rig/shell_weights.py).
 """
 from __future__ import annotations
 
@@ -104,6 +111,7 @@ from defusedxml.ElementTree import DefusedXMLParser
 
 from .errors import InputError, require_file
 from .retarget import ROLES
+from .shells import ShellParams, check_params, default_shell
 
 TYPES = ("upper", "lower", "single")
 KINDS = ("muscle", "fat", "multi_belly")
@@ -194,9 +202,9 @@ class MuscleTemplate:
     """One muscle (or fat mass) of a template; see the module docstring for the meaning of each field.
 
     span : (t0, t1) fraction along the bone; sector : (a0, a1) degrees about the bone or None.
-    depth : metres. depth and jiggle given as None at construction take the kind's default
-    (:func:`default_depth`, :func:`default_jiggle`), so templates compare equal whether a default was
-    written out or left to apply.
+    depth : metres. depth, jiggle and shell given as None at construction take the kind's default
+    (:func:`default_depth`, :func:`default_jiggle`, :func:`rig.shells.default_shell`), so templates
+    compare equal whether a default was written out or left to apply.
     """
 
     name: str
@@ -219,6 +227,7 @@ class MuscleTemplate:
     thickness_min: float = 0.004
     depth: float | None = None  # None -> default_depth(kind)
     jiggle: Jiggle | None = None
+    shell: ShellParams | None = None  # None -> default_shell(kind)
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
@@ -230,6 +239,8 @@ class MuscleTemplate:
         set_("depth", default_depth(self.kind) if self.depth is None else float(self.depth))
         if self.jiggle is None:
             set_("jiggle", default_jiggle(self.kind))
+        if self.shell is None:
+            set_("shell", default_shell(self.kind))
 
     def attachment(self, which: str) -> Attachment:
         """The attachment `which` ("origin", "o_hinge", "i_hinge" or "insertion")."""
@@ -335,6 +346,15 @@ class _Checker:
         if value not in options:
             self.fail(f"expected one of {', '.join(options)}, got {value!r}", fld)
 
+    def shell(self, values, fld: str) -> None:
+        """Check deformer parameters (a ShellParams or {attr: value} with all six) with the ranges of
+        rig.shells.check_params, naming `fld`.<parameter>."""
+        get = values.get if isinstance(values, dict) else lambda k: getattr(values, k)
+        try:
+            check_params(*(get(attr) for attr, _ in _SHELL), where=fld)
+        except InputError as e:
+            self.fail(e.message, e.field or fld)
+
     def label(self, value, fld: str) -> None:
         if value not in ROLES:
             self.fail(f"unknown joint label {value!r}; template labels are roles: {', '.join(ROLES)}", fld)
@@ -425,6 +445,9 @@ def validate_template(t: Template, path: str | None = None, lines: dict[str, int
             c.number(jg.goal_tendon, f"{mf}.jiggle.goal_tendon", 0, 1)
             c.number(jg.goal_belly, f"{mf}.jiggle.goal_belly", 0, 1)
             c.number(jg.density, f"{mf}.jiggle.density", 100, 5000, unit=" kg/m^3")
+            if not isinstance(m.shell, ShellParams):
+                c.fail(f"expected rig.shells.ShellParams, got {type(m.shell).__name__}", f"{mf}.shell")
+            c.shell(m.shell, f"{mf}.shell")
     return t
 
 
@@ -462,6 +485,8 @@ _SHAPE = (("tone", "tone"), ("nu", "nu"), ("thickness_min", "thicknessMin"), ("d
 _JIGGLE = (("frequency", "frequency", "frequency_hz"), ("damping", "damping", "damping_ratio"),
            ("goal_tendon", "goalTendon", "goal_tendon"), ("goal_belly", "goalBelly", "goal_belly"),
            ("density", "density", "density"))
+_SHELL = (("sticky", "sticky"), ("hard", "hard"), ("drop_off", "dropOff"), ("weight", "weight"),
+          ("slippage", "slippage"), ("mode", "mode"))  # ShellParams attribute = TOML key
 _XML_ATTACH = {"origin": "origin", "o_hinge": "oHinge", "i_hinge": "iHinge", "insertion": "insertion"}
 
 
@@ -469,6 +494,16 @@ def _jiggle_of(kind, given: dict) -> Jiggle:
     """A Jiggle from {snake key: value}, the kind's default filling what is missing."""
     base = default_jiggle(kind if kind in KINDS else "muscle")
     return Jiggle(**{attr: given.get(key, getattr(base, attr)) for key, _, attr in _JIGGLE})
+
+
+def _shell_of(kind, given: dict, c: _Checker, fld: str) -> ShellParams:
+    """A ShellParams from {snake key: value} (numbers and a mode string, types already checked), the
+    kind's default filling what is missing; ranges are checked here so that the error names `fld`
+    (``pair[0].muscle[1].shell.sticky``), the file and the line, not just the parameter."""
+    base = default_shell(kind if kind in KINDS else "muscle")
+    values = {attr: given.get(attr, getattr(base, attr)) for attr, _ in _SHELL}
+    c.shell(values, fld)
+    return ShellParams(**values)
 
 
 def _stem(path: str | None) -> str:
@@ -526,7 +561,7 @@ def template_from_toml(text: str, path: str | None = None) -> Template:
         return Attachment(joint, pos)
 
     muscle_keys = ("name", "pair_id", "type", "kind", "count", *ATTACHMENTS, "span", "sector", "rim_scale",
-                   "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min", "depth", "jiggle")
+                   "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min", "depth", "jiggle", "shell")
     keys(doc, "", ("name", "pair"), required=("pair",))
     name = string(doc["name"], "name") if "name" in doc else _stem(path)
     if not isinstance(doc["pair"], list):
@@ -567,6 +602,13 @@ def template_from_toml(text: str, path: str | None = None) -> Template:
                 keys(mt["jiggle"], jf, tuple(k for k, _, _ in _JIGGLE))
                 given = {k: num(v, f"{jf}.{k}") for k, v in mt["jiggle"].items()}
             kw["jiggle"] = _jiggle_of(kw.get("kind", "muscle"), given)
+            given = {}
+            if "shell" in mt:
+                sf = f"{mf}.shell"
+                keys(mt["shell"], sf, tuple(k for k, _ in _SHELL))
+                given = {k: string(v, f"{sf}.{k}") if k == "mode" else num(v, f"{sf}.{k}")
+                         for k, v in mt["shell"].items()}
+                kw["shell"] = _shell_of(kw.get("kind", "muscle"), given, c, sf)
             muscles.append(MuscleTemplate(**kw))
         pairs.append(BoneMusclePair(parent, child, partition, tuple(muscles)))
     return validate_template(Template(name, tuple(pairs), source=path or ""), path)
@@ -619,7 +661,10 @@ def template_to_toml(t: Template) -> str:
                 lines.append(f"{k} = {_num_str(getattr(m, k))}")
             lines.append(f"depth = {_num_str(m.depth)}")
             jg = ", ".join(f"{k} = {_num_str(getattr(m.jiggle, attr))}" for k, _, attr in _JIGGLE)
-            lines += [f"jiggle = {{ {jg} }}", ""]
+            lines.append(f"jiggle = {{ {jg} }}")
+            sh = ", ".join(f"{k} = {_toml_str(m.shell.mode) if k == 'mode' else _num_str(getattr(m.shell, k))}"
+                           for k, _ in _SHELL)
+            lines += [f"shell = {{ {sh} }}", ""]
     return "\n".join(lines)
 
 
@@ -765,7 +810,8 @@ def template_from_xml(data: bytes | str, path: str | None = None) -> Template:
             if k in a:
                 kw[k] = a[k].strip()
                 at(elem, f"{mf}.{k}")
-        kids = children(elem, mf, ("name", *_XML_ATTACH.values(), "span", "sector", "sections", "shape", "jiggle"))
+        kids = children(elem, mf, ("name", *_XML_ATTACH.values(), "span", "sector", "sections", "shape", "jiggle",
+                                           "shell"))
         if "name" not in kids:
             c.fail("<muscle> needs a <name>", f"{mf}.name")
         kw["name"] = text_of(kids["name"][0], at(kids["name"][0], f"{mf}.name"))
@@ -797,6 +843,16 @@ def template_from_xml(data: bytes | str, path: str | None = None) -> Template:
             children(e, jf, ())
             given = {key: num(ea[x], at(e, f"{jf}.{key}")) for key, x, _ in _JIGGLE if x in ea}
         kw["jiggle"] = _jiggle_of(kw.get("kind", "muscle"), given)
+        if "shell" in kids:
+            e = kids["shell"][0]
+            sf = at(e, f"{mf}.shell")
+            ea = attrs(e, sf, tuple(x for _, x in _SHELL))
+            children(e, sf, ())
+            given = {key: ea[x].strip() if key == "mode" else num(ea[x], at(e, f"{sf}.{key}"))
+                     for key, x in _SHELL if x in ea}
+            if "mode" in given:
+                at(e, f"{sf}.mode")
+            kw["shell"] = _shell_of(kw.get("kind", "muscle"), given, c, sf)
         return MuscleTemplate(**kw)
 
     def pair(elem, i):
@@ -862,6 +918,7 @@ def template_to_xml(t: Template) -> str:
             sub(me, "sections", {x: _num_str(getattr(m, k)) for k, x in _SECTIONS})
             sub(me, "shape", {x: _num_str(getattr(m, k)) for k, x in _SHAPE})
             sub(me, "jiggle", {x: _num_str(getattr(m.jiggle, attr)) for _, x, attr in _JIGGLE})
+            sub(me, "shell", {x: m.shell.mode if k == "mode" else _num_str(getattr(m.shell, k)) for k, x in _SHELL})
     ET.indent(root, "  ")
     return ('<?xml version="1.0" encoding="utf-8"?>\n'
             "<!-- jiggle musculoskeletal template (rig/muscle_template.py describes the fields) -->\n"

@@ -13,6 +13,7 @@ from rig.muscle_template import (FAT_DEPTH, FAT_JIGGLE, MUSCLE_JIGGLE, Attachmen
                                  template_from_toml, template_from_xml, template_to_toml, template_to_xml,
                                  write_template)
 from rig.retarget import ROLES
+from rig.shells import FAT_SHELL, MODES, MUSCLE_SHELL, ShellParams
 
 FIGURE5 = """<?xml version="1.0"?>
 <boneMusclePair>
@@ -53,6 +54,7 @@ SMALL_XML = """<?xml version="1.0" encoding="utf-8"?>
       <sections rim="0.8" bulge="1.1" main="1.2" bulgePosition="0.3"/>
       <shape tone="0.5" nu="2" thicknessMin="0.005"/>
       <jiggle frequency="6"/>
+      <shell sticky="0.25" dropOff="0.5" mode="trajectory"/>
     </muscle>
     <muscle pairId="3" type="lower">
       <name>hams</name>
@@ -97,6 +99,8 @@ def test_xml_values_and_defaults():
     assert (q.tone, q.nu, q.thickness_min, q.depth) == (0.5, 2.0, 0.005, 0.0)
     # a partial <jiggle> takes the rest from the kind's defaults
     assert q.jiggle == dataclasses.replace(MUSCLE_JIGGLE, frequency_hz=6.0)
+    # and a partial <shell> likewise
+    assert q.shell == dataclasses.replace(MUSCLE_SHELL, sticky=0.25, drop_off=0.5, mode="trajectory")
     h = muscle_of(t, "hams")
     assert h.jiggle == MUSCLE_JIGGLE and h.span == (0.0, 1.0) and h.tone == 1.0
     belly = muscle_of(t, "belly")
@@ -337,3 +341,116 @@ def test_programmatic_template_checked_on_write(tmp_path):
     fat = MuscleTemplate("f", kind="fat")  # kind-dependent defaults fill depth and jiggle
     assert (fat.depth, fat.jiggle) == (FAT_DEPTH, FAT_JIGGLE) and MuscleTemplate("m").depth == 0.0
     assert read_template(write_template(ok, tmp_path / "x.toml")) == ok
+
+
+# ------------------------------------------------------------------------------- shell deformer defaults
+def test_shell_default_by_kind():
+    assert FAT_SHELL != MUSCLE_SHELL  # else the kind tests below prove nothing
+    assert MuscleTemplate("m").shell == MUSCLE_SHELL
+    assert MuscleTemplate("m", kind="multi_belly", count=2).shell == MUSCLE_SHELL
+    assert MuscleTemplate("f", kind="fat").shell == FAT_SHELL
+    given = ShellParams(sticky=0.5, mode="basic")
+    assert MuscleTemplate("f", kind="fat", shell=given).shell is given
+    t = small()
+    assert muscle_of(t, "hams").shell == MUSCLE_SHELL and muscle_of(t, "belly").shell == FAT_SHELL
+    human = load_template("human")
+    for _, m in human.muscles():
+        assert m.shell == (FAT_SHELL if m.kind == "fat" else MUSCLE_SHELL), m.name
+    # a default written out or left to apply gives equal templates
+    assert MuscleTemplate("f", kind="fat", shell=FAT_SHELL) == MuscleTemplate("f", kind="fat")
+
+
+def test_shell_partial_table_fills_from_kind():
+    xml = SMALL_XML.replace('<shape depth="0.03"/>', '<shape depth="0.03"/><shell hard="0.8" slippage="2"/>')
+    belly = muscle_of(template_from_xml(xml, "x.xml"), "belly")
+    assert belly.shell == dataclasses.replace(FAT_SHELL, hard=0.8, slippage=2.0)
+    text = template_to_toml(small())
+    fat_line = next(line for line in text.splitlines() if line.startswith("shell = ") and "drop_off = 0.75" in line)
+    t = template_from_toml(text.replace(fat_line, 'shell = { weight = 0.5, mode = "basic" }'), "t.toml")
+    assert muscle_of(t, "belly").shell == dataclasses.replace(FAT_SHELL, weight=0.5, mode="basic")
+    assert muscle_of(t, "hams").shell == MUSCLE_SHELL
+    # an empty table is the kind's default
+    t = template_from_toml(text.replace(fat_line, "shell = {}"), "t.toml")
+    assert muscle_of(t, "belly").shell == FAT_SHELL
+
+
+SHELL_BAD = [
+    ("sticky", "1.5", "expected a value in [0, 1], got 1.5"),
+    ("sticky", "nan", "expected a value in [0, 1], got nan"),
+    ("hard", "-0.1", "expected a value in [0, 1], got -0.1"),
+    ("drop_off", "0", "expected a finite value > 0"),
+    ("drop_off", "inf", "expected a finite value > 0"),
+    ("weight", "2", "expected a value in [0, 1], got 2.0"),
+    ("slippage", "-1", "expected a finite value >= 0, got -1.0"),
+    ("mode", "wobble", f"expected one of {', '.join(MODES)}, got 'wobble'"),
+]
+
+
+@pytest.mark.parametrize("key, value, words", SHELL_BAD, ids=[f"{k}={v}" for k, v, _ in SHELL_BAD])
+def test_shell_bad_value_xml(key, value, words):
+    xml_key = "dropOff" if key == "drop_off" else key
+    old = '<shell sticky="0.25" dropOff="0.5" mode="trajectory"/>'
+    new = f'<shell {xml_key}="{value}"/>'
+    with pytest.raises(InputError) as e:
+        template_from_xml(SMALL_XML.replace(old, new), "bad.xml")
+    field = f"pair[0].muscle[0].shell.{key}"
+    line = next(i for i, text in enumerate(SMALL_XML.splitlines(), 1) if "<shell " in text)
+    assert e.value.field == field and words in e.value.message, str(e.value)
+    assert str(e.value).startswith(f"bad.xml:{line}: {field}: ")
+
+
+@pytest.mark.parametrize("key, value, words", SHELL_BAD, ids=[f"{k}={v}" for k, v, _ in SHELL_BAD])
+def test_shell_bad_value_toml(key, value, words):
+    text = template_to_toml(small())
+    old = 'shell = { sticky = 0.25, hard = 0.5, drop_off = 0.5, weight = 1.0, slippage = 1.0, mode = "trajectory" }'
+    assert old in text
+    toml_value = f'"{value}"' if key == "mode" else value
+    with pytest.raises(InputError) as e:
+        template_from_toml(text.replace(old, f"shell = {{ {key} = {toml_value} }}"), "t.toml")
+    assert str(e.value) == f"t.toml: pair[0].muscle[0].shell.{key}: " + e.value.message
+    assert words in e.value.message, str(e.value)
+
+
+def test_shell_wrong_types_and_unknown_keys():
+    text = template_to_toml(small())
+    old = 'shell = { sticky = 0.25'
+    with pytest.raises(InputError, match=r"t\.toml: pair\[0\]\.muscle\[0\]\.shell\.sticky: expected a number, got '0.25'"):
+        template_from_toml(text.replace(old, 'shell = { sticky = "0.25"'), "t.toml")
+    with pytest.raises(InputError, match=r"shell\.mode: expected a string, got 2"):
+        template_from_toml(text.replace('mode = "trajectory"', "mode = 2"), "t.toml")
+    with pytest.raises(InputError, match=r"pair\[0\]\.muscle\[0\]\.shell: expected a table"):
+        template_from_toml(text.replace(
+            'shell = { sticky = 0.25, hard = 0.5, drop_off = 0.5, weight = 1.0, slippage = 1.0, mode = "trajectory" }',
+            "shell = 1.0"), "t.toml")
+    with pytest.raises(InputError) as e:
+        template_from_toml(text.replace(old, "shell = { stiky = 0.25"), "t.toml")
+    assert e.value.field == "pair[0].muscle[0].shell.stiky"
+    assert "unknown key(s) 'stiky'; expected sticky, hard, drop_off, weight, slippage, mode" in e.value.message
+    with pytest.raises(InputError) as e:
+        template_from_xml(SMALL_XML.replace('dropOff="0.5"', 'drop_off="0.5"'), "x.xml")
+    assert "unknown attribute(s) drop_off of <shell>; expected sticky, hard, dropOff, weight, slippage, mode" in str(e.value)
+    assert e.value.field == "pair[0].muscle[0].shell" and e.value.line is not None
+    with pytest.raises(InputError, match=r"shell\.sticky: expected a number, got 'soft'"):
+        template_from_xml(SMALL_XML.replace('sticky="0.25"', 'sticky="soft"'), "x.xml")
+    with pytest.raises(InputError, match="<shell> given twice"):
+        template_from_xml(SMALL_XML.replace('<jiggle frequency="6"/>', '<jiggle frequency="6"/><shell/>'), "x.xml")
+
+
+def test_shell_round_trip(tmp_path):
+    shell = ShellParams(sticky=0.125, hard=0.75, drop_off=2.5, weight=0.3, slippage=0.0, mode="basic")
+    m = MuscleTemplate("m", kind="fat", shell=shell)
+    t = Template("x", (BoneMusclePair("hips", "spine", 0, (m, MuscleTemplate("n"))),))
+    for suffix in (".toml", ".xml"):
+        u = read_template(write_template(t, tmp_path / f"x{suffix}"))
+        assert u == t and u.pairs[0].muscles[0].shell == shell and u.pairs[0].muscles[1].shell == MUSCLE_SHELL
+    # TOML -> XML -> TOML through the text forms
+    text = template_to_toml(t)
+    assert template_to_toml(template_from_xml(template_to_xml(template_from_toml(text)))) == text
+    assert 'shell = { sticky = 0.125, hard = 0.75, drop_off = 2.5, weight = 0.3, slippage = 0.0, mode = "basic" }' in text
+    assert '<shell sticky="0.125" hard="0.75" dropOff="2.5" weight="0.3" slippage="0.0" mode="basic" />' in template_to_xml(t)
+
+
+def test_programmatic_shell_checked():
+    t = Template("x", (BoneMusclePair("hips", "spine", 0, (MuscleTemplate("m", shell={"sticky": 1.0}),)),))
+    with pytest.raises(InputError, match=r"pair\[0\]\.muscle\[0\]\.shell: expected rig\.shells\.ShellParams, got dict"):
+        template_to_toml(t)
