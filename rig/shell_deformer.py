@@ -23,6 +23,7 @@ class ShellModel:
     pair_offsets : (V + 1,) int32 CSR offsets. pair_muscle : (P,) int32. pair_weight : (P,) float32.
     sticky, hard, drop_off, weight, slippage : (M,) float32. mode, star_index : (M,) int32.
     star : (max(S, 1), 17, 32) float32 (one zero table stands in when S == 0).
+    star_max : (max(S, 1),) float32, each table's largest offset (the kernel's early-out bound).
     """
 
     pair_offsets: wp.array
@@ -36,6 +37,7 @@ class ShellModel:
     mode: wp.array
     star_index: wp.array
     star: wp.array
+    star_max: wp.array
     num_vertices: int
     num_pairs: int
     num_muscles: int
@@ -111,6 +113,7 @@ class ShellDeformer:
             weight=f32(table.weight), slippage=f32(table.slippage), mode=i32(table.mode),
             star_index=i32(table.star_index),
             star=wp.array(np.asarray(star, np.float32), dtype=wp.float32, device=self.device),
+            star_max=f32(np.max(star, axis=(1, 2))),
             num_vertices=int(off.shape[0] - 1), num_pairs=int(mus.shape[0]), num_muscles=int(M))
         V = self.model.num_vertices
         self._points_out = wp.empty(V, dtype=wp.vec3, device=self.device)
@@ -152,7 +155,7 @@ class ShellDeformer:
         wp.launch(kernels.shells, dim=model.num_vertices, device=self.device,
                   inputs=[model.pair_offsets, model.pair_muscle, model.pair_weight,
                           model.sticky, model.hard, model.drop_off, model.weight, model.slippage,
-                          model.mode, model.star_index, model.star,
+                          model.mode, model.star_index, model.star, model.star_max,
                           *self._E, self._curve, self._active, points],
                   outputs=[self._points_out])
         return self._points_out

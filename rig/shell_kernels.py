@@ -75,21 +75,18 @@ def star_delta(star: wp.array3d(dtype=wp.float32), table: int, u: wp.vec3):
 
 
 @wp.func
-def local_rho(p_l: wp.vec3, star: wp.array3d(dtype=wp.float32), table: int):
-    """(u, delta) of a local point: unit direction (0 when r < TINY_R) and star offset."""
+def pull(p_l: wp.vec3, star: wp.array3d(dtype=wp.float32), table: int, s: float, h: float, d: float):
+    """(q, rho) of a local point: q(p_l) = p_l + beta(rho) (r_s - r) u (unweighted) and the radius
+    rho = r - delta(u) measured from the muscle surface. Below r = TINY_R there is no direction:
+    u = 0, q = p_l."""
     r = wp.length(p_l)
     u = wp.vec3(0.0, 0.0, 0.0)
     if r >= TINY_R:
         u = p_l / r
-    return u, star_delta(star, table, u)
-
-
-@wp.func
-def project(p_l: wp.vec3, u: wp.vec3, delta: float, s: float, h: float, d: float):
-    """q(p_l) = p_l + beta(rho) (r_s - r) u, unweighted; u = 0 leaves p_l unchanged."""
-    r = wp.length(p_l)
+    delta = star_delta(star, table, u)
+    rho = r - delta
     r_s = 1.0 + delta + (1.0 - s) * d
-    return p_l + (shell_beta(r - delta, h, d) * (r_s - r)) * u
+    return p_l + (shell_beta(rho, h, d) * (r_s - r)) * u, rho
 
 
 @wp.kernel
@@ -106,6 +103,7 @@ def shells(
     mode: wp.array(dtype=wp.int32),
     star_index: wp.array(dtype=wp.int32),
     star: wp.array3d(dtype=wp.float32),
+    star_max: wp.array(dtype=wp.float32),
     # state in
     E_ref: wp.array(dtype=wp.mat44),
     E_ref_inv: wp.array(dtype=wp.mat44),
@@ -117,7 +115,10 @@ def shells(
     # out
     points_out: wp.array(dtype=wp.vec3),
 ):
-    """points_out[v] = points[v] with the vertex's pairs applied in series: p <- p + D_pair(p)."""
+    """points_out[v] = points[v] with the vertex's pairs applied in series: p <- p + D_pair(p).
+
+    star_max[t] is the largest offset of star table t (an upper bound of delta for the early out).
+    """
     v = wp.tid()
     p = points[v]
     K = curve.shape[1]
@@ -125,37 +126,40 @@ def shells(
         m = pair_muscle[i]
         # inactive muscles (NaN CVs, degenerate frames) may hold NaN matrices: never read them
         if active[m] != 0:
-            k = weight[m] * pair_weight[i]
-            s = sticky[m]
-            h = hard[m]
             d = drop_off[m]
             table = star_index[m]
-            p_l = wp.transform_point(E_ref_inv[m], p)
-            u, delta = local_rho(p_l, star, table)
-            q = project(p_l, u, delta, s, h, d)
+            # beyond this local radius rho >= 1 + d for any direction: beta = alpha = 0 and D = 0.
+            # Culling keeps a margin beyond the drop-off shell, so about half the pairs stop here,
+            # before the star lookup (the most expensive part)
+            reach = 1.0 + d
+            if table >= 0:
+                reach = reach + star_max[table]
             mo = mode[m]
+            p_l = wp.transform_point(E_ref_inv[m], p)
             D = wp.vec3(0.0, 0.0, 0.0)
             if mo == MODE_BASIC:
                 pc_l = wp.transform_point(E_cur_inv[m], p)
-                uc, delta_c = local_rho(pc_l, star, table)
-                qc = project(pc_l, uc, delta_c, s, h, d)
-                D = wp.transform_point(E_cur[m], qc) - wp.transform_point(E_ref[m], q)
-            else:
-                al = shell_alpha(wp.length(p_l) - delta, d)
+                if wp.length(p_l) < reach or wp.length(pc_l) < reach:
+                    q, rho = pull(p_l, star, table, sticky[m], hard[m], d)
+                    qc, rho_c = pull(pc_l, star, table, sticky[m], hard[m], d)
+                    D = wp.transform_point(E_cur[m], qc) - wp.transform_point(E_ref[m], q)
+            elif wp.length(p_l) < reach:
+                q, rho = pull(p_l, star, table, sticky[m], hard[m], d)
+                al = shell_alpha(rho, d)
                 # a = 0 wherever alpha = 0 (also for l = 0): nothing beyond the drop-off shell moves
                 a = float(0.0)
                 if al > 0.0:
                     a = wp.pow(al, slippage[m])
+                dE = E_cur[m] - E_ref[m]
                 if mo == MODE_STRETCH:
                     # (E_cur - E_ref) (q, 1): the difference first, exactly 0 when they are equal
-                    D = a * wp.transform_point(E_cur[m] - E_ref[m], q)
+                    D = a * wp.transform_point(dE, q)
                 else:
                     x = a * float(K - 1)
                     j = wp.min(int(x), K - 2)
                     f = x - float(j)
                     c0 = curve[m, j]
                     c = c0 + f * (curve[m, j + 1] - c0)
-                    dL = E_cur[m] - E_ref[m]
-                    D = (c - curve[m, 0]) + a * wp.transform_vector(dL, q)
-            p = p + k * D
+                    D = (c - curve[m, 0]) + a * wp.transform_vector(dE, q)
+            p = p + (weight[m] * pair_weight[i]) * D
     points_out[v] = p

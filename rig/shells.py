@@ -209,24 +209,8 @@ class ShellTable:
         return self.sticky.shape[0]
 
 
-def shell_table(params: Sequence[ShellParams], star=None, star_index=None) -> ShellTable:
-    """Flatten one ShellParams per muscle into a :class:`ShellTable`.
-
-    Parameters
-    ----------
-    params : M ShellParams (already range-checked by their constructor).
-    star : optional (S, STAR_THETA, STAR_PHI) float, finite, local offsets delta (see
-        :func:`star_lookup`).
-    star_index : optional (M,) int in [-1, S): muscle m uses star[star_index[m]], -1: none. When
-        star is given without star_index, S must equal M and muscle m uses table m.
-
-    Raises InputError naming `params`, `star` or `star_index` for a mismatch.
-    """
-    params = list(params)
-    for i, p in enumerate(params):
-        if not isinstance(p, ShellParams):
-            raise InputError(f"expected ShellParams, got {type(p).__name__}", field=f"params[{i}]")
-    M = len(params)
+def _check_star(star, star_index, M: int) -> tuple[np.ndarray, np.ndarray]:
+    """Validated (S, STAR_THETA, STAR_PHI) tables and (M,) indices in [-1, S) (see shell_table)."""
     if star is None:
         star = np.zeros((0, STAR_THETA, STAR_PHI), np.float32)
     star = np.asarray(star)
@@ -247,6 +231,28 @@ def shell_table(params: Sequence[ShellParams], star=None, star_index=None) -> Sh
     if M and (star_index.min() < -1 or star_index.max() >= S):
         raise InputError(f"expected indices in [-1, {S}) for {S} star tables, got "
                          f"[{star_index.min()}, {star_index.max()}]", field="star_index")
+    return star, star_index
+
+
+def shell_table(params: Sequence[ShellParams], star=None, star_index=None) -> ShellTable:
+    """Flatten one ShellParams per muscle into a :class:`ShellTable`.
+
+    Parameters
+    ----------
+    params : M ShellParams (already range-checked by their constructor).
+    star : optional (S, STAR_THETA, STAR_PHI) float, finite, local offsets delta (see
+        :func:`star_lookup`).
+    star_index : optional (M,) int in [-1, S): muscle m uses star[star_index[m]], -1: none. When
+        star is given without star_index, S must equal M and muscle m uses table m.
+
+    Raises InputError naming `params`, `star` or `star_index` for a mismatch.
+    """
+    params = list(params)
+    for i, p in enumerate(params):
+        if not isinstance(p, ShellParams):
+            raise InputError(f"expected ShellParams, got {type(p).__name__}", field=f"params[{i}]")
+    M = len(params)
+    star, star_index = _check_star(star, star_index, M)
 
     def col(k):
         return frozen_array([getattr(p, k) for p in params], np.float64)
@@ -501,7 +507,8 @@ def cull_pairs(rest_vertices, E_rest, drop_off, margin: float = 0.25, star=None,
     E_rest : (M, 4, 4) float, rest ellipsoids (local unit sphere -> world).
     drop_off : (M,) float, d > 0, local units.
     margin : >= 0, relative.
-    star, star_index : optional star tables (S, STAR_THETA, STAR_PHI) and (M,) indices (-1: none).
+    star, star_index : optional star tables (S, STAR_THETA, STAR_PHI) and (M,) indices (-1: none),
+        as for :func:`shell_table` (star without star_index: S == M, muscle m uses table m).
 
     Returns
     -------
@@ -519,11 +526,9 @@ def cull_pairs(rest_vertices, E_rest, drop_off, margin: float = 0.25, star=None,
         raise InputError(f"expected shape ({M},), got {drop_off.shape}", field="drop_off")
     if not (math.isfinite(margin) and margin >= 0.0):
         raise InputError(f"expected a finite value >= 0, got {margin}", field="margin")
-    if star is None or star_index is None:
-        star, star_index = np.zeros((0, STAR_THETA, STAR_PHI)), np.full(M, -1)
-    star_index = np.asarray(star_index, np.int64)
-    if star_index.shape != (M,):
-        raise InputError(f"expected shape ({M},), got {star_index.shape}", field="star_index")
+    if star is None and star_index is None:
+        star = np.zeros((0, STAR_THETA, STAR_PHI))
+    star, star_index = _check_star(star, star_index, M)
     E_inv = np.linalg.inv(E_rest)
     keep = np.zeros((V, M), bool)
     for m in range(M):
