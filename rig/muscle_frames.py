@@ -44,18 +44,19 @@ Skipped muscles
 Trajectory path (the paper's "trajectory" option, section 4.3)
     The paper moves a deformed point from the rest to the current ellipsoid along a curve rather than
     straight, so skin over a muscle that slides around a joint follows the muscle. The curve used
-    here is the muscle's own current action curve C (5 CVs, rig.muscle_model.curve_basis): t0 is
-    the parameter of the point of the REST action curve nearest the rest centre (fixed at bind),
-    t_cur the parameter of the point of the current C nearest centre_cur (a few Newton steps from
-    t0, clamped to [0, 1]), and with centre_ref, centre_cur the centres of E_ref, E_cur
-        c(u) = C(t0 + u (t_cur - t0)) + (1 - u) (centre_ref - C(t0)) + u (centre_cur - C(t_cur)),
+    here is the muscle's own current action curve C (5 CVs, rig.muscle_model.curve_basis): t_ref and
+    t_cur are the parameters of the points of the current C nearest centre_ref and centre_cur (a few
+    Newton steps from t0, the rest centre's parameter on the rest curve, fixed at bind; clamped to
+    [0, 1]), and with centre_ref, centre_cur the centres of E_ref, E_cur
+        c(u) = C(t_ref + u (t_cur - t_ref)) + (1 - u) (centre_ref - C(t_ref)) + u (centre_cur - C(t_cur)),
     sampled at u_k = k / (K - 1), K = TRAJECTORY_SAMPLES. The two offsets from the curve are blended
     linearly, so c(0) = centre_ref and c(1) = centre_cur exactly (they are also stored exactly), and
-    c(u) minus the straight chord is C's own bow between t0 and t_cur: a straight action curve gives
-    the straight segment, a bent one a path bowed like the muscle. The bow comes only from the
-    parameter interval [t0, t_cur]: with the static CVs a muscle's centre stays at the middle of its
-    curve (t_cur = t0 ~ 0.5, the sections sit symmetrically about it), so the path is the chord; it
-    bows when the CVs slide along the curve (a simulated muscle lagging behind its bones).
+    c(u) minus the straight chord is C's own bow between t_ref and t_cur: a straight action curve gives
+    the straight segment, a bent one a path bowed like the muscle. Projecting both centres on the
+    current curve (rather than keeping the rest parameter t0 for the reference end) matters: the
+    static muscle's centre stays at the middle of its curve, so with t0 at the reference end the
+    interval would be empty and the path straight; the reference centre, carried by the bone while
+    the muscle bends with the joint, projects elsewhere on the bent curve.
 Star tables (built once; Pratscher et al. 2005, section 4.4: star-shaped muscles)
     Per muscle a (STAR_THETA, STAR_PHI) = (17, 32) float32 grid of delta(theta_i, phi_j): polar angle
     theta_i = pi i / 16 about local +z, azimuth phi_j = -pi + 2 pi j / 32 from local +x toward +y.
@@ -460,8 +461,9 @@ class MuscleFrames:
         centre_ref, centre_cur = E_ref[..., :3, 3], E_cur[..., :3, 3]
         C = np.where(finite[..., None, None], curve, 0.0)
         t0 = np.broadcast_to(self.t0, (T, M))
+        t_ref = nearest_parameter(C, centre_ref, t0)
         t_cur = nearest_parameter(C, centre_cur, t0)
-        path = trajectory(C, t0, t_cur, centre_ref, centre_cur)
+        path = trajectory(C, t_ref, t_cur, centre_ref, centre_cur)
         # a skipped muscle stands still on its reference centre
         path = np.where(active[..., None, None], path, centre_ref[..., None, :])
 

@@ -24,6 +24,7 @@ STAR_NP = wp.constant(32)
 THETA_SCALE = wp.constant((17 - 1) / math.pi)
 PHI_SCALE = wp.constant(32 / (2.0 * math.pi))
 PI = wp.constant(math.pi)
+LIMIT_KNEE = wp.constant(0.5)   # rig.shells.LIMIT_KNEE
 
 
 @wp.func
@@ -72,6 +73,19 @@ def star_delta(star: wp.array3d(dtype=wp.float32), table: int, u: wp.vec3):
     a = (1.0 - fp) * star[table, i0, j0] + fp * star[table, i0, j1]
     b = (1.0 - fp) * star[table, i0 + 1, j0] + fp * star[table, i0 + 1, j1]
     return (1.0 - ft) * a + ft * b
+
+
+@wp.func
+def limit(D: wp.vec3, reach: float):
+    """The drop-off limit (rig.shells.limit): |D| unchanged below reach / 2, saturating toward reach."""
+    n = wp.length(D)
+    if reach <= 0.0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    x = n / reach
+    if x <= LIMIT_KNEE:
+        return D
+    s = LIMIT_KNEE + (1.0 - LIMIT_KNEE) * wp.tanh((x - LIMIT_KNEE) / (1.0 - LIMIT_KNEE))
+    return D * (reach * s / n)
 
 
 @wp.func
@@ -161,5 +175,10 @@ def shells(
                     c0 = curve[m, j]
                     c = c0 + f * (curve[m, j + 1] - c0)
                     D = (c - curve[m, 0]) + a * wp.transform_vector(dE, q)
-            p = p + (weight[m] * pair_weight[i]) * D
+            r = wp.length(p_l)
+            u = wp.vec3(0.0, 0.0, 0.0)
+            if r >= TINY_R:
+                u = p_l / r
+            reach_w = d * wp.length(wp.transform_vector(E_ref[m], u))
+            p = p + (weight[m] * pair_weight[i]) * limit(D, reach_w)
     points_out[v] = p

@@ -39,6 +39,14 @@ unweighted projection, :func:`project`) and k = w w_i:
 (L: the upper-left 3x3 block of E; c: the muscle's trajectory curve, c(0) the centre of E_ref and
 c(1) the centre of E_cur, sampled at TRAJECTORY_SAMPLES parameters and interpolated piecewise
 linearly; a = 0 wherever alpha = 0, whatever l, so nothing beyond the drop-off shell ever moves).
+Each pair's D (before the weights k) is then held below the muscle's drop-off distance along the
+point's direction, reach = d |L_ref u| (u = E_ref^-1 p / |E_ref^-1 p|: the world gap between the
+muscle's surface and its drop-off shell through the point), by a smooth limit (:func:`limit`:
+unchanged up to reach / 2, saturating toward reach). Why: the relative displacement carries the skin
+by the muscle's own change relative to its bone, which near a tendon end or in a crease LBS has
+folded can be larger than the layer of flesh the deformer owns (a pectoral whose insertion swings
+with the arm moves 2 cm relative to the chest, over skin 1 cm deep); the paper's absolute deformer
+never moves a point farther than its drop-off distance, and the limit keeps that property.
 At the bind pose E_cur == E_ref and every D is exactly 0. A vertex's pairs are applied in series in
 ascending muscle order, each D evaluated at the already-displaced point; inactive muscles (NaN or
 degenerate frames) are skipped.
@@ -66,6 +74,8 @@ STAR_THETA = 17
 STAR_PHI = 32
 """Star table columns: azimuths phi_j = -pi + 2 pi j / 32, j = 0..31 (periodic)."""
 TRAJECTORY_SAMPLES = 9
+LIMIT_KNEE = 0.5
+"""The drop-off limit leaves displacements up to this fraction of the drop-off distance unchanged."""
 """K: samples c(u_k), u_k = k / (K - 1), of a muscle's trajectory curve per frame."""
 
 MODES = ("basic", "stretch", "trajectory")
@@ -458,8 +468,29 @@ def pair_displacement(p, muscle, wi, table: ShellTable, frames: ShellFrames) -> 
         curve = frames.curve[m[tr]]
         d_on[tr] = (_curve_at(curve, a[tr]) - curve[:, 0]
                     + a[tr, None] * np.einsum("nij,nj->ni", dL, q_ref[tr]))
-    D[on] = k[:, None] * d_on
+    p_l = _apply(frames.E_ref_inv[m], p)
+    r = np.linalg.norm(p_l, axis=1, keepdims=True)
+    u = np.where(r >= _TINY_R, p_l / np.maximum(r, _TINY_R), 0.0)
+    reach = table.drop_off[m] * np.linalg.norm(np.einsum("nij,nj->ni", E_ref[:, :3, :3], u), axis=1)
+    D[on] = k[:, None] * limit(d_on, reach)
     return D
+
+
+def limit(D: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """The drop-off limit: displacements D (n, 3) shortened so |D| < reach (n,), smoothly.
+
+    |D| is kept below reach / 2 and saturates toward reach above it:
+    |D'| = reach s(|D| / reach), s(x) = x for x <= 1/2, 1/2 + tanh(2 x - 1) / 2 beyond (C1 at 1/2).
+    reach <= 0 (a point at the muscle's centre, no direction) gives D' = 0.
+    """
+    D = np.asarray(D, np.float64)
+    reach = np.asarray(reach, np.float64)
+    n = np.linalg.norm(D, axis=-1)
+    x = n / np.where(reach > 0.0, reach, 1.0)
+    s = np.where(x <= LIMIT_KNEE, x, LIMIT_KNEE + (1.0 - LIMIT_KNEE) * np.tanh((x - LIMIT_KNEE) / (1.0 - LIMIT_KNEE)))
+    scale = np.where((reach > 0.0) & (n > 0.0), reach * s / np.where(n > 0.0, n, 1.0), 0.0)
+    scale = np.where((reach > 0.0) & (n == 0.0), 1.0, scale)
+    return D * scale[..., None]
 
 
 def shell_numpy(points, pair_offsets, pair_muscle, pair_weight, table: ShellTable,

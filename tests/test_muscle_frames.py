@@ -313,12 +313,11 @@ def test_trajectory_ends_are_exact_and_a_straight_curve_gives_a_segment():
 
 def test_trajectory_bows_with_the_bent_action_curve(arm):
     """Brachio's CVs slide 2 cm along its action curve (as a lagging simulated muscle might), so t_cur
-    moves off t0. The path's middle sample leaves the chord by C's own bow between t0 and t_cur:
+    moves off the reference centre's foot t0 on the current curve. The path's middle sample leaves the chord by C's own bow between t0 and t_cur:
     d = c(1/2) - (c(0) + c(1)) / 2 = C((t0 + t_cur) / 2) - (C(t0) + C(t_cur)) / 2. Measure: d_perp, the
     part of d across the chord c(1) - c(0). With the elbow bent 110 deg it is > 0.4 mm and lies on
     the side away from C's centre of curvature (the side the curve bows to: -C'' across the chord);
-    with the elbow straight (a straight curve) it is 0. (With the static CVs t_cur stays at t0, and
-    the path is the chord.)"""
+    with the elbow straight (a straight curve) it is 0."""
     rig, frames = arm
     perp = {}
     for angle in (0, 110):
@@ -331,8 +330,8 @@ def test_trajectory_bows_with_the_bent_action_curve(arm):
         sf, _ = frames.frame(w, cvs, s.curve)
         c = sf.curve[1]
         assert np.array_equal(c[0], sf.E_ref[1, :3, 3]) and np.array_equal(c[-1], sf.E_cur[1, :3, 3])
-        t0 = frames.t0[1]
-        t_cur = nearest_parameter(curve, sf.E_cur[1, :3, 3], t0)
+        t0 = nearest_parameter(curve, sf.E_ref[1, :3, 3], frames.t0[1])    # the reference centre's foot
+        t_cur = nearest_parameter(curve, sf.E_cur[1, :3, 3], frames.t0[1])
         assert 0.05 < t_cur - t0 < 0.45
         C = lambda t, k=0: curve_points(curve, np.array([t]), 2)[k][0]  # noqa: E731
         d = c[TRAJECTORY_SAMPLES // 2] - (c[0] + c[-1]) / 2

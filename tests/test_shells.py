@@ -271,6 +271,8 @@ def test_stretch_translation_moves_the_inside_rigidly_and_the_outside_not_at_all
     d, w, wi = 0.6, 0.8, 0.5
     table = shell_table([ShellParams(sticky=0.4, hard=0.3, drop_off=d, weight=w, slippage=2.0)])
     t = np.array([0.03, -0.02, 0.05])
+    # keep |t| under half the drop-off distance, where the drop-off limit leaves D unchanged
+    t *= 0.45 * d * np.linalg.norm(E_ref[0, :3, :3], axis=0).min() / np.linalg.norm(t)
     inside = points_at_local(E_ref[0], unit_dirs(rng, 100) * rng.uniform(0.0, 0.999, 100)[:, None])
     outside = points_at_local(E_ref[0], unit_dirs(rng, 100) * rng.uniform(1 + d, 3.0, 100)[:, None])
     points = np.concatenate([inside, outside])
@@ -311,8 +313,10 @@ def test_trajectory_follows_a_bent_curve():
     E_ref, _ = scene(rng, M=1)
     d = 0.8
     table = shell_table([ShellParams(mode="trajectory", sticky=0.5, hard=0.2, drop_off=d, slippage=1.0)])
-    t = np.array([0.1, 0.0, 0.0])
-    bend = np.array([0.0, 0.04, 0.0])
+    # |t| + |bend| under half the drop-off distance, where the drop-off limit leaves D unchanged
+    size = 0.45 * d * np.linalg.norm(E_ref[0, :3, :3], axis=0).min()
+    t = np.array([0.7, 0.0, 0.0]) * size
+    bend = np.array([0.0, 0.28, 0.0]) * size
     u = np.linspace(0.0, 1.0, K)[:, None]
     curve = (E_ref[0, :3, 3] + u * t + np.sin(np.pi * u) * bend)[None]
     frames = make_frames(E_ref, translated(E_ref[0], t)[None], curve=curve)
@@ -674,3 +678,33 @@ def test_shell_frames_and_launch_reject_bad_state():
     # the same NaN in an inactive muscle is fine: it is skipped
     out = deformer.deform(np.ones((2, 3)), ShellFrames(I2, I2, nan, I2, curve, [True, False]))
     np.testing.assert_array_equal(out, np.ones((2, 3), np.float32))
+
+
+def test_drop_off_limit_keeps_every_move_within_the_drop_off_distance():
+    """A muscle that leaves its bone far behind (translated by 5 drop-off distances) moves no skin
+    point farther than its drop-off distance along the point's direction, d |L_ref u|; small moves
+    (under half of it) are untouched, and the limit is continuous (C1 at the knee)."""
+    rng = np.random.default_rng(31)
+    E_ref, _ = scene(rng, M=1)
+    d = 0.7
+    radii = np.linalg.norm(E_ref[0, :3, :3], axis=0)
+    big = translated(E_ref[0], np.array([5.0 * d * radii.max(), 0.0, 0.0]))
+    p_l = unit_dirs(rng, 300) * rng.uniform(0.2, 1.0 + d, 300)[:, None]
+    points = points_at_local(E_ref[0], p_l)
+    offsets, muscle, weight = all_pairs(300, 1)
+    for mode in MODES:
+        table = shell_table([ShellParams(mode=mode, drop_off=d)])
+        ref, out = run_both(points, offsets, muscle, weight, table, make_frames(E_ref, big[None]))
+        u = p_l / np.linalg.norm(p_l, axis=1, keepdims=True)
+        reach = d * np.linalg.norm(u @ E_ref[0, :3, :3].T, axis=1)
+        assert np.all(np.linalg.norm(ref - points, axis=1) < reach + 1e-12), mode
+        assert np.all(np.linalg.norm(out - points, axis=1) < reach + 1e-5), mode
+    # the limit itself: identity below the knee, below reach above it, continuous slope at the knee
+    from rig.shells import LIMIT_KNEE, limit
+    D = np.array([[1.0, 0.0, 0.0]]) * np.linspace(0.0, 10.0, 2001)[:, None]
+    n = np.linalg.norm(limit(D, np.ones(len(D))), axis=1)
+    x = D[:, 0]
+    np.testing.assert_allclose(n[x <= LIMIT_KNEE], x[x <= LIMIT_KNEE], atol=1e-15)
+    assert np.all(n <= 1.0) and np.all(np.diff(n) >= -1e-15) and np.all(np.diff(n[x < 3]) > 0)
+    slope = np.diff(n) / np.diff(x)
+    assert np.abs(np.diff(slope)).max() < 1e-2     # no kink
