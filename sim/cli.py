@@ -318,6 +318,65 @@ def cmd_fit(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------- deform
+def _deform_pose(args):
+    """(character, rig, world (J, 4, 4), pose description) for `jiggle deform`."""
+    import numpy as np
+    if args.character is None:
+        if args.clip is not None:
+            raise InputError("--clip needs a CHARACTER; without one the built-in simple arm bends by --angle",
+                             field="--clip")
+        from scenes.simple_arm import simple_arm
+        arm = simple_arm()
+        angle = 90.0 if args.angle is None else args.angle
+        return arm.character, arm.rig, arm.world(angle), {"scene": "simple arm", "elbow_deg": angle}
+    if args.angle is not None:
+        raise InputError("--angle bends the built-in simple arm; pose a CHARACTER with --clip and --time",
+                         field="--angle")
+    from rig.character import load_character
+    from rig.clip import transforms
+    from rig.muscle_fit import FitOptions, fit_musculature
+    character = load_character(args.character, k=args.influences, unit=args.unit, skin=args.skin)
+    if args.clip is None:
+        raise InputError("give the pose: --clip FILE (retargeted onto the character) and --time S",
+                         field="--clip")
+    clip = _retarget_onto_character(_load_clip(args), args)
+    t = 0.0 if args.time is None else args.time
+    if not 0.0 <= t <= clip.duration:
+        raise InputError(f"expected a time in [0, {clip.duration:.3f}] s of the clip, got {t}", field="--time")
+    rot, tra = clip.sample(np.array([t]))
+    world = transforms(*clip.world(rot, tra))[0]
+    mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.joint_map))
+    pose = {"character": os.path.basename(args.character), "clip": os.path.basename(args.clip), "time_s": t}
+    return character, mus, world, pose
+
+
+def cmd_deform(args) -> int:
+    from rig.muscle_fit import Musculature
+    from rig.muscle_skin import MuscleSkin
+    from .deform_outputs import write_deform_outputs
+    character, rig, world, pose = _deform_pose(args)
+    if isinstance(rig, Musculature):
+        skin = MuscleSkin.from_musculature(rig, skinning=args.skinning, method=args.method,
+                                           weights=args.weights, character_path=args.character)
+        views = ("front", "side")
+    else:
+        weights = None
+        if args.weights is not None:
+            from rig.shell_weights import load_weights
+            weights = load_weights(args.weights, rig.names, character.num_vertices)
+        skin = MuscleSkin(character, rig, skinning=args.skinning, method=args.method, weights=weights)
+        views = ("side", "back")    # the arm's muscle faces +Y: its profile from the side, its face from +Y
+    out = write_deform_outputs(skin, world, args.out, pose=pose, render=not args.no_render, views=views)
+    f = out["facts"]
+    print(f"{character.name or 'character'}: LBS + {f['muscles']} muscles ({args.skinning}), {f['pairs']} "
+          f"(vertex, muscle) pairs kept at bind ({f['pairs_per_vertex']:.2f} per vertex); skin moved from LBS by "
+          f"up to {f['max_displacement_mm']:.2f} mm (RMS {f['rms_displacement_mm']:.2f} mm)")
+    for k, path in out["files"].items():
+        print(f"  {k:8s} {path}")
+    return 0
+
+
 # ---------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     top = _Parser(prog="jiggle", description=(
@@ -420,6 +479,33 @@ def build_parser() -> argparse.ArgumentParser:
     _mesh_options(p)
     _character_options(p)
     p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("deform", help="skin one pose with the muscles' deformers and compare with LBS",
+                       description="Pose a character (or the built-in simple arm: a cylinder on two bones with "
+                                   "one muscle, the thesis's example), skin it with LBS and then the muscles' "
+                                   "shell deformers (or influence objects), and write deform.png (LBS | muscles, "
+                                   "coloured by the move from LBS), deform.json and deform.ply to --out.")
+    p.add_argument("character", nargs="?", metavar="CHARACTER",
+                   help="a skinned glTF/GLB (muscles fitted from --template); default: the simple arm")
+    p.add_argument("--clip", metavar="FILE", help="the pose's clip (BVH, AMC, glTF), retargeted onto CHARACTER")
+    p.add_argument("--time", type=_non_negative("--time"), metavar="S", help="seconds into --clip (default: 0)")
+    p.add_argument("--angle", type=float, metavar="DEG", help="simple arm: elbow flexion in degrees (default: 90)")
+    p.add_argument("--skinning", choices=["shell", "influence"], default="shell",
+                   help="how the muscles move the skin: shell deformers or influence objects (default: shell)")
+    p.add_argument("--method", choices=["lbs", "dqs"], default="lbs", help="smooth skinning underneath (default: lbs)")
+    p.add_argument("--weights", metavar="NPZ", help="painted per-vertex muscle weights (default: "
+                   "<character>.shell_weights.npz beside the character when present, else 1)")
+    p.add_argument("--template", metavar="T", help="muscle template: built-in name or .toml/.xml (default: human)")
+    p.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles")
+    p.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: a preset that fits)")
+    p.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character")
+    p.add_argument("--influences", type=_count("--influences"), default=4, metavar="K",
+                   help="skin weights kept per vertex (default: 4)")
+    p.add_argument("--out", default="out/deform", help="output folder (default: out/deform)")
+    p.add_argument("--no-render", action="store_true", help="skip the picture")
+    _mesh_options(p)
+    _clip_options(p)
+    p.set_defaults(func=cmd_deform)
     return top
 
 

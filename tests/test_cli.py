@@ -193,3 +193,35 @@ def test_play_with_a_mesh_character_warns_and_skins(capsys, tmp_path):
     assert "jiggle: warning:" in err and "automatic weights" in err
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["character"]["vertices"] == len(body.vertices)
+
+
+def test_deform_renders_lbs_against_shells_on_the_simple_arm(capsys, tmp_path):
+    """`jiggle deform` with no character bends the thesis's simple arm and writes the comparison."""
+    from PIL import Image
+    code, out, err = run(capsys, "deform", "--angle", "90", "--out", str(tmp_path))
+    assert code == 0, err
+    facts = json.loads((tmp_path / "deform.json").read_text())
+    assert facts["pose"] == {"scene": "simple arm", "elbow_deg": 90.0}
+    assert facts["skinning"] == "shell" and facts["pairs"] > 0 and facts["max_displacement_mm"] > 1.0
+    img = np.asarray(Image.open(tmp_path / "deform.png").convert("L"), float)
+    assert img.shape == (800, 1600) and img.std() > 10          # something drawn, not a blank frame
+    assert (tmp_path / "deform.ply").stat().st_size > 1000
+    code, out, err = run(capsys, "deform", "--skinning", "influence", "--no-render", "--out", str(tmp_path / "i"))
+    assert code == 0 and json.loads((tmp_path / "i" / "deform.json").read_text())["skinning"] == "influence"
+
+
+def test_deform_on_cesiumman_with_a_run_frame(capsys, tmp_path):
+    code, out, err = run(capsys, "deform", str(asset("characters/CesiumMan.glb")), "--clip",
+                         str(asset("mocap/cmu_bvh/02_03.bvh")), "--time", "0.5", "--no-render", "--out", str(tmp_path))
+    assert code == 0, err
+    facts = json.loads((tmp_path / "deform.json").read_text())
+    assert facts["muscles"] == 28 and facts["pose"]["time_s"] == 0.5 and 0.0 < facts["max_displacement_mm"] < 60.0
+
+
+@pytest.mark.parametrize("argv, what", [
+    (["deform", "--clip", "x.bvh"], "--clip"),
+    (["deform", "--weights", "missing.npz"], "missing.npz"),
+])
+def test_deform_bad_input_is_one_line_and_exit_2(capsys, tmp_path, argv, what):
+    code, out, err = run(capsys, *argv, "--out", str(tmp_path))
+    assert code == 2 and what in err and "Traceback" not in err and len(err.strip().splitlines()) == 1

@@ -1,0 +1,173 @@
+"""Skin driven by the bones and the muscles: LBS (or DQS), then every muscle's deformer.
+
+    joint world transforms --Skinner (Warp)--------------------------> smooth-skinned positions
+    muscle CVs (static now; jiggled and blended later)
+        --MuscleFrames--> per muscle E_ref (rest ellipsoid riding its bone), E_cur (fitted to the CVs)
+        --ShellDeformer (Warp)--> shells in series on the culled (vertex, muscle) pairs    "shell"
+        --InfluenceDeformer (Warp)--> the muscle surface carries its bound vertices         "influence"
+
+The artist's skin is kept: both deformers act on the change of each muscle relative to the bone it
+rides (rig/shells.py says how the paper's absolute shells became relative), so at the bind pose with
+the muscles at rest the result is the smooth-skinned skin, which at bind is the artist's skin.
+
+Built once (`MuscleSkin(...)`): the Skinner's rest mesh and weights, the muscle frames, the pair list
+culled at bind, the painted weights and the deformer's device arrays. Per frame (`pose`): one launch
+for the skinning, a few NumPy operations over all muscles at once for their frames, one launch for the
+deformer; nothing loops in Python over muscles, pairs or vertices.
+"""
+from __future__ import annotations
+
+import warnings
+from typing import Sequence
+
+import numpy as np
+import warp as wp
+
+from .character import Character
+from .errors import InputError, JiggleWarning
+from .influence import InfluenceDeformer, bind_influence
+from .muscle_frames import MuscleFrames
+from .muscle_model import MuscleRig
+from .shell_deformer import ShellDeformer
+from .shells import ShellParams, beta, cull_pairs, default_shell, shell_table
+
+SKINNING = ("shell", "influence")
+"""How the muscles move the skin: the shell deformers (Pratscher et al.) or influence objects (the
+thesis's Maya setup)."""
+
+
+class MuscleSkin:
+    """A character's skin over its bones and muscles.
+
+    Parameters
+    ----------
+    character : the skinned character (rest skin, weights, bind transforms).
+    rig : its muscles (rig.muscle_model.MuscleRig), in the character's joint order.
+    shells : one ShellParams per muscle, or None for each kind's default (rig.shells.default_shell).
+    skinning : "shell" (default) or "influence".
+    method : "lbs" (default) or "dqs", the smooth skinning underneath.
+    weights : (V, M) painted per-vertex weights w_i in [0, 1] (rig.shell_weights), or None for 1.
+        Influence objects multiply them by the muscle's overall weight w and the shell fall-off beta
+        at bind, so a muscle's pull fades out smoothly at the edge of the region it binds.
+    margin : culling margin: a (vertex, muscle) pair is kept when the vertex lies within
+        (1 + d)(1 + margin) of the muscle's rest ellipsoid (local units) at bind.
+    star : give each deformer its muscle's star-shaped offsets (Pratscher et al. 4.3.2).
+    device : Warp device.
+    """
+
+    def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
+                 skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
+                 margin: float = 0.25, star: bool = True, device: str = "cpu"):
+        if skinning not in SKINNING:
+            raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
+        if method not in ("lbs", "dqs"):
+            raise InputError(f"expected 'lbs' or 'dqs', got {method!r}", field="method")
+        if rig.num_joints != character.num_joints:
+            raise InputError(f"the muscle rig has {rig.num_joints} joints, the character {character.num_joints}",
+                             field="rig")
+        if not (np.isfinite(margin) and margin >= 0.0):
+            raise InputError(f"expected a number >= 0, got {margin}", field="margin")
+        M, V = rig.M, character.num_vertices
+        shells = [default_shell(k) for k in rig.kinds] if shells is None else list(shells)
+        if len(shells) != M or not all(isinstance(s, ShellParams) for s in shells):
+            raise InputError(f"expected {M} ShellParams, one per muscle, got {len(shells)}", field="shells")
+        painted = np.ones((V, M), np.float32) if weights is None else np.asarray(weights, np.float32)
+        if painted.shape != (V, M):
+            raise InputError(f"expected ({V}, {M}) weights (vertices, muscles), got {painted.shape}",
+                             field="weights")
+        if not np.all((painted >= 0.0) & (painted <= 1.0)):
+            raise InputError("painted weights must lie in [0, 1] (and not be NaN)", field="weights")
+
+        self.character, self.rig, self.shells = character, rig, tuple(shells)
+        self.skinning, self.method, self.device = skinning, method, wp.get_device(device)
+        self.frames = MuscleFrames.build(rig, character.bind_world, star=star)
+        self.table = shell_table(shells, star=self.frames.star if star else None,
+                                 star_index=self.frames.star_index if star else None)
+        self.skinner = character.skinner(device)
+        offsets, muscle = cull_pairs(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
+                                     star=self.table.star, star_index=self.table.star_index)
+        vertex = np.repeat(np.arange(V), np.diff(offsets))
+        pair_w = painted[vertex, muscle]
+        self.pair_offsets, self.pair_muscle = offsets, muscle
+        if skinning == "shell":
+            self.pair_weight = pair_w.astype(np.float32)
+            self.deformer = ShellDeformer(self.table, offsets, muscle, self.pair_weight, device=device)
+        else:
+            self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
+            binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
+            self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device)
+
+    @classmethod
+    def from_musculature(cls, mus, *, weights=None, character_path=None, **kw) -> "MuscleSkin":
+        """The skin of a fitted musculature (rig.muscle_fit), each muscle's deformer from its template
+        entry. `weights`: a painted weights file (.npz, rig.shell_weights), an array (V, M), or None for
+        the file beside `character_path` when there is one, else 1. Other keywords as the constructor."""
+        from .shell_weights import find_weights, load_weights
+        names = mus.rig.names
+        if weights is None and character_path is not None:
+            weights = find_weights(character_path)
+        if weights is not None and not isinstance(weights, np.ndarray):
+            weights = load_weights(weights, names, mus.character.num_vertices)
+        shells = [m.spec.shell for m in mus.muscles]
+        return cls(mus.character, mus.rig, shells, weights=weights, **kw)
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def num_pairs(self) -> int:
+        """The (vertex, muscle) pairs kept at bind."""
+        return len(self.pair_muscle)
+
+    def pairs_per_muscle(self) -> np.ndarray:
+        """(M,) number of vertices each muscle may move."""
+        return np.bincount(self.pair_muscle, minlength=self.rig.M)
+
+    def _bind_falloff(self, vertex: np.ndarray, muscle: np.ndarray) -> np.ndarray:
+        """(P,) the shell attenuation beta of each pair's vertex at bind (influence weights fade with it)."""
+        E_inv = np.linalg.inv(self.frames.E_rest)[muscle]
+        p = np.einsum("pij,pj->pi", E_inv[:, :3, :3], self.character.vertices[vertex]) + E_inv[:, :3, 3]
+        r = np.linalg.norm(p, axis=1)
+        t = self.table
+        return t.weight[muscle] * beta(r, t.hard[muscle], t.drop_off[muscle])
+
+    # ------------------------------------------------------------------ per frame
+    def lbs(self, world: np.ndarray) -> np.ndarray:
+        """Smooth skinning alone, (V, 3) float32 metres, for joint world transforms (J, 4, 4)."""
+        return self.skinner.skin(self.character.skin_matrices(world), self.method)
+
+    def pose(self, world: np.ndarray, cvs: np.ndarray | None = None, curve: np.ndarray | None = None,
+             frame: int | None = None) -> np.ndarray:
+        """Deformed skin (V, 3) float32 metres.
+
+        world : (J, 4, 4) rigid joint world transforms, metres, the character's joint order.
+        cvs : (N, 3) the muscles' section CVs this frame (static, jiggled or blended), metres; None:
+            the static shape for `world` (MuscleRig.static).
+        curve : (M, 5, 3) the action-curve CVs; None: the static ones for `world`.
+        frame : the frame's index, only for the warning that names a muscle skipped this frame.
+        """
+        world = np.asarray(world, dtype=np.float64)
+        if cvs is None or curve is None:
+            static = self.rig.static(world)
+            cvs = static.cvs if cvs is None else cvs
+            curve = static.curve if curve is None else curve
+        points = self.skinner.launch(self.character.skin_matrices(world), self.method)
+        if self.skinning == "shell":
+            fr, skipped = self.frames.frame(world, cvs, curve, frame=frame or 0)
+            for s in skipped:
+                warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning, stacklevel=2)
+            out = self.deformer.launch(points, fr)
+        else:
+            cvs = np.asarray(cvs, dtype=np.float64)
+            bad = ~np.isfinite(cvs.reshape(self.rig.M, -1)).all(axis=1)
+            if bad.any():
+                self._warn(np.nonzero(bad)[0], frame, "its CVs hold NaN or inf")
+                ref = self.frames.carried_rest_cvs(world)
+                cvs = np.where(np.repeat(bad, self.rig.CVS_PER_MUSCLE)[:, None], ref, cvs)
+            out = self.deformer.launch(points, cvs, self.frames.carried_rest_cvs(world))
+        result = out.numpy()
+        return result.copy() if self.device.is_cpu else result
+
+    def _warn(self, muscles, frame, why: str) -> None:
+        names = ", ".join(repr(self.rig.names[m]) for m in muscles)
+        at = "" if frame is None else f" at frame {frame}"
+        warnings.warn(f"muscle {names} skipped{at}: {why}; the skin there follows the bones only",
+                      JiggleWarning, stacklevel=3)
