@@ -118,6 +118,7 @@ class ShellDeformer:
         V = self.model.num_vertices
         self._points_out = wp.empty(V, dtype=wp.vec3, device=self.device)
         self._E = [wp.empty(M, dtype=wp.mat44, device=self.device) for _ in range(4)]
+        self._centre = wp.empty(M, dtype=wp.vec3, device=self.device)
         self._active = wp.empty(M, dtype=wp.int32, device=self.device)
         self._curve = None
 
@@ -156,7 +157,7 @@ class ShellDeformer:
                   inputs=[model.pair_offsets, model.pair_muscle, model.pair_weight,
                           model.sticky, model.hard, model.drop_off, model.weight, model.slippage,
                           model.mode, model.star_index, model.star, model.star_max,
-                          *self._E, self._curve, self._active, points],
+                          *self._E, self._centre, self._curve, self._active, points],
                   outputs=[self._points_out])
         return self._points_out
 
@@ -173,8 +174,11 @@ class ShellDeformer:
                 raise InputError("NaN or inf in an active muscle's matrix (mark it inactive)", field=name)
         if not np.all(np.isfinite(frames.curve[on])):
             raise InputError("NaN or inf in an active muscle's curve (mark it inactive)", field="curve")
-        for buf, E in zip(self._E, mats):
+        # the kernel reads E_cur - E_ref, formed here in float64: exactly 0 for a muscle at rest
+        dE = np.where(on[:, None, None], frames.E_cur - frames.E_ref, 0.0)
+        for buf, E in zip(self._E, (frames.E_ref, frames.E_ref_inv, dE, frames.E_cur_inv)):
             buf.assign(E.astype(np.float32))
+        self._centre.assign(frames.E_ref[:, :3, 3].astype(np.float32))
         K = frames.curve.shape[1]
         if self._curve is None or self._curve.shape != (M, K):
             self._curve = wp.empty((M, K), dtype=wp.vec3, device=self.device)

@@ -13,6 +13,9 @@ import math
 
 import warp as wp
 
+# forward only: these kernels are never differentiated (no adjoint code to compile)
+wp.set_module_options({"enable_backward": False})
+
 MODE_BASIC = wp.constant(0)
 MODE_STRETCH = wp.constant(1)
 MODE_TRAJECTORY = wp.constant(2)
@@ -121,8 +124,9 @@ def shells(
     # state in
     E_ref: wp.array(dtype=wp.mat44),
     E_ref_inv: wp.array(dtype=wp.mat44),
-    E_cur: wp.array(dtype=wp.mat44),
+    dE: wp.array(dtype=wp.mat44),
     E_cur_inv: wp.array(dtype=wp.mat44),
+    centre: wp.array(dtype=wp.vec3),
     curve: wp.array2d(dtype=wp.vec3),
     active: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3),
@@ -131,7 +135,9 @@ def shells(
 ):
     """points_out[v] = points[v] with the vertex's pairs applied in series: p <- p + D_pair(p).
 
-    star_max[t] is the largest offset of star table t (an upper bound of delta for the early out).
+    dE[m] = E_cur[m] - E_ref[m], formed in float64 by the wrapper (exactly 0 for a muscle at rest,
+    and the stretch needs only the difference); centre[m] = E_ref[m]'s translation. star_max[t] is the largest offset of star table t
+    (an upper bound of delta for the early out).
     """
     v = wp.tid()
     p = points[v]
@@ -143,42 +149,51 @@ def shells(
             d = drop_off[m]
             table = star_index[m]
             # beyond this local radius rho >= 1 + d for any direction: beta = alpha = 0 and D = 0.
-            # Culling keeps a margin beyond the drop-off shell, so about half the pairs stop here,
-            # before the star lookup (the most expensive part)
+            # Culling keeps a margin beyond the drop-off shell, so many pairs stop here, before the
+            # star lookup (the most expensive part)
             reach = 1.0 + d
             if table >= 0:
                 reach = reach + star_max[table]
             mo = mode[m]
             p_l = wp.transform_point(E_ref_inv[m], p)
+            r2 = wp.dot(p_l, p_l)
             D = wp.vec3(0.0, 0.0, 0.0)
+            moved = False
             if mo == MODE_BASIC:
                 pc_l = wp.transform_point(E_cur_inv[m], p)
-                if wp.length(p_l) < reach or wp.length(pc_l) < reach:
+                if r2 < reach * reach or wp.dot(pc_l, pc_l) < reach * reach:
                     q, rho = pull(p_l, star, table, sticky[m], hard[m], d)
                     qc, rho_c = pull(pc_l, star, table, sticky[m], hard[m], d)
-                    D = wp.transform_point(E_cur[m], qc) - wp.transform_point(E_ref[m], q)
-            elif wp.length(p_l) < reach:
+                    E_cur = E_ref[m] + dE[m]
+                    D = wp.transform_point(E_cur, qc) - wp.transform_point(E_ref[m], q)
+                    moved = True
+            elif r2 < reach * reach:
                 q, rho = pull(p_l, star, table, sticky[m], hard[m], d)
                 al = shell_alpha(rho, d)
                 # a = 0 wherever alpha = 0 (also for l = 0): nothing beyond the drop-off shell moves
                 a = float(0.0)
                 if al > 0.0:
-                    a = wp.pow(al, slippage[m])
-                dE = E_cur[m] - E_ref[m]
-                if mo == MODE_STRETCH:
-                    # (E_cur - E_ref) (q, 1): the difference first, exactly 0 when they are equal
-                    D = a * wp.transform_point(dE, q)
-                else:
-                    x = a * float(K - 1)
-                    j = wp.min(int(x), K - 2)
-                    f = x - float(j)
-                    c0 = curve[m, j]
-                    c = c0 + f * (curve[m, j + 1] - c0)
-                    D = (c - curve[m, 0]) + a * wp.transform_vector(dE, q)
-            r = wp.length(p_l)
-            u = wp.vec3(0.0, 0.0, 0.0)
-            if r >= TINY_R:
-                u = p_l / r
-            reach_w = d * wp.length(wp.transform_vector(E_ref[m], u))
-            p = p + (weight[m] * pair_weight[i]) * limit(D, reach_w)
+                    l = slippage[m]
+                    a = al
+                    if l != 1.0:    # pow is the costliest step of a pair; l = 1 is the default
+                        a = wp.pow(al, l)
+                    if mo == MODE_STRETCH:
+                        # (E_cur - E_ref) (q, 1): the difference first, exactly 0 when they are equal
+                        D = a * wp.transform_point(dE[m], q)
+                    else:
+                        x = a * float(K - 1)
+                        j = wp.min(int(x), K - 2)
+                        f = x - float(j)
+                        c0 = curve[m, j]
+                        c = c0 + f * (curve[m, j + 1] - c0)
+                        D = (c - curve[m, 0]) + a * wp.transform_vector(dE[m], q)
+                    moved = True
+            if moved:
+                # the drop-off distance along the point's direction, d |L_ref u|, is d |p - c_ref| / r
+                # (L_ref p_l = p - c_ref): no second matrix product
+                r = wp.sqrt(r2)
+                reach_w = float(0.0)
+                if r >= TINY_R:
+                    reach_w = d * wp.length(p - centre[m]) / r
+                p = p + (weight[m] * pair_weight[i]) * limit(D, reach_w)
     points_out[v] = p
