@@ -27,6 +27,7 @@ import warp as wp
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench_shells import J, K, LENGTH, M, muscles, tube  # noqa: E402  (the same scene)
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
 from rig import loft  # noqa: E402
@@ -34,27 +35,7 @@ from rig.influence import InfluenceDeformer, bind_influence, influence_numpy  # 
 from rig.shells import cull_pairs  # noqa: E402
 from rig.skinning import Skinner, lbs_numpy  # noqa: E402
 
-V, M, J, K = 100_000, 40, 41, 4
-LENGTH, RADIUS = 1.2, 0.06
 BULGE, SLIDE = 1.08, 0.005
-
-
-def tube(n: int = V) -> np.ndarray:
-    rings = int(np.sqrt(n * 4))
-    around = n // rings
-    z = np.repeat(np.linspace(0.0, LENGTH, rings), around)
-    t = np.tile(2 * np.pi * np.arange(around) / around, rings)
-    return np.column_stack([RADIUS * np.cos(t), RADIUS * np.sin(t), z])
-
-
-def muscles() -> np.ndarray:
-    """(M, 4, 4) rest ellipsoids: 20 along the tube in front (+x) and 20 behind, long axis along z."""
-    E = np.tile(np.eye(4), (M, 1, 1))
-    for m in range(M):
-        side = 1.0 if m % 2 == 0 else -1.0
-        E[m, :3, :3] = np.diag([0.022, 0.03, 0.05])
-        E[m, :3, 3] = (side * 0.03, 0.0, 0.03 + (m // 2) * LENGTH / 20)
-    return E
 
 
 def ellipsoid_cvs(E: np.ndarray) -> np.ndarray:

@@ -1,6 +1,7 @@
 """LBS + shell deformers on 100k vertices, 40 muscles, about 2 muscles per vertex: Warp (Skinner +
 ShellDeformer, one launch each) against the float64 NumPy references (lbs_numpy + shell_numpy), and the
-shells' cost against LBS alone on the same mesh; then influence objects the same way.
+shells' cost against LBS alone on the same mesh (benchmarks/bench_influence.py times influence objects
+on this scene).
 
     .venv/bin/python benchmarks/bench_shells.py [device]
 

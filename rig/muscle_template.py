@@ -101,7 +101,6 @@ import importlib.resources
 import math
 import os
 import re
-import tempfile
 import tomllib
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, fields
@@ -109,6 +108,7 @@ from dataclasses import dataclass, field, fields
 from defusedxml.common import DefusedXmlException, DTDForbidden, EntitiesForbidden, ExternalReferenceForbidden
 from defusedxml.ElementTree import DefusedXMLParser
 
+from .atomic import atomic_path
 from .errors import InputError, require_file
 from .retarget import ROLES
 from .shells import ShellParams, check_params, default_shell
@@ -957,18 +957,8 @@ def write_template(template: Template, path: str | os.PathLike) -> str:
     folder, then os.replace); return the path."""
     p = os.fspath(path)
     text = template_to_xml(template) if _suffix(p) == ".xml" else template_to_toml(template)
-    folder = os.path.dirname(os.path.abspath(p))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(p)[1], dir=folder)
-    try:
-        # mkstemp makes the file private (0600); give it the mode of the file it replaces, else rw-r--r--
-        os.fchmod(fd, os.stat(p).st_mode & 0o777 if os.path.exists(p) else 0o644)
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(p) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
     return p
 
 

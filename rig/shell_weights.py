@@ -19,7 +19,6 @@ pairs (CSR by vertex).
 from __future__ import annotations
 
 import os
-import tempfile
 import warnings
 import zipfile
 import zlib
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_path
 from .errors import InputError, JiggleWarning, require_file
 
 FORMAT = "jiggle.shell_weights/1"
@@ -103,19 +103,11 @@ def save_weights(path: str | os.PathLike, muscle_names, weights) -> Path:
     arrays = {"format": np.array(FORMAT), "muscle_names": np.array(names, dtype=np.str_),
               "weights": w, "num_vertices": np.array(w.shape[0], dtype=np.int64)}
     p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.resolve().parent)
-    try:
-        # mkstemp makes the file private (0600); give it the mode of the file it replaces, else rw-r--r--
-        os.fchmod(fd, os.stat(p).st_mode & 0o777 if p.exists() else 0o644)
-        with os.fdopen(fd, "wb") as fh:  # a file object: savez would append ".npz" to a name
-            np.savez_compressed(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    # a file object: savez would append ".npz" to a name; fsync so a crash cannot leave a torn file
+    with atomic_path(p) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+        fh.flush()
+        os.fsync(fh.fileno())
     return p
 
 

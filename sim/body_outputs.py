@@ -14,7 +14,7 @@ import os
 import numpy as np
 
 from rig.character import Character
-from .atomic import atomic_path
+from rig.atomic import atomic_path
 
 
 def _bones(character: Character) -> np.ndarray:

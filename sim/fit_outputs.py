@@ -13,7 +13,7 @@ import os
 import numpy as np
 
 from rig.muscle_fit import Musculature
-from .atomic import atomic_path
+from rig.atomic import atomic_path
 from .mesh_render import SKIN, VIEWS, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")

@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from .atomic import atomic_path
+from rig.atomic import atomic_path
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 

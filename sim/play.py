@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rig.clip import Clip, transforms
-from .atomic import atomic_path
+from rig.atomic import atomic_path
 from .skeleton import Skeleton
 
 
