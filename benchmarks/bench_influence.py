@@ -27,7 +27,7 @@ import warp as wp
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_shells import J, K, LENGTH, M, muscles, tube  # noqa: E402  (the same scene)
+from bench_shells import M, muscles, skinned_tube  # noqa: E402  (the same scene)
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
 from rig import loft  # noqa: E402
@@ -60,17 +60,7 @@ def frame_cvs(E: np.ndarray, rest_cvs: np.ndarray) -> np.ndarray:
 
 
 def main(device: str = "cpu") -> None:
-    rng = np.random.default_rng(0)
-    rest = tube()
-    seg = np.clip((rest[:, 2] / LENGTH * (J - 1)).astype(int), 0, J - 2)
-    joints = np.stack([seg, seg + 1, np.clip(seg - 1, 0, J - 1), np.clip(seg + 2, 0, J - 1)], axis=1)
-    weights = rng.random((len(rest), K)) * np.array([1.0, 0.6, 0.1, 0.1])
-    weights /= weights.sum(axis=1, keepdims=True)
-    # a gently bent pose: each joint turned a little about x
-    matrices = np.tile(np.eye(4), (J, 1, 1))
-    for j in range(J):
-        a = 0.01 * j
-        matrices[j, 1:3, 1:3] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    rest, joints, weights, matrices = skinned_tube()
     E_rest = muscles()
     offsets, muscle = cull_pairs(rest, E_rest, np.ones(M), margin=0.25)
     pair_w = np.ones(len(muscle), np.float32)

@@ -51,6 +51,21 @@ def muscles() -> np.ndarray:
     return E
 
 
+def skinned_tube():
+    """The tube (V, 3), its 4 influences (joints, weights (V, K)) on the J joints along it, and a
+    gently bent pose's skin matrices (J, 4, 4): each joint turned a little about x."""
+    rng = np.random.default_rng(0)
+    rest = tube()
+    seg = np.clip((rest[:, 2] / LENGTH * (J - 1)).astype(int), 0, J - 2)
+    joints = np.stack([seg, seg + 1, np.clip(seg - 1, 0, J - 1), np.clip(seg + 2, 0, J - 1)], axis=1)
+    weights = rng.random((len(rest), K)) * np.array([1.0, 0.6, 0.1, 0.1])
+    weights /= weights.sum(axis=1, keepdims=True)
+    matrices = np.tile(np.eye(4), (J, 1, 1))
+    a = 0.01 * np.arange(J)
+    matrices[:, 1, 1], matrices[:, 1, 2], matrices[:, 2, 1], matrices[:, 2, 2] = np.cos(a), -np.sin(a), np.sin(a), np.cos(a)
+    return rest, joints, weights, matrices
+
+
 def frame(E_rest: np.ndarray, matrices: np.ndarray, bones: np.ndarray) -> ShellFrames:
     E_ref = matrices[bones] @ E_rest
     bulge = np.diag([1.08, 1.08, 0.9, 1.0])
@@ -62,17 +77,7 @@ def frame(E_rest: np.ndarray, matrices: np.ndarray, bones: np.ndarray) -> ShellF
 
 
 def main(device: str = "cpu") -> None:
-    rng = np.random.default_rng(0)
-    rest = tube()
-    seg = np.clip((rest[:, 2] / LENGTH * (J - 1)).astype(int), 0, J - 2)
-    joints = np.stack([seg, seg + 1, np.clip(seg - 1, 0, J - 1), np.clip(seg + 2, 0, J - 1)], axis=1)
-    weights = rng.random((len(rest), K)) * np.array([1.0, 0.6, 0.1, 0.1])
-    weights /= weights.sum(axis=1, keepdims=True)
-    # a gently bent pose: each joint turned a little about x
-    matrices = np.tile(np.eye(4), (J, 1, 1))
-    for j in range(J):
-        a = 0.01 * j
-        matrices[j, 1:3, 1:3] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    rest, joints, weights, matrices = skinned_tube()
     E_rest = muscles()
     bones = np.clip((E_rest[:, 2, 3] / LENGTH * (J - 1)).astype(int), 0, J - 1)
     table = shell_table([ShellParams()] * M)

@@ -157,12 +157,12 @@ class MuscleSkin:
             out = self.deformer.launch(points, fr)
         else:
             cvs = np.asarray(cvs, dtype=np.float64)
+            ref = self.frames.carried_rest_cvs(world)
             bad = ~np.isfinite(cvs.reshape(self.rig.M, -1)).all(axis=1)
             if bad.any():
                 self._warn(np.nonzero(bad)[0], frame, "its CVs hold NaN or inf")
-                ref = self.frames.carried_rest_cvs(world)
                 cvs = np.where(np.repeat(bad, self.rig.CVS_PER_MUSCLE)[:, None], ref, cvs)
-            out = self.deformer.launch(points, cvs, self.frames.carried_rest_cvs(world))
+            out = self.deformer.launch(points, cvs, ref)
         result = out.numpy()
         return result.copy() if self.device.is_cpu else result
 

@@ -58,6 +58,12 @@ def _mesh_options(g) -> None:
                    help="up axis of an OBJ/PLY/STL character (default: auto, the longer of y and z)")
 
 
+def _map_options(g) -> None:
+    """Joint maps for retargeting a clip onto a character: --clip-map, --character-map (play and deform)."""
+    g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
+    g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
+
+
 def _non_negative(name):
     def conv(v):
         try:
@@ -416,8 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--character", metavar="FILE", help="the character to skin: a skinned glTF/GLB (the clip is "
                    "retargeted onto its skeleton), or an OBJ/PLY/STL/unskinned glTF mesh standing in the clip's "
                    "rest pose (automatic weights). Default: a body generated around the clip's skeleton")
-    g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
-    g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
+    _map_options(g)
     _mesh_options(g)
     _character_options(p)
     g = p.add_argument_group("your own MuJoCo model")
@@ -497,8 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "<character>.shell_weights.npz beside the character when present, else 1)")
     p.add_argument("--template", metavar="T", help="muscle template: built-in name or .toml/.xml (default: human)")
     p.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles")
-    p.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: a preset that fits)")
-    p.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character")
+    _map_options(p)
     p.add_argument("--influences", type=_count("--influences"), default=4, metavar="K",
                    help="skin weights kept per vertex (default: 4)")
     p.add_argument("--out", default="out/deform", help="output folder (default: out/deform)")
