@@ -30,7 +30,8 @@ XML, the paper's layout (``.xml``)::
           <span t0="0.25" t1="1.0"/>  <sector a0="-60" a1="60"/>
           <sections rim="1" bulge="1" main="1" bulgePosition="0.25"/>
           <shape tone="1" nu="3" thicknessMin="0.004" depth="0.03" count="1"/>
-          <jiggle frequency="7" damping="0.5" goalTendon="0.9" goalBelly="0.4" density="1060"/>
+          <jiggle frequency="7" damping="0.5" goalTendon="0.9" goalBelly="0.4" density="1060"
+                  strength="1" springFrequency="7" springDamping="0.3" friction="0"/>
           <shell sticky="1" hard="0.5" dropOff="1" weight="1" slippage="1" mode="stretch"/>
         </muscle>
       </boneMusclePair>
@@ -88,8 +89,9 @@ e_front; angles about the bone go from e_front toward e_side, degrees):
   this thick; default FAT_DEPTH for fat, 0 for muscles, which use thickness_min).
 - kind : ``muscle``, ``fat`` (soft tissue that jiggles, no tendons to speak of) or ``multi_belly``
   (``count`` bellies in a row along the span, like the rectus abdominis).
-- jiggle : default particle parameters for the simulation (frequency Hz and damping ratio of the
-  goal springs, goal weights at the tendons and the belly, density kg/m^3).
+- jiggle : default particle parameters for the simulation (:class:`Jiggle`: frequency Hz and damping
+  ratio of the goal springs, goal weights at the tendons and the belly, density kg/m^3, jiggle
+  strength 0..1, neighbour springs' frequency Hz and damping ratio, friction 1/s).
 - shell : the muscle's skin deformer (:class:`rig.shells.ShellParams`: sticky s, hard h, drop_off d
   in local units of the muscle's radius, weight w, slippage l, mode basic/stretch/trajectory);
   default :func:`rig.shells.default_shell` of the kind. The per-vertex painted weights are not part
@@ -156,12 +158,19 @@ class Attachment:
 
 @dataclass(frozen=True)
 class Jiggle:
-    """Default simulation parameters of one muscle.
+    """Default simulation parameters of one muscle (sim/jiggle_params.py explains the model).
 
-    frequency_hz : natural frequency of the goal springs, Hz.
+    frequency_hz : natural frequency of the goal springs, Hz, for a particle of goal weight 1/2 at
+        strength 1.
     damping_ratio : of the goal springs (1 = critical).
     goal_tendon, goal_belly : goal weights (0..1) at the tendon ends and in the belly.
     density : kg/m^3, for the particle masses.
+    strength : jiggle strength in [0, 1]: the goal springs' compliance scale (0 glues the particles to
+        their goals; an offset under a given acceleration grows in proportion to it).
+    spring_frequency_hz : neighbour springs, as the frequency of one spring on the mean particle
+        mass, Hz (0: no neighbour springs).
+    spring_damping_ratio : of the neighbour springs.
+    friction : drag on the particles' world velocity, 1/s.
     """
 
     frequency_hz: float
@@ -169,6 +178,10 @@ class Jiggle:
     goal_tendon: float
     goal_belly: float
     density: float
+    strength: float = 1.0
+    spring_frequency_hz: float = 7.0
+    spring_damping_ratio: float = 0.3
+    friction: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -178,8 +191,11 @@ class Jiggle:
 # Muscle: a stiff goal spring in the 6-8 Hz range and half-critical damping, so a belly wobbles a
 # few times after a landing; fat: slower (about 3 Hz), loosely held and barely damped, as soft tissue
 # sways visibly longer. Densities: skeletal muscle about 1060 kg/m^3, adipose tissue about 900.
-MUSCLE_JIGGLE = Jiggle(frequency_hz=7.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0)
-FAT_JIGGLE = Jiggle(frequency_hz=2.8, damping_ratio=0.2, goal_tendon=0.9, goal_belly=0.15, density=900.0)
+# Neighbour springs as stiff as the goal springs carry a wobble along the muscle as a wave.
+MUSCLE_JIGGLE = Jiggle(frequency_hz=7.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0,
+                       spring_frequency_hz=7.0, spring_damping_ratio=0.3)
+FAT_JIGGLE = Jiggle(frequency_hz=2.8, damping_ratio=0.2, goal_tendon=0.9, goal_belly=0.15, density=900.0,
+                    spring_frequency_hz=2.8, spring_damping_ratio=0.2)
 
 
 def default_jiggle(kind: str) -> Jiggle:
@@ -445,6 +461,10 @@ def validate_template(t: Template, path: str | None = None, lines: dict[str, int
             c.number(jg.goal_tendon, f"{mf}.jiggle.goal_tendon", 0, 1)
             c.number(jg.goal_belly, f"{mf}.jiggle.goal_belly", 0, 1)
             c.number(jg.density, f"{mf}.jiggle.density", 100, 5000, unit=" kg/m^3")
+            c.number(jg.strength, f"{mf}.jiggle.strength", 0, 1)
+            c.number(jg.spring_frequency_hz, f"{mf}.jiggle.spring_frequency", 0, 100, unit=" Hz")
+            c.number(jg.spring_damping_ratio, f"{mf}.jiggle.spring_damping", 0, 10)
+            c.number(jg.friction, f"{mf}.jiggle.friction", 0, 100, unit=" 1/s")
             if not isinstance(m.shell, ShellParams):
                 c.fail(f"expected rig.shells.ShellParams, got {type(m.shell).__name__}", f"{mf}.shell")
             c.shell(m.shell, f"{mf}.shell")
@@ -484,7 +504,9 @@ _SHAPE = (("tone", "tone"), ("nu", "nu"), ("thickness_min", "thicknessMin"), ("d
           ("count", "count"))
 _JIGGLE = (("frequency", "frequency", "frequency_hz"), ("damping", "damping", "damping_ratio"),
            ("goal_tendon", "goalTendon", "goal_tendon"), ("goal_belly", "goalBelly", "goal_belly"),
-           ("density", "density", "density"))
+           ("density", "density", "density"), ("strength", "strength", "strength"),
+           ("spring_frequency", "springFrequency", "spring_frequency_hz"),
+           ("spring_damping", "springDamping", "spring_damping_ratio"), ("friction", "friction", "friction"))
 _SHELL = (("sticky", "sticky"), ("hard", "hard"), ("drop_off", "dropOff"), ("weight", "weight"),
           ("slippage", "slippage"), ("mode", "mode"))  # ShellParams attribute = TOML key
 _XML_ATTACH = {"origin": "origin", "o_hinge": "oHinge", "i_hinge": "iHinge", "insertion": "insertion"}
