@@ -151,9 +151,11 @@ class MuscleJiggle:
     def goal_stiffness(self) -> np.ndarray:
         """(40,) omega_i^2, 1/s^2, per unit mass; inf where the particle is glued (w = 1 or J = 0)."""
         w = self.goal
-        with np.errstate(divide="ignore", invalid="ignore"):
+        if self.strength == 0.0:
+            return np.full(CVS, np.inf)
+        with np.errstate(divide="ignore"):
             k = (2.0 * math.pi * self.frequency_hz) ** 2 / self.strength * w / (1.0 - w)
-        return np.where((w >= 1.0) | (self.strength == 0.0), np.inf, k)
+        return np.where(w >= 1.0, np.inf, k)
 
 
 def section_goals(tendon: float, belly: float) -> np.ndarray:

@@ -159,22 +159,40 @@ def spring_force_numpy(model: ParticleModel, y: np.ndarray, u: np.ndarray) -> np
     return f
 
 
+def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray, v: np.ndarray,
+                    grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The NumPy reference of ParticleSolver.integrate in float64 (merged kicks between steps):
+    (x, v) (N, 3) at grid[-1] from x, v at grid[0]. flow(h) -> (N, 10) goal_flow coefficients."""
+    grid = np.asarray(grid, dtype=np.float64)
+    dts = np.diff(grid)
+    steps = [_check_step(track, float(a), float(b - a)) for a, b in zip(grid[:-1], grid[1:])]
+    inv_m = np.where(model.glued, 0.0, 1.0 / model.mass)[:, None]
+    mu = model.drag[:, None]
+
+    def goal(j, s):
+        return hermite(track.pos[j], track.pos[j + 1], track.vel_start[j], track.vel_end[j],
+                       track.times[j + 1] - track.times[j], s)
+
+    j, s0, _ = steps[0]
+    g, gv, _, _ = goal(j, s0)
+    y, u = x - g, v - gv
+    h_kick = 0.5 * dts[0]
+    for k, ((j, s0, _), h) in enumerate(zip(steps, dts)):
+        _, gv, gacc, gjerk = goal(j, s0)
+        u = u + h_kick * inv_m * spring_force_numpy(model, y, u)
+        b0 = model.gravity_vector - gacc - mu * gv
+        b1 = -gjerk - mu * gacc
+        b2 = -0.5 * mu * gjerk
+        y, u = flow_numpy(flow(h), y, u, b0, b1, b2)
+        h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
+    j, s0, _ = steps[-1]
+    g1, gv1, _, _ = goal(j, s0 + dts[-1])
+    u = u + 0.5 * dts[-1] * inv_m * spring_force_numpy(model, y, u)
+    return g1 + y, gv1 + u
+
+
 def step_numpy(model: ParticleModel, flow: np.ndarray, track: GoalTrack, x: np.ndarray, v: np.ndarray,
                t: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The NumPy reference of ParticleSolver.step in float64: (x, v) (N, 3) at t + dt.
     flow : (N, 10) goal_flow coefficients for dt."""
-    j, s0, H = _check_step(track, t, dt)
-    ga = (track.pos[j], track.pos[j + 1], track.vel_start[j], track.vel_end[j], H)
-    inv_m = np.where(model.glued, 0.0, 1.0 / model.mass)[:, None]
-    g, gv, gacc, gjerk = hermite(*ga, s0)
-    y, u = x - g, v - gv
-    u = u + 0.5 * dt * inv_m * spring_force_numpy(model, y, u)
-    mu = model.drag[:, None]
-    b0 = model.gravity_vector - gacc - mu * gv
-    b1 = -gjerk - mu * gacc
-    b2 = -0.5 * mu * gjerk
-    y1, u1 = flow_numpy(flow, y, u, b0, b1, b2)
-    g1, gv1, _, _ = hermite(*ga, s0 + dt)
-    x1 = g1 + y1
-    u1 = u1 + 0.5 * dt * inv_m * spring_force_numpy(model, y1, u1)
-    return x1, gv1 + u1
+    return integrate_numpy(model, lambda h: flow, track, x, v, np.array([t, t + dt]))
