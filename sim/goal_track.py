@@ -75,14 +75,18 @@ def hermite(pa, pb, va, vb, H: float, s):
 
 
 def find_cuts(times: np.ndarray, pos: np.ndarray, ratio: float = 8.0, jump: float = 0.1) -> np.ndarray:
-    """(S - 1,) bool: knot intervals whose largest move (over the N points of pos (S, N, 3)) exceeds
-    `jump` metres and `ratio` times the largest move of each neighbouring interval."""
+    """(S - 1,) bool: inner knot intervals whose largest move (over the N points of pos (S, N, 3))
+    exceeds `jump` metres and `ratio` times the largest move of each neighbouring interval."""
     if len(times) < 2:
         return np.zeros(0, bool)
     d = np.linalg.norm(np.diff(pos, axis=0), axis=2).max(axis=1)          # (S - 1,)
-    left = np.concatenate([[0.0], d[:-1]])
-    right = np.concatenate([d[1:], [0.0]])
-    return (d > jump) & (d > ratio * left) & (d > ratio * right)
+    cut = np.zeros(len(d), bool)
+    # the first and last intervals have one neighbour: a reversal of the motion there looks like a
+    # jump, and a cut there would change nothing visible, so only inner intervals qualify
+    if len(d) >= 3:
+        inner = d[1:-1]
+        cut[1:-1] = (inner > jump) & (inner > ratio * d[:-2]) & (inner > ratio * d[2:])
+    return cut
 
 
 def knot_velocities(times: np.ndarray, pos: np.ndarray, cut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
