@@ -123,8 +123,8 @@ class ParticleSolver:
         three launches of a few microseconds each instead of tens spent packing arguments."""
         rec = self._recorded.get(kernel.key)
         if rec is None:
-            launch = wp.launch(kernel, dim=self.model.num_particles, inputs=args, device=self.model.device,
-                               record_cmd=True)
+            blocks = (self.model.num_particles + kernels.BLOCK_SIZE - 1) // kernels.BLOCK_SIZE
+            launch = wp.launch(kernel, dim=blocks, inputs=args, device=self.model.device, record_cmd=True)
             self._recorded[kernel.key] = rec = (launch, list(args))
         else:
             launch, last = rec
