@@ -196,19 +196,27 @@ class JiggleResult:
         return d.reshape(len(self.times), -1, CVS).max(axis=2)
 
 
+KNOTS_AFTER = 2
+"""Goal knots past the last output frame: the last frames then see the same goal path (and its
+velocity from both sides) whatever the output rate; world_at must accept those times (a clip holds
+its last pose there)."""
+
+
 def knot_times(out_times: np.ndarray, goal_rate: float) -> np.ndarray:
-    """Goal knots: a grid at goal_rate Hz from out_times[0] through out_times[-1], plus every output time."""
+    """Goal knots: a grid at goal_rate Hz from out_times[0] to KNOTS_AFTER grid points past
+    out_times[-1], plus every output time."""
     t0, t1 = float(out_times[0]), float(out_times[-1])
-    n = int(math.floor((t1 - t0) * goal_rate + 1e-6))
+    n = int(math.ceil((t1 - t0) * goal_rate - 1e-6)) + KNOTS_AFTER
     grid = t0 + np.arange(n + 1) / goal_rate
-    return merge_times(grid, out_times, [t1])
+    return merge_times(grid, out_times)
 
 
 def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndarray], np.ndarray],
                times: np.ndarray, settings: JiggleSettings = JiggleSettings(), *, cuts=None) -> JiggleResult:
     """Simulate every muscle of `rig` (rig.muscle_model.MuscleRig) over a motion.
 
-    world_at : times (K,) seconds -> joint world transforms (K, J, 4, 4) in the rig's joint order.
+    world_at : times (K,) seconds -> joint world transforms (K, J, 4, 4) in the rig's joint order,
+        asked from times[0] to a few goal knots past times[-1] (KNOTS_AFTER).
     times : (T,) output times, seconds, increasing (T >= 1).
     cuts : None to detect cuts from the goals, or (S - 1,) bool over the knot intervals.
     """
@@ -222,7 +230,7 @@ def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndar
         jiggles = [replace(j, strength=settings.strength) for j in jiggles]
     fps = 1.0 / float(np.min(np.diff(times))) if len(times) > 1 else DEFAULT_GOAL_RATE
     rate = settings.goal_rate or max(DEFAULT_GOAL_RATE, fps)
-    knots = knot_times(times, rate) if len(times) > 1 else np.array([times[0], times[0] + 1.0 / rate])
+    knots = knot_times(times, rate)
     static = rig.static(np.asarray(world_at(knots), dtype=np.float64))
     out = np.searchsorted(knots, times - TIME_EPS)
     blend = np.stack([(j.blend or settings.blend)(times) for j in jiggles], axis=1) if jiggles else np.zeros((len(times), 0))

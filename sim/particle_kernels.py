@@ -36,17 +36,20 @@ def goal_vel(pa: wp.vec3, pb: wp.vec3, va: wp.vec3, vb: wp.vec3, H: float, s: fl
 
 
 @wp.func
-def spring_force(i: int, adj_offsets: wp.array(dtype=wp.int32), adj_index: wp.array(dtype=wp.int32),
-                 adj_k: wp.array(dtype=float), adj_c: wp.array(dtype=float),
-                 y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3)):
-    """Sum over particle i's springs of k (y_j - y_i) + c (u_j - u_i), newtons."""
+def spring_kick(i: int, h: float, inv_mass: wp.array(dtype=float), adj_offsets: wp.array(dtype=wp.int32),
+                adj_index: wp.array(dtype=wp.int32), adj_k: wp.array(dtype=float), adj_c: wp.array(dtype=float),
+                y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3)):
+    """Particle i's offset velocity after a kick of its springs over h: the stiffness and the
+    neighbours' velocities explicit, its own velocity in the dampers trapezoidal (sim/particle_solver.py)."""
     y_i = y[i]
-    u_i = u[i]
     f = wp.vec3(0.0)
+    c = float(0.0)
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
         j = adj_index[e]
-        f += adj_k[e] * (y[j] - y_i) + adj_c[e] * (u[j] - u_i)
-    return f
+        f += adj_k[e] * (y[j] - y_i) + adj_c[e] * u[j]
+        c += adj_c[e]
+    d = 0.5 * h * inv_mass[i] * c
+    return (u[i] * (1.0 - d) + (h * inv_mass[i]) * f) / (1.0 + d)
 
 
 @wp.kernel
@@ -99,7 +102,7 @@ def kick_drift(
         g_acc = 2.0 * c2 + 6.0 * s0 * c3
         g_jerk = 6.0 * c3
         y0 = y[i]
-        u0 = u[i] + (h_kick * inv_mass[i]) * spring_force(i, adj_offsets, adj_index, adj_k, adj_c, y, u)
+        u0 = spring_kick(i, h_kick, inv_mass, adj_offsets, adj_index, adj_k, adj_c, y, u)
         # forcing of the offset ODE over tau in [0, h]: b0 + b1 tau + b2 tau^2 (sim/goal_flow.py)
         mu = drag[i]
         b0 = gravity - g_acc - mu * g_vel
@@ -126,11 +129,11 @@ def kick(
     # out
     v_out: wp.array(dtype=wp.vec3),
 ):
-    """Kick of the springs over h at s: v_out = g'(s) + u + h F / m."""
+    """Kick of the springs over h at s: v_out = g'(s) + the kicked offset velocity."""
     t = wp.tid()
     for i in range(t * BLOCK, wp.min(t * BLOCK + BLOCK, y.shape[0])):
         g_vel = goal_vel(pos[seg, i], pos[seg + 1, i], vel_start[seg, i], vel_end[seg, i], H, s)
-        v_out[i] = g_vel + u[i] + (h * inv_mass[i]) * spring_force(i, adj_offsets, adj_index, adj_k, adj_c, y, u)
+        v_out[i] = g_vel + spring_kick(i, h, inv_mass, adj_offsets, adj_index, adj_k, adj_c, y, u)
 
 
 @wp.kernel

@@ -2,17 +2,23 @@
 
 A step of length h from time t (it must lie inside one knot interval of the goal track):
 
-1. half kick: u += h/2 F_springs / m, the neighbour springs (on the offsets) at t;
+1. half kick of the neighbour springs (on the offsets) at t;
 2. exact flow of every particle's goal spring, damping, friction, gravity and the goal's own motion
    over h (sim/goal_flow.py): exact for any h, so the goal springs are never the reason to take
    small steps, however stiff (goal weights near 1) or however long the frame;
-3. half kick with the springs at t + h.
+3. half kick of the springs at t + h.
 
-This is the splitting of the impulse (r-RESPA) family with an exact inner flow: symmetric, second
-order in h for the spring coupling, and, without damping and goals, the velocity Verlet method (so
-momentum is conserved to round-off and energy stays bounded). The kicks are explicit: stable for
-omega h < 2 with omega the springs' fastest frequency, and :meth:`ParticleSolver.max_step` keeps
-omega h <= 1 (and the springs' damping rate gamma h <= 1); sim/jiggle.py splits steps to it.
+This is the splitting of the impulse (r-RESPA) family with an exact inner flow: symmetric and, for
+undamped springs, second order in h and the velocity Verlet method when there are no goals (momentum
+conserved to round-off, energy bounded). In a kick the stiffness and the neighbours' velocities are
+explicit and each particle's own velocity in its dampers is trapezoidal,
+``u' = (u (1 - d) + h/m (F_k + sum c_ij u_j)) / (1 + d)``, ``d = h sum c_ij / (2 m)``: a particle's own
+damping never overshoots, and the error left is first order in the damping between neighbours
+(measured: 1.1% of the peak jiggle at h = 1/120 s on the simple arm, against 1.4% fully explicit).
+The explicit kicks are stable for omega h < 2 with omega the springs' fastest frequency;
+:meth:`ParticleSolver.max_step` keeps omega h and the damping rate times h <= 0.5, and sim/jiggle.py
+splits steps to it. :meth:`ParticleSolver.integrate` merges each closing half kick with the next
+opening one (one launch per step).
 """
 from __future__ import annotations
 
@@ -83,9 +89,11 @@ class ParticleSolver:
                   grid: np.ndarray, on_step=None) -> None:
         """Advance state_in from grid[0] through the steps between the times grid (K + 1,) into state_out.
 
-        Equal to K calls of :meth:`step`, except that each step's closing half kick is merged with the
-        next step's opening one (the forces at the same positions): one launch per step, plus one to
-        form the offsets and one to close. on_step(k, x) is called after step k (1..K) with the
+        Like K calls of :meth:`step`, but each step's closing half kick is merged with the next step's
+        opening one into one kick at the same positions (equal to K steps without spring damping; with
+        it the merged kick sees the velocity before both halves, a difference of the order of the
+        damping error): one launch per step, plus one to form the offsets and one to close. The NumPy
+        reference is :func:`integrate_numpy`. on_step(k, x) is called after step k (1..K) with the
         positions at grid[k] (a device array, valid until the next step).
         """
         m = self.model
@@ -159,6 +167,17 @@ def spring_force_numpy(model: ParticleModel, y: np.ndarray, u: np.ndarray) -> np
     return f
 
 
+def kick_numpy(model: ParticleModel, y: np.ndarray, u: np.ndarray, h: float) -> np.ndarray:
+    """(N, 3) offset velocities after a spring kick over h (the kernels' spring_kick):
+    u' = (u (1 - d) + h / m (F + c_sum u)) / (1 + d), d = h c_sum / (2 m), F the spring force."""
+    inv_m = np.where(model.glued, 0.0, 1.0 / model.mass)
+    csum = np.bincount(model.springs.reshape(-1), weights=np.repeat(model.spring_c, 2),
+                       minlength=model.num_particles) if model.num_springs else np.zeros(model.num_particles)
+    d = (0.5 * h * inv_m * csum)[:, None]
+    f = spring_force_numpy(model, y, u) + csum[:, None] * u          # the explicit part: F without -c_sum u_i
+    return (u * (1.0 - d) + h * inv_m[:, None] * f) / (1.0 + d)
+
+
 def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray, v: np.ndarray,
                     grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The NumPy reference of ParticleSolver.integrate in float64 (merged kicks between steps):
@@ -166,7 +185,6 @@ def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray,
     grid = np.asarray(grid, dtype=np.float64)
     dts = np.diff(grid)
     steps = [_check_step(track, float(a), float(b - a)) for a, b in zip(grid[:-1], grid[1:])]
-    inv_m = np.where(model.glued, 0.0, 1.0 / model.mass)[:, None]
     mu = model.drag[:, None]
 
     def goal(j, s):
@@ -179,7 +197,7 @@ def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray,
     h_kick = 0.5 * dts[0]
     for k, ((j, s0, _), h) in enumerate(zip(steps, dts)):
         _, gv, gacc, gjerk = goal(j, s0)
-        u = u + h_kick * inv_m * spring_force_numpy(model, y, u)
+        u = kick_numpy(model, y, u, h_kick)
         b0 = model.gravity_vector - gacc - mu * gv
         b1 = -gjerk - mu * gacc
         b2 = -0.5 * mu * gjerk
@@ -187,7 +205,7 @@ def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray,
         h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
     j, s0, _ = steps[-1]
     g1, gv1, _, _ = goal(j, s0 + dts[-1])
-    u = u + 0.5 * dts[-1] * inv_m * spring_force_numpy(model, y, u)
+    u = kick_numpy(model, y, u, 0.5 * dts[-1])
     return g1 + y, gv1 + u
 
 

@@ -165,7 +165,7 @@ def test_knot_grid_is_shared_by_the_usual_frame_rates():
     k24 = knot_times(np.arange(0, 25) / 24.0, 120.0)
     k60 = knot_times(np.arange(0, 61) / 60.0, 120.0)
     np.testing.assert_allclose(k24, k60)
-    assert len(k24) == 121
+    assert len(k24) == 121 + 2 and k24[-1] == pytest.approx(1.0 + 2 / 120)
 
 
 def test_step_times_cover_outputs_knots_and_the_step_limit():
