@@ -13,6 +13,17 @@ SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 MOTIONS = sorted((Path(__file__).resolve().parents[1] / "scenes" / "motions").glob("*.toml"))
 
 
+@pytest.fixture(autouse=True)
+def _assets_variable(request, monkeypatch):
+    """Scenes whose motion lives in the shared assets name it "${JIGGLE_ASSETS}/...": point the variable
+    at the assets the tests use, and skip such a scene when they are absent."""
+    from conftest import ASSETS
+    monkeypatch.setenv("JIGGLE_ASSETS", str(ASSETS))
+    path = getattr(request.node, "callspec", None) and request.node.callspec.params.get("path")
+    if path is not None and "${JIGGLE_ASSETS}" in Path(path).read_text() and not ASSETS.exists():
+        pytest.skip(f"scene {Path(path).name} needs the shared assets, not found under {ASSETS}")
+
+
 def test_there_is_a_default_scene():
     assert any(p.name == "default.toml" for p in SCENES)
 
@@ -66,4 +77,106 @@ def test_scene_errors(tmp_path):
         load_scene(p)
     p.write_text('[motion]\nfile = "x.bvh"\nspeed = 2\n')
     with pytest.raises(InputError, match="motion.speed"):
+        load_scene(p)
+
+
+def _jiggle_scene(tmp_path, text: str) -> Path:
+    p = tmp_path / "j.toml"
+    p.write_text(f'[motion]\nfile = "{MOTIONS[0].as_posix()}"\n\n{text}')
+    return p
+
+
+def test_scene_without_jiggle_keeps_defaults():
+    scene = load_scene(SCENES[[p.name for p in SCENES].index("default.toml")])
+    assert scene.jiggle is None and dict(scene.muscle_jiggle) == {} and scene.focus == ()
+
+
+def test_jiggle_section_with_keyed_blends(tmp_path):
+    from sim.jiggle_params import BlendCurve, JiggleSettings
+    p = _jiggle_scene(tmp_path, """[jiggle]
+substeps = 2
+goal_rate = 240
+gravity = true
+preroll = 0.5
+strength = 0.7
+blend = [[0.0, 0.0], [0.5, 1.0], [2.0, 0.25]]
+cut_ratio = 6.0
+cut_jump = 0.2
+
+[jiggle.muscles.belly_fat]
+frequency = 4.0
+blend = [[0.0, 1.0], [1.0, 0.0]]
+
+[jiggle.muscles.left_biceps]
+blend = 0.5
+goal = [0.9, 0.5, 0.3, 0.5, 0.9]
+""")
+    scene = load_scene(p)
+    s = scene.jiggle
+    assert isinstance(s, JiggleSettings)
+    assert (s.substeps, s.goal_rate, s.gravity, s.preroll, s.strength, s.cut_ratio, s.cut_jump) == \
+        (2, 240.0, True, 0.5, 0.7, 6.0, 0.2)
+    # linear between keys, held outside them
+    np.testing.assert_allclose(s.blend(np.array([-1.0, 0.25, 0.5, 1.25, 5.0])), [0.0, 0.5, 1.0, 0.625, 0.25])
+    belly = scene.muscle_jiggle["belly_fat"]
+    assert belly["frequency"] == 4.0 and isinstance(belly["blend"], BlendCurve)
+    np.testing.assert_allclose(belly["blend"](np.array([0.0, 0.5, 2.0])), [1.0, 0.5, 0.0])
+    assert isinstance(scene.muscle_jiggle["left_biceps"]["blend"], BlendCurve)
+    with pytest.raises(TypeError):
+        scene.muscle_jiggle["x"] = {}                                 # read-only
+
+
+def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
+    from scenes.simple_arm import simple_arm
+    from sim.jiggle_params import default_jiggles
+    arm = simple_arm(rings=8, around=8)
+    jiggles = default_jiggles(arm.rig)
+    p = _jiggle_scene(tmp_path, "[jiggle.muscles.biceps]\ndamping = 0.9\nblend = [[0.0, 0.0], [1.0, 1.0]]\n")
+    (out,) = load_scene(p).apply_jiggle(jiggles)
+    assert out.damping_ratio == 0.9 and out.frequency_hz == jiggles[0].frequency_hz
+    np.testing.assert_allclose(out.blend(np.array([0.5])), [0.5])
+    p = _jiggle_scene(tmp_path, "[jiggle.muscles.tricep]\nblend = 0.5\n[jiggle.muscles.biceps]\nblend = 0.5\n")
+    with pytest.raises(InputError, match=r"j.toml: jiggle.muscles: the rig has no muscle 'tricep'; its muscles are biceps"):
+        load_scene(p).apply_jiggle(jiggles)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("[jiggle]\nsubsteps = 0\n", r"j.toml:5: jiggle.substeps: expected a whole number >= 1"),
+    ("[jiggle]\nblend = 1.5\n", r"j.toml:5: jiggle.blend: blend must be in \[0, 1\]"),
+    ("[jiggle]\nblend = [[1.0, 0.0], [0.5, 1.0]]\n", r"jiggle.blend: blend key times must increase"),
+    ("[jiggle]\ngravity = 1\n", r"jiggle.gravity: expected true or false"),
+    ("[jiggle]\npreroll = -1.0\n", r"jiggle.preroll: expected seconds >= 0"),
+    ("[jiggle]\nwobble = 1\n", r"j.toml:5: jiggle.wobble: unknown key; expected one of blend, cut_jump, cut_ratio, "
+                                 r"goal_rate, gravity, muscles, preroll, strength, substeps"),
+    ("[jiggle.muscles.belly_fat]\nblend = [[0.0, -0.5]]\n", r"j.toml:5: jiggle.muscles.belly_fat.blend: blend must be in"),
+    ("[jiggle.muscles.belly_fat]\ndamping = -0.1\n", r"j.toml:5: jiggle.muscles.belly_fat.damping: damping_ratio "
+                                                       r"must be >= 0"),
+    ("[jiggle.muscles.belly_fat]\nfrequency = nan\n", r"jiggle.muscles.belly_fat.frequency: frequency_hz is NaN"),
+    ("[jiggle.muscles.belly_fat]\ngoal = 1.5\n", r"jiggle.muscles.belly_fat.goal: .*goal weight of CV 0 must be in "
+                                                   r"\[0, 1\], got 1.5"),
+    ("[jiggle.muscles.belly_fat]\nstiffness = 3\n", r"j.toml:5: jiggle.muscles.belly_fat.stiffness: unknown key; "
+                                                      r"expected one of frequency, damping, strength"),
+    ("[output]\nfocus = 3\n", r"j.toml:5: output.focus: expected a muscle name"),
+])
+def test_jiggle_section_errors_name_file_line_and_key(tmp_path, text, match):
+    with pytest.raises(InputError, match=match):
+        load_scene(_jiggle_scene(tmp_path, text))
+
+
+def test_motion_file_takes_environment_variables(tmp_path, monkeypatch):
+    motions = tmp_path / "assets" / "motions"
+    motions.mkdir(parents=True)
+    (motions / "jj.toml").write_text(MOTIONS[0].read_text())
+    p = tmp_path / "scenes" / "s.toml"
+    p.parent.mkdir()
+    p.write_text('[motion]\nfile = "${MY_ASSETS}/motions/jj.toml"\n')
+    # a relative value is taken from the current directory, as the shell would
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("MY_ASSETS", "assets")
+    assert load_scene(p).clip.num_joints == read_keyframes(MOTIONS[0]).num_joints
+    monkeypatch.delenv("MY_ASSETS")
+    with pytest.raises(InputError, match=r"s.toml:2: motion.file: environment variable MY_ASSETS is not set"):
+        load_scene(p)
+    monkeypatch.setenv("MY_ASSETS", str(tmp_path / "elsewhere"))
+    with pytest.raises(InputError, match=r"s.toml:2: motion.file: motion file .*elsewhere/motions/jj.toml not found"):
         load_scene(p)
