@@ -189,13 +189,14 @@ class Jiggle:
 
 
 # Muscle: a stiff goal spring in the 6-8 Hz range and half-critical damping, so a belly wobbles a
-# few times after a landing; fat: slower (about 3 Hz), loosely held and barely damped, as soft tissue
-# sways visibly longer. Densities: skeletal muscle about 1060 kg/m^3, adipose tissue about 900.
-# Neighbour springs as stiff as the goal springs carry a wobble along the muscle as a wave.
+# few times after a landing; fat: slower (4 Hz), more loosely held and less damped, as soft tissue
+# sways visibly longer (a softer fat, 2.8 Hz at goal 0.15, swung 15 cm off a running body).
+# Densities: skeletal muscle about 1060 kg/m^3, adipose tissue about 900. Neighbour springs as stiff
+# as the goal springs carry a wobble along the muscle as a wave.
 MUSCLE_JIGGLE = Jiggle(frequency_hz=7.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0,
                        spring_frequency_hz=7.0, spring_damping_ratio=0.3)
-FAT_JIGGLE = Jiggle(frequency_hz=2.8, damping_ratio=0.2, goal_tendon=0.9, goal_belly=0.15, density=900.0,
-                    spring_frequency_hz=2.8, spring_damping_ratio=0.2)
+FAT_JIGGLE = Jiggle(frequency_hz=4.0, damping_ratio=0.3, goal_tendon=0.9, goal_belly=0.3, density=900.0,
+                    spring_frequency_hz=4.0, spring_damping_ratio=0.2)
 
 
 def default_jiggle(kind: str) -> Jiggle:

@@ -185,7 +185,7 @@ def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
 
 OVERRIDES = ("frequency", "damping", "strength", "goal", "goal_tendon", "goal_belly", "density",
              "spring_frequency", "spring_damping", "friction", "blend")
-_ATTR = {"frequency": "frequency_hz", "damping": "damping_ratio", "spring_frequency": "spring_frequency_hz",
+ATTRIBUTES = {"frequency": "frequency_hz", "damping": "damping_ratio", "spring_frequency": "spring_frequency_hz",
          "spring_damping": "spring_damping_ratio"}
 
 
@@ -212,14 +212,17 @@ def override(mj: MuscleJiggle, values: dict, where: str | None = None) -> Muscle
                                  field=f"{where}.goal")
             kw["goal"] = g
         elif k not in ("goal_tendon", "goal_belly"):
-            kw[_ATTR.get(k, k)] = v
+            kw[ATTRIBUTES.get(k, k)] = v
     if "goal_tendon" in values or "goal_belly" in values:
         g = mj.goal
         kw.setdefault("goal", section_goals(values.get("goal_tendon", g[0]), values.get("goal_belly", g[2 * RING])))
     try:
         return replace(mj, **kw)
     except InputError as e:
-        raise InputError(e.message.replace(f"muscle {mj.name!r}", where), field=e.field) from None
+        # name the key the user wrote (damping), not the attribute (damping_ratio)
+        key = {a: k for k, a in ATTRIBUTES.items()}.get(e.field, e.field)
+        message = e.message.replace(f"muscle {mj.name!r}", where).replace(f": {e.field} ", f": {key} ")
+        raise InputError(message, field=f"{where}.{key}") from None
 
 
 @dataclass(frozen=True)
@@ -257,12 +260,14 @@ class JiggleSettings:
     def __post_init__(self):
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) or self.substeps < 1:
             raise InputError(f"expected an integer >= 1, got {self.substeps!r}", field="substeps")
-        for f, lo in (("goal_rate", 0.0), ("preroll", -1e-300), ("cut_ratio", 1.0), ("cut_jump", 0.0)):
+        for f, lo, strict in (("goal_rate", 0.0, True), ("preroll", 0.0, False), ("cut_ratio", 1.0, True),
+                              ("cut_jump", 0.0, True)):
             v = getattr(self, f)
             if v is None:
                 continue
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or not v > lo:
-                raise InputError(f"expected a finite number > {max(lo, 0):g}, got {v!r}", field=f)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or \
+                    not (v > lo if strict else v >= lo):
+                raise InputError(f"expected a finite number {'>' if strict else '>='} {lo:g}, got {v!r}", field=f)
         if not isinstance(self.blend, BlendCurve):
             object.__setattr__(self, "blend", BlendCurve.parse(self.blend, "blend"))
         if self.strength is not None and not (isinstance(self.strength, (int, float)) and 0 <= self.strength <= 1):

@@ -149,9 +149,9 @@ def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
     ("[jiggle]\nwobble = 1\n", r"j.toml:5: jiggle.wobble: unknown key; expected one of blend, cut_jump, cut_ratio, "
                                  r"goal_rate, gravity, muscles, preroll, strength, substeps"),
     ("[jiggle.muscles.belly_fat]\nblend = [[0.0, -0.5]]\n", r"j.toml:5: jiggle.muscles.belly_fat.blend: blend must be in"),
-    ("[jiggle.muscles.belly_fat]\ndamping = -0.1\n", r"j.toml:5: jiggle.muscles.belly_fat.damping: damping_ratio "
+    ("[jiggle.muscles.belly_fat]\ndamping = -0.1\n", r"j.toml:5: jiggle.muscles.belly_fat.damping: damping "
                                                        r"must be >= 0"),
-    ("[jiggle.muscles.belly_fat]\nfrequency = nan\n", r"jiggle.muscles.belly_fat.frequency: frequency_hz is NaN"),
+    ("[jiggle.muscles.belly_fat]\nfrequency = nan\n", r"jiggle.muscles.belly_fat.frequency: frequency is NaN"),
     ("[jiggle.muscles.belly_fat]\ngoal = 1.5\n", r"jiggle.muscles.belly_fat.goal: .*goal weight of CV 0 must be in "
                                                    r"\[0, 1\], got 1.5"),
     ("[jiggle.muscles.belly_fat]\nstiffness = 3\n", r"j.toml:5: jiggle.muscles.belly_fat.stiffness: unknown key; "
