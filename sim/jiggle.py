@@ -29,10 +29,10 @@ import numpy as np
 from rig.errors import InputError
 from rig.frozen import frozen_array
 
-from .goal_track import GoalTrack, build_track
+from .goal_track import GoalTrack, build_track, knot_velocities
 from .jiggle_params import CVS, JiggleSettings, MuscleJiggle
 from .particle_solver import ParticleSolver
-from .particles import ParticleModel, muscle_model
+from .particles import GRAVITY, ParticleModel, muscle_model
 
 DEFAULT_GOAL_RATE = 120.0
 TIME_EPS = 1e-9
@@ -59,9 +59,9 @@ def step_times(out_times: np.ndarray, knots: np.ndarray, substeps: int, max_step
         h = np.diff(grid)
         n = np.maximum(1, np.ceil(h / max_step - 1e-9)).astype(np.int64)
         if (n > 1).any():
-            parts = [grid[:-1, None] + h[:, None] * (np.arange(n.max()) / n[:, None])[:, :]]
-            mask = np.arange(n.max())[None] < n[:, None]
-            grid = np.concatenate([parts[0][mask], grid[-1:]])
+            k = np.arange(n.max())
+            points = grid[:-1, None] + h[:, None] * (k[None] / n[:, None])     # interval i split in n[i]
+            grid = np.concatenate([points[k[None] < n[:, None]], grid[-1:]])
     return grid
 
 
@@ -87,7 +87,7 @@ def equilibrium(model: ParticleModel) -> np.ndarray:
                          (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n)).tocsr()
     deg = np.bincount(np.concatenate([i, j]), weights=np.concatenate([model.spring_k, model.spring_k]), minlength=n)
     a = (lap + sp.diags(deg + k)).tocsr()[free][:, free]
-    y[free, 2] = spsolve(a.tocsc(), -9.81 * model.mass[free]) if model.gravity else 0.0
+    y[free, 2] = spsolve(a.tocsc(), -GRAVITY * model.mass[free])
     return y
 
 
@@ -98,7 +98,6 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     substeps : steps per output interval (more where knots or the spring limit need them).
     preroll : seconds (see the module docstring); 0 starts on the goals.
     """
-    from .goal_track import knot_velocities
     out_times = np.asarray(out_times, dtype=np.float64)
     if out_times.ndim != 1 or len(out_times) == 0 or np.any(np.diff(out_times) <= 0):
         raise InputError("output times must be a non-empty increasing array", field="times")

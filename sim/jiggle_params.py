@@ -33,7 +33,7 @@ skin deformers, ``cvs = static + b (dynamic - static)``: a :class:`BlendCurve` p
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -273,6 +273,3 @@ class JiggleSettings:
         if self.strength is not None and not (isinstance(self.strength, (int, float)) and 0 <= self.strength <= 1):
             raise InputError(f"jiggle strength must be in [0, 1], got {self.strength!r}", field="strength")
 
-
-def settings_fields() -> tuple[str, ...]:
-    return tuple(f.name for f in fields(JiggleSettings))
