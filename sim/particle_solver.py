@@ -127,8 +127,8 @@ class ParticleSolver:
 
     def _run(self, kernel, args: list) -> None:
         """Launch `kernel` over the particles with `args` (inputs then outputs). The launch is recorded
-        once and only the arguments that changed since the last step are packed again: a step is
-        three launches of a few microseconds each instead of tens spent packing arguments."""
+        once and only the arguments that changed since the last step are packed again (packing all
+        of them costs more than the kernel on a small model)."""
         rec = self._recorded.get(kernel.key)
         if rec is None:
             blocks = (self.model.num_particles + kernels.BLOCK_SIZE - 1) // kernels.BLOCK_SIZE
