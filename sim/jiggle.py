@@ -29,7 +29,7 @@ import numpy as np
 from rig.errors import InputError
 from rig.frozen import frozen_array
 
-from .goal_track import GoalTrack, build_track, knot_velocities
+from .goal_track import GoalTrack, build_track
 from .jiggle_params import CVS, JiggleSettings, MuscleJiggle
 from .particle_solver import ParticleSolver
 from .particles import GRAVITY, ParticleModel, muscle_model
@@ -119,10 +119,7 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         keep = track.times >= t0 - TIME_EPS
         times = np.concatenate([pre, track.times[keep]])
         pos = np.concatenate([pre_pos, track.pos[keep]])
-        cut = np.concatenate([np.zeros(n, bool), track.cut[keep[:-1]]])
-        vs, ve = knot_velocities(times, pos, cut)
-        track = GoalTrack(frozen_array(times), frozen_array(pos), frozen_array(vs), frozen_array(ve),
-                          frozen_array(cut, bool))
+        track = build_track(times, pos, cuts=np.concatenate([np.zeros(n, bool), track.cut[keep[:-1]]]))
         start = np.array([pre[0]])
     control = track.to_device(model.device)
     grid = step_times(np.concatenate([start, out_times]) if preroll > 0 else out_times, track.times, substeps,

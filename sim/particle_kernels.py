@@ -22,16 +22,23 @@ ceil(N / BLOCK_SIZE)); on a GPU the blocks still leave thousands of threads for 
 
 
 @wp.func
-def goal_pos(pa: wp.vec3, pb: wp.vec3, va: wp.vec3, vb: wp.vec3, H: float, s: float):
+def hermite(pa: wp.vec3, pb: wp.vec3, va: wp.vec3, vb: wp.vec3, H: float):
+    """c2, c3 of the cubic g(s) = pa + va s + c2 s^2 + c3 s^3 through pa (s = 0) and pb (s = H) with end
+    velocities va, vb (sim/goal_track.py: hermite)."""
     c2 = ((pb - pa) * (3.0 / H) - 2.0 * va - vb) / H
     c3 = ((pa - pb) * (2.0 / H) + va + vb) / (H * H)
+    return c2, c3
+
+
+@wp.func
+def goal_pos(pa: wp.vec3, pb: wp.vec3, va: wp.vec3, vb: wp.vec3, H: float, s: float):
+    c2, c3 = hermite(pa, pb, va, vb, H)
     return pa + s * (va + s * (c2 + s * c3))
 
 
 @wp.func
 def goal_vel(pa: wp.vec3, pb: wp.vec3, va: wp.vec3, vb: wp.vec3, H: float, s: float):
-    c2 = ((pb - pa) * (3.0 / H) - 2.0 * va - vb) / H
-    c3 = ((pa - pb) * (2.0 / H) + va + vb) / (H * H)
+    c2, c3 = hermite(pa, pb, va, vb, H)
     return va + s * (2.0 * c2 + 3.0 * s * c3)
 
 
@@ -96,8 +103,7 @@ def kick_drift(
         pb = pos[seg + 1, i]
         va = vel_start[seg, i]
         vb = vel_end[seg, i]
-        c2 = ((pb - pa) * (3.0 / H) - 2.0 * va - vb) / H
-        c3 = ((pa - pb) * (2.0 / H) + va + vb) / (H * H)
+        c2, c3 = hermite(pa, pb, va, vb, H)
         g_vel = va + s0 * (2.0 * c2 + 3.0 * s0 * c3)
         g_acc = 2.0 * c2 + 6.0 * s0 * c3
         g_jerk = 6.0 * c3

@@ -51,7 +51,7 @@ from typing import Mapping, Sequence
 from rig.clip import Clip
 from rig.errors import InputError
 from rig.tomlfile import read_toml
-from sim.jiggle_params import ATTRIBUTES, OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
+from sim.jiggle_params import OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
 
 _JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump")
 _KNOWN = {"name": None, "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
@@ -106,7 +106,7 @@ def _override(mj: MuscleJiggle, table: Mapping, where: str, path: str | None, li
         return override(mj, dict(table), where)
     except InputError as e:
         key = e.field or ""
-        key = key[len(where) + 1:] if key.startswith(f"{where}.") else {a: k for k, a in ATTRIBUTES.items()}.get(key, key)
+        key = key[len(where) + 1:] if key.startswith(f"{where}.") else key   # override names the user's key
         message = e.message
         for prefix in (f"muscle {mj.name!r}: ", f"{where}: "):
             message = message.removeprefix(prefix)
