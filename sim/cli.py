@@ -198,14 +198,18 @@ def _joint_map(given, joint_names, option, owner):
 
 
 def _retarget_onto_character(clip, args):
+    return _retarget_clip(clip, args.character, args.skin, args.clip_map, args.character_map, print)
+
+
+def _retarget_clip(clip, character_file, skin=0, clip_map=None, character_map=None, log=print):
+    """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given or the built-in presets)."""
     from rig.gltf_skeleton import read_gltf_skeleton
     from rig.retarget import retarget
-    character = read_gltf_skeleton(args.character, args.skin)
-    clip_map = _joint_map(args.clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
-    char_map = _joint_map(args.character_map, character.joint_names, "--character-map", args.character)
-    out = retarget(clip, clip_map, character, char_map)
-    print(f"retargeted {clip.name!r} ({clip_map.name} map) onto {os.path.basename(args.character)} "
-          f"({char_map.name} map)")
+    character = read_gltf_skeleton(character_file, skin)
+    cmap = _joint_map(clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
+    chmap = _joint_map(character_map, character.joint_names, "--character-map", character_file)
+    out = retarget(clip, cmap, character, chmap)
+    log(f"retargeted {clip.name!r} ({cmap.name} map) onto {os.path.basename(character_file)} ({chmap.name} map)")
     return out
 
 
@@ -259,14 +263,15 @@ def default_scene() -> str:
 
 
 def cmd_demo(args) -> int:
-    from .scene import load_scene
-    scene = load_scene(args.scene or default_scene())
-    clip = scene.clip
-    if args.frames is not None:
-        clip = clip.frames(0, args.frames)
-    character = None if args.no_character else _generated_character(clip, args)
-    _play(clip, args.out, args.drive or scene.drive, args.poses, not args.no_render, fps=scene.fps,
-          character=character, skinning=args.skinning)
+    """Bake the built-in scene and compare static with dynamic: the README's first command."""
+    import time
+    t = time.perf_counter()
+    args.scene = args.scene or default_scene()
+    summary = run_bake(bake_request(args), args.out, resume=args.resume)
+    _print_bake(summary, args.out)
+    res = _compare(args.out, render=not args.no_render, video=not args.no_video)
+    report = res["files"].get("report", os.path.join(args.out, "report.html"))
+    print(f"demo done in {time.perf_counter() - t:.0f} s; open the report: {os.path.abspath(report)}")
     return 0
 
 
@@ -527,7 +532,128 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------- bake
+def bake_request(args):
+    """The BakeRequest of `jiggle bake` (or `jiggle demo`) arguments."""
+    from types import MappingProxyType
+    from .bake_setup import BakeRequest
+    from .scene import parse_formats
+    body = {k: getattr(args, k) for k in ("resolution", "belly", "chest", "glutes", "upper_arms")
+            if getattr(args, k, None) is not None}
+    formats = None if getattr(args, "formats", None) is None else parse_formats(args.formats)
+    return BakeRequest(
+        scene=getattr(args, "scene", None), clip=getattr(args, "clip", None), skeleton=getattr(args, "skeleton", None),
+        animation=getattr(args, "animation", None), scale=getattr(args, "scale", None),
+        tpose=getattr(args, "tpose", "auto"), character=getattr(args, "character", None),
+        template=getattr(args, "template", None), fps=args.fps, substeps=args.substeps, blend=args.blend,
+        jiggle=args.jiggle, start=args.start, end=args.end, frames=args.frames, drive=args.drive,
+        formats=formats, chunk=args.chunk, body=MappingProxyType(body), influences=args.influences,
+        skinning=args.skinning, method=args.method, joint_map=getattr(args, "joint_map", None),
+        clip_map=getattr(args, "clip_map", None), character_map=getattr(args, "character_map", None),
+        skin=getattr(args, "skin", None), unit=getattr(args, "unit", None))
+
+
+def run_bake(request, out_dir: str, resume: bool = False) -> dict:
+    """Prepare and bake with a progress bar; on Ctrl-C say how to resume and re-raise."""
+    from tqdm import tqdm
+    from .bake import bake
+    from .bake_setup import prepare
+
+    def log(s):
+        print(f"  {s}", file=sys.stderr)
+    setup = prepare(request, log)
+    T = len(setup.times)
+    print(f"baking {setup.name!r}: {T} frames at {setup.fps:g} fps ({setup.times[0]:.3f}-{setup.times[-1]:.3f} s), "
+          f"{setup.character.num_vertices} vertices, {setup.rig.M} muscles -> {os.path.abspath(out_dir)}",
+          file=sys.stderr)
+    with tqdm(total=T, unit="frame", desc="bake", disable=None, file=sys.stderr, dynamic_ncols=True) as bar:
+        try:
+            summary = bake(setup, out_dir, resume=resume, progress=bar.update, log=bar.write)
+        except KeyboardInterrupt:
+            bar.close()
+            print(f"jiggle: interrupted after {bar.n} of {T} frames; the chunks baked so far are kept in "
+                  f"{os.path.join(out_dir, '.partial')}: run the same command with --resume to finish", file=sys.stderr)
+            raise
+    return summary
+
+
+def _print_bake(summary: dict, out_dir: str) -> None:
+    tm = summary["timings"]
+    fps = tm.get("frames_per_s")
+    print(f"{summary['name']}: {summary['frames']} frames, {summary['vertices']} vertices, {summary['muscles']} "
+          f"muscles baked in {tm['frames_s']:.2f} s" + (f" ({fps:.0f} frames/s)" if fps else "") +
+          f", caches written in {tm['caches_s']:.2f} s")
+    for k, f in summary["files"].items():
+        print(f"  {k:5s} {os.path.join(out_dir, f)}")
+    print(f"  json  {os.path.join(out_dir, 'bake.json')}")
+
+
+def cmd_bake(args) -> int:
+    summary = run_bake(bake_request(args), args.out, resume=args.resume)
+    _print_bake(summary, args.out)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- compare
+def cmd_compare(args) -> int:
+    res = _compare(args.out_dir, render=not args.no_render, video=not args.no_video)
+    print(f"report: {res['files'].get('report', os.path.join(args.out_dir, 'report.html'))}")
+    return 0
+
+
+def _compare(out_dir: str, render: bool = True, video: bool = True) -> dict:
+    from .compare import compare
+    res = compare(out_dir, render=render, video=video)
+    m = res["metrics"]
+    skin = m.get("skin", {})
+    peak = skin.get("max_mm", skin.get("max_displacement_mm"))
+    print(f"compared static and dynamic in {out_dir}" + (f": skin moved up to {peak:.1f} mm" if peak is not None else ""))
+    for k, f in res["files"].items():
+        print(f"  {k:13s} {f}")
+    return res
+
+
 # ---------------------------------------------------------------------------------------- parser
+def _bake_options(p: argparse.ArgumentParser, out: str) -> None:
+    """Options shared by `jiggle bake` and `jiggle demo`."""
+    from .scene import FORMATS
+    p.add_argument("--out", default=out, help=f"output folder (default: {out})")
+    p.add_argument("--resume", action="store_true", help="finish the interrupted bake in --out (same parameters)")
+    g = p.add_argument_group("time")
+    g.add_argument("--fps", type=_positive("--fps"), metavar="N", help="output frames per second (default: the "
+                   "scene's, else 30)")
+    g.add_argument("--start", type=_non_negative("--start"), metavar="S", help="first frame, seconds of the clip "
+                   "(default: 0)")
+    g.add_argument("--end", type=_non_negative("--end"), metavar="E", help="last frame, seconds of the clip "
+                   "(default: its end)")
+    g.add_argument("--frames", type=_count("--frames"), metavar="N", help="only the first N output frames")
+    g.add_argument("--drive", choices=["kinematic", "physics"], help="kinematic: MuJoCo poses the skeleton from the "
+                   "clip; physics: MuJoCo simulates the body on a floor following it (default: the scene's, else "
+                   "kinematic)")
+    g = p.add_argument_group("jiggle (over the scene's [jiggle] section)")
+    g.add_argument("--substeps", type=_count("--substeps"), metavar="N", help="integration steps per output frame "
+                   "(default: 4)")
+    g.add_argument("--blend", type=_unit_interval("--blend"), metavar="B", help="static_dyn_blend of every muscle: "
+                   "0 static, 1 dynamic (default: the scene's curves, else 1)")
+    g.add_argument("--jiggle", type=_unit_interval("--jiggle"), metavar="J", help="jiggle strength of every muscle "
+                   "in [0, 1] (default: each muscle's, 1)")
+    g = p.add_argument_group("caches")
+    g.add_argument("--formats", metavar="LIST", help=f"comma-separated cache formats: {', '.join(FORMATS)} "
+                   "(default: the scene's, else npz,usdc)")
+    g.add_argument("--chunk", type=_count("--chunk"), metavar="N", help="frames per chunk written and resumed "
+                   "(default: 64)")
+    g = p.add_argument_group("skin")
+    g.add_argument("--skinning", choices=["shell", "influence"], help="how the muscles move the skin (default: shell)")
+    g.add_argument("--method", choices=["lbs", "dqs"], help="smooth skinning underneath (default: lbs)")
+    g.add_argument("--influences", type=_count("--influences"), metavar="K", help="skin weights kept per vertex "
+                   "(default: 4)")
+    g.add_argument("--resolution", type=_count("--resolution"), metavar="N",
+                   help="generated body: target vertex count (default: the scene's, else 20000)")
+    for name in ("belly", "chest", "glutes", "upper-arms"):
+        g.add_argument(f"--{name}", type=_non_negative(f"--{name}"), metavar="M",
+                       help=f"generated body: metres of fat on the {name.replace('-', ' ')}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     top = _Parser(prog="jiggle", description=(
         "Physics-backed muscle jiggle and secondary motion for animated characters. "
@@ -577,18 +703,50 @@ def build_parser() -> argparse.ArgumentParser:
     _clip_options(p)
     p.set_defaults(func=cmd_play)
 
-    p = sub.add_parser("demo", help="run the built-in demo (no files needed)",
-                       description="Run the built-in default scene: a skeleton doing jumping jacks, keyframed by "
-                                   "the project, played through MuJoCo; writes the skeleton picture, trajectory "
-                                   "plot and motion data to --out.")
-    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    p = sub.add_parser("demo", help="bake and compare the built-in demo (no files needed)",
+                       description="The built-in scene (scenes/default.toml): a body generated by jiggle, with "
+                                   "belly fat, doing jumping jacks keyframed by the project; its muscles and fat "
+                                   "are fitted, jiggled, baked into caches and compared, static against dynamic, "
+                                   "in --out (default out/demo). Ends by printing where report.html is.")
     p.add_argument("--scene", help="scene TOML (default: the built-in scenes/default.toml)")
-    p.add_argument("--frames", type=_count("--frames"), help="only the first N frames (for a quick check)")
-    p.add_argument("--drive", choices=["kinematic", "physics"], help="override the scene's skeleton drive")
-    p.add_argument("--poses", type=_count("--poses"), default=8, help="poses in the skeleton picture (default: 8)")
-    p.add_argument("--no-render", action="store_true", help="skip the 3D picture")
-    _character_options(p)
+    _bake_options(p, "out/demo")
+    p.add_argument("--no-render", action="store_true", help="compare without renders (plots and numbers only)")
+    p.add_argument("--no-video", action="store_true", help="compare without the video")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("bake", help="bake jiggle for a clip into caches (USD, npz, pc2)",
+                       description="Clip -> MuJoCo skeleton -> static muscles -> particles -> blend -> skinning -> "
+                                   "caches. Writes bake.npz, bake.usdc (or .usda) and optionally bake.pc2, with "
+                                   "bake.json (parameters, timings), into --out. Long bakes are written in chunks: "
+                                   "Ctrl-C keeps the chunks done and --resume finishes the bake, equal to an "
+                                   "unbroken one. Without a scene or --clip: the built-in demo scene. "
+                                   "Command-line settings override the scene's.")
+    p.add_argument("scene", nargs="?", metavar="SCENE", help="a scene TOML (scenes/*.toml); its [motion] may be left "
+                   "out and given with --clip")
+    p.add_argument("--clip", metavar="FILE", help="the motion: BVH, AMC (its ASF beside it or --skeleton) or "
+                   "glTF/GLB with animations (--animation)")
+    p.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB: the clip is retargeted onto it "
+                   "(default: the scene's, else a body generated around the clip's skeleton)")
+    p.add_argument("--template", metavar="T", help="muscle template: built-in name or .toml/.xml (default: human)")
+    _bake_options(p, "out/bake")
+    g = p.add_argument_group("character")
+    g.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles")
+    _map_options(g)
+    _mesh_options(g)
+    _clip_options(p)
+    p.set_defaults(func=cmd_bake)
+
+    p = sub.add_parser("compare", help="compare static and dynamic deformation of a bake",
+                       description="Read OUT_DIR/bake.npz and write, into OUT_DIR: metrics.json (per-vertex "
+                                   "maximum and RMS displacement of the final skin from the static one, per-muscle "
+                                   "jiggle amplitude, energy and dominant frequency), plots (amplitude, energy, "
+                                   "spectrum, displacement), renders (static | dynamic at the frame of peak jiggle "
+                                   "with a displacement heat map, a video of the clip) and report.html, one "
+                                   "self-contained page showing them all.")
+    p.add_argument("out_dir", metavar="OUT_DIR", help="a folder baked by `jiggle bake --out OUT_DIR`")
+    p.add_argument("--no-render", action="store_true", help="skip the renders and the video")
+    p.add_argument("--no-video", action="store_true", help="skip the video only")
+    p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("body", help="generate a body mesh around a skeleton, with automatic weights",
                        description="Generate a smooth, closed body around a skeleton (proportions from its bone "

@@ -92,11 +92,17 @@ def equilibrium(model: ParticleModel) -> np.ndarray:
 
 
 def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps: int = 4,
-        preroll: float = 0.0, solver: ParticleSolver | None = None) -> np.ndarray:
+        preroll: float = 0.0, solver: ParticleSolver | None = None, *, start=None,
+        return_state: bool = False):
     """Particle positions (T, N, 3) float64 at out_times (T,) seconds, increasing, inside the track.
 
     substeps : steps per output interval (more where knots or the spring limit need them).
     preroll : seconds (see the module docstring); 0 starts on the goals.
+    start : None, or (x, v) (N, 3) float32 positions (m) and velocities (m/s) at out_times[0], to go on
+        from an earlier run that ended there (a chunked bake); out[0] is then start's x and preroll must
+        be 0. Going on from the state a run returned, with the same step grid, repeats the steps an
+        unbroken run would take, so the chunks of a bake do not depend on where it was interrupted.
+    return_state : also return the (x, v) float32 state at out_times[-1]: ``(positions, (x, v))``.
     """
     out_times = np.asarray(out_times, dtype=np.float64)
     if out_times.ndim != 1 or len(out_times) == 0 or np.any(np.diff(out_times) <= 0):
@@ -104,9 +110,11 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     if out_times[0] < track.times[0] - TIME_EPS or out_times[-1] > track.times[-1] + TIME_EPS:
         raise InputError(f"output times [{out_times[0]:.4f}, {out_times[-1]:.4f}] s run outside the goal track "
                          f"[{track.times[0]:.4f}, {track.times[-1]:.4f}] s", field="times")
+    if start is not None and preroll > 0:
+        raise InputError("a run that goes on from a given state has no preroll", field="preroll")
     solver = solver or ParticleSolver(model)
     t0 = out_times[0]
-    start = np.array([t0])
+    given, start = start, np.array([t0])
     if preroll > 0:
         # bind pose -> first frame over preroll / 2, then hold; knots at the track's first spacing
         g0 = track.sample(t0)[0]
@@ -125,7 +133,13 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     grid = step_times(np.concatenate([start, out_times]) if preroll > 0 else out_times, track.times, substeps,
                       solver.max_step)
     state, nxt = model.state(), model.state()
-    if preroll > 0:
+    if given is not None:
+        x, v = (np.asarray(a, dtype=np.float32) for a in given)
+        if x.shape != (model.num_particles, 3) or v.shape != x.shape:
+            raise InputError(f"a start state must be two ({model.num_particles}, 3) arrays, got {x.shape} and "
+                             f"{v.shape}", field="start")
+        state.assign(x, v)
+    elif preroll > 0:
         state.assign(model.rest, np.zeros_like(model.rest))
     else:
         solver.glue(state, control, t0)
@@ -160,6 +174,9 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         solver.integrate(state, nxt, control, grid[g:e + 1], on_step=lambda k, x, g=g: record(g + k, x))
         state, nxt = nxt, state
         g = e
+    if return_state:
+        x, v = state.numpy()
+        return out, (np.array(x, dtype=np.float32), np.array(v, dtype=np.float32))
     return out
 
 

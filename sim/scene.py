@@ -4,19 +4,33 @@ default is scenes/default.toml).
 Layout (paths relative to the scene file)::
 
     name = "default"
-    [motion]
+    builtin = "simple_arm"        # optional: a scene made in code (scenes/simple_arm.py, the thesis's
+                                  # example: its cylinder, muscle and flex); no [motion]/[character] then
+    [motion]                      # optional: without it, `jiggle bake SCENE --clip FILE` gives the motion
     file = "jumping_jacks.toml"   # keyframed TOML (rig.keyframes) or any clip: BVH, AMC, glTF;
                                   # ${VAR} takes an environment variable ("${JIGGLE_ASSETS}/mocap/...")
     skeleton = "01.asf"           # optional, for an AMC (${VAR} too)
     animation = 0                 # optional, for glTF
     start = 0.0                   # optional, seconds
     end = 2.0                     # optional, seconds
+    [character]                   # optional: default a body generated around the clip's skeleton
+    file = "${JIGGLE_ASSETS}/characters/CesiumMan.glb"   # a skinned glTF/GLB (the clip is retargeted)
+    skin = 0                      # which skin of the glTF
+    unit = "m"                    # the file's unit
+    template = "human"            # muscle template: built-in name or .toml/.xml (relative to the scene)
+    resolution = 20000            # generated body: vertex count; belly, chest, glutes, upper_arms:
+    belly = 0.04                  #   metres of fat (rig.body.BodyOptions)
+    influences = 4                # skin weights kept per vertex
+    skinning = "shell"            # how muscles move the skin: "shell" or "influence"
+    method = "lbs"                # smooth skinning underneath: "lbs" or "dqs"
     [skeleton]
     drive = "kinematic"           # or "physics"
     [output]
     fps = 60                      # optional, default the clip's
     focus = ["belly_fat"]         # optional: muscles `jiggle simulate` frames and draws (default: the
                                   # most jiggling ones)
+    formats = ["npz", "usdc"]     # `jiggle bake` caches: npz, usdc or usda, pc2
+    chunk = 64                    # `jiggle bake` frames per chunk written (and resumed)
     [jiggle]                      # optional: the secondary motion (`jiggle simulate`), sim.jiggle_params
     substeps = 4                  # integration steps per output frame, >= 1
     goal_rate = 120               # Hz, goal sampling (default max(120, fps))
@@ -54,8 +68,34 @@ from rig.tomlfile import read_toml
 from sim.jiggle_params import OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
 
 _JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump")
-_KNOWN = {"name": None, "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
-          "skeleton": {"drive"}, "output": {"fps", "focus"}, "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}}
+_BODY = ("resolution", "belly", "chest", "glutes", "upper_arms")
+_CHARACTER = {"file", "skin", "unit", "template", "influences", "skinning", "method", *_BODY}
+_KNOWN = {"name": None, "builtin": None,
+          "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
+          "character": _CHARACTER, "skeleton": {"drive"}, "output": {"fps", "focus", "formats", "chunk"},
+          "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}}
+BUILTINS = ("simple_arm",)
+FORMATS = ("npz", "usdc", "usda", "pc2")
+"""Cache formats `jiggle bake` writes (usdc and usda are one USD stage, crate or text)."""
+
+
+@dataclass(frozen=True)
+class CharacterSpec:
+    """A scene's [character] table, checked; None: not given (the command's default applies).
+
+    file : absolute path of a skinned glTF/GLB, None for a body generated around the clip's skeleton.
+    template : a built-in template name or an absolute .toml/.xml path.
+    body : BodyOptions keywords for a generated body (resolution, belly, chest, glutes, upper_arms).
+    """
+
+    file: str | None = None
+    skin: int | None = None
+    unit: str | None = None
+    template: str | None = None
+    body: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    influences: int | None = None
+    skinning: str | None = None
+    method: str | None = None
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
 
@@ -67,16 +107,24 @@ class Scene:
     muscle_jiggle : muscle name -> its [jiggle.muscles.NAME] table (keys of
         sim.jiggle_params.OVERRIDES, values checked; blends parsed to BlendCurve), read-only.
     focus : muscles the pictures frame ([output] focus), () for the default.
+    clip : the motion, None when the scene has no [motion] (the command line gives it) or is built in.
+    character : the [character] table (CharacterSpec). builtin : a scene made in code (BUILTINS).
+    formats : `jiggle bake` cache formats ([output] formats), None for the default. chunk : frames
+        per bake chunk, None for the default.
     """
 
     name: str
     path: str
-    clip: Clip
+    clip: Clip | None
     drive: str
     fps: float | None
     jiggle: JiggleSettings | None = None
     muscle_jiggle: Mapping[str, Mapping] = field(default_factory=lambda: MappingProxyType({}))
     focus: tuple[str, ...] = ()
+    character: CharacterSpec = CharacterSpec()
+    builtin: str | None = None
+    formats: tuple[str, ...] | None = None
+    chunk: int | None = None
 
     def apply_jiggle(self, jiggles: Sequence) -> list:
         """`jiggles` (sim.jiggle_params.MuscleJiggle, one per muscle of the rig) with this scene's
@@ -144,10 +192,65 @@ def load_scene(path: str | os.PathLike) -> Scene:
                 if k not in _KNOWN[key]:
                     raise InputError(f"unknown key; expected one of {', '.join(sorted(_KNOWN[key]))}", p,
                                      lines.key(key, k), field=f"{key}.{k}")
-    motion = doc.get("motion", {})
-    if "file" not in motion:
-        raise InputError("a scene needs a motion file", p, field="motion.file")
     here = os.path.dirname(os.path.abspath(p))
+    builtin = doc.get("builtin")
+    if builtin is not None:
+        if builtin not in BUILTINS:
+            raise InputError(f"unknown built-in scene {builtin!r}; expected one of {', '.join(BUILTINS)}", p,
+                             lines.key("", "builtin"), field="builtin")
+        for key in ("motion", "character"):
+            if key in doc:
+                raise InputError(f"a built-in scene ({builtin}) makes its own {key}; remove [{key}]", p,
+                                 lines.table(key), field=key)
+    motion = doc.get("motion", {})
+    if motion and "file" not in motion:
+        raise InputError("[motion] needs a file (or leave [motion] out and give --clip)", p,
+                         lines.table("motion"), field="motion.file")
+    clip = None if not motion else _read_motion(motion, p, here, lines)
+    drive = doc.get("skeleton", {}).get("drive", "kinematic")
+    if drive not in ("kinematic", "physics"):
+        raise InputError(f"expected 'kinematic' or 'physics', found {drive!r}", p, field="skeleton.drive")
+    output = doc.get("output", {})
+    fps = output.get("fps")
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0):
+        raise InputError(f"expected a positive number, found {fps!r}", p, lines.key("output", "fps"), field="output.fps")
+    focus = output.get("focus", [])
+    focus = [focus] if isinstance(focus, str) else focus
+    if not isinstance(focus, list) or not all(isinstance(f, str) and f for f in focus):
+        raise InputError(f"expected a muscle name or a list of them, found {focus!r}", p,
+                         lines.key("output", "focus"), field="output.focus")
+    formats = output.get("formats")
+    if formats is not None:
+        formats = parse_formats(formats, p, lines.key("output", "formats"), "output.formats")
+    chunk = output.get("chunk")
+    if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1):
+        raise InputError(f"expected a whole number >= 1 of frames, found {chunk!r}", p, lines.key("output", "chunk"),
+                         field="output.chunk")
+    character = _character(doc.get("character", {}), p, here, lines)
+    settings, tables = (None, {}) if "jiggle" not in doc else _jiggle_section(doc["jiggle"], p, lines)
+    return Scene(name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), path=p, clip=clip,
+                 drive=drive, fps=None if fps is None else float(fps), jiggle=settings,
+                 muscle_jiggle=MappingProxyType(tables), focus=tuple(focus), character=character,
+                 builtin=builtin, formats=formats, chunk=chunk)
+
+
+def parse_formats(value, path=None, line=None, where="--formats") -> tuple[str, ...]:
+    """Cache formats from a list (or a comma-separated string): a tuple of FORMATS, no duplicates,
+    at most one of usdc/usda; InputError naming `where` otherwise."""
+    items = value.split(",") if isinstance(value, str) else value
+    if not isinstance(items, (list, tuple)) or not items or not all(isinstance(f, str) for f in items):
+        raise InputError(f"expected a list of {', '.join(FORMATS)}, found {value!r}", path, line, field=where)
+    items = [f.strip().lower().lstrip(".") for f in items]
+    bad = [f for f in items if f not in FORMATS]
+    if bad:
+        raise InputError(f"unknown cache format {', '.join(map(repr, bad))}; expected some of {', '.join(FORMATS)}",
+                         path, line, field=where)
+    if "usdc" in items and "usda" in items:
+        raise InputError("usdc and usda are the same stage; pick one", path, line, field=where)
+    return tuple(dict.fromkeys(items))
+
+
+def _read_motion(motion: dict, p: str, here: str, lines: "_Lines") -> Clip:
     mfile = os.path.join(here, expand_path(motion["file"], p, "motion.file", lines.key("motion", "file")))
     if not os.path.isfile(mfile):
         raise InputError(f"motion file {mfile} not found", p, lines.key("motion", "file"), field="motion.file")
@@ -162,21 +265,47 @@ def load_scene(path: str | os.PathLike) -> Scene:
                          tpose=motion.get("tpose", "auto"))
     if "start" in motion or "end" in motion:
         clip = clip.between(float(motion.get("start", 0.0)), motion.get("end"))
-    drive = doc.get("skeleton", {}).get("drive", "kinematic")
-    if drive not in ("kinematic", "physics"):
-        raise InputError(f"expected 'kinematic' or 'physics', found {drive!r}", p, field="skeleton.drive")
-    fps = doc.get("output", {}).get("fps")
-    if fps is not None and (not isinstance(fps, (int, float)) or not fps > 0):
-        raise InputError(f"expected a positive number, found {fps!r}", p, field="output.fps")
-    focus = doc.get("output", {}).get("focus", [])
-    focus = [focus] if isinstance(focus, str) else focus
-    if not isinstance(focus, list) or not all(isinstance(f, str) and f for f in focus):
-        raise InputError(f"expected a muscle name or a list of them, found {focus!r}", p,
-                         lines.key("output", "focus"), field="output.focus")
-    settings, tables = (None, {}) if "jiggle" not in doc else _jiggle_section(doc["jiggle"], p, lines)
-    return Scene(name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), path=p, clip=clip,
-                 drive=drive, fps=None if fps is None else float(fps), jiggle=settings,
-                 muscle_jiggle=MappingProxyType(tables), focus=tuple(focus))
+    return clip
+
+
+def _character(table: dict, p: str, here: str, lines: "_Lines") -> CharacterSpec:
+    """The [character] table checked, paths expanded and made absolute."""
+    def at(k):
+        return lines.key("character", k)
+    kw, body = {}, {}
+    for k, v in table.items():
+        where = f"character.{k}"
+        if k in ("file", "template"):
+            if k == "template" and isinstance(v, str) and v and not v.lower().endswith((".toml", ".xml")):
+                kw[k] = v                                   # a built-in template's name
+                continue
+            f = os.path.join(here, expand_path(v, p, where, at(k)))
+            if not os.path.isfile(f):
+                raise InputError(f"file {f} not found", p, at(k), field=where)
+            kw[k] = f
+        elif k in ("skinning", "method"):
+            choices = ("shell", "influence") if k == "skinning" else ("lbs", "dqs")
+            if v not in choices:
+                raise InputError(f"expected one of {', '.join(choices)}, found {v!r}", p, at(k), field=where)
+            kw[k] = v
+        elif k == "unit":
+            if not isinstance(v, (str, int, float)) or isinstance(v, bool):
+                raise InputError(f"expected a unit (m, cm, mm, in, ft) or metres per unit, found {v!r}", p, at(k),
+                                 field=where)
+            kw[k] = str(v)
+        elif k in ("skin", "influences", "resolution"):
+            least = 0 if k == "skin" else 1
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise InputError(f"expected a whole number >= {least}, found {v!r}", p, at(k), field=where)
+            (body if k == "resolution" else kw)[k] = v
+        else:                                               # fat volumes, metres
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
+                raise InputError(f"expected metres >= 0, found {v!r}", p, at(k), field=where)
+            body[k] = float(v)
+    if body and "file" in kw:
+        raise InputError(f"{', '.join(body)} shape a generated body; a character file has its own shape", p,
+                         at(next(iter(body))), field=f"character.{next(iter(body))}")
+    return CharacterSpec(body=MappingProxyType(body), **kw)
 
 
 def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
