@@ -46,6 +46,8 @@ SUMMARY = "bake.json"
 MARGIN = 3
 """Goal knots past each end of a chunk (>= 2: a knot velocity needs its two neighbours, a cut test
 an interval's two neighbours)."""
+PAUSE_ENV = "JIGGLE_BAKE_PAUSE"
+"""Seconds to wait after each chunk is written (0 when unset): lets a test kill a bake between chunks."""
 CACHE_NAMES = {"npz": "bake.npz", "usdc": "bake.usdc", "usda": "bake.usda", "pc2": "bake.pc2"}
 
 
@@ -235,6 +237,8 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         t = time.perf_counter()
         _save_chunk(chunk_path(out_dir, c), arrays)
         baker.timings["write_s"] += time.perf_counter() - t
+        if os.environ.get(PAUSE_ENV):
+            time.sleep(float(os.environ[PAUSE_ENV]))
         if progress is not None:
             f0, f1 = chunk_frames(setup, c)
             progress(f1 - f0)

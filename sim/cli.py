@@ -568,7 +568,8 @@ def run_bake(request, out_dir: str, resume: bool = False) -> dict:
           file=sys.stderr)
     with tqdm(total=T, unit="frame", desc="bake", disable=None, file=sys.stderr, dynamic_ncols=True) as bar:
         try:
-            summary = bake(setup, out_dir, resume=resume, progress=bar.update, log=bar.write)
+            summary = bake(setup, out_dir, resume=resume, progress=bar.update,
+                           log=lambda s: bar.write(f"  {s}", file=sys.stderr))
         except KeyboardInterrupt:
             bar.close()
             print(f"jiggle: interrupted after {bar.n} of {T} frames; the chunks baked so far are kept in "

@@ -1,0 +1,236 @@
+"""`jiggle bake`: an end-to-end bake of a tiny scene, the caches read back (USD equals npz), a killed
+bake resumed equals an unbroken one bit for bit, blend 0 gives the static skin exactly, and bad
+input (missing files, unwritable folders, a full disk, other parameters on --resume) is one clear
+line with exit code 2 and leaves no cache that looks complete."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim.caches import read_npz
+from sim.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+ARM = str(ROOT / "scenes" / "simple_arm.toml")
+KEYS = ("skin_static", "skin_final", "times", "joint_world", "muscle_cvs_static", "muscle_cvs_dynamic",
+        "muscle_cv_offsets", "faces", "muscle_faces")
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def bake_arm(capsys, out, *extra):
+    code, o, err = run(capsys, "bake", ARM, "--out", str(out), "--fps", "60", "--chunk", "16", *extra)
+    assert code == 0, err
+    return o, err
+
+
+@pytest.fixture(scope="module")
+def arm_bake(tmp_path_factory):
+    """One unbroken bake of the simple arm (93 frames at 60 fps, chunks of 16), with every format."""
+    out = tmp_path_factory.mktemp("arm")
+    assert main(["bake", ARM, "--out", str(out), "--fps", "60", "--chunk", "16",
+                 "--formats", "npz,usda,pc2"]) == 0
+    return out
+
+
+def same_bake(a: Path, b: Path) -> None:
+    da, db = read_npz(a / "bake.npz"), read_npz(b / "bake.npz")
+    for k in KEYS:
+        np.testing.assert_array_equal(getattr(da, k), getattr(db, k), err_msg=k)
+    assert da.params == db.params and da.fps == db.fps
+
+
+def test_bake_writes_every_cache_and_the_arm_jiggles(arm_bake):
+    files = {p.name for p in arm_bake.iterdir()}
+    assert {"bake.npz", "bake.usda", "bake.pc2", "bake.json"} <= files and ".partial" not in files
+    assert not [f for f in files if ".tmp" in f]
+    d = read_npz(arm_bake / "bake.npz")
+    assert d.num_frames == 93 and d.fps == 60.0
+    np.testing.assert_allclose(d.times, np.arange(93) / 60.0, atol=1e-12)
+    assert d.joint_names == ("shoulder", "elbow", "wrist") or len(d.joint_names) == 3
+    assert d.muscle_names == ("biceps",) and d.muscle_cvs_dynamic.shape == (93, 40, 3)
+    move = np.linalg.norm(d.skin_final - d.skin_static, axis=2).max(axis=1)
+    cv = np.linalg.norm(d.muscle_cvs_dynamic - d.muscle_cvs_static, axis=2).max(axis=1)
+    assert move[0] < 1e-6 and cv[0] < 1e-6               # starts settled on the static shape
+    assert cv.max() > 5e-3 and move.max() > 2e-3         # the biceps overshoots by mm, the skin follows
+    params = json.loads(d.params)
+    assert params["muscles"]["biceps"]["mass_kg"] > 0 and params["fps"] == 60.0
+    summary = json.loads((arm_bake / "bake.json").read_text())
+    assert summary["frames"] == 93 and summary["chunks"] == 6 and summary["timings"]["frames_per_s"] > 0
+
+
+def test_usd_read_back_equals_npz(arm_bake):
+    from pxr import Usd, UsdGeom
+    d = read_npz(arm_bake / "bake.npz")
+    stage = Usd.Stage.Open(str(arm_bake / "bake.usda"))
+    assert stage.GetTimeCodesPerSecond() == 60.0 and UsdGeom.GetStageUpAxis(stage) == "Z"
+    for name in ("skin_static", "skin_final"):
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(f"/jiggle/{name}"))
+        assert np.array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), d.faces)
+        for k in (0, 17, 50, 92):
+            pts = np.array(mesh.GetPointsAttr().Get(k), dtype=np.float32)
+            np.testing.assert_array_equal(pts, getattr(d, name)[k], err_msg=f"{name} frame {k}")
+        assert len(mesh.GetNormalsAttr().Get(10)) == d.skin_static.shape[1]
+    biceps = UsdGeom.Mesh(stage.GetPrimAtPath("/jiggle/muscles/biceps"))
+    assert biceps and len(biceps.GetPointsAttr().Get(40)) > 40
+
+
+def test_pc2_holds_the_final_skin(arm_bake):
+    from sim.caches import read_pc2
+    pc = read_pc2(arm_bake / "bake.pc2")
+    np.testing.assert_array_equal(pc.points, read_npz(arm_bake / "bake.npz").skin_final)
+
+
+def test_interrupted_bake_resumes_to_the_same_caches(capsys, tmp_path, arm_bake, monkeypatch):
+    """Ctrl-C in chunk 3: exit 130, a message naming --resume, no cache; --resume finishes it equal."""
+    from sim import bake as bake_mod
+    real = bake_mod.Baker.chunk
+
+    def chunk(self, c, state):
+        if c == 3:
+            raise KeyboardInterrupt
+        return real(self, c, state)
+    monkeypatch.setattr(bake_mod.Baker, "chunk", chunk)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+                         "--formats", "npz,usda,pc2")
+    assert code == 130 and "--resume" in err
+    assert sorted(p.name for p in (tmp_path / ".partial").glob("chunk_*")) == [f"chunk_0000{i}.npz" for i in range(3)]
+    assert not (tmp_path / "bake.npz").exists()
+    monkeypatch.setattr(bake_mod.Baker, "chunk", real)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+                         "--formats", "npz,usda,pc2", "--resume")
+    assert code == 0, err
+    assert "3 of 6 chunks already baked" in err
+    same_bake(tmp_path, arm_bake)
+    assert (tmp_path / "bake.pc2").read_bytes() == (arm_bake / "bake.pc2").read_bytes()
+    assert json.loads((tmp_path / "bake.json").read_text())["resumed_after_chunks"] == 3
+
+
+def test_killed_bake_resumes_to_the_same_caches(tmp_path, arm_bake):
+    """A real kill (SIGKILL, no clean-up at all) between chunks, then --resume in a new process."""
+    cmd = [sys.executable, "-m", "sim.cli", "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+           "--formats", "npz,usda,pc2"]
+    env = {**os.environ, "JIGGLE_BAKE_PAUSE": "0.5", "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    target = tmp_path / ".partial" / "chunk_00001.npz"
+    deadline = time.time() + 120
+    while not target.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert target.exists(), proc.stderr.read().decode()
+    assert not (tmp_path / "bake.npz").exists()
+    env.pop("JIGGLE_BAKE_PAUSE")
+    done = subprocess.run(cmd + ["--resume"], cwd=ROOT, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "chunks already baked" in done.stderr
+    same_bake(tmp_path, arm_bake)
+
+
+def test_blend_zero_bakes_the_static_skin_exactly(capsys, tmp_path):
+    bake_arm(capsys, tmp_path, "--blend", "0", "--formats", "npz")
+    d = read_npz(tmp_path / "bake.npz")
+    np.testing.assert_array_equal(d.skin_final, d.skin_static)
+    np.testing.assert_array_equal(d.muscle_cvs_dynamic, d.muscle_cvs_static)
+
+
+def test_jiggle_zero_stays_static(capsys, tmp_path):
+    bake_arm(capsys, tmp_path, "--jiggle", "0", "--formats", "npz", "--frames", "40")
+    d = read_npz(tmp_path / "bake.npz")
+    assert np.abs(d.muscle_cvs_dynamic - d.muscle_cvs_static).max() < 1e-5
+
+
+def test_chunk_size_does_not_change_the_motion(capsys, tmp_path, arm_bake):
+    """Chunks only split the work: 16 and 50 frames per chunk agree to float32 rounding."""
+    bake_arm(capsys, tmp_path, "--chunk", "50", "--formats", "npz")
+    a, b = read_npz(tmp_path / "bake.npz"), read_npz(arm_bake / "bake.npz")
+    assert np.abs(a.muscle_cvs_dynamic - b.muscle_cvs_dynamic).max() < 1e-5
+    assert np.abs(a.skin_final - b.skin_final).max() < 1e-5
+
+
+def test_resume_with_other_parameters_is_refused(capsys, tmp_path, monkeypatch):
+    from sim import bake as bake_mod
+    real = bake_mod.Baker.chunk
+
+    def chunk(self, c, state):
+        if c == 1:
+            raise KeyboardInterrupt
+        return real(self, c, state)
+    monkeypatch.setattr(bake_mod.Baker, "chunk", chunk)
+    assert run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "16", "--formats", "npz")[0] == 130
+    monkeypatch.setattr(bake_mod.Baker, "chunk", real)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "16", "--formats", "npz",
+                         "--substeps", "7", "--resume")
+    assert code == 2 and "other parameters" in err and "settings.substeps" in err
+    assert (tmp_path / ".partial" / "chunk_00000.npz").exists()      # nothing lost
+
+
+def test_resume_without_an_unfinished_bake(capsys, tmp_path, arm_bake):
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--resume")
+    assert code == 2 and "no unfinished bake" in err and str(tmp_path) in err
+    code, out, err = run(capsys, "bake", ARM, "--out", str(arm_bake), "--fps", "60", "--chunk", "16",
+                         "--formats", "npz,usda,pc2", "--resume")
+    assert code == 2 and "already finished" in err
+
+
+def test_full_disk_leaves_no_cache_that_looks_complete(capsys, tmp_path, monkeypatch):
+    """ENOSPC while writing the npz: exit 2 naming the file, no bake.npz, the chunks kept to resume."""
+    import errno
+    from sim import caches
+
+    savez = np.savez
+
+    def full(fh, **arrays):                       # the chunks fit, the final cache does not
+        if ".bake." in os.path.basename(getattr(fh, "name", "")):
+            fh.write(b"PK\x03\x04 partial")
+            raise OSError(errno.ENOSPC, "No space left on device")
+        savez(fh, **arrays)
+    monkeypatch.setattr(caches.np, "savez", full)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "64", "--formats", "npz")
+    assert code == 2 and "No space left on device" in err and "bake.npz" in err
+    assert not (tmp_path / "bake.npz").exists() and not list(tmp_path.glob(".bake*"))
+    assert not (tmp_path / "bake.json").exists()
+    monkeypatch.undo()
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "64", "--formats", "npz", "--resume")
+    assert code == 0, err
+    assert read_npz(tmp_path / "bake.npz").num_frames > 0
+
+
+def test_bad_input_is_one_line_with_exit_code_2(capsys, tmp_path):
+    (tmp_path / "file").write_text("x")
+    cases = [
+        (["bake", "--clip", str(tmp_path / "missing.bvh"), "--out", str(tmp_path / "o")], "missing.bvh"),
+        (["bake", ARM, "--out", str(tmp_path / "file" / "sub")], "file"),
+        (["bake", ARM, "--out", str(tmp_path / "o"), "--formats", "npz,fbx"], "fbx"),
+        (["bake", ARM, "--out", str(tmp_path / "o"), "--formats", "usdc,usda"], "pick one"),
+        (["bake", ARM, "--clip", str(ROOT / "scenes" / "motions" / "jumping_jacks.toml"),
+          "--out", str(tmp_path / "o")], "--clip"),
+        (["bake", ARM, "--out", str(tmp_path / "o"), "--start", "5"], "start"),
+        (["bake", str(ROOT / "scenes" / "belly_bvh.toml"), "--out", str(tmp_path / "o")], "--clip"),
+    ]
+    for argv, needle in cases:
+        code, out, err = run(capsys, *argv)
+        assert code == 2, (argv, err)
+        assert needle in err and "Traceback" not in err, (argv, err)
+        assert len(err.strip().splitlines()) <= 3, err
+
+
+def test_unknown_scene_key_lists_the_valid_ones(capsys, tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('builtin = "simple_arm"\n[output]\nfps = 30\nformat = ["npz"]\n')
+    code, out, err = run(capsys, "bake", str(p), "--out", str(tmp_path / "o"))
+    assert code == 2 and "s.toml:4:" in err and "output.format" in err
+    assert "chunk, focus, formats, fps" in err
+    p.write_text('[charactr]\nfile = "x.glb"\n')
+    code, out, err = run(capsys, "bake", str(p), "--out", str(tmp_path / "o"))
+    assert code == 2 and "character" in err and "motion" in err
