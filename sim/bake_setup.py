@@ -187,6 +187,9 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
     character_file = req.character or (spec.file if spec is not None else None)
     source = clip
     body = None
+    if character_file is not None and req.body:
+        raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
+                         f"the character {os.path.basename(character_file)} has its own", field="--character")
     if character_file is not None:
         from .cli import _retarget_clip
         clip = _retarget_clip(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log)

@@ -1,5 +1,6 @@
-"""The command line: help, inspect, demo/play outputs, and bad input as one line with exit code 2."""
+"""The command line: help, inspect, play outputs, and bad input as one line with exit code 2."""
 import json
+from pathlib import Path
 import os
 import shutil
 import subprocess
@@ -48,9 +49,12 @@ def test_inspect_mjcf(capsys):
     assert code == 0 and rep["nq"] == 63 and rep["joint_types"] == {"free": 1, "hinge": 56}
 
 
-def test_demo_writes_pictures_and_motion(capsys, tmp_path):
-    out_dir = tmp_path / "demo"
-    code, out, err = run(capsys, "demo", "--out", str(out_dir), "--frames", "40", "--poses", "4")
+def test_play_writes_pictures_and_motion(capsys, tmp_path):
+    """`jiggle play` on the demo's own keyframed motion (the demo itself bakes: tests/test_demo.py)."""
+    out_dir = tmp_path / "play"
+    motion = Path(__file__).resolve().parents[1] / "scenes" / "motions" / "jumping_jacks.toml"
+    code, out, err = run(capsys, "play", str(motion), "--out", str(out_dir), "--fps", "60", "--end", "0.65",
+                         "--poses", "4")
     assert code == 0, err
     for f in ("skeleton.png", "trajectories.png", "motion.npz", "summary.json", "character.png"):
         assert (out_dir / f).stat().st_size > 0

@@ -29,12 +29,26 @@ def test_there_is_a_default_scene():
 
 
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)
-def test_scene_runs_reduced(path):
+def test_scene_bakes_reduced(path, tmp_path):
+    """Every scene bakes (8 frames, a coarse generated body) into a cache with finite, moving skin;
+    a scene without [motion] takes the clip from --clip (a CMU BVH when present, else the demo's)."""
+    from conftest import ASSETS
+    from sim.caches import read_npz
+    from sim.cli import main
     scene = load_scene(path)
-    clip = scene.clip.frames(0, 12)
-    motion = drive_kinematic(clip, clip.times)
-    assert motion.positions.shape == (12, clip.num_joints, 3)
-    assert np.all(np.isfinite(motion.positions))
+    argv = ["bake", str(path), "--out", str(tmp_path), "--frames", "8", "--formats", "npz"]
+    if scene.clip is None and scene.builtin is None:
+        bvh = ASSETS / "mocap" / "cmu_bvh" / "02_04.bvh"
+        argv += ["--clip", str(bvh if bvh.exists() else MOTIONS[0])]
+    if scene.builtin is None and scene.character.file is None:
+        argv += ["--resolution", "6000"]
+    assert main(argv) == 0
+    d = read_npz(tmp_path / "bake.npz")
+    assert d.num_frames == 8 and np.isfinite(d.skin_final).all()
+    assert np.ptp(d.skin_static[:, :, 2], axis=0).max() > 1e-3       # the skin follows the motion
+    if scene.clip is not None:
+        motion = drive_kinematic(scene.clip.frames(0, 12), scene.clip.times[:12])
+        assert np.all(np.isfinite(motion.positions))
 
 
 @pytest.mark.parametrize("path", MOTIONS, ids=lambda p: p.stem)
@@ -86,9 +100,10 @@ def _jiggle_scene(tmp_path, text: str) -> Path:
     return p
 
 
-def test_scene_without_jiggle_keeps_defaults():
-    scene = load_scene(SCENES[[p.name for p in SCENES].index("default.toml")])
+def test_scene_without_jiggle_keeps_defaults(tmp_path):
+    scene = load_scene(_jiggle_scene(tmp_path, ""))
     assert scene.jiggle is None and dict(scene.muscle_jiggle) == {} and scene.focus == ()
+    assert scene.character.file is None and scene.formats is None and scene.builtin is None
 
 
 def test_jiggle_section_with_keyed_blends(tmp_path):
