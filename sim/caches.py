@@ -381,7 +381,7 @@ def _usd_format(path: str, usda: bool | None) -> str:
 def _define_mesh(stage, prim_path: str, points: np.ndarray, faces: np.ndarray):
     """A UsdGeom.Mesh at prim_path: triangles faces (F, 3), points (T, V, 3) float32 metres
     sampled at time codes 0..T-1, with vertex normals and extent per sample."""
-    from pxr import Gf, UsdGeom, Vt
+    from pxr import UsdGeom, Vt
 
     mesh = UsdGeom.Mesh.Define(stage, prim_path)
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
@@ -393,13 +393,13 @@ def _define_mesh(stage, prim_path: str, points: np.ndarray, faces: np.ndarray):
     pts_attr, n_attr, ext_attr = (mesh.CreatePointsAttr(), mesh.CreateNormalsAttr(),
                                   mesh.CreateExtentAttr())
     mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    points = np.ascontiguousarray(points, dtype=np.float32)
+    extent = np.stack([points.min(axis=1), points.max(axis=1)], axis=1) if points.shape[1] else None
     for k in range(points.shape[0]):
-        p = np.ascontiguousarray(points[k], dtype=np.float32)
-        pts_attr.Set(Vt.Vec3fArray.FromNumpy(p), k)
+        pts_attr.Set(Vt.Vec3fArray.FromNumpy(points[k]), k)
         n_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals[k])), k)
-        if len(p):
-            lo, hi = p.min(axis=0), p.max(axis=0)
-            ext_attr.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]), k)
+        if extent is not None:
+            ext_attr.Set(Vt.Vec3fArray.FromNumpy(extent[k]), k)
     return mesh
 
 
