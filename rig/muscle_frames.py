@@ -236,17 +236,31 @@ _SPANS = frozen_array(_span_polynomials())
 def curve_points(curve: np.ndarray, t: np.ndarray, derivatives: int = 0) -> list[np.ndarray]:
     """Points of action curves and their derivatives: curve (..., 5, 3) CVs, t (..., n) parameters in
     [0, 1] (clipped). Returns [C, dC/dt, ...] up to `derivatives` (<= 2), each (..., n, 3)."""
-    return _span_points(np.einsum("skj,...jc->...skc", _SPANS, curve), t, derivatives)
+    curve = np.asarray(curve, dtype=np.float64)
+    lead = curve.shape[:-2]
+    t = np.asarray(t, dtype=np.float64)
+    t = np.broadcast_to(t, lead + t.shape[-1:])
+    n = t.shape[-1]
+    out = _span_points(_power(curve), t.reshape(-1, n).T, derivatives)        # (3, n, N) each
+    return [np.moveaxis(x, 0, -1).swapaxes(0, 1).reshape(lead + (n, 3)) for x in out]
+
+
+def _power(curve: np.ndarray) -> np.ndarray:
+    """(2, 4, 3, N) power coefficients Q[span, power, component, curve] of N action curves
+    (..., 5, 3) (flattened): on span s, C(t) = sum_k Q[s, k] x^k, x = t - 0.5 s. Component-major,
+    so a Newton step works on contiguous (N,) rows (~3x faster than curve-major); one BLAS product."""
+    c = np.asarray(curve, dtype=np.float64).reshape(-1, 5, 3)
+    return (_SPANS.reshape(8, 5) @ c.transpose(1, 2, 0).reshape(5, -1)).reshape(2, 4, 3, -1)
 
 
 def _span_points(Q: np.ndarray, t: np.ndarray, derivatives: int) -> list[np.ndarray]:
-    """curve_points from the curves' power coefficients Q (..., 2, 4, 3) per span (Horner's rule:
-    a Newton step is then a few elementwise products)."""
-    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
-    second = (t >= 0.5)[..., None, None]
-    x = (t - np.where(t >= 0.5, 0.5, 0.0))[..., None]                            # (..., n, 1)
-    q = np.where(second, Q[..., 1:2, :, :], Q[..., 0:1, :, :])                   # (..., n, 4, 3)
-    q0, q1, q2, q3 = q[..., 0, :], q[..., 1, :], q[..., 2, :], q[..., 3, :]
+    """[C, dC/dt, ...] up to `derivatives` (<= 2) of the N curves of Q (2, 4, 3, N) (`_power`) at
+    parameters t (..., N) (clipped to [0, 1]), each (3, ..., N): Horner's rule on each point's span."""
+    t = np.clip(t, 0.0, 1.0)
+    second = t >= 0.5
+    x = t - np.where(second, 0.5, 0.0)
+    shape = (3,) + (1,) * (t.ndim - 1) + t.shape[-1:]
+    q0, q1, q2, q3 = (np.where(second, Q[1, k].reshape(shape), Q[0, k].reshape(shape)) for k in range(4))
     out = [q0 + x * (q1 + x * (q2 + x * q3))]
     if derivatives >= 1:
         out.append(q1 + x * (2.0 * q2 + 3.0 * x * q3))
@@ -260,14 +274,22 @@ def nearest_parameter(curve: np.ndarray, p: np.ndarray, t: np.ndarray, steps: in
     by Newton's method on g(t) = (C(t) - p) . C'(t) from t (...). Where the curve's curvature term
     would make g' <= 0.1 |C'|^2 (p far on the concave side) the Gauss-Newton slope |C'|^2 is used;
     steps are limited to 0.25 and clamped to [0, 1] (beyond an end the end is nearest)."""
-    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
-    Q = np.einsum("skj,...jc->...skc", _SPANS, curve)
+    curve, p, t = (np.asarray(a, dtype=np.float64) for a in (curve, p, t))
+    lead = np.broadcast_shapes(curve.shape[:-2], p.shape[:-1], t.shape)
+    Q = _power(np.broadcast_to(curve, lead + (5, 3)))
+    t = _nearest(Q, np.broadcast_to(p, lead + (3,)).reshape(-1, 3).T, np.broadcast_to(t, lead).ravel(), steps)
+    return t.reshape(lead)
+
+
+def _nearest(Q: np.ndarray, p: np.ndarray, t: np.ndarray, steps: int = NEWTON_STEPS) -> np.ndarray:
+    """nearest_parameter (N,) of the N curves of Q (2, 4, 3, N) (`_power`), points p (3, N), from t (N,)."""
+    t = np.clip(t, 0.0, 1.0)
     for _ in range(steps):
-        C, d1, d2 = (x[..., 0, :] for x in _span_points(Q, t[..., None], 2))
+        C, d1, d2 = _span_points(Q, t, 2)
         r = C - p
-        g = np.einsum("...i,...i->...", r, d1)
-        speed2 = np.einsum("...i,...i->...", d1, d1)
-        h = speed2 + np.einsum("...i,...i->...", r, d2)
+        g = (r * d1).sum(axis=0)
+        speed2 = (d1 * d1).sum(axis=0)
+        h = speed2 + (r * d2).sum(axis=0)
         h = np.where(h > 0.1 * speed2, h, speed2) + 1e-300
         t = np.clip(t - np.clip(g / h, -0.25, 0.25), 0.0, 1.0)
     return t
@@ -277,15 +299,32 @@ def trajectory(curve: np.ndarray, t0: np.ndarray, t_cur: np.ndarray, centre_ref:
                centre_cur: np.ndarray, u: np.ndarray = TRAJECTORY_U) -> np.ndarray:
     """(..., K, 3) samples c(u_k) of the trajectory path (module docstring) for action curves
     (..., 5, 3), parameters t0, t_cur (...), centres (..., 3) and path parameters u (K,)."""
-    t0, t_cur = np.asarray(t0, np.float64), np.asarray(t_cur, np.float64)
-    t = t0[..., None] + u * (t_cur - t0)[..., None]                            # (..., K)
-    ends = np.stack([t0, t_cur], axis=-1)
-    Q = np.einsum("skj,...jc->...skc", _SPANS, curve)
-    Ck, = _span_points(Q, t, 0)
-    C0, C1 = np.moveaxis(_span_points(Q, ends, 0)[0], -2, 0)
-    c = Ck + (1.0 - u)[:, None] * (centre_ref - C0)[..., None, :] + u[:, None] * (centre_cur - C1)[..., None, :]
-    c[..., 0, :] = centre_ref      # exact ends, whatever the rounding of the sums above
-    c[..., -1, :] = centre_cur
+    curve, t0, t_cur, centre_ref, centre_cur = (np.asarray(a, dtype=np.float64)
+                                                for a in (curve, t0, t_cur, centre_ref, centre_cur))
+    lead = np.broadcast_shapes(curve.shape[:-2], t0.shape, t_cur.shape, centre_ref.shape[:-1],
+                               centre_cur.shape[:-1])
+    flat = [np.broadcast_to(a, lead).ravel() for a in (t0, t_cur)]
+    centres = [np.broadcast_to(c, lead + (3,)).reshape(-1, 3).T for c in (centre_ref, centre_cur)]
+    c = _trajectory(_power(np.broadcast_to(curve, lead + (5, 3))), *flat, *centres, np.asarray(u, np.float64))
+    return _curve_major(c, lead)
+
+
+def _curve_major(c: np.ndarray, lead: tuple) -> np.ndarray:
+    """(3, K, N) component-major samples -> (*lead, K, 3), N = prod(lead)."""
+    return np.ascontiguousarray(c.transpose(2, 1, 0)).reshape(lead + c.shape[1:2] + (3,))
+
+
+def _trajectory(Q: np.ndarray, t0: np.ndarray, t_cur: np.ndarray, centre_ref: np.ndarray,
+                centre_cur: np.ndarray, u: np.ndarray = TRAJECTORY_U) -> np.ndarray:
+    """trajectory of the N curves of Q (2, 4, 3, N) (`_power`): parameters t0, t_cur (N,), centres
+    (3, N); returns the samples component-major, (3, K, N)."""
+    t = t0 + u[:, None] * (t_cur - t0)                                          # (K, N)
+    Ck, = _span_points(Q, t, 0)                                                 # (3, K, N)
+    C01, = _span_points(Q, np.stack([t0, t_cur]), 0)                            # (3, 2, N)
+    w = u[:, None]
+    c = Ck + (1.0 - w) * (centre_ref - C01[:, 0])[:, None, :] + w * (centre_cur - C01[:, 1])[:, None, :]
+    c[:, 0] = centre_ref      # exact ends, whatever the rounding of the sums above
+    c[:, -1] = centre_cur
     return c
 
 
@@ -390,6 +429,34 @@ class MuscleFrames:
         out, skipped = self._compute(world, cvs, curve, first_frame)
         return [ShellFrames(*(x[t] for x in out)) for t in range(len(world))], skipped
 
+    def frame_sets(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0):
+        """Ellipsoids of S sets of muscle states over the same T frames (e.g. the static and the
+        blended CVs of a bake chunk), the bones' part computed once.
+
+        world : (T, J, 4, 4) rigid joint world transforms, metres.
+        cvs_sets : S arrays (T, N, 3) of section CVs, metres. curves : S arrays (T, M, 5, 3) of
+            action-curve CVs, metres (sets over the same curve also share its reference parameters).
+        Returns (arrays, skipped): arrays = (E_ref, E_ref_inv) (T, M, 4, 4) shared by the sets, then
+        E_cur, E_cur_inv (S, T, M, 4, 4), curve (S, T, M, K, 3) trajectory samples, active (S, T, M);
+        skipped = S tuples of Skipped (frame = first_frame + batch index). Set s at frame t equals
+        `frame(world[t], cvs_sets[s][t], curves[s][t], first_frame + t)`.
+        """
+        if len(cvs_sets) != len(curves) or not len(cvs_sets):
+            raise InputError(f"expected as many curves as CVs sets (at least one), got {len(curves)} and "
+                             f"{len(cvs_sets)}", field="curves")
+        checked = [self._check(world, c, k, single=False) for c, k in zip(cvs_sets, curves)]
+        world = checked[0][0]
+        E_ref, E_ref_inv = self._reference(world)
+        sets, skipped, shared = [], [], []          # shared: (curve, its `along`) already computed
+        for _, cvs, curve in checked:
+            along = next((a for k, a in shared if k is curve or np.array_equal(k, curve, equal_nan=True)), None)
+            cur, sk, along = self._current(E_ref, E_ref_inv, cvs, curve, first_frame, along)
+            shared.append((curve, along))
+            sets.append(cur)
+            skipped.append(sk)
+        stacked = tuple(np.stack(x) for x in zip(*sets))
+        return (E_ref, E_ref_inv) + stacked, tuple(skipped)
+
     def carried_rest_cvs(self, world: np.ndarray) -> np.ndarray:
         """The rest CVs moved rigidly with each muscle's bone, world[bone] @ inv(bind_world[bone]) @ cv:
         (N, 3) for world (J, 4, 4), (T, N, 3) for (T, J, 4, 4), metres. The muscle as it would be if
@@ -425,20 +492,57 @@ class MuscleFrames:
     def _compute(self, world: np.ndarray, cvs: np.ndarray, curve: np.ndarray, first_frame: int):
         """Arrays (T, M, ...) in ShellFrames' field order, and the Skipped records, for world
         (T, J, 4, 4), cvs (T, N, 3), curve (T, M, 5, 3)."""
-        T, M = len(world), self.M
-        # E_ref: the rest ellipsoid riding the bone; its inverse without a 4 x 4 inverse per muscle
+        E_ref, E_ref_inv = self._reference(world)
+        cur, skipped, _ = self._current(E_ref, E_ref_inv, cvs, curve, first_frame)
+        return (E_ref, E_ref_inv) + cur, skipped
+
+    def _reference(self, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """E_ref, E_ref_inv (T, M, 4, 4) for world (T, J, 4, 4): the rest ellipsoid riding the bone,
+        its inverse without a 4 x 4 inverse per muscle."""
         K = world[:, self.bone] @ self.bind_inv                                    # (T, M, 4, 4)
         E_ref = K @ self.E_rest
         E_ref_inv = self.E_rest_inv @ (self.bind_bone @ np.linalg.inv(world)[:, self.bone])
+        return E_ref, E_ref_inv
 
+    def _along(self, curve: np.ndarray, centre_ref: np.ndarray) -> tuple:
+        """What the trajectory needs of the action curves (T, M, 5, 3) and the bones alone: whether each
+        curve is finite (T, M), the power coefficients (`_power`) of the curves with non-finite ones
+        zeroed, and the parameters t_ref (T M,) of the reference centres (3, T M) on them. Sets of CVs
+        over one curve share it."""
+        ok = np.isfinite(curve).all(axis=(2, 3))
+        C = curve if ok.all() else np.where(ok[..., None, None], curve, 0.0)
+        Q = _power(C)
+        t_ref = _nearest(Q, centre_ref, np.broadcast_to(self.t0, ok.shape).ravel())
+        return ok, Q, t_ref
+
+    def _current(self, E_ref: np.ndarray, E_ref_inv: np.ndarray, cvs: np.ndarray, curve: np.ndarray,
+                 first_frame: int, along: tuple | None = None):
+        """(E_cur, E_cur_inv, path, active), the Skipped records and `along` (see `_along`) for the
+        reference ellipsoids (T, M, 4, 4), cvs (T, N, 3) and curve (T, M, 5, 3). `along`: already
+        computed for this curve and these frames (another set of CVs over the same curve)."""
+        T, M = len(E_ref), self.M
+        centre_ref = E_ref[..., :3, 3].reshape(-1, 3).T                             # (3, T M)
+        # the curves alone decide C (a muscle skipped for its CVs gets its path replaced below), so
+        # t_ref depends on the curves and the bones only and sets of CVs over one curve share it
+        if along is None:
+            along = self._along(curve, centre_ref)
+        curve_ok, Q, t_ref = along
         Y = cvs.reshape(T, M, self.rest_cvs.shape[1], 3)
-        finite = np.isfinite(Y).all(axis=(2, 3)) & np.isfinite(curve).all(axis=(2, 3))   # (T, M)
+        finite = np.isfinite(Y).all(axis=(2, 3)) & curve_ok                         # (T, M)
         # a non-finite muscle is fitted to its rest CVs instead, so no NaN reaches the SVD
-        Y = np.where(finite[..., None, None], Y, self.rest_cvs)
-        ybar = Y.mean(axis=2)
-        L = np.einsum("tmki,mkj->tmij", Y - ybar[:, :, None], self.fit_weights)      # (T, M, 3, 3)
-        sv = np.linalg.svd(L, compute_uv=False) if M else np.zeros((T, 0, 3))
+        if not finite.all():
+            Y = np.where(finite[..., None, None], Y, self.rest_cvs)
+        ybar = np.einsum("tmkc->tmc", Y) / Y.shape[2]           # the mean; einsum's sum is the fastest
+        L = np.swapaxes(Y - ybar[:, :, None], -1, -2) @ self.fit_weights            # (T, M, 3, 3)
         det = np.linalg.det(L) if M else np.zeros((T, 0))
+        # singular values (an SVD) only where they may decide or be reported: s_max <= |L|_F and
+        # s_min >= 2 det / |L|_F^2 (s_1 s_2 <= |L|_F^2 / 2), so a map with det > 0 inside these
+        # bounds (1% margin for rounding) is neither collapsed, over-stretched nor mirrored
+        fro2 = np.einsum("tmij,tmij->tm", L, L)
+        unsure = ~((fro2 < (0.99 * MAX_SINGULAR) ** 2) & (2.0 * det > 1.01 * MIN_SINGULAR * fro2))
+        sv = np.ones((T, M, 3))
+        if unsure.any():
+            sv[unsure] = np.linalg.svd(L[unsure], compute_uv=False)
         reason = np.select([~finite, sv[..., -1] < MIN_SINGULAR, sv[..., 0] > MAX_SINGULAR, det <= 0.0],
                            [1, 2, 3, 4], 0)
         active = reason == 0
@@ -458,16 +562,14 @@ class MuscleFrames:
         E_cur = np.where(active[..., None, None], E_cur, E_ref)
         E_cur_inv = np.where(active[..., None, None], E_cur_inv, E_ref_inv)
 
-        centre_ref, centre_cur = E_ref[..., :3, 3], E_cur[..., :3, 3]
-        C = np.where(finite[..., None, None], curve, 0.0)
-        t0 = np.broadcast_to(self.t0, (T, M))
-        t_ref = nearest_parameter(C, centre_ref, t0)
-        t_cur = nearest_parameter(C, centre_cur, t0)
-        path = trajectory(C, t_ref, t_cur, centre_ref, centre_cur)
+        centre_cur = E_cur[..., :3, 3].reshape(-1, 3).T
+        t_cur = _nearest(Q, centre_cur, np.broadcast_to(self.t0, (T, M)).ravel())
+        path = _curve_major(_trajectory(Q, t_ref, t_cur, centre_ref, centre_cur), (T, M))
         # a skipped muscle stands still on its reference centre
-        path = np.where(active[..., None, None], path, centre_ref[..., None, :])
+        if not active.all():
+            path = np.where(active[..., None, None], path, E_ref[..., None, :3, 3])
 
         skipped = tuple(Skipped(first_frame + int(f), int(m), self.names[m], int(reason[f, m]),
                                 (float(sv[f, m, -1]), float(sv[f, m, 0])) if finite[f, m] else (np.nan, np.nan))
                         for f, m in zip(*np.nonzero(~active)))
-        return (E_ref, E_ref_inv, E_cur, E_cur_inv, path, active), skipped
+        return (E_cur, E_cur_inv, path, active), skipped, along

@@ -14,6 +14,11 @@ Built once (`MuscleSkin(...)`): the Skinner's rest mesh and weights, the muscle 
 culled at bind, the painted weights and the deformer's device arrays. Per frame (`pose`): one launch
 for the skinning, a few NumPy operations over all muscles at once for their frames, one launch for the
 deformer; nothing loops in Python over muscles, pairs or vertices.
+
+Per chunk of T frames (`pose_batch`, `lbs_batch`: the bake), for S sets of muscle states (e.g. the
+static and the blended CVs): one LBS/DQS launch for the T frames, shared by the sets, the frames of
+all sets and frames in a few NumPy operations (the bones' part once), one upload and one shell launch
+for all sets and frames. Influence objects still launch once per frame and set.
 """
 from __future__ import annotations
 
@@ -28,7 +33,7 @@ from .errors import InputError, JiggleWarning
 from .influence import InfluenceDeformer, bind_influence
 from .muscle_frames import MuscleFrames
 from .muscle_model import MuscleRig
-from .shell_deformer import ShellDeformer
+from .shell_deformer import ShellBatch, ShellDeformer
 from .shells import ShellParams, beta, cull_pairs, default_shell, shell_table
 
 SKINNING = ("shell", "influence")
@@ -165,6 +170,72 @@ class MuscleSkin:
             out = self.deformer.launch(points, cvs, ref)
         result = out.numpy()
         return result.copy() if self.device.is_cpu else result
+
+    def lbs_batch(self, world: np.ndarray) -> np.ndarray:
+        """Smooth skinning alone of T frames, (T, V, 3) float32 metres, for joint world transforms
+        (T, J, 4, 4): `lbs` frame by frame, in one upload and one launch."""
+        world = self._check_world_batch(world)
+        return self.skinner.skin_batch(self.character.skin_matrices(world), self.method)
+
+    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0) -> list[np.ndarray]:
+        """Deformed skins of T frames for S sets of muscle states: S arrays (T, V, 3) float32 metres.
+
+        world : (T, J, 4, 4) rigid joint world transforms, metres, the character's joint order.
+        cvs_sets : S arrays (T, N, 3) of section CVs, metres (e.g. the static and the blended CVs);
+            None: the static CVs for `world`.
+        curves : S arrays (T, M, 5, 3) of action-curve CVs, metres; None: the static ones.
+        first_frame : index of world[0], for the warnings naming a muscle skipped at a frame.
+
+        Set s at frame t equals ``pose(world[t], cvs_sets[s][t], curves[s][t], frame=first_frame + t)``
+        to float32 rounding. The smooth skin is computed once for all sets (one launch for the T
+        frames), the muscle frames of every set and frame in a few NumPy operations (the bones' part
+        and the reference centres' curve parameters shared by sets over one curve), then one upload
+        and one shell launch for all sets and frames. Influence objects ("influence") launch once per
+        frame and set (acceptable: the bake's default is the shells).
+        """
+        world = self._check_world_batch(world)
+        S = len(cvs_sets)
+        if S == 0 or len(curves) != S:
+            raise InputError(f"expected as many curves as CVs sets (at least one), got {len(curves)} and {S}",
+                             field="curves")
+        T, V = len(world), self.character.num_vertices
+        if T == 0:
+            return [np.zeros((0, V, 3), np.float32) for _ in range(S)]
+        if any(c is None for c in cvs_sets) or any(k is None for k in curves):
+            static = self.rig.static(world)
+            cvs_sets = [static.cvs if c is None else c for c in cvs_sets]
+            curves = [static.curve if k is None else k for k in curves]
+        points = self.skinner.launch_batch(self.character.skin_matrices(world), self.method)  # (T, V)
+        if self.skinning == "shell":
+            arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame)
+            for sk in skipped:
+                for s in sk:
+                    warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
+                                  stacklevel=2)
+            out = self.deformer.launch_batch(points, ShellBatch(*arrays)).numpy()        # (S, T, V, 3)
+            return [out[s].copy() for s in range(S)]
+        # influence objects: one launch per frame and set over the shared smooth skin
+        ref = self.frames.carried_rest_cvs(world)                                          # (T, N, 3)
+        out = [np.empty((T, V, 3), np.float32) for _ in range(S)]
+        for s in range(S):
+            cvs = np.asarray(cvs_sets[s], dtype=np.float64)
+            if cvs.shape != ref.shape:
+                raise InputError(f"expected CVs {ref.shape}, got {cvs.shape}", field="cvs_sets")
+            bad = ~np.isfinite(cvs.reshape(T, self.rig.M, -1)).all(axis=2)                 # (T, M)
+            for t in range(T):
+                c = cvs[t]
+                if bad[t].any():
+                    self._warn(np.nonzero(bad[t])[0], first_frame + t, "its CVs hold NaN or inf")
+                    c = np.where(np.repeat(bad[t], self.rig.CVS_PER_MUSCLE)[:, None], ref[t], c)
+                out[s][t] = self.deformer.launch(points[t], c, ref[t]).numpy()
+        return out
+
+    def _check_world_batch(self, world) -> np.ndarray:
+        world = np.asarray(world, dtype=np.float64)
+        J = self.character.num_joints
+        if world.ndim != 4 or world.shape[1:] != (J, 4, 4):
+            raise InputError(f"expected (T, {J}, 4, 4) joint world transforms, got {world.shape}", field="world")
+        return world
 
     def _warn(self, muscles, frame, why: str) -> None:
         names = ", ".join(repr(self.rig.names[m]) for m in muscles)

@@ -6,7 +6,8 @@ frame: ``M_j = world_j @ inverse(bind_j)``. Each vertex has ``k`` influences (jo
 - :func:`lbs_numpy`, :func:`dqs_numpy`: vectorised float64 references (no input checks: they are
   what the kernels are measured against).
 - :class:`Skinner`: the Warp launcher (kernels in :mod:`rig.skinning_kernels`); the rest mesh and
-  influences are uploaded once, each call uploads only the matrices.
+  influences are uploaded once, each call uploads only the matrices. `skin` / `launch` pose one
+  frame; `skin_batch` / `launch_batch` pose T frames with one upload and one launch.
 - :func:`normalise_weights`: top-k influences, renormalised, sorted by descending weight.
 
 Dual quaternions in NumPy are (..., 8): real part w, x, y, z then dual part w, x, y, z (the project's
@@ -91,6 +92,23 @@ def check_matrices(matrices, num_joints_needed: int = 0) -> np.ndarray:
         bad = np.unique(np.nonzero(~np.isfinite(m))[0])
         raise InputError(f"NaN or inf in the matrices of joints {bad[:5].tolist()}",
                          field="matrices")
+    return m
+
+
+def check_matrices_batch(matrices, num_joints_needed: int = 0) -> np.ndarray:
+    """Skin matrices of T frames as a (T, J, 4, 4) float64 array (see :func:`check_matrices`)."""
+    m = np.asarray(matrices)
+    if m.ndim != 4 or m.shape[2:] != (4, 4) or not np.issubdtype(m.dtype, np.number):
+        raise InputError(f"expected a (T, J, 4, 4) float array, got shape {m.shape} dtype {m.dtype}",
+                         field="matrices")
+    if m.shape[1] < num_joints_needed:
+        raise InputError(f"joint index {num_joints_needed - 1} is out of range [0, {m.shape[1]}) "
+                         f"for {m.shape[1]} skin matrices", field="joints")
+    m = m.astype(np.float64)
+    if not np.all(np.isfinite(m)):
+        frame, joint = np.nonzero(~np.isfinite(m).all(axis=(2, 3)))
+        raise InputError(f"NaN or inf in the matrices of (frame, joint) "
+                         f"{list(zip(frame[:5].tolist(), joint[:5].tolist()))}", field="matrices")
     return m
 
 
@@ -254,7 +272,9 @@ class Skinner:
     faces : optional (F, 3) int triangles, for :meth:`normals`.
     device : Warp device for the model, the scratch buffers and every launch.
 
-    Each call uploads only the (J, 4, 4) skin matrices; the positions buffer is reused.
+    Each call uploads only the (J, 4, 4) skin matrices (T of them for a batch); the positions
+    buffers are reused. `thread_per_frame` (default: True on a GPU, False on the CPU) chooses the
+    batched launch's threads: one per frame and vertex, or one per vertex running through the frames.
     """
 
     def __init__(self, rest, joints, weights, faces=None, device="cpu"):
@@ -275,6 +295,10 @@ class Skinner:
         self._matrices = None
         self._real = None
         self._dual = None
+        self._batch = {}      # scratch of the batched launch: name -> device array, sized (T, ...)
+        # batched launches: a thread per frame and vertex (GPU) or per vertex, running through the frames
+        # (CPU: Warp's CPU launch divides the index of every thread of a multi-dimensional launch)
+        self.thread_per_frame = not self.device.is_cpu
 
     @property
     def num_vertices(self) -> int:
@@ -318,6 +342,55 @@ class Skinner:
                               self._real, self._dual],
                       outputs=[self._positions])
         return self._positions
+
+    def skin_batch(self, matrices, method: str = "lbs") -> np.ndarray:
+        """Skinned positions of T frames, (T, V, 3) float32, metres, a new array.
+
+        matrices : (T, J, 4, 4) float, each frame's skin matrices, metres. Equal to :meth:`skin` frame
+        by frame (the same per-vertex code), with one upload and one launch for all T frames.
+        """
+        out = self.launch_batch(matrices, method).numpy()
+        return out.copy() if self.device.is_cpu else out
+
+    def launch_batch(self, matrices, method: str = "lbs") -> wp.array:
+        """Skin T frames on the device in one launch (DQS: one more over the T * J matrices for
+        their dual quaternions); on the CPU a thread per vertex, on a GPU one per frame and vertex.
+        Returns the wrapper's (T, V) wp.vec3 buffer, valid until the next batched call
+        (:meth:`launch`'s buffer is another one).
+
+        matrices : (T, J, 4, 4) float, metres.
+        """
+        if method not in METHODS:
+            raise InputError(f"expected one of {METHODS}, got {method!r}", field="method")
+        m = check_matrices_batch(matrices, self.model.num_joints_needed)
+        T, J = m.shape[:2]
+        model = self.model
+        out = self._scratch("positions", (T, model.num_vertices), wp.vec3)
+        if T == 0 or model.num_vertices == 0:
+            return out
+        mats = self._scratch("matrices", (T * J,), wp.mat44)
+        mats.assign(m.reshape(T * J, 4, 4).astype(np.float32))
+        stride = T if self.thread_per_frame else 1
+        if method == "lbs":
+            wp.launch(kernels.lbs_batch, dim=(stride, model.num_vertices), device=self.device,
+                      inputs=[model.rest, model.joints, model.weights, model.k, mats, J, stride],
+                      outputs=[out])
+        else:
+            real = self._scratch("real", (T * J,), wp.quat)
+            dual = self._scratch("dual", (T * J,), wp.quat)
+            wp.launch(kernels.dual_quats_from_matrices, dim=T * J, device=self.device,
+                      inputs=[mats], outputs=[real, dual])
+            wp.launch(kernels.dqs_batch, dim=(stride, model.num_vertices), device=self.device,
+                      inputs=[model.rest, model.joints, model.weights, model.k, real, dual, J, stride],
+                      outputs=[out])
+        return out
+
+    def _scratch(self, name: str, shape: tuple, dtype) -> wp.array:
+        """The batched launch's device buffer `name`, (re)allocated when the shape changes."""
+        buf = self._batch.get(name)
+        if buf is None or buf.shape != shape:
+            buf = self._batch[name] = wp.empty(shape, dtype=dtype, device=self.device)
+        return buf
 
     def normals(self, positions) -> np.ndarray:
         """Unit vertex normals of skinned positions (V, 3) or (N, V, 3), from the faces given."""

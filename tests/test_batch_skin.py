@@ -1,0 +1,332 @@
+"""Batched skinning for the bake: MuscleSkin.pose_batch / lbs_batch (rig/muscle_skin.py), the batched
+launches under them (Skinner.skin_batch / launch_batch in rig/skinning.py, ShellDeformer.launch_batch in
+rig/shell_deformer.py) and MuscleFrames.frame_sets (rig/muscle_frames.py).
+
+A batch must equal the frame-by-frame calls: set s at frame t of pose_batch is
+pose(world[t], cvs_sets[s][t], curves[s][t], frame=first_frame + t) to float32 rounding (contract:
+1e-6 m); the batched kernels run the same per-vertex code as the single-frame ones, so the difference
+is in practice 0. The kernels are also compared with the float64 NumPy references on random inputs.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import warp as wp
+from scipy.spatial.transform import Rotation
+
+from conftest import asset
+from rig.errors import InputError, JiggleWarning
+from rig.muscle_skin import MuscleSkin
+from rig.shell_deformer import ShellBatch, ShellDeformer
+from rig.shells import MODES, ShellFrames, ShellParams, shell_numpy, shell_table
+from rig.skinning import Skinner, dqs_numpy, lbs_numpy
+from scenes.simple_arm import simple_arm
+
+TOL = 1e-6          # metres: batch against loop (the contract's bound)
+REF_TOL = 1e-5      # metres: float32 kernels against the float64 NumPy references, scenes ~1 m across
+
+
+def rigid(rng, J: int) -> np.ndarray:
+    m = np.tile(np.eye(4), (J, 1, 1))
+    m[:, :3, :3] = Rotation.random(J, random_state=rng.integers(1 << 30)).as_matrix()
+    m[:, :3, 3] = rng.normal(scale=0.3, size=(J, 3))
+    return m
+
+
+def loop(skin: MuscleSkin, world, cvs, curve, first_frame=0) -> np.ndarray:
+    """(T, V, 3): pose frame by frame, the reference a batch must equal."""
+    return np.stack([skin.pose(world[t], cvs[t], curve[t], frame=first_frame + t) for t in range(len(world))])
+
+
+# ---------------------------------------------------------------------------------- simple arm
+@pytest.fixture(scope="module")
+def arm():
+    return simple_arm()
+
+
+@pytest.fixture(scope="module")
+def skins(arm):
+    return {(mode, method): MuscleSkin(arm.character, arm.rig, skinning=mode, method=method)
+            for mode in ("shell", "influence") for method in ("lbs", "dqs")}
+
+
+def sweep(arm, T: int = 12, seed: int = 0):
+    """An elbow sweep 0 -> 110 deg: world (T, J, 4, 4), static CVs (T, N, 3) and curves (T, M, 5, 3),
+    and a 'blended' set: the static CVs plus a smooth bulge-and-slide of a few mm (a jiggle's size)."""
+    world = arm.world(np.linspace(0.0, 110.0, T))
+    static = arm.rig.static(world)
+    rng = np.random.default_rng(seed)
+    wobble = 0.004 * np.sin(np.linspace(0.0, 3.0, T))[:, None, None] * rng.normal(size=(1,) + static.cvs.shape[1:])
+    return world, static.cvs, static.curve, static.cvs + wobble
+
+
+@pytest.mark.parametrize("mode", ["shell", "influence"])
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_pose_batch_equals_pose_frame_by_frame(arm, skins, mode, method):
+    skin = skins[mode, method]
+    world, cvs, curve, blended = sweep(arm)
+    out = skin.pose_batch(world, [cvs, blended], [curve, curve], first_frame=40)
+    assert len(out) == 2
+    for got, c in zip(out, (cvs, blended)):
+        assert got.shape == (len(world), arm.character.num_vertices, 3) and got.dtype == np.float32
+        assert np.abs(got - loop(skin, world, c, curve, 40)).max() <= TOL
+    # the blended set really moves the skin, so equality is not trivially 0 == 0
+    assert np.abs(out[1] - out[0]).max() > 1e-4
+    assert np.abs(out[0] - skin.lbs_batch(world)).max() > 1e-3
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_lbs_batch_equals_lbs_frame_by_frame(arm, skins, method):
+    skin = skins["shell", method]
+    world = arm.world(np.linspace(0.0, 130.0, 9))
+    got = skin.lbs_batch(world)
+    assert got.shape == (9, arm.character.num_vertices, 3) and got.dtype == np.float32
+    assert np.abs(got - np.stack([skin.lbs(w) for w in world])).max() <= TOL
+
+
+def test_one_set_and_none_for_the_static_shape(arm, skins):
+    """S = 1 works, and None (CVs or curve) means the static shape for `world`, as in pose."""
+    skin = skins["shell", "lbs"]
+    world, cvs, curve, _ = sweep(arm, T=5)
+    (got,) = skin.pose_batch(world, [None], [None])
+    assert np.abs(got - np.stack([skin.pose(w) for w in world])).max() <= TOL
+    (mixed,) = skin.pose_batch(world, [cvs], [None])
+    np.testing.assert_array_equal(mixed, got)
+
+
+def test_results_are_new_arrays(arm, skins):
+    """The returned arrays are not views of the reused device buffers: the next call leaves them alone."""
+    skin = skins["shell", "lbs"]
+    world, cvs, curve, blended = sweep(arm, T=4)
+    a, b = skin.pose_batch(world, [cvs, blended], [curve, curve])
+    keep = a.copy(), b.copy()
+    lbs = skin.lbs_batch(world)
+    lbs_keep = lbs.copy()
+    skin.pose_batch(world[::-1], [blended[::-1], cvs[::-1]], [curve[::-1], curve[::-1]])
+    skin.lbs_batch(world[::-1])
+    np.testing.assert_array_equal(a, keep[0])
+    np.testing.assert_array_equal(b, keep[1])
+    np.testing.assert_array_equal(lbs, lbs_keep)
+    assert not np.shares_memory(a, b)
+
+
+def test_chunks_of_any_size_agree(arm, skins):
+    """The bake's chunks: one batch of T frames equals batches of 1, 3 and the rest (buffers resized)."""
+    skin = skins["shell", "lbs"]
+    world, cvs, curve, blended = sweep(arm, T=10)
+    whole = skin.pose_batch(world, [cvs, blended], [curve, curve])
+    parts = [skin.pose_batch(world[a:b], [cvs[a:b], blended[a:b]], [curve[a:b], curve[a:b]], first_frame=a)
+             for a, b in ((0, 1), (1, 4), (4, 10))]
+    for s in range(2):
+        np.testing.assert_array_equal(np.concatenate([p[s] for p in parts]), whole[s])
+    empty = skin.pose_batch(world[:0], [cvs[:0]], [curve[:0]])
+    assert empty[0].shape == (0, arm.character.num_vertices, 3)
+    assert skin.lbs_batch(world[:0]).shape == (0, arm.character.num_vertices, 3)
+
+
+@pytest.mark.parametrize("mode", ["shell", "influence"])
+def test_skipped_muscle_warns_naming_muscle_and_frame(arm, skins, mode):
+    """NaN CVs of the biceps at one frame of the blended set: a JiggleWarning names the muscle and the
+    frame (first_frame + batch index); the skin there follows the bones, no NaN, and both sets still
+    equal the frame-by-frame poses (which warn the same)."""
+    skin = skins[mode, "lbs"]
+    world, cvs, curve, blended = sweep(arm, T=6)
+    blended = blended.copy()
+    blended[3, 5] = np.nan
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = skin.pose_batch(world, [cvs, blended], [curve, curve], first_frame=100)
+    msgs = [str(c.message) for c in caught if issubclass(c.category, JiggleWarning)]
+    assert len(msgs) == 1 and "biceps" in msgs[0] and "103" in msgs[0], msgs
+    assert all(np.isfinite(o).all() for o in out)
+    np.testing.assert_allclose(out[1][3], skin.lbs(world[3]), atol=TOL)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        for got, c in zip(out, (cvs, blended)):
+            assert np.abs(got - loop(skin, world, c, curve, 100)).max() <= TOL
+
+
+def test_collapsed_muscle_is_skipped_in_its_set_only(arm, skins):
+    skin = skins["shell", "lbs"]
+    world, cvs, curve, _ = sweep(arm, T=3)
+    flat = cvs.copy()
+    flat[1] = flat[1].mean(axis=0)
+    with pytest.warns(JiggleWarning, match=r"frame 1: muscle 'biceps' skipped: collapsed"):
+        static, collapsed = skin.pose_batch(world, [cvs, flat], [curve, curve])
+    np.testing.assert_allclose(collapsed[1], skin.lbs(world[1]), atol=TOL)
+    assert np.abs(static[1] - skin.lbs(world[1])).max() > 1e-3
+
+
+def test_bad_batches_are_named(arm, skins):
+    skin = skins["shell", "lbs"]
+    world, cvs, curve, _ = sweep(arm, T=3)
+    with pytest.raises(InputError, match="curves"):
+        skin.pose_batch(world, [cvs, cvs], [curve])
+    with pytest.raises(InputError, match="curves"):
+        skin.pose_batch(world, [], [])
+    with pytest.raises(InputError, match="world"):
+        skin.pose_batch(world[0], [cvs], [curve])
+    with pytest.raises(InputError, match="world"):
+        skin.lbs_batch(world[0])
+    with pytest.raises(InputError, match="cvs"):
+        skin.pose_batch(world, [cvs[:2]], [curve])
+    with pytest.raises(InputError, match="curve"):
+        skin.pose_batch(world, [cvs], [curve[:, :, :4]])
+    with pytest.raises(InputError, match="cvs_sets"):
+        skins["influence", "lbs"].pose_batch(world, [cvs[:2]], [curve])
+
+
+# ---------------------------------------------------------------------------------- CesiumMan
+@pytest.fixture(scope="module")
+def cesium():
+    from rig.character import load_character
+    from rig.clip import transforms
+    from rig.mocap import load_clip
+    from rig.muscle_fit import FitOptions, fit_musculature
+    path = asset("characters/CesiumMan.glb")
+    ch = load_character(path)
+    clip = load_clip(path)
+    order = ch.joint_order(clip.joint_names)
+    rot, pos = clip.world()
+    skin = MuscleSkin.from_musculature(fit_musculature(ch, "human", FitOptions()))
+    return skin, transforms(rot[:, order], pos[:, order])
+
+
+def test_cesiumman_walk_batch_equals_loop(cesium):
+    """CesiumMan (3,273 vertices, the default template's muscles) over its walk: static and blended
+    CVs (static + 3 mm of noise per CV) in one batch equal pose frame by frame within 1e-6 m."""
+    skin, world = cesium
+    world = world[:24]
+    static = skin.rig.static(world)
+    blended = static.cvs + np.random.default_rng(1).normal(0.0, 0.003, static.cvs.shape)
+    out = skin.pose_batch(world, [static.cvs, blended], [static.curve, static.curve], first_frame=7)
+    for got, c in zip(out, (static.cvs, blended)):
+        assert np.abs(got - loop(skin, world, c, static.curve, 7)).max() <= TOL
+    assert np.abs(out[1] - out[0]).max() > 1e-4
+    assert np.abs(skin.lbs_batch(world) - np.stack([skin.lbs(w) for w in world])).max() <= TOL
+
+
+# ---------------------------------------------------------------------------------- kernels vs NumPy
+@pytest.mark.parametrize("method,reference", [("lbs", lbs_numpy), ("dqs", dqs_numpy)])
+def test_skin_batch_matches_the_numpy_reference(method, reference):
+    rng = np.random.default_rng(3)
+    V, k, J, T = 500, 4, 9, 5
+    rest = rng.normal(scale=0.1, size=(V, 3))
+    joints = rng.integers(0, J, size=(V, k))
+    weights = rng.random((V, k)) + 1e-3
+    weights /= weights.sum(axis=1, keepdims=True)
+    matrices = np.stack([rigid(rng, J) for _ in range(T)])
+    skinner = Skinner(rest, joints, weights)
+    got = skinner.skin_batch(matrices, method)
+    for t in range(T):
+        np.testing.assert_allclose(got[t], reference(rest, joints, weights, matrices[t]), atol=REF_TOL)
+        np.testing.assert_array_equal(got[t], skinner.skin(matrices[t], method))
+    buf = skinner.launch_batch(matrices, method)
+    assert isinstance(buf, wp.array) and buf.shape == (T, V) and buf.dtype == wp.vec3
+    # the GPU's launch shape (a thread per frame and vertex), run here on the CPU, gives the same
+    skinner.thread_per_frame = True
+    np.testing.assert_array_equal(skinner.skin_batch(matrices, method), got)
+    skinner.thread_per_frame = False
+    with pytest.raises(InputError, match="matrices"):
+        skinner.skin_batch(matrices[0], method)
+    bad = matrices.copy()
+    bad[2, 4, 0, 0] = np.nan
+    with pytest.raises(InputError, match=r"\(2, 4\)"):
+        skinner.skin_batch(bad, method)
+    with pytest.raises(InputError, match="joints"):
+        skinner.skin_batch(matrices[:, :3], method)
+
+
+def random_frames(rng, E_rest: np.ndarray) -> ShellFrames:
+    """One frame: the rest ellipsoids moved rigidly (the bones), then bulged and slid (the muscles),
+    a bowed trajectory curve, one muscle in ten inactive with NaN current state."""
+    M = len(E_rest)
+    E_ref = rigid(rng, M) @ E_rest
+    bulge = np.eye(4) + np.pad(rng.normal(scale=0.05, size=(M, 3, 4)), ((0, 0), (0, 1), (0, 0)))
+    E_cur = E_ref @ bulge
+    u = np.linspace(0.0, 1.0, 9)[None, :, None]
+    curve = (E_ref[:, None, :3, 3] * (1 - u) + E_cur[:, None, :3, 3] * u
+             + np.sin(np.pi * u) * rng.normal(scale=0.03, size=(M, 1, 3)))
+    active = rng.random(M) > 0.1
+    E_cur_inv = np.linalg.inv(E_cur)
+    E_cur[~active] = np.nan
+    E_cur_inv[~active] = np.nan
+    return ShellFrames(E_ref, np.linalg.inv(E_ref), E_cur, E_cur_inv, curve, active)
+
+
+def test_shell_batch_matches_the_reference_and_the_single_launch():
+    """S = 2 sets x T = 4 frames of random muscle states over random skinned points, every mode and
+    star tables: each [s, t] equals the single-frame launch exactly and the float64 reference
+    (rig.shells.shell_numpy) to float32 rounding; vertices without pairs keep their points."""
+    rng = np.random.default_rng(8)
+    M, V, S, T = 6, 800, 2, 4
+    E_rest = np.stack([np.diag([*rng.uniform(0.08, 0.2, 3), 1.0]) for _ in range(M)])
+    E_rest[:, :3, 3] = rng.uniform(-0.3, 0.3, (M, 3))
+    params = [ShellParams(mode=MODES[m % 3], sticky=rng.uniform(), hard=rng.uniform(0.0, 0.8),
+                          drop_off=rng.uniform(0.3, 1.5), slippage=1.0 if m % 2 else rng.uniform(0.0, 2.0))
+              for m in range(M)]
+    table = shell_table(params, star=rng.uniform(-0.1, 0.1, (3, 17, 32)).astype(np.float32),
+                        star_index=np.array([0, 1, 2, -1, 0, -1], np.int32))
+    member = (rng.random((V, M)) < 0.4) & (rng.random((V, 1)) < 0.8)
+    _, muscle = np.nonzero(member)
+    offsets = np.concatenate([[0], np.cumsum(member.sum(axis=1))]).astype(np.int32)
+    weight = rng.uniform(0.2, 1.0, len(muscle)).astype(np.float32)
+    deformer = ShellDeformer(table, offsets, muscle.astype(np.int32), weight)
+    frames = [[random_frames(rng, E_rest) for _ in range(T)] for _ in range(S)]
+    for t in range(T):         # the sets share the reference ellipsoids (the bones)
+        for s in range(1, S):
+            f0, f = frames[0][t], frames[s][t]
+            frames[s][t] = ShellFrames(f0.E_ref, f0.E_ref_inv, f.E_cur, f.E_cur_inv, f.curve, f.active)
+    batch = ShellBatch(np.stack([f.E_ref for f in frames[0]]), np.stack([f.E_ref_inv for f in frames[0]]),
+                       *(np.stack([np.stack([getattr(f, k) for f in row]) for row in frames])
+                         for k in ("E_cur", "E_cur_inv", "curve", "active")))
+    points = rng.uniform(-0.5, 0.5, (T, V, 3))
+    got = deformer.deform_batch(points, batch)
+    assert got.shape == (S, T, V, 3) and got.dtype == np.float32
+    unpaired = ~member.any(axis=1)
+    for s in range(S):
+        for t in range(T):
+            single = deformer.deform(points[t], frames[s][t])
+            np.testing.assert_array_equal(got[s, t], single)
+            ref = shell_numpy(points[t], offsets, muscle, weight, table, frames[s][t])
+            np.testing.assert_allclose(got[s, t], ref, atol=REF_TOL, rtol=0.0)
+            np.testing.assert_array_equal(got[s, t, unpaired], points[t, unpaired].astype(np.float32))
+    assert np.abs(got[1] - got[0]).max() > 1e-3
+    # the GPU's launch shape (a thread per frame and paired vertex), run here on the CPU, gives the same
+    deformer.thread_per_frame = True
+    np.testing.assert_array_equal(deformer.deform_batch(points, batch), got)
+
+
+def test_shell_batch_checks_its_state():
+    rng = np.random.default_rng(2)
+    T, M = 3, 2
+    E = np.tile(np.eye(4), (T, M, 1, 1))
+    curve = np.zeros((1, T, M, 9, 3))
+    active = np.ones((1, T, M), bool)
+    ShellBatch(E, E, E[None], E[None], curve, active)
+    with pytest.raises(InputError, match="E_ref"):
+        ShellBatch(E[0], E, E[None], E[None], curve, active)
+    with pytest.raises(InputError, match="E_cur_inv"):
+        ShellBatch(E, E, E[None], E, curve, active)
+    with pytest.raises(InputError, match="curve"):
+        ShellBatch(E, E, E[None], E[None], curve[:, :, :, :1], active)
+    with pytest.raises(InputError, match="active"):
+        ShellBatch(E, E, E[None], E[None], curve, active[0])
+    table = shell_table([ShellParams()] * M)
+    deformer = ShellDeformer(table, np.array([0, 2, 2, 3], np.int32), np.array([0, 1, 1], np.int32),
+                             np.ones(3, np.float32))
+    points = wp.array(rng.uniform(-1, 1, (T, 3, 3)).astype(np.float32), dtype=wp.vec3)
+    nan = E.copy()
+    nan[1, 0, 0, 0] = np.nan
+    with pytest.raises(InputError, match="E_ref"):
+        deformer.launch_batch(points, ShellBatch(nan, E, E[None], E[None], curve, active))
+    inactive = active.copy()
+    inactive[:, 1, 0] = False         # no set reads muscle 0 at frame 1: its NaN is never read
+    out = deformer.launch_batch(points, ShellBatch(nan, E, E[None], E[None], curve, inactive))
+    np.testing.assert_array_equal(out.numpy()[0], points.numpy())
+    with pytest.raises(InputError, match="points"):
+        deformer.launch_batch(wp.zeros(3, dtype=wp.vec3), ShellBatch(E, E, E[None], E[None], curve, active))
+    with pytest.raises(InputError, match="batch"):
+        deformer.launch_batch(points, "frames")
