@@ -180,9 +180,14 @@ def cache_paths(out_dir: str, formats) -> dict:
     return {f: os.path.join(out_dir, CACHE_NAMES[f]) for f in formats}
 
 
+COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "energy.png", "spectrum.png",
+                 "displacement.png", "peak.png", "clip.mp4", "clip.gif", "report.html")
+"""What `jiggle compare` writes beside a bake (sim/compare.py): stale once the bake is redone."""
+
+
 def _remove_finished(out_dir: str) -> None:
-    """Drop a finished bake's caches and summary, so the folder never mixes two bakes."""
-    for name in (*CACHE_NAMES.values(), SUMMARY):
+    """Drop a finished bake's caches, summary and comparison, so the folder never mixes two bakes."""
+    for name in (*CACHE_NAMES.values(), SUMMARY, *COMPARE_NAMES):
         with contextlib.suppress(FileNotFoundError):
             os.remove(os.path.join(out_dir, name))
 

@@ -138,7 +138,9 @@ def test_killed_bake_resumes_to_the_same_caches(tmp_path, arm_bake):
 
 
 def test_blend_zero_bakes_the_static_skin_exactly(capsys, tmp_path):
+    (tmp_path / "report.html").write_text("an older bake's report")
     bake_arm(capsys, tmp_path, "--blend", "0", "--formats", "npz")
+    assert not (tmp_path / "report.html").exists()            # a new bake drops the old comparison
     d = read_npz(tmp_path / "bake.npz")
     np.testing.assert_array_equal(d.skin_final, d.skin_static)
     np.testing.assert_array_equal(d.muscle_cvs_dynamic, d.muscle_cvs_static)
@@ -217,6 +219,7 @@ def test_bad_input_is_one_line_with_exit_code_2(capsys, tmp_path):
           "--out", str(tmp_path / "o")], "--clip"),
         (["bake", ARM, "--out", str(tmp_path / "o"), "--start", "5"], "start"),
         (["bake", str(ROOT / "scenes" / "belly_bvh.toml"), "--out", str(tmp_path / "o")], "--clip"),
+        (["compare", str(tmp_path / "nothing_baked")], "jiggle bake"),
     ]
     for argv, needle in cases:
         code, out, err = run(capsys, *argv)
