@@ -68,6 +68,28 @@ class VertexNormals:
         n = np.where(ok, n / np.where(ok, length, 1.0), FALLBACK)
         return n.reshape(p.shape).astype(dtype)
 
+    def batch(self, positions, device: str = "cpu") -> np.ndarray:
+        """The same normals as a call, for positions (T, V, 3) float32 -> (T, V, 3) float32, by one
+        Warp launch (rig/normals_kernels.py); what a bake's cache writer uses for every frame."""
+        import warp as wp
+        from . import normals_kernels as kernels
+        p = np.ascontiguousarray(positions, dtype=np.float32)
+        if p.ndim != 3 or p.shape[1:] != (self.num_vertices, 3):
+            raise InputError(f"expected shape (T, {self.num_vertices}, 3), got {p.shape}", field="positions")
+        if p.size == 0:
+            return np.broadcast_to(FALLBACK.astype(np.float32), p.shape).copy()
+        if not hasattr(self, "_device_lists"):
+            inc = self.incidence
+            self._device_lists = (wp.array(self.faces.astype(np.int32), dtype=wp.vec3i, device=device),
+                                  wp.array(inc.indptr.astype(np.int32), dtype=wp.int32, device=device),
+                                  wp.array(inc.indices.astype(np.int32), dtype=wp.int32, device=device))
+        faces, offsets, face_of = self._device_lists
+        pts = wp.array(p, dtype=wp.vec3, device=device)
+        out = wp.empty(p.shape[:2], dtype=wp.vec3, device=device)
+        wp.launch(kernels.gather_normals, dim=p.shape[:2], device=device,
+                  inputs=[pts, faces, offsets, face_of, wp.vec3d(*FALLBACK)], outputs=[out])
+        return out.numpy().copy()
+
 
 def vertex_normals(positions, faces) -> np.ndarray:
     """Unit area-weighted normals of positions (V, 3) or (N, V, 3) for faces (F, 3); see the module."""

@@ -389,7 +389,7 @@ def _define_mesh(stage, prim_path: str, points: np.ndarray, faces: np.ndarray):
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
         np.ascontiguousarray(faces, dtype=np.int32).reshape(-1)))
-    normals = VertexNormals(faces, points.shape[1])(np.asarray(points, dtype=np.float32))
+    normals = VertexNormals(faces, points.shape[1]).batch(np.asarray(points, dtype=np.float32))
     pts_attr, n_attr, ext_attr = (mesh.CreatePointsAttr(), mesh.CreateNormalsAttr(),
                                   mesh.CreateExtentAttr())
     mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)

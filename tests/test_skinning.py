@@ -503,3 +503,19 @@ def test_normalise_weights_properties(m, k, seed):
         for i in range(kept):
             if w[v, i] > 0:
                 assert np.any((joints[v] == j[v, i]) & (weights[v] == top[v, i]))
+
+
+def test_vertex_normals_batch_equals_numpy():
+    """The Warp gather (what the bake's USD writer uses) gives the NumPy normals, the fallback
+    included, for a deforming sphere with a vertex no face touches."""
+    import trimesh
+    from rig.normals import FALLBACK, VertexNormals
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    v = np.vstack([sphere.vertices, [[5.0, 5.0, 5.0]]])            # the last vertex is in no face
+    rng = np.random.default_rng(3)
+    frames = (v[None] * (1.0 + 0.2 * rng.standard_normal((6, 1, 3)))).astype(np.float32)
+    vn = VertexNormals(sphere.faces, len(v))
+    got = vn.batch(frames)
+    np.testing.assert_allclose(got, vn(frames), atol=1e-6)
+    np.testing.assert_array_equal(got[:, -1], np.broadcast_to(FALLBACK, (6, 3)))
+    assert np.all(np.einsum("tvi,tvi->tv", got[:, :-1], frames[:, :-1]) > 0)   # outward on a convex mesh
