@@ -325,3 +325,32 @@ def foot_clearance(clip: Clip, character: CharacterSkeleton, character_map: Join
         ks = [mk[r] for r in (f"{s}_foot", f"{s}_toe") if r in mk]
         out[:, i] = np.min(pos[:, ks, 2] - (character.bind_positions[ks, 2] - floor), axis=1)
     return out
+
+
+def joint_map_for(given, joint_names, option, owner):
+    """The JointMap `given` (a TOML path or preset name, checked against joint_names), else the first
+    built-in preset that fits; InputError naming `option` when none does."""
+    if given is not None:
+        jm = JointMap.load(given)
+        jm.resolve(joint_names, owner)
+        return jm
+    for name in presets():
+        jm = JointMap.load(name)
+        try:
+            jm.resolve(joint_names, owner)
+            return jm
+        except InputError:
+            continue
+    raise InputError(f"no built-in joint map ({', '.join(presets())}) fits the skeleton of {owner}; "
+                     f"write one (see rig/retarget.py) and pass it with {option}", field=option)
+
+
+def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print):
+    """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given or the built-in presets)."""
+    from .gltf_skeleton import read_gltf_skeleton
+    character = read_gltf_skeleton(character_file, skin)
+    cmap = joint_map_for(clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
+    chmap = joint_map_for(character_map, character.joint_names, "--character-map", character_file)
+    out = retarget(clip, cmap, character, chmap)
+    log(f"retargeted {clip.name!r} ({cmap.name} map) onto {os.path.basename(character_file)} ({chmap.name} map)")
+    return out

@@ -171,7 +171,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
     t = time.perf_counter()
     scene = load_scene(req.scene) if req.scene is not None else None
     if scene is None and req.clip is None:
-        from .cli import default_scene
+        from .scene import default_scene
         scene = load_scene(default_scene())
     if scene is not None and scene.builtin is not None:
         return _prepare_builtin(req, scene, log)
@@ -191,8 +191,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
         raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
                          f"the character {os.path.basename(character_file)} has its own", field="--character")
     if character_file is not None:
-        from .cli import _retarget_clip
-        clip = _retarget_clip(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log)
+        from rig.retarget import retarget_onto
+        clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log)
         character = load_character(character_file, k=pick("influences", 4), unit=pick("unit", None),
                                    skin=pick("skin", 0))
         what = os.path.basename(character_file)

@@ -10,7 +10,6 @@ import json
 import os
 import sys
 from dataclasses import dataclass
-from importlib import resources
 from typing import Callable
 
 from rig.errors import InputError
@@ -179,38 +178,9 @@ def _play(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_map=No
     return summary
 
 
-def _joint_map(given, joint_names, option, owner):
-    """A joint map from --clip-map/--character-map, else the first built-in preset that fits."""
-    from rig.retarget import JointMap, presets
-    if given is not None:
-        jm = JointMap.load(given)
-        jm.resolve(joint_names, owner)
-        return jm
-    for name in presets():
-        jm = JointMap.load(name)
-        try:
-            jm.resolve(joint_names, owner)
-            return jm
-        except InputError:
-            continue
-    raise InputError(f"no built-in joint map ({', '.join(presets())}) fits the skeleton of {owner}; "
-                     f"write one (see rig/retarget.py) and pass it with {option}", field=option)
-
-
 def _retarget_onto_character(clip, args):
-    return _retarget_clip(clip, args.character, args.skin, args.clip_map, args.character_map, print)
-
-
-def _retarget_clip(clip, character_file, skin=0, clip_map=None, character_map=None, log=print):
-    """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given or the built-in presets)."""
-    from rig.gltf_skeleton import read_gltf_skeleton
-    from rig.retarget import retarget
-    character = read_gltf_skeleton(character_file, skin)
-    cmap = _joint_map(clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
-    chmap = _joint_map(character_map, character.joint_names, "--character-map", character_file)
-    out = retarget(clip, cmap, character, chmap)
-    log(f"retargeted {clip.name!r} ({cmap.name} map) onto {os.path.basename(character_file)} ({chmap.name} map)")
-    return out
+    from rig.retarget import retarget_onto
+    return retarget_onto(clip, args.character, args.skin, args.clip_map, args.character_map, print)
 
 
 def cmd_play(args) -> int:
@@ -259,7 +229,8 @@ def _generated_character(clip, args, quiet=False):
 
 
 def default_scene() -> str:
-    return str(resources.files("scenes").joinpath("default.toml"))
+    from .scene import default_scene as path
+    return path()
 
 
 def cmd_demo(args) -> int:

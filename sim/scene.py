@@ -79,6 +79,12 @@ FORMATS = ("npz", "usdc", "usda", "pc2")
 """Cache formats `jiggle bake` writes (usdc and usda are one USD stage, crate or text)."""
 
 
+def default_scene() -> str:
+    """Path of the built-in demo scene, scenes/default.toml."""
+    from importlib import resources
+    return str(resources.files("scenes").joinpath("default.toml"))
+
+
 @dataclass(frozen=True)
 class CharacterSpec:
     """A scene's [character] table, checked; None: not given (the command's default applies).
