@@ -34,7 +34,7 @@ import numpy as np
 from rig.atomic import atomic_path
 from rig.errors import InputError
 from .bake_setup import BakeSetup
-from .caches import BakeData, require_finite, write_npz, write_pc2, write_usd
+from .caches import BakeData, write_npz, write_pc2, write_usd
 from .goal_track import build_track
 from .jiggle import TIME_EPS, run
 from .jiggle_params import CVS
@@ -118,12 +118,12 @@ class Baker:
         t = clock()
         skin_static, skin_final = skin_frames(s.skin, world, (st, cvs), curve, f0)
         self.timings["skin_s"] += clock() - t
-        for name, a_, item in (("skin_static", skin_static, "vertex"), ("skin_final", skin_final, "vertex")):
-            try:
-                require_finite(name, a_, item)
-            except InputError as e:
-                raise InputError(f"{e.message.replace('frame ', 'chunk frame ')} (chunk {c} starts at frame {f0})",
-                                 field=name) from None
+        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
+            bad = ~np.isfinite(skin)
+            if bad.any():                       # never into a cache: stop while the chunks so far are kept
+                k, v = np.argwhere(bad)[0][:2]
+                raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; nothing "
+                                 f"of this chunk was written", field=name)
         out = {"frames": np.array([f0, f1]), "skin_static": skin_static, "skin_final": skin_final,
                "joint_world": joints, "cvs_static": st.astype(np.float32), "cvs_dynamic": cvs.astype(np.float32)}
         if new_state is not None:

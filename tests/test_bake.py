@@ -237,3 +237,21 @@ def test_unknown_scene_key_lists_the_valid_ones(capsys, tmp_path):
     p.write_text('[charactr]\nfile = "x.glb"\n')
     code, out, err = run(capsys, "bake", str(p), "--out", str(tmp_path / "o"))
     assert code == 2 and "character" in err and "motion" in err
+
+
+def test_a_nan_skin_stops_the_bake_before_any_cache(capsys, tmp_path, monkeypatch):
+    """A skin that turns NaN (say a degenerate deformer) stops at its frame: exit 2 naming the frame,
+    the chunks before it kept, no cache written."""
+    from sim import bake as bake_mod
+    real = bake_mod.skin_frames
+
+    def poisoned(skin, world, cvs_sets, curve, first_frame):
+        out = real(skin, world, cvs_sets, curve, first_frame)
+        if first_frame == 32:
+            out[1][5, 7] = np.nan
+        return out
+    monkeypatch.setattr(bake_mod, "skin_frames", poisoned)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "16", "--formats", "npz")
+    assert code == 2 and "skin_final" in err and "frame 37" in err and "vertex 7" in err
+    assert not (tmp_path / "bake.npz").exists()
+    assert (tmp_path / ".partial" / "chunk_00001.npz").exists()
