@@ -629,8 +629,8 @@ def _bake_options(p: argparse.ArgumentParser, out: str) -> None:
 def build_parser() -> argparse.ArgumentParser:
     top = _Parser(prog="jiggle", description=(
         "Physics-backed muscle jiggle and secondary motion for animated characters. "
-        "Today: read mocap clips (BVH, ASF/AMC, glTF), drive their skeletons through MuJoCo, "
-        "and look at the result."),
+        "Start with 'jiggle demo'; bake your own clip with 'jiggle bake --clip FILE' and compare static "
+        "with dynamic deformation with 'jiggle compare OUT_DIR'."),
         epilog="Run 'jiggle COMMAND --help' for a command's options. Exit codes: 0 done, 2 bad input, "
                "130 interrupted.")
     sub = top.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
