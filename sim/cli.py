@@ -704,7 +704,9 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("character")
     g.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles")
     _map_options(g)
-    _mesh_options(g)
+    g.add_argument("--skin", type=int, metavar="N", help="which skin of a glTF character (default: 0)")
+    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per "
+                   "unit (default: m)")
     _clip_options(p)
     p.set_defaults(func=cmd_bake)
 
