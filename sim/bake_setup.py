@@ -158,7 +158,7 @@ def output_times(duration: float, fps: float, start: float | None, end: float | 
     s = 0.0 if start is None else float(start)
     e = duration if end is None else float(end)
     if not 0.0 <= s < e <= duration + 1e-9:
-        raise InputError(f"expected 0 <= start < end <= {duration:.4g} s (the clip's length), got start {s:g}, "
+        raise InputError(f"expected 0 <= start < end <= {duration:.4g} s (the motion's length), got start {s:g}, "
                          f"end {e:g}", field="--start/--end")
     times = s + np.arange(int(np.floor((e - s) * fps + 1e-9)) + 1) / fps
     return times if frames is None else times[:frames]

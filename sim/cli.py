@@ -434,14 +434,8 @@ def _simulate_job(args) -> SimulateJob:
 
 def _simulate_times(args, duration: float, fps: float):
     """Output times (T,) seconds: --start..--end (default the whole motion) at fps, the first --frames."""
-    import numpy as np
-    start = 0.0 if args.start is None else args.start
-    end = duration if args.end is None else args.end
-    if not 0.0 <= start < end <= duration + 1e-9:
-        raise InputError(f"expected 0 <= start < end <= {duration:.4g} s (the motion's length), got start {start:g}, "
-                         f"end {end:g}", field="--start/--end")
-    times = start + np.arange(int(np.floor((end - start) * fps + 1e-9)) + 1) / fps
-    return times if args.frames is None else times[:args.frames]
+    from .bake_setup import output_times
+    return output_times(duration, fps, args.start, args.end, args.frames)
 
 
 def cmd_simulate(args) -> int:
