@@ -301,7 +301,8 @@ class FeatureSet:
     distance : (F,) float64 metres, the ray hit's distance from its component (bone: from the axis;
         muscle: signed from the loft surface, + outside).
     snapped, inserted : features on existing vertices / on inserted ones (snapped + inserted = F).
-    counts : {component label: features}, bone segment labels then muscle names.
+    counts : {component label: features}, every bone segment label then every muscle name (0 for a
+        component that found none).
     rays : rays cast; hits : rays that hit the skin; candidates : hits within reach, not grazing
         (facing), before the thinning.
     """
@@ -510,7 +511,6 @@ def find_features(character, segments: BoneSegments, rig=None, options: FeatureO
     vid = Fc[face, near]
     cand = np.where(snap[:, None], V[vid], on)
     kept = _thin(cand, np.abs(dist), spacing)
-    kept = kept[np.argsort(np.where(snap[kept], vid[kept], len(V)), kind="stable")]
     ins = kept[~snap[kept]]
     if ins.size:
         skin, new = insert_points(V, Fc, face[ins], bary[ins])
