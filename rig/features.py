@@ -77,6 +77,10 @@ class FeatureOptions:
         to that vertex instead of being inserted.
     insert : False: every hit snaps to the nearest corner of its triangle (no vertex is added; the
         mesh's topology is kept, which is what an animation cache needs).
+    interior : an inserted point is moved within its triangle so that each corner keeps at least
+        this barycentric share (before renormalising), so the 1-to-3 split leaves no sliver: a
+        sliver's normal flips under the slightest uneven motion (morph or animation). The point stays
+        on the surface; the feature is anchored where it ends up.
     bone_span : (a, b), 0 <= a <= b <= 1, the part of each bone the rays start from.
     rays_around : rays per bone station, evenly around the bone.
     ray_step : distance between ray origins along a bone and over a muscle's loft (both directions).
@@ -92,6 +96,7 @@ class FeatureOptions:
     grazing: float = 0.4
     snap: float = 0.4
     insert: bool = True
+    interior: float = 0.15
     bone_span: tuple[float, float] = (0.15, 0.85)
     rays_around: int = 16
     ray_step: float = 0.01
@@ -105,6 +110,8 @@ class FeatureOptions:
                 raise InputError(f"expected a fraction of the height > 0, got {x!r}", field=k)
         if not _real(self.grazing) or not 0.0 <= self.grazing < 1.0:
             raise InputError(f"expected a cosine in [0, 1), got {self.grazing!r}", field="grazing")
+        if not _real(self.interior) or not 0.0 <= self.interior < 1.0 / 3.0:
+            raise InputError(f"expected a barycentric share in [0, 1/3), got {self.interior!r}", field="interior")
         if not _real(self.snap) or not 0.0 <= self.snap < np.inf:
             raise InputError(f"expected a fraction of spacing >= 0, got {self.snap!r}", field="snap")
         for k in ("insert", "facing"):
@@ -509,6 +516,9 @@ def find_features(character, segments: BoneSegments, rig=None, options: FeatureO
     near = np.argmin(dc, axis=1)
     snap = ~np.full(len(ray), options.insert) | (dc[np.arange(len(ray)), near] <= options.snap * spacing)
     vid = Fc[face, near]
+    inward = np.maximum(bary, options.interior)
+    bary = np.where(snap[:, None], bary, inward / inward.sum(axis=1, keepdims=True))
+    on = np.einsum("nk,nkx->nx", bary, corners)
     cand = np.where(snap[:, None], V[vid], on)
     kept = _thin(cand, np.abs(dist), spacing)
     ins = kept[~snap[kept]]

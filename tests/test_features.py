@@ -525,6 +525,25 @@ def test_cesiumman_resampled_skin_is_the_same_surface(cesium):
     np.testing.assert_allclose(c2.weights.sum(1), 1.0, atol=1e-6)
 
 
+def test_cesiumman_inserted_points_leave_no_sliver(cesium):
+    ch, mus, segments, fs, _ = cesium
+    V = ch.num_vertices
+    # each inserted vertex keeps a share of every corner of its original triangle: the three children
+    # of a split hold at least that share of its area each
+    share = 0.15 / (1 + 2 * 0.15)
+    assert fs.skin.bary[V:].min() >= share - 1e-9
+    a0 = np.linalg.norm(area2(ch.vertices, ch.faces), axis=1)
+    a1 = np.linalg.norm(area2(fs.skin.vertices, fs.skin.faces), axis=1)
+    pieces = np.bincount(fs.skin.face_origin, minlength=len(a0))
+    child = (pieces == 3)[fs.skin.face_origin]          # split once (a triangle holding two points splits twice)
+    assert (pieces > 3).sum() < 0.1 * (pieces == 3).sum()
+    assert (a1[child] / a0[fs.skin.face_origin[child]]).min() >= share * (1 - 1e-6)
+    # without the inward move the ray hits near edges leave slivers
+    raw = find_features(ch, segments, mus.rig, FeatureOptions(interior=0.0))
+    a2 = np.linalg.norm(area2(raw.skin.vertices, raw.skin.faces), axis=1)
+    assert (a2 / a0[raw.skin.face_origin]).min() < 0.02
+
+
 def test_cesiumman_topology_kept_without_insertion(cesium):
     ch, mus, segments, _, _ = cesium
     fs = find_features(ch, segments, mus.rig, FeatureOptions(insert=False))
