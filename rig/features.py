@@ -521,6 +521,12 @@ def find_features(character, segments: BoneSegments, rig=None, options: FeatureO
     on = np.einsum("nk,nkx->nx", bary, corners)
     cand = np.where(snap[:, None], V[vid], on)
     kept = _thin(cand, np.abs(dist), spacing)
+    # one inserted point per triangle (the one whose component is closest): a second point would
+    # split a child triangle again and could leave a sliver after all
+    ins = kept[~snap[kept]]
+    ranked = ins[np.lexsort((ins, np.abs(dist)[ins]))]
+    _, first = np.unique(face[ranked], return_index=True)
+    kept = np.setdiff1d(kept, np.setdiff1d(ins, ranked[first]))
     ins = kept[~snap[kept]]
     if ins.size:
         skin, new = insert_points(V, Fc, face[ins], bary[ins])

@@ -5,6 +5,8 @@
         --MuscleFrames--> per muscle E_ref (rest ellipsoid riding its bone), E_cur (fitted to the CVs)
         --ShellDeformer (Warp)--> shells in series on the culled (vertex, muscle) pairs    "shell"
         --InfluenceDeformer (Warp)--> the muscle surface carries its bound vertices         "influence"
+    or, with no smooth skinning at all, feature points anchored to the bones and muscles drive a
+    zoned RBF interpolation of the whole skin (rig.rbf_skin.RBFSkin, Simmons et al. 2002)    "rbf"
 
 The artist's skin is kept: both deformers act on the change of each muscle relative to the bone it
 rides (rig/shells.py says how the paper's absolute shells became relative), so at the bind pose with
@@ -36,9 +38,9 @@ from .muscle_model import MuscleRig
 from .shell_deformer import ShellBatch, ShellDeformer
 from .shells import ShellParams, beta, cull_pairs, default_shell, shell_table
 
-SKINNING = ("shell", "influence")
-"""How the muscles move the skin: the shell deformers (Pratscher et al.) or influence objects (the
-thesis's Maya setup)."""
+SKINNING = ("shell", "influence", "rbf")
+"""How the muscles move the skin: the shell deformers (Pratscher et al.), influence objects (the
+thesis's Maya setup), or anatomy-driven RBF interpolation (Simmons et al.; no LBS underneath)."""
 
 
 class MuscleSkin:
@@ -49,7 +51,9 @@ class MuscleSkin:
     character : the skinned character (rest skin, weights, bind transforms).
     rig : its muscles (rig.muscle_model.MuscleRig), in the character's joint order.
     shells : one ShellParams per muscle, or None for each kind's default (rig.shells.default_shell).
-    skinning : "shell" (default) or "influence".
+    skinning : "shell" (default), "influence" or "rbf" (`method`, `weights`, `margin` and `star` do not
+        apply to it; `rbf` takes rig.rbf_skin.RBFSkinOptions, `segmentation` and `roles` save their
+        recomputation).
     method : "lbs" (default) or "dqs", the smooth skinning underneath.
     weights : (V, M) painted per-vertex weights w_i in [0, 1] (rig.shell_weights), or None for 1.
         Influence objects multiply them by the muscle's overall weight w and the shell fall-off beta
@@ -62,7 +66,8 @@ class MuscleSkin:
 
     def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
                  skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
-                 margin: float = 0.25, star: bool = True, device: str = "cpu"):
+                 margin: float = 0.25, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
+                 roles=None):
         if skinning not in SKINNING:
             raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
         if method not in ("lbs", "dqs"):
@@ -97,6 +102,11 @@ class MuscleSkin:
         if skinning == "shell":
             self.pair_weight = pair_w.astype(np.float32)
             self.deformer = ShellDeformer(self.table, offsets, muscle, self.pair_weight, device=device)
+        elif skinning == "rbf":
+            from .rbf_skin import RBFSkin, RBFSkinOptions
+            self.pair_weight = pair_w.astype(np.float32)
+            self.deformer = RBFSkin(character, rig, segmentation=segmentation, roles=roles,
+                                    options=rbf or RBFSkinOptions(), device=device)
         else:
             self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
             binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
@@ -114,6 +124,8 @@ class MuscleSkin:
         if weights is not None and not isinstance(weights, np.ndarray):
             weights = load_weights(weights, names, mus.character.num_vertices)
         shells = [m.spec.shell for m in mus.muscles]
+        if kw.get("skinning") == "rbf":
+            kw = {"segmentation": mus.segmentation, "roles": mus.roles, **kw}
         return cls(mus.character, mus.rig, shells, weights=weights, **kw)
 
     # ------------------------------------------------------------------ facts
@@ -154,6 +166,8 @@ class MuscleSkin:
             static = self.rig.static(world)
             cvs = static.cvs if cvs is None else cvs
             curve = static.curve if curve is None else curve
+        if self.skinning == "rbf":
+            return self.deformer.pose(world, self._finite_cvs(cvs, world, frame))
         points = self.skinner.launch(self.character.skin_matrices(world), self.method)
         if self.skinning == "shell":
             fr, skipped = self.frames.frame(world, cvs, curve, frame=frame or 0)
@@ -205,6 +219,8 @@ class MuscleSkin:
             static = self.rig.static(world)
             cvs_sets = [static.cvs if c is None else c for c in cvs_sets]
             curves = [static.curve if k is None else k for k in curves]
+        if self.skinning == "rbf":
+            return self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
         points = self.skinner.launch_batch(self.character.skin_matrices(world), self.method)  # (T, V)
         if self.skinning == "shell":
             arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame)
@@ -229,6 +245,19 @@ class MuscleSkin:
                     c = np.where(np.repeat(bad[t], self.rig.CVS_PER_MUSCLE)[:, None], ref[t], c)
                 out[s][t] = self.deformer.launch(points[t], c, ref[t]).numpy()
         return out
+
+    def _finite_cvs(self, cvs, world: np.ndarray, first_frame: int | None) -> np.ndarray:
+        """CVs (N, 3) or (T, N, 3) with every muscle holding NaN or inf put back on its rest shape carried
+        by its bone (with the warning that names it), so the RBF skin stays finite."""
+        cvs = np.asarray(cvs, dtype=np.float64)
+        bad = ~np.isfinite(cvs.reshape(cvs.shape[:-2] + (self.rig.M, -1))).all(axis=-1)
+        if not bad.any():
+            return cvs
+        ref = self.frames.carried_rest_cvs(world)
+        rows = np.repeat(bad, self.rig.CVS_PER_MUSCLE, axis=-1)[..., None]
+        for t, m in zip(*np.nonzero(bad.reshape(-1, self.rig.M))):
+            self._warn([m], None if first_frame is None else first_frame + int(t), "its CVs hold NaN or inf")
+        return np.where(rows, ref, cvs)
 
     def _check_world_batch(self, world) -> np.ndarray:
         world = np.asarray(world, dtype=np.float64)

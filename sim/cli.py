@@ -579,6 +579,62 @@ def _compare(out_dir: str, render: bool = True, video: bool = True) -> dict:
     return res
 
 
+# ---------------------------------------------------------------------------------------- morph
+def cmd_morph(args) -> int:
+    """Morph a canonical character to a target from marker positions; or write the canonical's markers."""
+    import time
+    from rig.character import load_character
+    from rig.features import FeatureOptions
+    from rig.markers import read_markers, write_markers
+    from rig.morph import MorphOptions, morph, prepare_canonical
+    from .morph_outputs import render_morph, side_paths, write_report
+
+    if args.markers is None and args.write_markers is None:
+        raise InputError("give --markers FILE (the target's marker positions) or --write-markers FILE (the "
+                         "canonical's, to edit)", field="--markers")
+    ext = os.path.splitext(args.out)[1].lower()
+    if args.markers is not None and ext not in (".glb", ".gltf"):
+        raise InputError(f"expected a .glb or .gltf output, got {args.out!r}", field="--out")
+    t = time.perf_counter()
+    character = load_character(args.canonical, k=args.influences, unit=args.unit, skin=args.skin)
+    features = FeatureOptions(spacing=args.spacing, insert=not args.snap_only)
+    options = MorphOptions(template=args.template or "human", kernel=args.kernel, scale=args.rbf_scale,
+                           band=args.band, marker_features=args.marker_features, features=features,
+                           joint_map=args.joint_map)
+    canon = prepare_canonical(character, options, source=args.canonical)
+    if args.write_markers is not None:
+        write_markers(args.write_markers, canon.markers.names, canon.markers.positions, source=args.canonical)
+        print(f"wrote the {len(canon.markers.names)} markers of {args.canonical} to {args.write_markers} "
+              "(metres, Z-up); move them to the target's and run: jiggle morph CANONICAL --markers FILE --out T.glb")
+        if args.markers is None:
+            return 0
+    target = read_markers(args.markers, canon.markers.names)
+    res = morph(canon, target, options)
+    from rig.gltf_write import write_character
+    write_character(res.character, args.out, source=args.canonical,
+                    extras={"jiggle": {"morphed_from": os.path.basename(args.canonical),
+                                       "markers": os.path.basename(args.markers)}})
+    json_path, png_path = side_paths(args.out)
+    rep = res.report
+    rep["seconds"]["total"] = round(time.perf_counter() - t, 3)
+    write_report(json_path, rep)
+    files = {"character": args.out, "report": json_path}
+    if not args.no_render:
+        files["picture"] = render_morph(png_path, canon.character.vertices, res.character.vertices,
+                                        canon.character.faces, [target[n] for n in canon.markers.names])
+    H = rep["height_m"]
+    conds = [c for c in rep["rbf"].get("condition", []) if c is not None]
+    print(f"morphed {os.path.basename(args.canonical)} ({rep['vertices']} vertices, {rep['features']['count']} "
+          f"feature points: {rep['features']['snapped']} snapped, {rep['features']['inserted']} inserted) to "
+          f"{len(canon.markers.names)} markers in {rep['seconds']['total']:.1f} s")
+    print(f"  markers: rms {1e3 * rep['marker_rms_m']:.1f} mm ({100 * rep['marker_rms_m'] / H:.2f}% of the "
+          f"{H:.2f} m height), worst {1e3 * rep['marker_max_m']:.1f} mm; flipped triangles {rep['flipped']}"
+          + (f"; RBF condition up to {max(conds):.2g}" if conds else ""))
+    for k, f in files.items():
+        print(f"  {k:10s} {f}")
+    return 0
+
+
 # ---------------------------------------------------------------------------------------- parser
 def _bake_options(p: argparse.ArgumentParser, out: str) -> None:
     """Options shared by `jiggle bake` and `jiggle demo`."""
@@ -609,7 +665,8 @@ def _bake_options(p: argparse.ArgumentParser, out: str) -> None:
     g.add_argument("--chunk", type=_count("--chunk"), metavar="N", help="frames per chunk written and resumed "
                    "(default: 64)")
     g = p.add_argument_group("skin")
-    g.add_argument("--skinning", choices=["shell", "influence"], help="how the muscles move the skin (default: shell)")
+    g.add_argument("--skinning", choices=["shell", "influence", "rbf"], help="how the muscles move the skin: shell, influence or rbf "
+                   "(default: shell)")
     g.add_argument("--method", choices=["lbs", "dqs"], help="smooth skinning underneath (default: lbs)")
     g.add_argument("--influences", type=_count("--influences"), metavar="K", help="skin weights kept per vertex "
                    "(default: 4)")
@@ -716,6 +773,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-video", action="store_true", help="skip the video only")
     p.set_defaults(func=cmd_compare)
 
+    p = sub.add_parser("morph", help="morph a canonical character to a target from sparse marker positions",
+                       description="Morph a canonical skinned character into a target, inside out (Simmons et al. "
+                                   "2002): joints from the target's markers, chains without markers keeping their "
+                                   "shape, bones and muscles scaled by the measured body dimensions, then the skin "
+                                   "by zoned RBF interpolation of feature points anchored to bones and muscles. "
+                                   "Writes a skinned, animatable glTF, a report (.morph.json) and a picture "
+                                   "(.morph.png). --write-markers writes the canonical's markers to start from.")
+    p.add_argument("canonical", metavar="CANONICAL", help="the canonical character: a skinned glTF/GLB")
+    p.add_argument("--markers", metavar="FILE", help="the target's marker positions (TOML or JSON, metres, Z-up)")
+    p.add_argument("--write-markers", metavar="FILE", help="write the canonical's markers (TOML) to FILE")
+    p.add_argument("--out", default="out/morph/target.glb", help="the target character, .glb or .gltf "
+                   "(default: out/morph/target.glb)")
+    p.add_argument("--no-render", action="store_true", help="skip the picture")
+    p.add_argument("--template", metavar="T", help="muscle template of the canonical (default: human)")
+    p.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the canonical's roles "
+                   "(default: a built-in preset that fits, else found from the skeleton)")
+    g = p.add_argument_group("skin interpolation")
+    g.add_argument("--kernel", choices=["soliton", "gaussian", "multiquadric", "inverse_multiquadric"],
+                   default="soliton", help="radial basis function (default: soliton e^(-r/s))")
+    g.add_argument("--rbf-scale", type=_positive("--rbf-scale"), default=0.1, metavar="S",
+                   help="the kernel's scale s as a fraction of the body's height (default: 0.1)")
+    g.add_argument("--band", type=_non_negative("--band"), default=0.04, metavar="B",
+                   help="blend band across zone boundaries, fraction of the height (default: 0.04)")
+    g.add_argument("--spacing", type=_positive("--spacing"), default=0.02, metavar="D",
+                   help="least distance between feature points, fraction of the height (default: 0.02)")
+    g.add_argument("--snap-only", action="store_true", help="snap feature points to existing vertices instead "
+                   "of inserting new ones (keeps the canonical's topology)")
+    g.add_argument("--marker-features", action="store_true", help="also pin the marker vertices to the target's "
+                   "markers (exact markers; a misplaced marker dents the skin)")
+    g = p.add_argument_group("canonical file")
+    g.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of the glTF (default: 0)")
+    g.add_argument("--unit", metavar="UNIT", help="the file's unit: m, cm, mm, in, ft or metres per unit (default: m)")
+    g.add_argument("--influences", type=_count("--influences"), default=4, metavar="K",
+                   help="skin weights kept per vertex (default: 4)")
+    p.set_defaults(func=cmd_morph)
+
     p = sub.add_parser("body", help="generate a body mesh around a skeleton, with automatic weights",
                        description="Generate a smooth, closed body around a skeleton (proportions from its bone "
                                    "lengths, optional fat volumes) with automatic weights, and write body.png "
@@ -765,8 +858,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clip", metavar="FILE", help="the pose's clip (BVH, AMC, glTF), retargeted onto CHARACTER")
     p.add_argument("--time", type=_non_negative("--time"), metavar="S", help="seconds into --clip (default: 0)")
     p.add_argument("--angle", type=float, metavar="DEG", help="simple arm: elbow flexion in degrees (default: 90)")
-    p.add_argument("--skinning", choices=["shell", "influence"], default="shell",
-                   help="how the muscles move the skin: shell deformers or influence objects (default: shell)")
+    p.add_argument("--skinning", choices=["shell", "influence", "rbf"], default="shell",
+                   help="how the muscles move the skin: shell deformers, influence objects or anatomy-driven RBF "
+                   "(default: shell)")
     p.add_argument("--method", choices=["lbs", "dqs"], default="lbs", help="smooth skinning underneath (default: lbs)")
     p.add_argument("--weights", metavar="NPZ", help="painted per-vertex muscle weights (default: "
                    "<character>.shell_weights.npz beside the character when present, else 1)")
@@ -822,8 +916,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--focus", action="append", metavar="MUSCLE", help="muscle the pictures frame and draw "
                    "(repeatable; default: the scene's [output] focus, else those jiggling at least half as much as "
                    "the most)")
-    g.add_argument("--skinning", choices=["shell", "influence"], default="shell",
-                   help="how the muscles move the skin: shell deformers or influence objects (default: shell)")
+    g.add_argument("--skinning", choices=["shell", "influence", "rbf"], default="shell",
+                   help="how the muscles move the skin: shell deformers, influence objects or anatomy-driven RBF "
+                   "(default: shell)")
     g.add_argument("--method", choices=["lbs", "dqs"], default="lbs", help="smooth skinning underneath (default: lbs)")
     g = p.add_argument_group("character")
     g.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles")

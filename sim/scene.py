@@ -21,7 +21,7 @@ Layout (paths relative to the scene file)::
     resolution = 20000            # generated body: vertex count; belly, chest, glutes, upper_arms:
     belly = 0.04                  #   metres of fat (rig.body.BodyOptions)
     influences = 4                # skin weights kept per vertex
-    skinning = "shell"            # how muscles move the skin: "shell" or "influence"
+    skinning = "shell"            # how muscles move the skin: "shell", "influence" or "rbf"
     method = "lbs"                # smooth skinning underneath: "lbs" or "dqs"
     [skeleton]
     drive = "kinematic"           # or "physics"
@@ -290,7 +290,7 @@ def _character(table: dict, p: str, here: str, lines: "_Lines") -> CharacterSpec
                 raise InputError(f"file {f} not found", p, at(k), field=where)
             kw[k] = f
         elif k in ("skinning", "method"):
-            choices = ("shell", "influence") if k == "skinning" else ("lbs", "dqs")
+            choices = ("shell", "influence", "rbf") if k == "skinning" else ("lbs", "dqs")
             if v not in choices:
                 raise InputError(f"expected one of {', '.join(choices)}, found {v!r}", p, at(k), field=where)
             kw[k] = v
