@@ -573,7 +573,9 @@ class ZoneRBF:
             raise InputError(f"expected ({F}, 3) or (T, {F}, 3) points, got shape {p.shape}", field="points")
         if p.ndim == 2:
             return np.einsum("vk,vkc->vc", self.weight, p[self.index])
-        return np.einsum("vk,tvkc->tvc", self.weight, p[:, self.index])
+        # frame by frame: a (T, V, k, 3) gather at once would be T x 67 MB for 87k vertices, k = 32
+        return np.stack([np.einsum("vk,vkc->vc", self.weight, q[self.index]) for q in p]) if len(p) else \
+            np.zeros((0, self.num_vertices, 3))
 
 
 def build_zone_rbf(vertices, features, feature_zone, zones, options: RBFOptions, feature_vertex=None) -> ZoneRBF:
@@ -767,16 +769,19 @@ def boundary_report(vertices, faces, displacement, zones, interpolants: ZoneInte
     :class:`ZoneInterpolants` that made it (adds the raw jumps); weld : metres (meshes split at UV
     seams are welded by position first).
 
-    Boundary edges join vertices of different zones (vertex_zone), interior edges the same zone.
+    Edges are sorted by the zones (vertex_zone) of their ends: "interior" (same zone), "boundary"
+    (neighbouring zones: blending can hide the step there) and "apart" (zones that are not
+    neighbours but touch on the mesh, like two thighs at the crotch: nothing blends them, so their
+    step stays).
     "gradient": |d(a) - d(b)| / |a - b| per edge (dimensionless, metres of displacement change per
-    metre), its max and 99th percentile on boundary and interior edges, and their ratios
-    (boundary / interior: ~1 means the boundary is as smooth as the zones' insides).
-    "raw_jump" (with interpolants): |f_A(x) - f_B(x)| in metres at both ends x of each boundary edge
-    (zones A, B of its ends), before blending: what blending has to hide; max, p99, mean.
+    metre): max, p99 (99th percentile) and mean for each kind of edge, and ratio_max / ratio_p99 =
+    boundary / interior (~1: the boundaries are as smooth as the zones' insides).
+    "raw_jump" (with interpolants): |f_A(x) - f_B(x)| in metres at both ends x of each boundary
+    (and apart) edge, A and B the zones of its ends, before blending: what blending has to hide.
     """
     verts = _points(vertices, "vertices")
     d = _points(displacement, "displacement", len(verts))
-    names, vz, _, _ = _zone_fields(zones, len(verts))
+    names, vz, nb, _ = _zone_fields(zones, len(verts))
     edges, _ = weld_edges(verts, faces, weld)
     a, b = edges[:, 0], edges[:, 1]
     length = np.linalg.norm(verts[a] - verts[b], axis=1)
@@ -788,23 +793,31 @@ def boundary_report(vertices, faces, displacement, zones, interpolants: ZoneInte
             return {"max": 0.0, "p99": 0.0, "mean": 0.0}
         return {"max": float(x.max()), "p99": float(np.percentile(x, 99)), "mean": float(x.mean())}
 
-    gb, gi = stats(grad[cross]), stats(grad[~cross])
-    out = {"boundary_edges": int(cross.sum()), "interior_edges": int((~cross).sum()),
-           "gradient": {"boundary": gb, "interior": gi,
+    apart = cross & ~nb[vz[a], vz[b]]
+    cross &= ~apart
+    gb, gi = stats(grad[cross]), stats(grad[~cross & ~apart])
+    out = {"boundary_edges": int(cross.sum()), "apart_edges": int(apart.sum()),
+           "interior_edges": int((~cross & ~apart).sum()),
+           "gradient": {"boundary": gb, "interior": gi, "apart": stats(grad[apart]),
                         "ratio_max": gb["max"] / gi["max"] if gi["max"] > 0 else float("nan"),
                         "ratio_p99": gb["p99"] / gi["p99"] if gi["p99"] > 0 else float("nan")}}
     if interpolants is not None:
-        jumps = []
-        ea, eb = a[cross], b[cross]
-        pairs = np.stack([vz[ea], vz[eb]], axis=1)
-        for za, zb in np.unique(pairs, axis=0):
-            sel = (pairs[:, 0] == za) & (pairs[:, 1] == zb)
-            pts = verts[np.unique(np.concatenate([ea[sel], eb[sel]]))]
-            if interpolants.centres[za] is None or interpolants.centres[zb] is None:
-                continue
-            jumps.append(np.linalg.norm(interpolants.evaluate(za, pts) - interpolants.evaluate(zb, pts), axis=1))
-        out["raw_jump"] = stats(np.concatenate(jumps) if jumps else np.zeros(0))
+        out["raw_jump"] = {"boundary": _raw_jumps(interpolants, verts, vz, a[cross], b[cross], stats),
+                           "apart": _raw_jumps(interpolants, verts, vz, a[apart], b[apart], stats)}
     return out
+
+
+def _raw_jumps(interpolants: ZoneInterpolants, verts, vz, ea, eb, stats) -> dict:
+    """|f_A(x) - f_B(x)| at both ends x of edges (ea, eb) between zones A = vz[ea], B = vz[eb]."""
+    jumps = []
+    pairs = np.stack([vz[ea], vz[eb]], axis=1)
+    for za, zb in np.unique(pairs, axis=0):
+        if interpolants.centres[za] is None or interpolants.centres[zb] is None:
+            continue
+        sel = (pairs[:, 0] == za) & (pairs[:, 1] == zb)
+        pts = verts[np.unique(np.concatenate([ea[sel], eb[sel]]))]
+        jumps.append(np.linalg.norm(interpolants.evaluate(za, pts) - interpolants.evaluate(zb, pts), axis=1))
+    return stats(np.concatenate(jumps) if jumps else np.zeros(0))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -252,6 +252,14 @@ def test_one_leg_never_moves_the_other():
     np.testing.assert_allclose(skinned[left], v[left], atol=1e-9)
     assert np.abs(pos[vz == 1] - v[vz == 1]).max() > 0.05          # the right leg did move
     assert np.abs(pos[low] - v[low]).max() > 1e-3                  # and the pelvis near it
+    # a crotch: one triangle joining the legs' facing sides is an "apart" edge pair in the report,
+    # where the legs' interpolants differ and nothing blends them
+    i = np.flatnonzero(vz == 0)[np.argmax(v[vz == 0, 0] - np.abs(v[vz == 0, 2] - 0.45))]
+    j = np.flatnonzero(vz == 1)[np.argmin(v[vz == 1, 0] + np.abs(v[vz == 1, 2] - 0.45))]
+    crotch = np.concatenate(faces + [[[i, j, i + 1]]])
+    report = boundary_report(v, crotch, pos - v, zones, zone_interpolants(v, v[fi], moved - v[fi], fz, zones, opts))
+    assert report["apart_edges"] == 2
+    assert report["raw_jump"]["apart"]["max"] > 1e-3 and report["gradient"]["apart"]["max"] > 0
 
 
 def test_blend_band_hides_the_zone_boundary():
@@ -291,10 +299,11 @@ def test_blend_band_hides_the_zone_boundary():
         out[w] = boundary_report(v, f, pos - v, zones, interp)
         json.dumps(out[w])
     on, off = out[0.1], out[0.0]
-    J = on["raw_jump"]["max"]
-    assert J > 1e-3 and off["raw_jump"]["max"] == pytest.approx(J)   # the raw jump does not depend on blending
+    J = on["raw_jump"]["boundary"]["max"]
+    assert J > 1e-3 and off["raw_jump"]["boundary"]["max"] == pytest.approx(J)   # the raw jump does not depend on blending
     g_in, g_on, g_off = on["gradient"]["interior"], on["gradient"]["boundary"], off["gradient"]["boundary"]
     assert on["boundary_edges"] == 48 and on["interior_edges"] > 1000    # the cut: a ring of 24 quads
+    assert on["apart_edges"] == 0 and on["raw_jump"]["apart"]["max"] == 0.0
     assert g_on["max"] <= g_in["max"] + 1.5 * J / 0.1
     assert g_on["p99"] <= g_in["p99"]
     h = 0.6 / 40                                                   # the limb's edge length along z
