@@ -15,7 +15,9 @@ multiquadric sqrt(1 + r^2/s^2), inverse_multiquadric (1 + r^2/s^2)^{-1/2}.
 Geodesic zones (:class:`rig.zones.Zones`, or any object with its fields ``names``, ``vertex_zone``,
 ``neighbours``, ``blend``): zone z has its own interpolant f_z built from the feature points whose zone
 is a neighbour of z (itself included), so one leg never moves the other. Vertex v gets
-``sum_z blend[v, z] f_z(v)`` (blend is a partition of unity).
+``sum_z blend[v, z] f_z(v)`` (blend is a partition of unity). A vertex is independent of a feature
+only when NONE of the zones it blends has that feature's zone as a neighbour: a thigh vertex that
+blends in the torso's interpolant does feel the other leg, through the torso's feature set.
 
 Cardinal weights. Solving ``A X = [K(v)^T; q(v)^T]`` with q(v) = (v, 1), K(v)_i = phi(|v - p_i|) gives
 (A is symmetric) the row w(v) = X[:n]^T with f(v) = w(v) U for ANY data U. Its second block row reads
@@ -38,7 +40,11 @@ Centres closer than ``merge`` are merged (values averaged): coincident centres m
   ``blended``), :func:`interpolate` (exact zoned morph of the skin)
 - :func:`build_zone_rbf` -> :class:`ZoneRBF` (sparse cardinal weights; ``apply`` is the NumPy
   reference), :class:`RBFSkinner` (Warp launcher; kernel in :mod:`rig.rbf_kernels`)
-- :func:`boundary_report`: how smooth the result is across zone boundaries.
+- :func:`boundary_report` (edges from :func:`weld_edges`): how smooth the result is across zone
+  boundaries.
+
+Each zone's block matrix is LU-factored once; its 2-norm condition number (Lanczos) is reported and
+checked against ``max_condition``.
 """
 from __future__ import annotations
 
@@ -271,7 +277,7 @@ def _factor(centres: np.ndarray, options: RBFOptions, zone: str) -> _System:
     return _System(c, origin, lu, piv, float(cond))
 
 
-def solve_zone(centres, values, options: RBFOptions, zone: str = "'zone'"):
+def solve_zone(centres, values, options: RBFOptions, zone: str = "(one zone)"):
     """Solve the block system of one zone.
 
     centres : (n, 3) float, metres (distinct: merge first); values : (n, d) or (n,) float, the data
