@@ -99,11 +99,12 @@ WIDTHS = (("waist", "left_waist", "right_waist", "hips", "side"),
 """Body dimensions: (name, marker a, marker b, role of the bone across which |a - b| is measured,
 which scale it sets: "side" (across, left-right), "front" (front-back) or "both")."""
 
-_NEXT = {"hips": "spine", "spine": "chest", "chest": "neck", "neck": "head"}
+# the next role down each chain (rig.retarget's chains): a role's axis runs to that role's joint
+NEXT_ROLE = {"hips": "spine", "spine": "chest", "chest": "neck", "neck": "head"}
 for _s in ("left", "right"):
-    _NEXT.update({f"{_s}_shoulder": f"{_s}_upper_arm", f"{_s}_upper_arm": f"{_s}_lower_arm",
-                  f"{_s}_lower_arm": f"{_s}_hand", f"{_s}_upper_leg": f"{_s}_lower_leg",
-                  f"{_s}_lower_leg": f"{_s}_foot", f"{_s}_foot": f"{_s}_toe"})
+    NEXT_ROLE.update({f"{_s}_shoulder": f"{_s}_upper_arm", f"{_s}_upper_arm": f"{_s}_lower_arm",
+                      f"{_s}_lower_arm": f"{_s}_hand", f"{_s}_upper_leg": f"{_s}_lower_leg",
+                      f"{_s}_lower_leg": f"{_s}_foot", f"{_s}_foot": f"{_s}_toe"})
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,7 +129,7 @@ def role_axis(role: str, roles: dict, positions: np.ndarray, segments) -> tuple[
     """(start, end) (3,) metres of `role`'s axis: its joint to the next role's joint on its chain, or
     to the end of the longest bone segment starting at the joint when the chain stops there."""
     j = roles[role]
-    nxt = _NEXT.get(role)
+    nxt = NEXT_ROLE.get(role)
     if nxt in roles and np.linalg.norm(positions[roles[nxt]] - positions[j]) > 1e-6:
         return positions[j], positions[roles[nxt]]
     own = np.nonzero(np.asarray(segments.parent) == j)[0]

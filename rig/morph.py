@@ -40,8 +40,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .errors import InputError
+from .markers import HUMAN, NEXT_ROLE, WIDTHS, MarkerSet, find_markers, role_axis
 from .normals import vertex_normals
-from .markers import HUMAN, WIDTHS, MarkerSet, find_markers, role_axis
 
 TRUNK = ("hips", "spine", "chest", "neck", "head")
 
@@ -346,8 +346,7 @@ def morph_components(canon: Canonical, target: dict) -> ComponentMorph:
 
 
 def _next_role(role):
-    from .markers import _NEXT
-    return _NEXT.get(role) if role else None
+    return NEXT_ROLE.get(role) if role else None
 
 
 def _rotation_part(L: np.ndarray) -> np.ndarray:
