@@ -119,7 +119,9 @@ def prepare_canonical(character, options: MorphOptions = MorphOptions(), source:
     H = character.height
     zones = body_zones(resampled.vertices, resampled.faces, vertex_segment, segments, character.parents,
                        character.joint_names, mus.roles, options.band * H)
-    markers = find_markers(resampled.vertices, resampled.faces, mus.roles, character.bind_positions, segments, HUMAN)
+    # markers on the original skin (its vertices keep their indices in the resampled one), so a
+    # canonical's marker file does not depend on the feature options
+    markers = find_markers(character.vertices, character.faces, mus.roles, character.bind_positions, segments, HUMAN)
     t["zones+markers"] = time.perf_counter() - t0
     return Canonical(resampled, mus, fs, zones, markers, dict(mus.roles), segments, vertex_segment,
                      segments.frames(mus.front), H, source, t)

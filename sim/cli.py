@@ -611,6 +611,10 @@ def cmd_morph(args) -> int:
     target = read_markers(args.markers, canon.markers.names)
     res = morph(canon, target, options)
     from rig.gltf_write import write_character
+    folder = os.path.dirname(os.path.abspath(args.out))
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise InputError(f"{folder} is a file, not a folder", field="--out")
+    os.makedirs(folder, exist_ok=True)
     write_character(res.character, args.out, source=args.canonical,
                     extras={"jiggle": {"morphed_from": os.path.basename(args.canonical),
                                        "markers": os.path.basename(args.markers)}})
