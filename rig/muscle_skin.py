@@ -94,6 +94,13 @@ class MuscleSkin:
         self.table = shell_table(shells, star=self.frames.star if star else None,
                                  star_index=self.frames.star_index if star else None)
         self.skinner = character.skinner(device)
+        if skinning == "rbf":  # the feature points carry the muscles: no (vertex, muscle) pairs to cull
+            from .rbf_skin import RBFSkin, RBFSkinOptions
+            self.pair_offsets, self.pair_muscle = np.zeros(V + 1, np.int64), np.zeros(0, np.int64)
+            self.pair_weight = np.zeros(0, np.float32)
+            self.deformer = RBFSkin(character, rig, segmentation=segmentation, roles=roles,
+                                    options=rbf or RBFSkinOptions(), device=device)
+            return
         offsets, muscle = cull_pairs(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
                                      star=self.table.star, star_index=self.table.star_index)
         vertex = np.repeat(np.arange(V), np.diff(offsets))
@@ -102,11 +109,6 @@ class MuscleSkin:
         if skinning == "shell":
             self.pair_weight = pair_w.astype(np.float32)
             self.deformer = ShellDeformer(self.table, offsets, muscle, self.pair_weight, device=device)
-        elif skinning == "rbf":
-            from .rbf_skin import RBFSkin, RBFSkinOptions
-            self.pair_weight = pair_w.astype(np.float32)
-            self.deformer = RBFSkin(character, rig, segmentation=segmentation, roles=roles,
-                                    options=rbf or RBFSkinOptions(), device=device)
         else:
             self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
             binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
