@@ -228,17 +228,21 @@ def place_joints(P: np.ndarray, parents, located: dict, role_of: dict) -> tuple[
     return x, sims
 
 
-def segment_maps(P, x, sims, segments, frames, scales) -> np.ndarray:
+def segment_maps(P, x, sims, segments, frames, scales, tips=None) -> np.ndarray:
     """(S, 4, 4) affine map of each bone segment from canonical joints P (J, 3), target joints x (J, 3),
-    the joints' similarities (J, 4, 4) (a segment ending at "end" turns with its joint's), bone frames
-    (S, 3, 3) and (front, side) thickness ratios `scales` (S, 2)."""
+    the joints' similarities (J, 4, 4), bone frames (S, 3, 3) and (front, side) thickness ratios
+    `scales` (S, 2). A segment ending at "end" points at its tip marker, `tips` {segment: (canonical
+    (3,), target (3,))}, when it has one, else turns with its joint's similarity."""
     S = len(segments.labels)
     out = np.tile(np.eye(4), (S, 1, 1))
     for s in range(S):
         p, c = int(segments.parent[s]), int(segments.child[s])
         d_c = (P[c] if c >= 0 else segments.end[s]) - P[p]
+        tip = (tips or {}).get(s)
         if c >= 0:
             d_t = x[c] - x[p]
+        elif tip is not None and min(np.linalg.norm(tip[0] - P[p]), np.linalg.norm(tip[1] - x[p])) > 1e-6:
+            d_c, d_t = tip[0] - P[p], tip[1] - x[p]
         else:
             d_t = sims[p][:3, :3] @ d_c
         length = np.linalg.norm(d_c)
@@ -301,12 +305,12 @@ def morph_components(canon: Canonical, target: dict) -> ComponentMorph:
     # the segment each marker rides (its nearest component among the bones)
     _, dist = seg.project(m_c)
     marker_seg = dist.argmin(axis=1)
-    tips = {}
+    tips = {}  # a chain's last bone points at its tip marker
     for i, sp in enumerate(specs):
         if sp.direction in ("along", "ahead"):
             s = _segment_of_role(sp.role, roles, P, seg)
             if s is not None and seg.child[s] < 0:
-                tips[s] = i
+                tips[s] = (m_c[i], m_t[i])
 
     maps = np.tile(np.eye(4), (S, 1, 1))
     for _ in range(2):  # offsets as they are, then turned and scaled by the first pass's bone maps
@@ -319,16 +323,7 @@ def morph_components(canon: Canonical, target: dict) -> ComponentMorph:
             located.setdefault(j, []).append(m_t[i] - L @ (m_c[i] - P[j]))
         located = {j: np.mean(v, axis=0) for j, v in located.items()}
         x, sims = place_joints(P, parents, located, role_of)
-        maps = segment_maps(P, x, sims, seg, canon.frames, scales)
-        for s, i in tips.items():  # a chain's last bone points at its tip marker
-            p = int(seg.parent[s])
-            d_c, d_t = m_c[i] - P[p], m_t[i] - x[p]
-            if np.linalg.norm(d_c) > 1e-6 and np.linalg.norm(d_t) > 1e-6:
-                F = canon.frames[s]
-                L = min_rotation(d_c, d_t) @ F.T @ np.diag(
-                    [np.linalg.norm(d_t) / np.linalg.norm(d_c), scales[s, 0], scales[s, 1]]) @ F
-                maps[s][:3, :3] = L
-                maps[s][:3, 3] = x[p] - L @ P[p]
+        maps = segment_maps(P, x, sims, seg, canon.frames, scales, tips)
 
     # each joint's frame turns with the bone it starts (its chain's next bone), else with its parent's
     rotations = np.tile(np.eye(3), (len(P), 1, 1))
@@ -336,7 +331,7 @@ def morph_components(canon: Canonical, target: dict) -> ComponentMorph:
         own = np.nonzero(np.asarray(seg.parent) == j)[0]
         if len(own):
             s = own[0]
-            nxt = roles.get(_next_role(role_of.get(j)))
+            nxt = roles.get(NEXT_ROLE.get(role_of.get(j)))
             pick = [k for k in own if nxt is not None and seg.child[k] == nxt]
             s = pick[0] if pick else s
             rotations[j] = _rotation_part(maps[s][:3, :3])
@@ -345,10 +340,6 @@ def morph_components(canon: Canonical, target: dict) -> ComponentMorph:
 
     cvs = morph_muscles(canon, maps)
     return ComponentMorph(x, maps, rotations, widths, cvs)
-
-
-def _next_role(role):
-    return NEXT_ROLE.get(role) if role else None
 
 
 def _rotation_part(L: np.ndarray) -> np.ndarray:
