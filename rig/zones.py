@@ -122,26 +122,13 @@ def skeleton_neighbours(segments, segment_zone: np.ndarray, num_zones: int) -> n
     return nb | nb.T
 
 
-def weld(vertices: np.ndarray, tol: float | None = None) -> np.ndarray:
-    """(V,) int64 welded id of each vertex: vertices within `tol` metres (default 1e-7 of the mesh's
-    size) share an id. Meshes split at UV seams are one surface again for distances and adjacency."""
-    v = np.asarray(vertices, np.float64)
-    if len(v) == 0:
-        return np.zeros(0, np.int64)
-    tol = 1e-7 * max(float(np.ptp(v, axis=0).max()), 1e-9) if tol is None else tol
-    _, ids = np.unique(np.round(v / tol).astype(np.int64), axis=0, return_inverse=True)
-    return ids.ravel().astype(np.int64)
-
-
 def edge_graph(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
-    """(welded ids (V,), graph (W, W) CSR of edge lengths, metres) of a triangle mesh."""
-    ids = weld(vertices)
-    W = int(ids.max()) + 1 if len(ids) else 0
-    pos = np.zeros((W, 3))
-    pos[ids] = vertices
-    f = ids[np.asarray(faces, np.int64)]
+    """(welded ids (V,), graph (W, W) CSR of edge lengths, metres) of a triangle mesh, its vertices
+    welded by position (rig.bone_heat.weld), so a mesh split at UV seams is one surface again."""
+    from .bone_heat import weld
+    pos, f, ids = weld(np.asarray(vertices, np.float64), np.asarray(faces, np.int64))
+    W = len(pos)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e = e[e[:, 0] != e[:, 1]]
     e = np.unique(np.sort(e, axis=1), axis=0)
     length = np.linalg.norm(pos[e[:, 0]] - pos[e[:, 1]], axis=1)
     g = sp.coo_matrix((length, (e[:, 0], e[:, 1])), shape=(W, W)).tocsr()
