@@ -19,7 +19,7 @@ Markers play three parts in a morph (rig.morph):
 Marker files (TOML or JSON) give target positions, metres in jiggle's world (Z-up, the character's
 frame as jiggle reads it), unless `unit` says otherwise::
 
-    unit = "m"                      # optional: "m", "cm", "mm", "in", or metres per unit
+    unit = "m"                      # optional: "m", "cm", "mm", "in", "ft", or metres per unit
     [markers]
     head_top = [0.0, -0.01, 1.51]
     left_elbow = [0.31, 0.05, 0.96]
@@ -40,7 +40,6 @@ from .errors import InputError, require_file
 from .frozen import frozen_array
 
 FORMAT = "jiggle.markers/1"
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 
 
 @dataclass(frozen=True)
@@ -198,50 +197,43 @@ def find_markers(vertices, faces, roles: dict, positions: np.ndarray, segments, 
 
 
 # ---------------------------------------------------------------------------------- files
-def _line_of(text: str, name: str) -> int | None:
-    for i, line in enumerate(text.splitlines(), 1):
-        if line.split("=")[0].strip().strip('"') == name:
-            return i
+def _line_of(path: str, name: str) -> int | None:
+    """The line of `path` that sets `name`, for messages."""
+    with open(path, encoding="utf-8") as fh:
+        for i, line in enumerate(fh, 1):
+            if line.split("=")[0].split(":")[0].strip().strip('"') == name:
+                return i
     return None
 
 
 def read_markers(path: str | os.PathLike, names) -> dict[str, np.ndarray]:
     """{name: (3,) float64 metres} from a marker file (TOML or JSON, see the module docstring), with
     exactly the marker names `names`."""
+    from .character import unit_scale
+    from .tomlfile import read_toml
     p = require_file(path, "markers file")
-    with open(p, "rb") as fh:
-        raw = fh.read()
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file; expected TOML or JSON markers", p) from None
     if p.lower().endswith(".json"):
         try:
-            doc = json.loads(text)
+            with open(p, encoding="utf-8") as fh:
+                doc = json.load(fh)
+        except UnicodeDecodeError:
+            raise InputError("not a UTF-8 text file; expected JSON markers", p) from None
         except json.JSONDecodeError as e:
             raise InputError(f"not valid JSON: {e}", p, line=e.lineno) from None
     else:
-        import tomllib
-        try:
-            doc = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as e:
-            raise InputError(f"not valid TOML: {e}", p) from None
+        p, doc = read_toml(p, "markers file")
     if not isinstance(doc, dict) or not isinstance(doc.get("markers"), dict):
         raise InputError("expected a [markers] table of name = [x, y, z]", p, field="markers")
     extra = sorted(set(doc) - {"markers", "unit", "format", "source"})
     if extra:
         raise InputError(f"unknown keys {', '.join(extra)}; expected markers, unit (and format, source)", p)
-    unit = doc.get("unit", "m")
-    scale = UNITS.get(unit) if isinstance(unit, str) else unit
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
-        raise InputError(f"unit: expected one of {', '.join(UNITS)} or metres per unit > 0, got {unit!r}",
-                         p, field="unit")
+    scale = unit_scale(doc.get("unit", "m"), p)
     given = doc["markers"]
     names = list(names)
     unknown = [n for n in given if n not in names]
     if unknown:
         raise InputError(f"unknown marker {unknown[0]!r} ({len(unknown)} unknown); the canonical's markers are: "
-                         f"{', '.join(names)}", p, line=_line_of(text, unknown[0]), field="markers")
+                         f"{', '.join(names)}", p, line=_line_of(p, unknown[0]), field="markers")
     missing = [n for n in names if n not in given]
     if missing:
         raise InputError(f"missing markers: {', '.join(missing)} (every marker of the canonical is needed; "
@@ -253,7 +245,7 @@ def read_markers(path: str | os.PathLike, names) -> dict[str, np.ndarray]:
             isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
         if not ok or not np.isfinite(np.asarray(v, np.float64)).all():
             raise InputError(f"marker {n!r}: expected three finite numbers [x, y, z], got {v!r}", p,
-                             line=_line_of(text, n), field=f"markers.{n}")
+                             line=_line_of(p, n), field=f"markers.{n}")
         out[n] = np.asarray(v, np.float64) * float(scale)
     return out
 
