@@ -164,12 +164,13 @@ class MuscleSkin:
         frame : the frame's index, only for the warning that names a muscle skipped this frame.
         """
         world = np.asarray(world, dtype=np.float64)
+        if self.skinning == "rbf":  # the features ride the CVs; the action curve is not needed
+            cvs = self.rig.static(world).cvs if cvs is None else cvs
+            return self.deformer.pose(world, self._finite_cvs(cvs, world, frame))
         if cvs is None or curve is None:
             static = self.rig.static(world)
             cvs = static.cvs if cvs is None else cvs
             curve = static.curve if curve is None else curve
-        if self.skinning == "rbf":
-            return self.deformer.pose(world, self._finite_cvs(cvs, world, frame))
         points = self.skinner.launch(self.character.skin_matrices(world), self.method)
         if self.skinning == "shell":
             fr, skipped = self.frames.frame(world, cvs, curve, frame=frame or 0)
