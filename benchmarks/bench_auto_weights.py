@@ -1,10 +1,10 @@
-"""Automatic skin weights by bone heat (rig.bone_heat) on a ~30k-vertex body around the 31-joint CMU
+"""Automatic skin weights by bone heat (rig.character.bone_heat) on a ~30k-vertex body around the 31-joint CMU
 skeleton of 01_01.bvh, stage by stage, and the solve against a fresh factorisation per joint
 (scipy.sparse.linalg.spsolve once per joint, the straightforward way), all measured in this one run.
 
     .venv/bin/python benchmarks/bench_auto_weights.py [path/to/clip.bvh] [--vertices 30000]
 
-The body is the one jiggle generates for the skeleton (rig.body, `--vertices` as its resolution).
+The body is the one jiggle generates for the skeleton (rig.character.body, `--vertices` as its resolution).
 The issue's budget is 10 s in total for this size on 2 cores.
 """
 from __future__ import annotations
@@ -21,26 +21,33 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.bone_heat import (bone_heat_weights, bone_segments, closest_visible, cotangent_laplacian,  # noqa: E402
-                           segment_distances, solve_heat, weld)
-from rig.body import BodyOptions, generate_body  # noqa: E402
-from rig.bvh import read_bvh  # noqa: E402
+from rig.character.body import BodyOptions, generate_body  # noqa: E402
+from rig.character.bone_heat import (
+    bone_heat_weights,
+    bone_segments,
+    closest_visible,
+    cotangent_laplacian,
+    segment_distances,
+    solve_heat,
+    weld,
+)
+from rig.motion.bvh import read_bvh  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
 
 
 def body_mesh(clip, vertices: int) -> tuple[np.ndarray, np.ndarray, str]:
-    """The body to weight: the generated body (rig.body) at about `vertices` vertices."""
+    """The body to weight: the generated body (rig.character.body) at about `vertices` vertices."""
     body = generate_body(clip, BodyOptions(resolution=vertices))
-    return body.vertices, body.faces, "generated body (rig.body)"
+    return body.vertices, body.faces, "generated body (rig.character.body)"
 
 
 def main(path: Path = DEFAULT, vertices: int = 30000) -> None:
     if not path.exists():
         print(f"skipped: {path} not found (../shared/assets is absent)")
         return
-    import trimesh
     import scipy.sparse as sp
+    import trimesh
     from scipy.sparse.linalg import spsolve
 
     clip = read_bvh(path)

@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_bake.py [--quick]
 
 1. CesiumMan (3,273 vertices, ../shared/assets) with the default template on 02_03.bvh at 30 fps,
-   retargeted: `jiggle bake`'s frame loop (sim.bake: drive, static muscles, particles, blend, skinning of
+   retargeted: `jiggle bake`'s frame loop (sim.bake.baker: drive, static muscles, particles, blend, skinning of
    the static and the final skin, chunk files) in frames per second, and the whole bake with its caches
    (bake.npz and bake.usdc with skins, normals and muscle meshes). The issue's target: >= 200 frames/s.
 2. A 30k-vertex generated body on the demo's jumping jacks at 30 fps (91 frames). Target: >= 60 frames/s.
@@ -35,7 +35,8 @@ ASSETS = Path(os.environ.get("JIGGLE_ASSETS", ROOT.parent / "shared" / "assets")
 def lbs_only(setup, out_dir: str) -> tuple[float, float]:
     """(frame loop s, caches s) of the LBS-only pipeline: drive, LBS, chunk files, then npz + one-mesh USD."""
     from pxr import Usd, UsdGeom
-    from sim.caches import _define_mesh
+
+    from sim.bake.caches import _define_mesh
     skin, times, C = setup.skin, setup.times, setup.chunk
     t0 = time.perf_counter()
     parts = []
@@ -60,8 +61,8 @@ def lbs_only(setup, out_dir: str) -> tuple[float, float]:
 
 
 def measure(label: str, request, repeats: int, target: float) -> dict:
-    from sim.bake import bake
-    from sim.bake_setup import prepare
+    from sim.bake.baker import bake
+    from sim.bake.setup import prepare
     t0 = time.perf_counter()
     setup = prepare(request)
     prep = time.perf_counter() - t0
@@ -94,7 +95,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one repeat, CesiumMan only")
     args = ap.parse_args()
-    from sim.bake_setup import BakeRequest
+    from sim.bake.setup import BakeRequest
     repeats = 1 if args.quick else 3
     cesium, clip = ASSETS / "characters" / "CesiumMan.glb", ASSETS / "mocap" / "cmu_bvh" / "02_03.bvh"
     if cesium.exists() and clip.exists():

@@ -18,7 +18,7 @@ between batch and loop is printed too (the contract: <= 1e-6 m).
 
 Meshes: CesiumMan (../shared/assets/characters/CesiumMan.glb, its own walk; skipped with a message
 when absent) and a ~30k-vertex body generated around the default scene's skeleton (scenes/default.toml;
---quick: ~10k), both fitted with the default template (rig.muscle_fit.fit_musculature, "human").
+--quick: ~10k), both fitted with the default template (rig.muscle.fit.fit_musculature, "human").
 The static CVs come from MuscleRig.static (not timed); the "blended" set is them plus 2 mm of fixed
 noise per CV (a jiggle's size; the cost does not depend on the values). One core: OPENBLAS_NUM_THREADS=1
 is set before NumPy loads; Warp's CPU kernels run on one thread. Times are the best of several
@@ -45,9 +45,9 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.clip import transforms  # noqa: E402
-from rig.muscle_fit import FitOptions, fit_musculature  # noqa: E402
-from rig.muscle_skin import MuscleSkin  # noqa: E402
+from rig.motion.clip import transforms  # noqa: E402
+from rig.muscle.fit import FitOptions, fit_musculature  # noqa: E402
+from rig.skin.muscle_skin import MuscleSkin  # noqa: E402
 
 CESIUM = ROOT.parent / "shared" / "assets" / "characters" / "CesiumMan.glb"
 SCENE = ROOT / "scenes" / "default.toml"
@@ -125,8 +125,8 @@ def bench_mesh(label: str, skin: MuscleSkin, world: np.ndarray, frames: int, rep
 
 
 def cesium(device: str):
-    from rig.character import load_character
-    from rig.mocap import load_clip
+    from rig.character.load import load_character
+    from rig.motion.mocap import load_clip
     ch = load_character(CESIUM)
     clip = load_clip(CESIUM)
     order = ch.joint_order(clip.joint_names)
@@ -136,9 +136,9 @@ def cesium(device: str):
 
 
 def body(resolution: int, device: str):
-    from rig.body import BodyOptions
-    from rig.character import body_character
-    from sim.scene import load_scene
+    from rig.character.body import BodyOptions
+    from rig.character.load import body_character
+    from sim.bake.scene import load_scene
     clip = load_scene(SCENE).clip
     ch = body_character(clip, BodyOptions(resolution=resolution))
     world = transforms(*clip.world())          # the body's joints are the clip's, in its order

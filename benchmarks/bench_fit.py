@@ -1,11 +1,11 @@
-"""Fitting the default musculoskeletal template (rig.muscle_fit.fit_musculature) on CesiumMan and on a
+"""Fitting the default musculoskeletal template (rig.muscle.fit.fit_musculature) on CesiumMan and on a
 ~30k-vertex generated body, with the stage split (segmentation, fit, muscle model), and two ratios
 measured in this one run:
 
-- conforming: rig.conform.conform on every fitted muscle's ellipsoid mesh (embree, all of a muscle's
+- conforming: rig.muscle.conform.conform on every fitted muscle's ellipsoid mesh (embree, all of a muscle's
   rays in one batched call) against a per-ray reference loop (one mesh.ray.intersects_location call per
   ray) run on a subset of rays and scaled per ray;
-- ellipsoid moments: rig.ellipsoid.surface_moments (vectorised over triangles) against a per-triangle
+- ellipsoid moments: rig.muscle.ellipsoid.surface_moments (vectorised over triangles) against a per-triangle
   Python loop on the largest fitted region, run whole.
 
     .venv/bin/python benchmarks/bench_fit.py [rays]
@@ -31,13 +31,13 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.body import BodyOptions  # noqa: E402
-from rig.character import body_character, load_character  # noqa: E402
-from rig.conform import conform, first_hits  # noqa: E402
-from rig.ellipsoid import surface_moments  # noqa: E402
-from rig.errors import JiggleWarning  # noqa: E402
-from rig.mocap import load_clip  # noqa: E402
-from rig.muscle_fit import FitOptions, _chain, _face_regions, fit_musculature  # noqa: E402
+from rig.base.errors import JiggleWarning  # noqa: E402
+from rig.character.body import BodyOptions  # noqa: E402
+from rig.character.load import body_character, load_character  # noqa: E402
+from rig.motion.mocap import load_clip  # noqa: E402
+from rig.muscle.conform import conform, first_hits  # noqa: E402
+from rig.muscle.ellipsoid import surface_moments  # noqa: E402
+from rig.muscle.fit import FitOptions, _chain, _face_regions, fit_musculature  # noqa: E402
 
 CESIUM = ROOT.parent / "shared" / "assets" / "characters" / "CesiumMan.glb"
 CLIP = ROOT / "scenes" / "motions" / "jumping_jacks.toml"
@@ -86,7 +86,7 @@ def allowed_faces(musc, label: str) -> np.ndarray:
 
 
 def rays(e, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The conforming rays of rig.conform.conform: from each vertex's foot on the major axis outward."""
+    """The conforming rays of rig.muscle.conform.conform: from each vertex's foot on the major axis outward."""
     a = e.axes[0]
     s = (pts - e.centre) @ a
     foot = e.centre + s[:, None] * a

@@ -6,12 +6,12 @@ and the influence objects' cost against LBS alone on the same mesh.
 
 The scene is bench_shells.py's: a limb-like tube (radius 6 cm, 1.2 m) of 100k vertices skinned to 41
 joints along it with 4 influences, and 40 muscles in two rows (front and back) under its skin. Each
-muscle is lofted from 40 CVs (rig.loft: 5 sections x 8 CVs, section-major) approximating its rest
+muscle is lofted from 40 CVs (rig.muscle.loft: 5 sections x 8 CVs, section-major) approximating its rest
 ellipsoid: section k at local z = -0.9 + 1.8 k / 4 along the long axis, ring CV j at angle 2 pi j / 8
 from the section's up axis (local x) toward its side (local y), on the ellipse scaled by
 sqrt(1 - z^2). Each frame the CVs bulge 8% across about the muscle's centre and slide 5 mm along
 its long axis; the reference CVs are the rest CVs. Pairs are culled at bind as in bench_shells
-(rig.shells.cull_pairs, drop-off 1, margin 0.25), weight 1 each. Warp times include uploading the
+(rig.skin.shell.shells.cull_pairs, drop-off 1, margin 0.25), weight 1 each. Warp times include uploading the
 frame's matrices and CVs; the result stays on the device (`launch`), as in the pipeline where the
 next stage reads it. Best of several repeats after a warm-up, so kernel compiles are excluded; the
 bind (closest points on the lofts, once per rig) is timed once.
@@ -30,10 +30,11 @@ sys.path.insert(0, str(ROOT))
 from bench_shells import M, muscles, skinned_tube  # noqa: E402  (the same scene)
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig import loft  # noqa: E402
-from rig.influence import InfluenceDeformer, bind_influence, influence_numpy  # noqa: E402
-from rig.shells import cull_pairs  # noqa: E402
-from rig.skinning import Skinner, lbs_numpy  # noqa: E402
+from rig.muscle import loft  # noqa: E402
+from rig.muscle.loft_attach import bind_influence  # noqa: E402
+from rig.skin.influence import InfluenceDeformer, influence_numpy
+from rig.skin.shell.shells import cull_pairs  # noqa: E402
+from rig.skin.skinning import Skinner, lbs_numpy  # noqa: E402
 
 BULGE, SLIDE = 1.08, 0.005
 

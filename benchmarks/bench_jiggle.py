@@ -4,7 +4,7 @@
 
 1. 40 muscles x 40 particles (the simple arm's biceps copied 40 times on a grid, default jiggles), goals
    at 30 fps from each copy's elbow swinging at its own phase while the whole grid sways, 8 substeps
-   per frame: ms per frame of sim.jiggle.run (which also uploads the track and reads every frame back)
+   per frame: ms per frame of sim.jiggle.secondary.run (which also uploads the track and reads every frame back)
    and of ParticleSolver.integrate alone, against the float64 NumPy reference step_numpy doing the same
    steps. The issue's budget: under 1 ms per frame on one core. Also the largest position difference
    from the reference, for run and for ParticleSolver.step called step by step: integrate merges each
@@ -42,17 +42,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from timing import best  # noqa: E402  (benchmarks/timing.py)
-
 import test_jiggle_clips as clips  # noqa: E402  the tests' elbow flex and frame helper
 from conftest import ASSETS  # noqa: E402  ../shared/assets, or $JIGGLE_ASSETS
+from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from scenes.simple_arm import arm_world, simple_arm  # noqa: E402
-from sim.goal_track import build_track  # noqa: E402
-from sim.jiggle import jiggle_rig, run, step_times  # noqa: E402
-from sim.jiggle_params import JiggleSettings, default_jiggles  # noqa: E402
-from sim.particle_solver import ParticleSolver, step_numpy  # noqa: E402
-from sim.particles import ParticleBuilder  # noqa: E402
+from rig.muscle.simple_arm import arm_world, simple_arm  # noqa: E402
+from sim.jiggle.goal_track import build_track  # noqa: E402
+from sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
+from sim.jiggle.particles import ParticleBuilder  # noqa: E402
+from sim.jiggle.secondary import jiggle_rig, run, step_times  # noqa: E402
+from sim.jiggle.solver import ParticleSolver, step_numpy  # noqa: E402
 
 FPS, SUBSTEPS = 30, 8
 SPACING = 0.3            # metres between copies of the arm
@@ -146,7 +145,7 @@ def bench_frame(arm, device: str, quick: bool) -> None:
     print(f"## 40 muscles x 40 particles ({model.num_particles} particles, {model.num_springs} springs), "
           f"{FPS} fps, {SUBSTEPS} substeps ({(len(grid) - 1) / frames:.1f} steps per frame, max step "
           f"{solver.max_step * 1e3:.2f} ms), {frames} frames, device {device}")
-    print(f"  sim.jiggle.run                    {ms_run:7.3f} ms/frame   ({'<' if ms_run < 1 else '>='} 1 ms: "
+    print(f"  sim.jiggle.secondary.run                    {ms_run:7.3f} ms/frame   ({'<' if ms_run < 1 else '>='} 1 ms: "
           f"{'holds' if ms_run < 1 else 'FAILS'})")
     print(f"  ParticleSolver.integrate alone    {ms_int:7.3f} ms/frame")
     print(f"  NumPy reference (step_numpy)      {ms_np:7.3f} ms/frame   run is {ms_np / ms_run:.1f}x faster, "
@@ -227,7 +226,7 @@ def independence(name: str, bake, muscles, rates, substeps) -> list[str]:
 
 def end_effect(rig, jiggles, world_at, duration: float, device: str) -> None:
     """The whole clip at 24 fps (its last frame falls before the clip's end) against 120 fps x 16
-    substeps over the whole clip: the goal track ends at the last output frame (sim/jiggle.py), so its
+    substeps over the whole clip: the goal track ends at the last output frame (sim/jiggle/secondary.py), so its
     one-sided end velocity, and the particles near the end, depend on where the frames stop."""
     bakes = {fps: jiggle_rig(rig, jiggles, world_at, clips.frames(fps, duration),
                              JiggleSettings(substeps=16, device=device)) for fps in (24, 120)}
@@ -265,10 +264,10 @@ def bench_rates(arm, device: str, quick: bool) -> None:
                         "biceps", rates, substeps)
     bvh = ASSETS / "mocap" / "cmu_bvh" / "09_11.bvh"
     if bvh.exists():
-        from rig.body import BodyOptions
-        from rig.character import body_character
-        from rig.mocap import load_clip
-        from rig.muscle_fit import fit_musculature
+        from rig.character.body import BodyOptions
+        from rig.character.load import body_character
+        from rig.motion.mocap import load_clip
+        from rig.muscle.fit import fit_musculature
         clip = load_clip(bvh)
         t = time.perf_counter()
         mus = fit_musculature(body_character(clip, BodyOptions(resolution=8000 if quick else 20000)), "human")

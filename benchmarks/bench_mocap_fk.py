@@ -18,12 +18,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+import bvh_reference  # noqa: E402  the tests' independent FK: 4x4 matrices per joint per frame
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-import bvh_reference  # noqa: E402  the tests' independent FK: 4x4 matrices per joint per frame
-
-from rig.bvh import read_bvh  # noqa: E402
-from sim.skeleton import Skeleton  # noqa: E402
+from rig.motion.bvh import read_bvh  # noqa: E402
+from sim.drive.skeleton import Skeleton  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
 
@@ -43,8 +42,8 @@ def main(path: Path = DEFAULT) -> None:
     F, J = clip.num_frames, clip.num_joints
     print(f"clip: {path.name}, {F} frames x {J} joints ({path.stat().st_size / 1e6:.1f} MB)")
     print(f"{'stage':44s} {'seconds':>9s}")
-    print(f"{'parse BVH (rig.bvh.read_bvh)':44s} {t_parse:9.4f}")
-    print(f"{'build MuJoCo model (sim.skeleton)':44s} {t_build:9.4f}")
+    print(f"{'parse BVH (rig.motion.bvh.read_bvh)':44s} {t_parse:9.4f}")
+    print(f"{'build MuJoCo model (sim.drive.skeleton)':44s} {t_build:9.4f}")
     print(f"{'world transforms, all frames (mj_kinematics)':44s} {t_mj:9.4f}")
     print(f"{'parse + build + MuJoCo FK (budget 0.5 s)':44s} {total:9.4f}")
     print(f"{'NumPy vectorised FK (Clip.world)':44s} {t_np_vec:9.4f}")

@@ -10,7 +10,7 @@ skin in Matlab), in one run on an ~87k-vertex character with about 1,500 feature
     .venv/bin/python benchmarks/bench_morph.py [path/to/character.glb]
 
 The character is CesiumMan (../shared/assets) subdivided until its edges are under a length that
-gives ~87k vertices, its weights and UVs carried to the new vertices (rig.resample).
+gives ~87k vertices, its weights and UVs carried to the new vertices (rig.anatomy.resample).
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def subdivided(character, target: int = TARGET_VERTICES):
     """The character on its skin subdivided (trimesh.remesh.subdivide_to_size) to about `target` vertices."""
     import trimesh
 
-    from rig.resample import Resampled, resample_character
+    from rig.anatomy.resample import Resampled, resample_character
     v, f = np.asarray(character.vertices), np.asarray(character.faces)
     edge = np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean()
     lo, hi = edge / 64, edge
@@ -73,11 +73,11 @@ def main(path: Path = DEFAULT) -> None:
     if not path.exists():
         print(f"skipped: {path} not found (../shared/assets is absent)")
         return
-    from rig.character import load_character
-    from rig.features import FeatureOptions
-    from rig.morph import MorphOptions, morph, prepare_canonical
-    from rig.muscle_skin import MuscleSkin
-    from rig.rbf_skin import RBFSkinOptions
+    from rig.anatomy.features import FeatureOptions
+    from rig.anatomy.morph import MorphOptions, morph, prepare_canonical
+    from rig.character.load import load_character
+    from rig.skin.muscle_skin import MuscleSkin
+    from rig.skin.rbf_skin import RBFSkinOptions
     from tests.test_morph import stretched
 
     base = load_character(path)
@@ -108,7 +108,7 @@ def main(path: Path = DEFAULT) -> None:
           f"(< 1%), flipped triangles {r['flipped']}, condition up to {max(r['rbf']['condition']):.3g}")
 
     # --- animation
-    from rig.muscle_fit import fit_musculature
+    from rig.muscle.fit import fit_musculature
     mus = canon.musculature if canon.character.num_vertices == c.num_vertices else fit_musculature(c)
     t = time.perf_counter()
     sk = MuscleSkin.from_musculature(mus, skinning="rbf",
@@ -116,7 +116,7 @@ def main(path: Path = DEFAULT) -> None:
     bind = time.perf_counter() - t
     rbf = sk.deformer
     print(f"rbf skin: {rbf.num_features} feature points, support {rbf.weights.index.shape[1]}, bind {bind:.1f} s")
-    from rig.quat import from_axis_angle, to_matrix
+    from rig.motion.quat import from_axis_angle, to_matrix
     T = 32
     world = np.repeat(np.asarray(c.bind_world)[None], T, axis=0)
     for i in range(T):  # a turning body: every frame different

@@ -1,4 +1,4 @@
-"""Static update of 40 thesis muscles (rig.muscle_model.MuscleRig.static): all CVs of one frame,
+"""Static update of 40 thesis muscles (rig.muscle.model.MuscleRig.static): all CVs of one frame,
 vectorised over muscles, against the tests' per-muscle, per-frame Python reference
 (tests/test_muscle_model.py: reference_static, scipy splines and the loft mesh built point by point),
 both measured in this one run.
@@ -29,11 +29,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+import test_muscle_model as ref  # noqa: E402  the tests' arm, muscles and per-muscle reference
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-import test_muscle_model as ref  # noqa: E402  the tests' arm, muscles and per-muscle reference
-
-from rig.muscle_model import VOLUME_RULES, build_muscle_rig  # noqa: E402
+from rig.muscle.model import VOLUME_RULES, build_muscle_rig  # noqa: E402
 
 ARMS, FRAMES = 20, 100
 

@@ -1,4 +1,4 @@
-"""Zoned RBF skin (rig/rbf.py) on an ~87k-vertex body with ~1,500 feature points, in one run:
+"""Zoned RBF skin (rig/anatomy/rbf.py) on an ~87k-vertex body with ~1,500 feature points, in one run:
 
 - build_zone_rbf: every zone's solve plus the sparse cardinal weights (support 32);
 - interpolate: the exact dense zoned morph (solve + evaluate), budget 2 s;
@@ -9,10 +9,10 @@
     .venv/bin/python benchmarks/bench_rbf.py [path/to/character.glb]
 
 Mesh: the CesiumMan skin welded and subdivided to edges <= 8 mm (86,916 vertices) when the shared
-asset exists, else a body generated around the demo skeleton (rig.body) and subdivided likewise.
+asset exists, else a body generated around the demo skeleton (rig.character.body) and subdivided likewise.
 Features: 1,500 skin vertices by farthest-point sampling. Zones: a simple rule by position (head,
 neck, torso slabs, upper/lower arms and legs per side, feet), neighbours where mesh edges cross,
-and a blend band of diffused zone indicators; the lead's rig/zones.py is the real thing.
+and a blend band of diffused zone indicators; the lead's rig/anatomy/zones.py is the real thing.
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.rbf import RBFOptions, RBFSkinner, build_zone_rbf, interpolate, weld_edges  # noqa: E402
+from rig.anatomy.rbf import RBFOptions, RBFSkinner, build_zone_rbf, interpolate, weld_edges  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "characters" / "CesiumMan.glb"
 TARGET_VERTICES = 87_000
@@ -37,7 +37,7 @@ NUM_FEATURES = 1500
 
 @dataclass(frozen=True, eq=False)
 class Zones:
-    """Stand-in with the fields of rig.zones.Zones that rig.rbf reads."""
+    """Stand-in with the fields of rig.anatomy.zones.Zones that rig.anatomy.rbf reads."""
     names: tuple
     vertex_zone: np.ndarray
     neighbours: np.ndarray
@@ -48,12 +48,12 @@ def skin(path: Path):
     """(vertices, faces, label): a welded skin subdivided to ~87k vertices."""
     import trimesh
     if path.exists():
-        from rig.character import load_character
+        from rig.character.load import load_character
         c = load_character(path)
         v, f, label = c.vertices, c.faces, path.name
     else:
-        from rig.body import BodyOptions, generate_body
-        from sim.scene import load_scene
+        from rig.character.body import BodyOptions, generate_body
+        from sim.bake.scene import load_scene
         print(f"skipped {path}: not found (../shared/assets is absent); using a generated body")
         body = generate_body(load_scene(str(ROOT / "scenes" / "default.toml")).clip, BodyOptions())
         v, f, label = body.vertices, body.faces, "generated body"

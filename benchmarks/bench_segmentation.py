@@ -1,4 +1,4 @@
-"""Skin segmentation (rig.segmentation) of a generated body (~20k vertices, 25 bone segments): the
+"""Skin segmentation (rig.muscle.segmentation) of a generated body (~20k vertices, 25 bone segments): the
 vectorised assignment (all vertices x all segments in blocks of matrix products) against a
 straightforward per-vertex Python loop (NumPy over the segments of one vertex at a time), run on a
 subset and scaled per vertex; all measured in this one run.
@@ -21,9 +21,9 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.character import body_character  # noqa: E402
-from rig.mocap import load_clip  # noqa: E402
-from rig.segmentation import TIE_FRACTION, assign, bone_segments, segment_skin, smoothed_normals  # noqa: E402
+from rig.character.load import body_character  # noqa: E402
+from rig.motion.mocap import load_clip  # noqa: E402
+from rig.muscle.segmentation import TIE_FRACTION, assign, bone_segments, segment_skin, smoothed_normals  # noqa: E402
 
 
 def assign_loop(points, normals, start, end, tol):

@@ -8,7 +8,7 @@ on this scene).
 The scene: a limb-like tube (radius 6 cm, 1.2 m) of 100k vertices skinned to 41 joints along it with
 4 influences, and 40 muscles in two rows (front and back) under its skin, each its rest ellipsoid;
 each frame the muscles bulge (x1.08 across, x0.9 along) and slide 5 mm off their bones. Pairs are
-culled at bind (rig.shells.cull_pairs, margin 0.25). Warp times include uploading the frame's
+culled at bind (rig.skin.shell.shells.cull_pairs, margin 0.25). Warp times include uploading the frame's
 matrices; the result stays on the device (`launch`), as in the pipeline where the next stage reads it.
 Best of several repeats after a warm-up, so kernel compiles are excluded.
 """
@@ -25,9 +25,10 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.shell_deformer import ShellDeformer  # noqa: E402
-from rig.shells import ShellFrames, ShellParams, cull_pairs, shell_numpy, shell_table  # noqa: E402
-from rig.skinning import Skinner, lbs_numpy  # noqa: E402
+from rig.muscle.shell_params import ShellParams  # noqa: E402
+from rig.skin.shell.deformer import ShellDeformer  # noqa: E402
+from rig.skin.shell.shells import ShellFrames, cull_pairs, shell_numpy, shell_table
+from rig.skin.skinning import Skinner, lbs_numpy  # noqa: E402
 
 V, M, J, K = 100_000, 40, 41, 4
 LENGTH, RADIUS = 1.2, 0.06

@@ -1,7 +1,7 @@
-"""Skin 100k vertices with 4 influences each by 31 joints: Warp kernels (rig.skinning.Skinner, on
+"""Skin 100k vertices with 4 influences each by 31 joints: Warp kernels (rig.skin.skinning.Skinner, on
 the CPU unless a device is given) against the vectorised float64 NumPy references
-(rig.skinning.lbs_numpy / dqs_numpy), all measured in this one run; then the per-frame vertex normals
-(rig.normals.VertexNormals) of a ~200k-triangle grid with as many vertices.
+(rig.skin.skinning.lbs_numpy / dqs_numpy), all measured in this one run; then the per-frame vertex normals
+(rig.character.normals.VertexNormals) of a ~200k-triangle grid with as many vertices.
 
     .venv/bin/python benchmarks/bench_skinning.py [device]
 
@@ -23,8 +23,8 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.normals import VertexNormals  # noqa: E402
-from rig.skinning import Skinner, dqs_numpy, lbs_numpy  # noqa: E402
+from rig.character.normals import VertexNormals  # noqa: E402
+from rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy  # noqa: E402
 
 V, K, J = 100_000, 4, 31
 

@@ -8,15 +8,15 @@ import tempfile
 
 import numpy as np
 import pytest
+from conftest import asset
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import asset
-from rig import quat
-from rig.acclaim import AsfSkeleton, find_asf, read_amc, read_asf
-from rig.bvh import read_bvh
-from rig.errors import InputError
-from rig.mocap import load_clip
+from rig.base.errors import InputError
+from rig.motion import quat
+from rig.motion.acclaim import AsfSkeleton, find_asf, read_amc, read_asf
+from rig.motion.bvh import read_bvh
+from rig.motion.mocap import load_clip
 
 ASF = "mocap/cmu_amc/01.asf"
 AMC = "mocap/cmu_amc/01_01.amc"

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.caches import read_npz
-from sim.cli import main
+from sim.app.cli import main
+from sim.bake.caches import read_npz
 
 ROOT = Path(__file__).resolve().parents[1]
 ARM = str(ROOT / "scenes" / "simple_arm.toml")
@@ -86,14 +86,14 @@ def test_usd_read_back_equals_npz(arm_bake):
 
 
 def test_pc2_holds_the_final_skin(arm_bake):
-    from sim.caches import read_pc2
+    from sim.bake.caches import read_pc2
     pc = read_pc2(arm_bake / "bake.pc2")
     np.testing.assert_array_equal(pc.points, read_npz(arm_bake / "bake.npz").skin_final)
 
 
 def test_interrupted_bake_resumes_to_the_same_caches(capsys, tmp_path, arm_bake, monkeypatch):
     """Ctrl-C in chunk 3: exit 130, a message naming --resume, no cache; --resume finishes it equal."""
-    from sim import bake as bake_mod
+    from sim.bake import baker as bake_mod
     real = bake_mod.Baker.chunk
 
     def chunk(self, c, state):
@@ -118,7 +118,7 @@ def test_interrupted_bake_resumes_to_the_same_caches(capsys, tmp_path, arm_bake,
 
 def test_killed_bake_resumes_to_the_same_caches(tmp_path, arm_bake):
     """A real kill (SIGKILL, no clean-up at all) between chunks, then --resume in a new process."""
-    cmd = [sys.executable, "-m", "sim.cli", "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+    cmd = [sys.executable, "-m", "sim.app.cli", "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
            "--formats", "npz,usda,pc2"]
     env = {**os.environ, "JIGGLE_BAKE_PAUSE": "0.5", "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -161,7 +161,7 @@ def test_chunk_size_does_not_change_the_motion(capsys, tmp_path, arm_bake):
 
 
 def test_resume_with_other_parameters_is_refused(capsys, tmp_path, monkeypatch):
-    from sim import bake as bake_mod
+    from sim.bake import baker as bake_mod
     real = bake_mod.Baker.chunk
 
     def chunk(self, c, state):
@@ -188,7 +188,8 @@ def test_resume_without_an_unfinished_bake(capsys, tmp_path, arm_bake):
 def test_full_disk_leaves_no_cache_that_looks_complete(capsys, tmp_path, monkeypatch):
     """ENOSPC while writing the npz: exit 2 naming the file, no bake.npz, the chunks kept to resume."""
     import errno
-    from sim import caches
+
+    from sim.bake import caches
 
     savez = np.savez
 
@@ -242,7 +243,7 @@ def test_unknown_scene_key_lists_the_valid_ones(capsys, tmp_path):
 def test_a_nan_skin_stops_the_bake_before_any_cache(capsys, tmp_path, monkeypatch):
     """A skin that turns NaN (say a degenerate deformer) stops at its frame: exit 2 naming the frame,
     the chunks before it kept, no cache written."""
-    from sim import bake as bake_mod
+    from sim.bake import baker as bake_mod
     real = bake_mod.skin_frames
 
     def poisoned(skin, world, cvs_sets, curve, first_frame):

@@ -1,6 +1,6 @@
-"""Batched skinning for the bake: MuscleSkin.pose_batch / lbs_batch (rig/muscle_skin.py), the batched
-launches under them (Skinner.skin_batch / launch_batch in rig/skinning.py, ShellDeformer.launch_batch in
-rig/shell_deformer.py) and MuscleFrames.frame_sets (rig/muscle_frames.py).
+"""Batched skinning for the bake: MuscleSkin.pose_batch / lbs_batch (rig/skin/muscle_skin.py), the batched
+launches under them (Skinner.skin_batch / launch_batch in rig/skin/skinning.py, ShellDeformer.launch_batch in
+rig/skin/shell/deformer.py) and MuscleFrames.frame_sets (rig/skin/shell/frames.py).
 
 A batch must equal the frame-by-frame calls: set s at frame t of pose_batch is
 pose(world[t], cvs_sets[s][t], curves[s][t], frame=first_frame + t) to float32 rounding (contract:
@@ -14,15 +14,16 @@ import warnings
 import numpy as np
 import pytest
 import warp as wp
+from conftest import asset
 from scipy.spatial.transform import Rotation
 
-from conftest import asset
-from rig.errors import InputError, JiggleWarning
-from rig.muscle_skin import MuscleSkin
-from rig.shell_deformer import ShellBatch, ShellDeformer
-from rig.shells import MODES, ShellFrames, ShellParams, shell_numpy, shell_table
-from rig.skinning import Skinner, dqs_numpy, lbs_numpy
-from scenes.simple_arm import simple_arm
+from rig.base.errors import InputError, JiggleWarning
+from rig.muscle.shell_params import MODES, ShellParams
+from rig.muscle.simple_arm import simple_arm
+from rig.skin.muscle_skin import MuscleSkin
+from rig.skin.shell.deformer import ShellBatch, ShellDeformer
+from rig.skin.shell.shells import ShellFrames, shell_numpy, shell_table
+from rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy
 
 TOL = 1e-6          # metres: batch against loop (the contract's bound)
 REF_TOL = 1e-5      # metres: float32 kernels against the float64 NumPy references, scenes ~1 m across
@@ -181,10 +182,10 @@ def test_bad_batches_are_named(arm, skins):
 # ---------------------------------------------------------------------------------- CesiumMan
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.character import load_character
-    from rig.clip import transforms
-    from rig.mocap import load_clip
-    from rig.muscle_fit import FitOptions, fit_musculature
+    from rig.character.load import load_character
+    from rig.motion.clip import transforms
+    from rig.motion.mocap import load_clip
+    from rig.muscle.fit import FitOptions, fit_musculature
     path = asset("characters/CesiumMan.glb")
     ch = load_character(path)
     clip = load_clip(path)
@@ -259,7 +260,7 @@ def random_frames(rng, E_rest: np.ndarray) -> ShellFrames:
 def test_shell_batch_matches_the_reference_and_the_single_launch():
     """S = 2 sets x T = 4 frames of random muscle states over random skinned points, every mode and
     star tables: each [s, t] equals the single-frame launch exactly and the float64 reference
-    (rig.shells.shell_numpy) to float32 rounding; vertices without pairs keep their points."""
+    (rig.skin.shell.shells.shell_numpy) to float32 rounding; vertices without pairs keep their points."""
     rng = np.random.default_rng(8)
     M, V, S, T = 6, 800, 2, 4
     E_rest = np.stack([np.diag([*rng.uniform(0.08, 0.2, 3), 1.0]) for _ in range(M)])

@@ -1,12 +1,12 @@
-"""Bone heat skin weights (rig.bone_heat): a tube with a bone chain, seams, blind components,
+"""Bone heat skin weights (rig.character.bone_heat): a tube with a bone chain, seams, blind components,
 degenerate input, and CesiumMan's artist weights as the judge."""
 import numpy as np
 import pytest
-
 from conftest import asset
-from rig.bone_heat import LEAF_FRACTION, bone_heat_weights, bone_segments, weld
-from rig.character import load_character
-from rig.errors import InputError
+
+from rig.base.errors import InputError
+from rig.character.bone_heat import LEAF_FRACTION, bone_heat_weights, bone_segments, weld
+from rig.character.load import load_character
 
 # A tube along x, radius 0.1 m, from x = 0 to 1.4 m, capped; a 3-joint chain inside it. Joint 2 is a
 # leaf at x = 1.1, so the tube past it (x > 1.1) can only be weighted through the leaf's own bone.

@@ -1,14 +1,14 @@
 """BVH reader: hierarchies and channel layouts against an independent FK, CMU facts, bad input, fuzz."""
 
+import bvh_reference as ref
 import numpy as np
 import pytest
+from conftest import CMU_BVH, asset
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import bvh_reference as ref
-from conftest import CMU_BVH, asset
-from rig.bvh import CMU_UNIT, read_bvh
-from rig.errors import InputError
+from rig.base.errors import InputError
+from rig.motion.bvh import CMU_UNIT, read_bvh
 
 # A hierarchy that exercises the format: 6 channels on a non-root joint, unusual channel orders,
 # position channels placed after rotations, a joint without channels, End Sites, two roots.

@@ -4,17 +4,19 @@ from __future__ import annotations
 
 import warnings
 
+import gltf_reference
 import numpy as np
 import pytest
 import trimesh
-
-import gltf_reference
 from conftest import asset
-from rig.character import Character, auto_weighted, load_character, load_skeleton, bind_clip
-from rig.errors import InputError, JiggleWarning
-from rig.gltf_anim import read_gltf_animation
-from rig.clip import transforms
-from sim.skeleton import Skeleton
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.character.character import Character, bind_clip
+from rig.character.load import auto_weighted, load_character, load_skeleton
+from rig.motion.clip import transforms
+from rig.motion.gltf_anim import read_gltf_animation
+from rig.skin.skinning import pose_character
+from sim.drive.skeleton import Skeleton
 
 CHARACTERS = ["CesiumMan", "RiggedFigure"]
 
@@ -62,20 +64,20 @@ def test_pose_from_mujoco_equals_gltf_spec(name):
     clip = read_gltf_animation(path)
     t = 1.0
     world = _driver_world(c, clip, t - clip.meta["start_time"])
-    ours = c.pose(world)
+    ours = pose_character(c, world)
     ref = gltf_reference.skinned_vertices(path, t)
     err = np.linalg.norm(ours - ref, axis=1).max()
     moved = np.linalg.norm(ref - c.vertices, axis=1).max()
     print(f"{name}: max |ours - spec| = {err:.2e} m at t = {t} s (the skin moved up to {moved:.3f} m)")
     assert moved > 0.05, "the test pose must differ from the bind pose"
     assert err < 1e-4
-    dq = c.pose(world, method="dqs")
+    dq = pose_character(c, world, method="dqs")
     assert np.linalg.norm(dq - ref, axis=1).max() < 0.05, "DQS stays near LBS on a mild pose"
 
 
 def test_bind_pose_reproduces_rest_skin():
     c = load_character(asset("characters/CesiumMan.glb"))
-    np.testing.assert_allclose(c.pose(c.bind_world), c.vertices, atol=1e-5)
+    np.testing.assert_allclose(pose_character(c, c.bind_world), c.vertices, atol=1e-5)
     # the skeleton clip's rest pose is the bind pose
     r, p = c.skeleton.rest_world()
     np.testing.assert_allclose(p, c.bind_positions, atol=1e-9)
@@ -104,7 +106,7 @@ def _two_bone_tube():
     return mesh, clip
 
 
-@pytest.mark.filterwarnings("ignore:.*m tall:rig.errors.JiggleWarning")  # a 0.1 m tube, on purpose
+@pytest.mark.filterwarnings("ignore:.*m tall:rig.base.errors.JiggleWarning")  # a 0.1 m tube, on purpose
 def test_auto_weighted_mesh_from_obj(tmp_path):
     mesh, clip = _two_bone_tube()
     # an OBJ written Y-up (as DCC tools do) and in centimetres
@@ -123,7 +125,7 @@ def test_auto_weighted_mesh_from_obj(tmp_path):
     world = c.bind_world.copy()
     rot = trimesh.transformations.rotation_matrix(np.pi / 2, [0, 0, 1], point=[0.2, 0, 1.0])
     world[1:] = rot @ world[1:]
-    posed = c.pose(world)
+    posed = pose_character(c, world)
     start = c.vertices[:, 0] < 0.05  # heat diffuses: a little of joint b's weight reaches the start
     assert np.abs(posed[start] - c.vertices[start]).max() < 0.01
     assert np.abs(posed[c.vertices[:, 0] > 0.39] - c.vertices[c.vertices[:, 0] > 0.39]).max() > 0.1
@@ -136,7 +138,7 @@ def test_unit_option_and_height_warning(tmp_path):
     tall.vertices = tall.vertices * 100
     path = tmp_path / "body.stl"
     tall.export(path)
-    from rig.mesh_io import read_mesh
+    from rig.character.mesh_io import read_mesh
     with pytest.warns(JiggleWarning, match=r"170 m tall.*--unit cm"):
         read_mesh(path)
     with warnings.catch_warnings():

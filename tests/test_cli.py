@@ -1,16 +1,16 @@
 """The command line: help, inspect, play outputs, and bad input as one line with exit code 2."""
 import json
-from pathlib import Path
 import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import asset
-from sim.cli import main
+
+from sim.app.cli import main
 
 
 def run(capsys, *argv):
@@ -180,8 +180,8 @@ def test_body_command_writes_mesh_pictures_and_facts(capsys, tmp_path):
 
 def test_play_with_a_mesh_character_warns_and_skins(capsys, tmp_path):
     """An OBJ standing in the clip's rest pose, in centimetres: automatic weights, a warning on stderr."""
-    from rig.body import BodyOptions, generate_body
-    from rig.keyframes import read_keyframes
+    from rig.character.body import BodyOptions, generate_body
+    from rig.motion.keyframes import read_keyframes
     scene = os.path.join(os.path.dirname(__file__), "..", "scenes", "motions", "jumping_jacks.toml")
     clip = read_keyframes(scene)
     body = generate_body(clip, BodyOptions(resolution=10000))

@@ -9,10 +9,10 @@ import re
 import numpy as np
 import pytest
 
-from rig.errors import InputError
-from sim import compare_render
-from sim.caches import BakeData, write_npz
-from sim.compare import compare, muscle_energy, muscle_offsets
+from rig.base.errors import InputError
+from sim.app import compare_render
+from sim.app.compare import compare, muscle_energy, muscle_offsets
+from sim.bake.caches import BakeData, write_npz
 
 FPS, T = 30.0, 60
 PEAK_FRAME = 37

@@ -5,8 +5,8 @@ import re
 
 import numpy as np
 
-from sim.caches import read_npz
-from sim.cli import main
+from sim.app.cli import main
+from sim.bake.caches import read_npz
 
 
 def test_demo_bakes_and_compares(capsys, tmp_path):

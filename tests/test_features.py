@@ -1,4 +1,4 @@
-"""Feature and marker vertices (rig/features.py) and inserting vertices into a mesh (rig/resample.py).
+"""Feature and marker vertices (rig/anatomy/features.py) and inserting vertices into a mesh (rig/anatomy/resample.py).
 
 Simmons et al. 2002, section 2: rays from each bone and muscle along its normal meet the skin; a hit
 close enough to its component and not grazing becomes a (new) feature vertex anchored to it; markers
@@ -13,17 +13,18 @@ import time
 import numpy as np
 import pytest
 import trimesh
+from conftest import asset
 from scipy.spatial import cKDTree
 
-from conftest import asset
-from rig.character import Character, bind_clip
-from rig.errors import InputError
-from rig.features import BONE, MUSCLE, Anchors, FeatureOptions, _thin, anchor_points, find_features
-from rig.influence import _attach, closest_points
-from rig.normals import vertex_normals
-from rig.resample import Resampled, carry, carry_weights, insert_points, resample_character
-from rig.segmentation import bone_segments
-from scenes.simple_arm import RADIUS, simple_arm
+from rig.anatomy.features import BONE, MUSCLE, Anchors, FeatureOptions, _thin, anchor_points, find_features
+from rig.anatomy.resample import Resampled, carry, carry_weights, insert_points, resample_character
+from rig.base.errors import InputError
+from rig.character.character import Character, bind_clip
+from rig.character.normals import vertex_normals
+from rig.muscle.loft_attach import closest_points
+from rig.muscle.segmentation import bone_segments
+from rig.muscle.simple_arm import RADIUS, simple_arm
+from rig.skin.influence import _attach
 
 
 # ---------------------------------------------------------------------------------- helpers
@@ -415,7 +416,7 @@ def test_muscle_features_follow_the_muscle(arm, arm_features):
     T = rigid(-0.4, (0.3, 1.0, 0.2), (0.05, 0.0, -0.1))
     moved = rest @ T[:3, :3].T + T[:3, 3]
     np.testing.assert_allclose(a.positions(bind, moved)[mus], a.rest[mus] @ T[:3, :3].T + T[:3, 3], atol=1e-12)
-    # a scaled muscle: rig.influence's attach of the same parameters, and the skin over it moves out
+    # a scaled muscle: rig.skin.influence's attach of the same parameters, and the skin over it moves out
     c = rest.mean(axis=0)
     scaled = c + 1.3 * (rest - c)
     got = a.positions(bind, scaled)
@@ -466,8 +467,8 @@ def test_markers_anchor_to_the_nearest_component(arm, arm_segments):
 # ---------------------------------------------------------------------------------- CesiumMan
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.character import load_character
-    from rig.muscle_fit import fit_musculature
+    from rig.character.load import load_character
+    from rig.muscle.fit import fit_musculature
     ch = load_character(asset("characters/CesiumMan.glb"))
     mus = fit_musculature(ch)
     segments = mus.segmentation.segments

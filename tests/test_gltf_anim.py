@@ -1,6 +1,6 @@
 """glTF animations -> Clip, checked against an independent evaluation of the raw file.
 
-The reference below shares no code with rig.gltf_anim: it reads accessors with its own numpy view,
+The reference below shares no code with rig.motion.gltf_anim: it reads accessors with its own numpy view,
 builds every node's 4x4 local matrix T @ R @ S, multiplies them down the node hierarchy, and
 interpolates keys as the glTF 2.0 spec (Appendix C) says, with its own slerp in x,y,z,w order.
 """
@@ -15,11 +15,11 @@ import pygltflib
 import pytest
 from conftest import asset
 
-from rig import quat
-from rig.errors import InputError
-from rig.gltf_anim import read_gltf_animation
-from rig.gltf_skeleton import describe_gltf, read_gltf_skeleton
-from rig.mocap import load_clip
+from rig.base.errors import InputError
+from rig.motion import quat
+from rig.motion.gltf_anim import read_gltf_animation
+from rig.motion.gltf_skeleton import describe_gltf, read_gltf_skeleton
+from rig.motion.mocap import load_clip
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # (x, y, z) -> (x, -z, y)
 

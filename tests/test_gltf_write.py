@@ -1,4 +1,4 @@
-"""Writing a skinned character as glTF (rig.gltf_write): what jiggle reads back is what it wrote."""
+"""Writing a skinned character as glTF (rig.character.gltf_write): what jiggle reads back is what it wrote."""
 import dataclasses
 import os
 import warnings
@@ -6,12 +6,14 @@ import warnings
 import numpy as np
 import pygltflib
 import pytest
-
 from conftest import asset
-from rig import quat
-from rig.character import Character, bind_clip, load_character
-from rig.errors import InputError, JiggleWarning
-from rig.gltf_write import write_character
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.character.character import Character, bind_clip
+from rig.character.gltf_write import write_character
+from rig.character.load import load_character
+from rig.motion import quat
+from rig.skin.skinning import pose_character
 
 CESIUM = "characters/CesiumMan.glb"
 
@@ -120,7 +122,7 @@ def test_spec_details(tmp_path):
 
 def test_nodes_rest_pose_is_the_bind_pose(tmp_path):
     """Blender and other viewers show the nodes' TRS: it is the bind pose, the skin undeformed."""
-    from rig.gltf_skeleton import read_gltf_skeleton
+    from rig.motion.gltf_skeleton import read_gltf_skeleton
     c = cesium()
     s = read_gltf_skeleton(write_character(c, tmp_path / "man.glb"))
     np.testing.assert_allclose(s.rest_translations, s.bind_translations, atol=1e-6)
@@ -203,13 +205,13 @@ def test_written_character_is_animatable(tmp_path):
     back = load_character(write_character(c, tmp_path / "man.glb"))
     for joint, axis in (("Skeleton_arm_joint_L__4_", (0.0, 1.0, 0.0)), ("leg_joint_R_1", (1.0, 0.0, 0.0))):
         world = bend(c, joint, 60.0, axis)
-        before = c.pose(world)
+        before = pose_character(c, world)
         assert np.abs(before - c.vertices).max() > 0.1  # the bend moves the skin
-        np.testing.assert_allclose(back.pose(world), before, atol=1e-5)
+        np.testing.assert_allclose(pose_character(back, world), before, atol=1e-5)
     # glTF skinning of the file (node world @ IBM on the file's vertices) is the same map
     world = bend(c, "leg_joint_R_1")
     g = pygltflib.GLTF2().load(tmp_path / "man.glb")
-    from rig.gltf_io import GltfDocument, Z_UP
+    from rig.motion.gltf_io import Z_UP, GltfDocument
     doc = GltfDocument(tmp_path / "man.glb")
     prim = g.meshes[0].primitives[0]
     v = doc.accessor(prim.attributes.POSITION)
@@ -218,7 +220,7 @@ def test_written_character_is_animatable(tmp_path):
     j, w = doc.accessor(prim.attributes.JOINTS_0).astype(int), doc.accessor(prim.attributes.WEIGHTS_0)
     m = np.einsum("vk,vkij->vij", w, skin[j])
     posed = np.einsum("vij,vj->vi", m[:, :3, :3], v) + m[:, :3, 3]
-    np.testing.assert_allclose(posed @ Z_UP[:3, :3].T, c.pose(world), atol=1e-5)
+    np.testing.assert_allclose(posed @ Z_UP[:3, :3].T, pose_character(c, world), atol=1e-5)
 
 
 def _tiny_character(scale_bind: bool = False) -> Character:
@@ -227,11 +229,11 @@ def _tiny_character(scale_bind: bool = False) -> Character:
     vertices = np.array([[xi, y, 0.1 * xi] for xi in x for y in (0.0, 0.2)])
     faces = np.array([[2 * i, 2 * i + 2, 2 * i + 1] for i in range(4)] +
                      [[2 * i + 1, 2 * i + 2, 2 * i + 3] for i in range(4)], np.int32)
-    from rig.normals import vertex_normals
+    from rig.character.normals import vertex_normals
     names, parents = ("a", "b", "c"), np.array([-1, -1, 0])
     rot = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array([0.3, -0.2, 1.0]))
     pos = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.1], [0.5, 0.1, 0.05]])
-    from rig.clip import transforms
+    from rig.motion.clip import transforms
     bind = transforms(rot, pos)
     bind_m = bind @ np.diag([1.2, 0.9, 1.0, 1.0]) if scale_bind else bind
     t = np.clip(vertices[:, 0], 0, 1)
@@ -259,7 +261,7 @@ def test_tiny_forest_round_trips_in_depth_first_order(tmp_path, scale_bind):
     world = c.bind_world.copy()
     world[2] = world[2] @ np.block([[quat.to_matrix(quat.from_axis_angle(np.array([1.0, 0, 0]), 0.7)),
                                      np.zeros((3, 1))], [np.zeros((1, 3)), np.ones((1, 1))]])
-    np.testing.assert_allclose(back.pose(world[order]), c.pose(world), atol=1e-5)
+    np.testing.assert_allclose(pose_character(back, world[order]), pose_character(c, world), atol=1e-5)
 
 
 def test_weights_are_written_normalised_without_repeated_joints(tmp_path):
@@ -270,7 +272,7 @@ def test_weights_are_written_normalised_without_repeated_joints(tmp_path):
     weights = c.weights * 0.8
     joints[:, 2], weights[:, 2] = joints[:, 0], 0.1  # the strongest joint again, with more weight
     odd = dataclasses.replace(c, joints=joints, weights=weights)
-    from rig.gltf_io import GltfDocument
+    from rig.motion.gltf_io import GltfDocument
     doc = GltfDocument(write_character(odd, tmp_path / "odd.glb"))
     attrs = doc.gltf.meshes[0].primitives[0].attributes
     j, w = doc.accessor(attrs.JOINTS_0).astype(int), doc.accessor(attrs.WEIGHTS_0)
@@ -286,9 +288,9 @@ def test_weights_are_written_normalised_without_repeated_joints(tmp_path):
 
 
 def test_generated_body_round_trips_without_uvs(tmp_path):
-    from rig.body import BodyOptions
-    from rig.character import body_character
-    from sim.scene import load_scene
+    from rig.character.body import BodyOptions
+    from rig.character.load import body_character
+    from sim.bake.scene import load_scene
     clip = load_scene("scenes/default.toml").clip
     c = body_character(clip, BodyOptions(resolution=2000), k=5)  # k=5: JOINTS_0/1 and WEIGHTS_0/1
     assert c.uvs is None
@@ -299,7 +301,7 @@ def test_generated_body_round_trips_without_uvs(tmp_path):
     back = load_character(path, k=5)
     assert_same_character(c, back, uvs=False)
     world = bend(c, "l_forearm", 70.0)
-    np.testing.assert_allclose(back.pose(world), c.pose(world), atol=1e-5)
+    np.testing.assert_allclose(pose_character(back, world), pose_character(c, world), atol=1e-5)
 
 
 # ---------------------------------------------------------------------------------- bad input
@@ -327,7 +329,7 @@ def test_bad_input_leaves_no_file(tmp_path, monkeypatch):
     before = open(good, "rb").read()
     with pytest.raises(InputError):
         write_character(dataclasses.replace(c, vertices=v), good)
-    import rig.gltf_write as gw
+    import rig.character.gltf_write as gw
 
     def broken(path, doc):
         raise RuntimeError("simulated failure after the bytes were written")

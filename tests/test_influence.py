@@ -1,6 +1,6 @@
-"""Influence-object skinning (rig/influence.py, rig/influence_kernels.py).
+"""Influence-object skinning (rig/skin/influence.py, rig/skin/influence_kernels.py).
 
-Reference equations (rig/influence.py's docstring): at bind each (vertex, muscle) pair gets its foot
+Reference equations (rig/skin/influence.py's docstring): at bind each (vertex, muscle) pair gets its foot
 point (w, v) on the muscle's smooth loft X and its offset o = p - X(w, v) in the frame
 e1 = unit(X_w), n = unit(X_v x X_w), e2 = n x e1; per frame
     p' = p + sum_pairs weight * (attach(cvs_cur) - attach(cvs_ref)),  attach = X + F^T offset.
@@ -14,13 +14,13 @@ import pytest
 import warp as wp
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-
-from rig import loft
-from rig.errors import InputError, JiggleWarning
-from rig.influence import (InfluenceDeformer, bind_influence, closest_points, influence_numpy,
-                           loft_frame, muscle_eps)
-from rig.muscle_model import build_muscle_rig
 from test_muscle_model import ARM_BIND, arm_world, biceps, brachio
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.muscle import loft
+from rig.muscle.loft_attach import bind_influence, closest_points, loft_frame, muscle_eps
+from rig.muscle.model import build_muscle_rig
+from rig.skin.influence import InfluenceDeformer, influence_numpy
 
 TOL = 1e-5  # metres, float32 kernel against the float64 reference
 
@@ -28,7 +28,7 @@ TOL = 1e-5  # metres, float32 kernel against the float64 reference
 # ---------------------------------------------------------------------------------- fixtures
 def spheroid(length: float = 0.2, radius: float = 0.04) -> np.ndarray:
     """(5, 8, 3) CVs of a fusiform, sphere-like loft centred at 0 along +Z, in the orientation
-    rig.muscle_model builds (sections from origin to insertion along T = +Z, v turning from the up
+    rig.muscle.model builds (sections from origin to insertion along T = +Z, v turning from the up
     vector U = +X toward S = T x U = +Y). Ring CVs sit at radius R / k so the B-spline ring passes at
     ~R: at v = j the ring is (CV[j-1] + 4 CV[j] + CV[j+1]) / 6 = k CV[j] radially, k = (4 + 2 cos 45) / 6."""
     z = np.linspace(-0.5, 0.5, loft.SECTIONS) * length

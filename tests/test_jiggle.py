@@ -1,4 +1,4 @@
-"""Secondary motion of a whole rig (sim/jiggle.py) on the thesis's simple arm: blend, start, gravity,
+"""Secondary motion of a whole rig (sim/jiggle/secondary.py) on the thesis's simple arm: blend, start, gravity,
 goal track, and the skin seeing the blended CVs."""
 import math
 from dataclasses import replace
@@ -6,13 +6,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.errors import InputError
-from rig.muscle_skin import MuscleSkin
-from scenes.simple_arm import arm_world, simple_arm
-from sim.goal_track import build_track, find_cuts
-from sim.jiggle import equilibrium, jiggle_rig, knot_times, step_times
-from sim.jiggle_params import BlendCurve, JiggleSettings, default_jiggles, override
-from sim.particles import muscle_model
+from rig.base.errors import InputError
+from rig.muscle.simple_arm import arm_world, simple_arm
+from rig.skin.muscle_skin import MuscleSkin
+from sim.jiggle.goal_track import build_track, find_cuts
+from sim.jiggle.params import BlendCurve, JiggleSettings, default_jiggles, override
+from sim.jiggle.particles import muscle_model
+from sim.jiggle.secondary import equilibrium, jiggle_rig, knot_times, step_times
 
 
 def flex(t):
@@ -122,7 +122,7 @@ def test_a_still_pose_stays_still_with_and_without_gravity(arm):
 
 
 def test_equilibrium_balances_gravity(arm):
-    from sim.particle_solver import spring_force_numpy
+    from sim.jiggle.solver import spring_force_numpy
     model = muscle_model(arm.rig, default_jiggles(arm.rig), gravity=True)
     y = equilibrium(model)
     f = spring_force_numpy(model, y, np.zeros_like(y)) - (model.mass * model.goal_k)[:, None] * np.where(

@@ -1,4 +1,4 @@
-"""Secondary motion over whole clips (sim/jiggle.py): integration that holds.
+"""Secondary motion over whole clips (sim/jiggle/secondary.py): integration that holds.
 
 - Frame-rate and substep independence: the simple arm flexing fast, baked at 24, 30, 60 and 120 fps
   with 1 to 16 substeps, agrees with the 120 fps x 16 substeps bake within 2% of the peak jiggle.
@@ -15,15 +15,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import CMU_BVH, asset
-from scenes.simple_arm import arm_world, simple_arm
-from sim.jiggle import jiggle_rig, knot_times
-from sim.jiggle_params import JiggleSettings, default_jiggles, override
+
+from rig.muscle.simple_arm import arm_world, simple_arm
+from sim.jiggle.params import JiggleSettings, default_jiggles, override
+from sim.jiggle.secondary import jiggle_rig, knot_times
 
 # ---------------------------------------------------------------------------------- frame rate
 # CLIP_S is a whole number of frames at every rate, so every bake's goal track ends at the same time
-# (sim/jiggle.py ends it at the last output frame; benchmarks/bench_jiggle.py shows the end effect)
+# (sim/jiggle/secondary.py ends it at the last output frame; benchmarks/bench_jiggle.py shows the end effect)
 FLEX_DEG, FLEX_S, HOLD_S, CLIP_S = 120.0, 0.2, 0.5, 1.5
 RATES = (24, 30, 60, 120)
 SUBSTEPS = (1, 2, 4, 8, 16)
@@ -64,7 +64,7 @@ def test_arm_flex_is_independent_of_frame_rate_and_substeps(arm_bakes):
     of the 120 fps x 16 substeps reference.
 
     Why 2% holds: the goal path is the same at every rate
-    (knots at 120 Hz, sim/jiggle.py), and the goal springs' flow is exact for any step (without
+    (knots at 120 Hz, sim/jiggle/secondary.py), and the goal springs' flow is exact for any step (without
     neighbour springs the bakes agree to 1e-5 of the peak, float32 rounding). What is left is the
     splitting error of the neighbour springs, first order in the step h because their damping is
     kicked explicitly: steps never exceed min(1/120 s, the solver's max_step 0.005 s here), and the
@@ -104,9 +104,9 @@ BODY_VERTICES = 8000      # a coarse body: the muscles' fit needs no more, and i
 def musculatures():
     """musculature(clip) -> (Musculature, stress jiggles): one generated body and fit per distinct
     skeleton (joint names and rest offsets to the millimetre; 02_03 and 02_04 share one), cached."""
-    from rig.body import BodyOptions
-    from rig.character import body_character
-    from rig.muscle_fit import fit_musculature
+    from rig.character.body import BodyOptions
+    from rig.character.load import body_character
+    from rig.muscle.fit import fit_musculature
     cache = {}
 
     def musculature(clip):
@@ -122,7 +122,7 @@ def musculatures():
 
 def clip_world(clip):
     """world_at(times) -> (K, J, 4, 4) of `clip` (joints in the clip's order, as its body's)."""
-    from rig.clip import transforms
+    from rig.motion.clip import transforms
     return lambda t: transforms(*clip.world(*clip.sample(t)))
 
 
@@ -133,7 +133,7 @@ def offsets(r) -> np.ndarray:
 
 @pytest.mark.parametrize("rel", CLIPS, ids=[p.split("/")[-1] for p in CLIPS])
 def test_shared_clip_stays_bounded_at_soft_goals(musculatures, rel):
-    from rig.mocap import load_clip
+    from rig.motion.mocap import load_clip
     clip = load_clip(asset(rel))
     mus, jiggles = musculatures(clip)
     times = frames(FPS, clip.duration)
@@ -167,7 +167,7 @@ def spliced(world_at, jump: float):
 
 @pytest.fixture(scope="module")
 def cut_scene(musculatures):
-    from rig.mocap import load_clip
+    from rig.motion.mocap import load_clip
     clip = load_clip(asset(CUT_CLIP))
     mus, jiggles = musculatures(clip)
     return mus, jiggles, clip_world(clip), frames(FPS, clip.duration)

@@ -1,20 +1,20 @@
-"""Marker sets (rig.markers): found on any humanoid from its roles, written and read back, and every
+"""Marker sets (rig.anatomy.markers): found on any humanoid from its roles, written and read back, and every
 kind of bad marker file refused with its file, marker and line."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from rig.errors import InputError
-from rig.markers import HUMAN, WIDTHS, find_markers, read_markers, write_markers
+from rig.anatomy.markers import HUMAN, WIDTHS, find_markers, read_markers, write_markers
+from rig.base.errors import InputError
 from tests.conftest import asset
 
 
 @pytest.fixture(scope="module")
 def cesium_markers():
-    from rig.character import load_character
-    from rig.role_map import resolve_roles
-    from rig.segmentation import bone_segments
+    from rig.character.load import load_character
+    from rig.motion.role_map import resolve_roles
+    from rig.muscle.segmentation import bone_segments
     c = load_character(asset("characters/CesiumMan.glb"))
     roles = resolve_roles(c.skeleton)
     return c, find_markers(c.vertices, c.faces, roles, c.bind_positions, bone_segments(c))

@@ -7,14 +7,14 @@ import os
 import mujoco
 import numpy as np
 import pytest
-
 from conftest import asset
-from rig import quat
-from rig.acclaim import read_amc, read_asf
-from rig.bvh import read_bvh
-from rig.clip import Clip
-from rig.errors import InputError
-from sim.mjcf_drive import MjcfDrive, hinge_angles
+
+from rig.base.errors import InputError
+from rig.motion import quat
+from rig.motion.acclaim import read_amc, read_asf
+from rig.motion.bvh import read_bvh
+from rig.motion.clip import Clip
+from sim.drive.mjcf_drive import MjcfDrive, hinge_angles
 
 HUMANOID = "mjcf/humanoid_CMU.xml"
 ASF = "mocap/cmu_amc/01.asf"

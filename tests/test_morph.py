@@ -1,4 +1,4 @@
-"""Morphing a canonical character to a target from sparse markers (rig.morph, `jiggle morph`),
+"""Morphing a canonical character to a target from sparse markers (rig.anatomy.morph, `jiggle morph`),
 measured against the paper (Simmons et al. 2002, section 5: marker rms under 2% of the body's length).
 
 The target is CesiumMan with its markers moved: the torso 15% wider, the arms 12% longer, the legs
@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.errors import InputError
+from rig.base.errors import InputError
+from rig.skin.skinning import pose_character
 from tests.conftest import asset
 
 
@@ -25,8 +26,8 @@ def stretched(p: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def canon():
-    from rig.character import load_character
-    from rig.morph import MorphOptions, prepare_canonical
+    from rig.anatomy.morph import MorphOptions, prepare_canonical
+    from rig.character.load import load_character
     path = asset("characters/CesiumMan.glb")
     return prepare_canonical(load_character(path), MorphOptions(), source=str(path))
 
@@ -38,7 +39,7 @@ def target(canon):
 
 @pytest.fixture(scope="module")
 def result(canon, target):
-    from rig.morph import morph
+    from rig.anatomy.morph import morph
     return morph(canon, target)
 
 
@@ -86,7 +87,7 @@ def test_components_follow_the_markers(canon, result):
 
 
 def test_identity_markers_give_the_canonical_back(canon):
-    from rig.morph import morph
+    from rig.anatomy.morph import morph
     # markers sit on original vertices: a marker file does not depend on the feature options
     assert (canon.markers.vertex < canon.musculature.character.num_vertices).all()
     same = dict(zip(canon.markers.names, canon.markers.positions))
@@ -102,15 +103,15 @@ def test_zones_keep_the_skin_smooth_across_boundaries(result):
 
 
 def test_marker_features_pin_the_markers(canon, target):
-    from rig.morph import MorphOptions, morph
+    from rig.anatomy.morph import MorphOptions, morph
     res = morph(canon, target, MorphOptions(marker_features=True))
     assert res.report["marker_max_m"] < 1e-6
 
 
 def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
-    from rig.character import load_character
-    from rig.markers import write_markers
-    from sim.cli import main
+    from rig.anatomy.markers import write_markers
+    from rig.character.load import load_character
+    from sim.app.cli import main
     src = canon.source
     m = write_markers(tmp_path / "t.toml", canon.markers.names, stretched(canon.markers.positions))
     out = tmp_path / "target.glb"
@@ -123,7 +124,7 @@ def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
     assert t.num_vertices == c.num_vertices and t.joint_names == c.joint_names
     assert t.uvs is not None
     # animatable: bending the left knee moves the left shin and leaves the right leg alone
-    from rig.quat import from_axis_angle, to_matrix
+    from rig.motion.quat import from_axis_angle, to_matrix
     w = np.asarray(t.bind_world).copy()
     knee = t.index("leg_joint_L_2")
     R = to_matrix(from_axis_angle(np.array([1.0, 0.0, 0.0]), np.radians(50)))
@@ -132,15 +133,15 @@ def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
     for k in sub:
         w[k, :3, :3] = R @ w[k, :3, :3]
         w[k, :3, 3] = R @ (w[k, :3, 3] - p) + p
-    posed = t.pose(w)
+    posed = pose_character(t, w)
     moved = np.linalg.norm(posed - t.vertices, axis=1)
     assert moved[t.vertices[:, 0] < -0.03].max() < 1e-5 and moved.max() > 0.1
 
 
 def test_bad_markers(tmp_path, canon, target):
-    from rig.markers import write_markers
-    from rig.morph import morph
-    from sim.cli import main
+    from rig.anatomy.markers import write_markers
+    from rig.anatomy.morph import morph
+    from sim.app.cli import main
     bad = dict(target)
     bad["left_knee"] = np.array([0.0, np.nan, 0.3])
     with pytest.raises(InputError, match="left_knee.*NaN"):
@@ -164,10 +165,10 @@ def test_bad_markers(tmp_path, canon, target):
 
 def test_too_few_features_in_a_zone(canon, target):
     """A zone set left with too few feature points is named, with a hint."""
-    from rig.features import FeatureOptions
-    from rig.morph import MorphOptions, prepare_canonical
+    from rig.anatomy.features import FeatureOptions
+    from rig.anatomy.morph import MorphOptions, prepare_canonical
     sparse = MorphOptions(features=FeatureOptions(spacing=0.25))
     with pytest.raises(InputError, match="zone.*feature"):
         c = prepare_canonical(canon.musculature.character, sparse)
-        from rig.morph import morph
+        from rig.anatomy.morph import morph
         morph(c, target, sparse)

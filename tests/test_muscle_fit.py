@@ -1,4 +1,4 @@
-"""Fitting the musculoskeletal template to characters from the outside in (rig.muscle_fit).
+"""Fitting the musculoskeletal template to characters from the outside in (rig.muscle.fit).
 
 The default "human" template (21 muscles and 5 fat masses; the abdomen has 3 bellies, so 28 fitted
 muscles) on CesiumMan, RiggedFigure, the generated jumping-jacks body and a body generated for a CMU
@@ -16,14 +16,15 @@ import warnings
 
 import numpy as np
 import pytest
-
 from conftest import asset
-from rig.character import Character, bind_clip, body_character, load_character
-from rig.errors import InputError, JiggleWarning
-from rig.muscle_fit import FitOptions, bone_frame, fit_musculature
-from rig.muscle_template import template_from_toml
-from rig.normals import vertex_normals
-from sim.cli import main
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.character.character import Character, bind_clip
+from rig.character.load import body_character, load_character
+from rig.character.normals import vertex_normals
+from rig.muscle.fit import FitOptions, bone_frame, fit_musculature
+from rig.muscle.template import template_from_toml
+from sim.app.cli import main
 
 CHARACTERS = ["CesiumMan", "RiggedFigure", "generated"]
 FAT = {"left_glute_fat", "right_glute_fat", "belly_fat", "left_love_handle", "right_love_handle"}
@@ -45,10 +46,10 @@ def make_character(name: str) -> Character:
     if name == "RiggedFigure":
         return load_character(asset("characters/RiggedFigure.glb"))
     if name == "generated":
-        from rig.mocap import load_clip
+        from rig.motion.mocap import load_clip
         return body_character(load_clip("scenes/motions/jumping_jacks.toml"))
     if name == "cmu":
-        from rig.mocap import load_clip
+        from rig.motion.mocap import load_clip
         return body_character(load_clip(asset("mocap/cmu_bvh/02_03.bvh")))
     raise KeyError(name)
 
@@ -179,7 +180,8 @@ def test_partition_plane_holds_even_with_a_long_reach():
     and is ignored anyway; with reach 10 the plane is what keeps the pairs apart (without it they
     cross it by 2-5 cm on RiggedFigure)."""
     import dataclasses
-    from rig.muscle_template import load_template
+
+    from rig.muscle.template import load_template
     c = load_character(asset("characters/RiggedFigure.glb"))
     human = load_template("human")
     pairs_only = dataclasses.replace(human, pairs=tuple(p for p in human.pairs
@@ -263,11 +265,11 @@ def test_fat_masses_are_fat_and_at_least_their_depth_thick(fits, name):
 # ------------------------------------------------------------------------------- volume over a clip
 def test_volume_is_kept_over_every_frame_of_a_cmu_clip(fits):
     """The template fitted to a body generated around a CMU clip's skeleton, driven by that clip through
-    MuJoCo (sim.skeleton.Skeleton) over every frame: the default "exact" rule holds every muscle's
+    MuJoCo (sim.drive.skeleton.Skeleton) over every frame: the default "exact" rule holds every muscle's
     lofted volume within 1%; the thesis rule (S = Sc Li / Lc, volume ~ Li / Lc) drifts far more."""
-    from rig.clip import transforms
-    from rig.mocap import load_clip
-    from sim.skeleton import Skeleton
+    from rig.motion.clip import transforms
+    from rig.motion.mocap import load_clip
+    from sim.drive.skeleton import Skeleton
     c, mus, warned = fits("cmu")
     assert mus.skipped == () and warned == []   # love handles included although LowerBack sits on Hips
     clip = load_clip(asset("mocap/cmu_bvh/02_03.bvh"))

@@ -1,4 +1,4 @@
-"""Muscle ellipsoid frames for the shell deformer (rig/muscle_frames.py).
+"""Muscle ellipsoid frames for the shell deformer (rig/skin/shell/frames.py).
 
 A synthetic two-bone arm (tests/test_muscle_model.py's fixtures). References: solid moments against
 trimesh's mass properties; the affine fit against np.linalg.lstsq per muscle; the nearest curve
@@ -13,15 +13,25 @@ import numpy as np
 import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
-
-from rig import loft
-from rig.errors import InputError
-from rig.muscle_frames import (REASONS, TRAJECTORY_U, MuscleFrames, curve_points, nearest_parameter,
-                               rest_ellipsoids, solid_ellipsoids, solid_moments, star_directions,
-                               star_tables, trajectory)
-from rig.muscle_model import MuscleSpec, build_muscle_rig, curve_basis
-from rig.shells import STAR_PHI, STAR_THETA, TRAJECTORY_SAMPLES, ShellFrames, star_lookup
 from test_muscle_model import ARM_BIND, arm_world, biceps, brachio, fibonacci_sphere, spec_from_ellipsoid
+
+from rig.base.errors import InputError
+from rig.muscle import loft
+from rig.muscle.model import MuscleSpec, build_muscle_rig, curve_basis
+from rig.skin.shell.frames import (
+    REASONS,
+    TRAJECTORY_U,
+    MuscleFrames,
+    curve_points,
+    nearest_parameter,
+    rest_ellipsoids,
+    solid_ellipsoids,
+    solid_moments,
+    star_directions,
+    star_tables,
+    trajectory,
+)
+from rig.skin.shell.shells import STAR_PHI, STAR_THETA, TRAJECTORY_SAMPLES, ShellFrames, star_lookup
 
 
 def rigid(rotvec, t) -> np.ndarray:

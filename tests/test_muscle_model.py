@@ -1,4 +1,4 @@
-"""The thesis muscle (rig/muscle_model.py) and its loft (rig/loft.py).
+"""The thesis muscle (rig/muscle/model.py) and its loft (rig/muscle/loft.py).
 
 Synthetic skeletons (a two-bone arm) except one test driven by a shared CMU clip. `reference_static`
 is an independent per-muscle, per-frame implementation of the documented equations (scipy splines,
@@ -11,14 +11,14 @@ import dataclasses
 import numpy as np
 import pytest
 import trimesh
+from conftest import asset
 from scipy.interpolate import BSpline, CubicSpline
 from scipy.spatial.transform import Rotation
 
-from conftest import asset
-from rig import loft
-from rig.clip import transforms
-from rig.errors import InputError
-from rig.muscle_model import VOLUME_RULES, MuscleSpec, build_muscle_rig
+from rig.base.errors import InputError
+from rig.motion.clip import transforms
+from rig.muscle import loft
+from rig.muscle.model import VOLUME_RULES, MuscleSpec, build_muscle_rig
 
 UPPER, FORE = 0.30, 0.25    # metres, arm bone lengths
 
@@ -89,7 +89,7 @@ def arm_rig():
 # ---------------------------------------------------------------------------------- reference
 def reference_static(specs, bind_world, sections, world, rule="exact"):
     """Static CVs (M * 40, 3) and curve (M, 5, 3) for world (J, 4, 4), muscle by muscle, from the
-    specs, the fitted sections (M, 5, 8, 2) and the equations of rig/muscle_model.py's docstring."""
+    specs, the fitted sections (M, 5, 8, 2) and the equations of rig/muscle/model.py's docstring."""
     knots = [0, 0, 0, 0, 0.5, 1, 1, 1, 1]
     gx, gw = np.polynomial.legendre.leggauss(8)
     arc_u = np.concatenate([0.25 + 0.25 * gx, 0.75 + 0.25 * gx])
@@ -380,7 +380,7 @@ def limb_spec(name, pos, a, b, c, toward, depth=0.035, radii=(0.025, 0.02), span
 
 
 def test_clip_keeps_every_muscles_volume():
-    from rig.mocap import load_clip
+    from rig.motion.mocap import load_clip
     clip = load_clip(asset("mocap/cmu_bvh/02_03.bvh")).frames(0, 300)
     bind = transforms(*clip.rest_world())
     world = transforms(*clip.world())

@@ -1,6 +1,6 @@
-"""Skin over bones and muscles (rig/muscle_skin.py): the thesis's simple arm and CesiumMan.
+"""Skin over bones and muscles (rig/skin/muscle_skin.py): the thesis's simple arm and CesiumMan.
 
-The simple arm (scenes/simple_arm.py) is a cylinder on two bones with one muscle on the upper bone;
+The simple arm (rig/muscle/simple_arm.py) is a cylinder on two bones with one muscle on the upper bone;
 CesiumMan gets the default template fitted and a CMU run retargeted onto it (skipped without the
 shared assets).
 """
@@ -10,12 +10,12 @@ import warnings
 
 import numpy as np
 import pytest
-
 from conftest import asset
-from rig.errors import InputError, JiggleWarning
-from rig.muscle_skin import MuscleSkin
-from rig.shells import ShellParams
-from scenes.simple_arm import simple_arm
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.muscle.shell_params import ShellParams
+from rig.muscle.simple_arm import simple_arm
+from rig.skin.muscle_skin import MuscleSkin
 
 
 @pytest.fixture(scope="module")
@@ -155,12 +155,12 @@ def test_culling_keeps_only_vertices_near_the_muscle(arm, arm_skins):
 # ---------------------------------------------------------------------------------- CesiumMan
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.bvh import read_bvh
-    from rig.character import load_character
-    from rig.clip import transforms
-    from rig.gltf_skeleton import read_gltf_skeleton
-    from rig.muscle_fit import fit_musculature
-    from rig.retarget import JointMap, retarget
+    from rig.character.load import load_character
+    from rig.motion.bvh import read_bvh
+    from rig.motion.clip import transforms
+    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    from rig.motion.retarget import JointMap, retarget
+    from rig.muscle.fit import fit_musculature
     path = asset("characters/CesiumMan.glb")
     clip = read_bvh(asset("mocap/cmu_bvh/02_03.bvh"))
     ch = load_character(path)

@@ -1,4 +1,4 @@
-"""Musculoskeletal templates (rig/muscle_template.py): both file forms, round trips, the built-in human
+"""Musculoskeletal templates (rig/muscle/template.py): both file forms, round trips, the built-in human
 template, and clear errors for bad labels, numbers, keys and hostile or malformed XML."""
 from __future__ import annotations
 
@@ -7,13 +7,27 @@ import importlib.resources
 
 import pytest
 
-from rig.errors import InputError
-from rig.muscle_template import (FAT_DEPTH, FAT_JIGGLE, MUSCLE_JIGGLE, Attachment, BoneMusclePair, MuscleTemplate,
-                                 Position, Template, check_labels, load_template, read_template,
-                                 template_from_toml, template_from_xml, template_to_toml, template_to_xml,
-                                 write_template)
-from rig.retarget import ROLES
-from rig.shells import FAT_SHELL, MODES, MUSCLE_SHELL, ShellParams
+from rig.base.errors import InputError
+from rig.motion.retarget import ROLES
+from rig.muscle.shell_params import FAT_SHELL, MODES, MUSCLE_SHELL, ShellParams
+from rig.muscle.template import (
+    FAT_DEPTH,
+    FAT_JIGGLE,
+    MUSCLE_JIGGLE,
+    Attachment,
+    BoneMusclePair,
+    MuscleTemplate,
+    Position,
+    Template,
+    check_labels,
+    load_template,
+    read_template,
+    template_from_toml,
+    template_from_xml,
+    template_to_toml,
+    template_to_xml,
+    write_template,
+)
 
 FIGURE5 = """<?xml version="1.0"?>
 <boneMusclePair>
@@ -172,7 +186,7 @@ def test_built_in_human_template():
     assert "abdomen" in names and "belly_fat" in names
     assert any(lbl.startswith("left_") for lbl in t.labels()) and any(lbl.startswith("right_") for lbl in t.labels())
     # the two shipped forms are the same template
-    folder = importlib.resources.files("rig") / "templates"
+    folder = importlib.resources.files("rig.muscle") / "templates"
     xml = template_from_xml((folder / "human.xml").read_bytes(), "human.xml")
     toml = template_from_toml((folder / "human.toml").read_text(encoding="utf-8"), "human.toml")
     assert xml == toml == t == load_template("human", form=".xml")
@@ -452,5 +466,5 @@ def test_shell_round_trip(tmp_path):
 
 def test_programmatic_shell_checked():
     t = Template("x", (BoneMusclePair("hips", "spine", 0, (MuscleTemplate("m", shell={"sticky": 1.0}),)),))
-    with pytest.raises(InputError, match=r"pair\[0\]\.muscle\[0\]\.shell: expected rig\.shells\.ShellParams, got dict"):
+    with pytest.raises(InputError, match=r"pair\[0\]\.muscle\[0\]\.shell: expected rig\.muscle\.shell_params\.ShellParams, got dict"):
         template_to_toml(t)

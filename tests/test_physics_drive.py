@@ -1,4 +1,4 @@
-"""Physics drive: MuJoCo follows a clip on a floor (sim/physics_drive.py)."""
+"""Physics drive: MuJoCo follows a clip on a floor (sim/drive/physics_drive.py)."""
 from __future__ import annotations
 
 import json
@@ -8,14 +8,20 @@ import numpy as np
 import pytest
 from conftest import CMU_BVH, asset
 
-from rig import quat
-from rig.bvh import read_bvh
-from rig.clip import Clip
-from rig.errors import InputError
-from sim.physics_drive import (GRAVITY, PhysicsDivergedError, PhysicsDrive, PhysicsResult, estimate_floor,
-                               find_feet)
-from rig.bone_roles import bone_roles
-from sim.skeleton import BodyShape, Skeleton
+from rig.base.errors import InputError
+from rig.motion import quat
+from rig.motion.bone_roles import bone_roles
+from rig.motion.bvh import read_bvh
+from rig.motion.clip import Clip
+from sim.drive.physics_drive import (
+    GRAVITY,
+    PhysicsDivergedError,
+    PhysicsDrive,
+    PhysicsResult,
+    estimate_floor,
+    find_feet,
+)
+from sim.drive.skeleton import BodyShape, Skeleton
 
 # A two-bone leg standing still: hip (root) -> knee -> ankle, a flat foot bone to a toe end site.
 # The hip sits 8 cm ahead of the ankle so that the centre of mass (~5 cm ahead) lies between the

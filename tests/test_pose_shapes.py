@@ -1,4 +1,4 @@
-"""Pose-based muscle shapes (rig.pose_shapes, Pratscher et al. 2005 section 4.1).
+"""Pose-based muscle shapes (rig.muscle.pose_shapes, Pratscher et al. 2005 section 4.1).
 
 A synthetic arm: a tube of skin (radius 4 cm) around the joints shoulder > elbow > wrist, with the
 roles of a left arm and front -y, and a one-pair template (biceps in front, triceps behind the upper
@@ -8,13 +8,13 @@ arm). Sculpted poses are the rest tube and the same tube with the front of the u
 import numpy as np
 import pytest
 
-from rig import loft
-from rig.character import Character, bind_clip
-from rig.errors import InputError
-from rig.muscle_fit import fit_musculature
-from rig.muscle_template import template_from_toml
-from rig.normals import vertex_normals
-from rig.pose_shapes import PoseShapes, SculptedPose, fit_pose_shapes
+from rig.base.errors import InputError
+from rig.character.character import Character, bind_clip
+from rig.character.normals import vertex_normals
+from rig.muscle import loft
+from rig.muscle.fit import fit_musculature
+from rig.muscle.pose_shapes import PoseShapes, SculptedPose, fit_pose_shapes
+from rig.muscle.template import template_from_toml
 
 TEMPLATE = template_from_toml("""
 name = "arm"

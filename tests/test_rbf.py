@@ -1,4 +1,4 @@
-"""Zoned RBF interpolation (rig/rbf.py) and its Warp kernel (rig/rbf_kernels.py).
+"""Zoned RBF interpolation (rig/anatomy/rbf.py) and its Warp kernel (rig/anatomy/rbf_kernels.py).
 
 The interpolant (Simmons et al. 2002, eq. 1-2): f(v) = L(v) + sum_i c_i phi(|v - p_i|), with
 sum c_i = 0 and sum c_i p_i^T = 0, solved as [[Phi, P], [P^T, 0]] [C; M^T] = [U; 0]. Geometry here is a
@@ -15,14 +15,26 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial.distance import cdist
 
-from rig.errors import InputError
-from rig.rbf import (KERNELS, RBFOptions, RBFSkinner, ZoneRBF, boundary_report, build_zone_rbf, interpolate,
-                     merge_centres, phi, solve_zone, weld_edges, zone_interpolants)
+from rig.anatomy.rbf import (
+    KERNELS,
+    RBFOptions,
+    RBFSkinner,
+    ZoneRBF,
+    boundary_report,
+    build_zone_rbf,
+    interpolate,
+    merge_centres,
+    phi,
+    solve_zone,
+    weld_edges,
+    zone_interpolants,
+)
+from rig.base.errors import InputError
 
 
 @dataclass(frozen=True, eq=False)
 class Zones:
-    """Stand-in with the fields of the contract's rig.zones.Zones."""
+    """Stand-in with the fields of the contract's rig.anatomy.zones.Zones."""
     names: tuple
     vertex_zone: np.ndarray
     neighbours: np.ndarray

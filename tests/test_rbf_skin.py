@@ -1,4 +1,4 @@
-"""Anatomy-driven RBF skinning for animation (`skinning = "rbf"`, rig.rbf_skin): the artist's skin at
+"""Anatomy-driven RBF skinning for animation (`skinning = "rbf"`, rig.skin.rbf_skin): the artist's skin at
 bind, rigid motion reproduced exactly, one leg never moving the other, muscles carrying the skin,
 batches equal to single frames, and a bake that uses it."""
 from __future__ import annotations
@@ -11,9 +11,9 @@ from tests.conftest import asset
 
 @pytest.fixture(scope="module")
 def skin():
-    from rig.character import load_character
-    from rig.muscle_fit import fit_musculature
-    from rig.muscle_skin import MuscleSkin
+    from rig.character.load import load_character
+    from rig.muscle.fit import fit_musculature
+    from rig.skin.muscle_skin import MuscleSkin
     c = load_character(asset("characters/CesiumMan.glb"))
     mus = fit_musculature(c)
     return c, mus, MuscleSkin.from_musculature(mus, skinning="rbf")
@@ -21,7 +21,7 @@ def skin():
 
 def _turn(c, world, joint: str, axis, degrees: float) -> np.ndarray:
     """world (J, 4, 4) with `joint` and everything below it turned about the joint."""
-    from rig.quat import from_axis_angle, to_matrix
+    from rig.motion.quat import from_axis_angle, to_matrix
     w = np.asarray(world, np.float64).copy()
     j = c.index(joint)
     below = [j]
@@ -45,7 +45,7 @@ def test_bind_pose_is_the_artists_skin_and_topology_is_kept(skin):
 
 def test_rigid_motion_of_the_whole_body_is_exact(skin):
     c, mus, sk = skin
-    from rig.quat import from_axis_angle, to_matrix
+    from rig.motion.quat import from_axis_angle, to_matrix
     M = np.eye(4)
     M[:3, :3] = to_matrix(from_axis_angle(np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]), 1.1))
     M[:3, 3] = [0.4, -1.2, 0.25]
@@ -103,7 +103,7 @@ def test_batch_equals_single_frames(skin):
 
 
 def test_nan_muscle_falls_back_to_its_rest_shape_with_a_warning(skin):
-    from rig.errors import JiggleWarning
+    from rig.base.errors import JiggleWarning
     c, mus, sk = skin
     st = mus.rig.static(c.bind_world)
     cvs = st.cvs.copy()
@@ -114,7 +114,7 @@ def test_nan_muscle_falls_back_to_its_rest_shape_with_a_warning(skin):
 
 
 def test_bake_with_rbf_skinning(tmp_path):
-    from sim.cli import main
+    from sim.app.cli import main
     clip = asset("mocap/cmu_bvh/02_03.bvh")
     character = asset("characters/CesiumMan.glb")
     out = tmp_path / "bake"

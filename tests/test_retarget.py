@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig import quat
-from rig.bvh import read_bvh
-from rig.errors import InputError
-from rig.gltf_anim import read_gltf_animation
-from rig.gltf_skeleton import read_gltf_skeleton
-from rig.retarget import REQUIRED, JointMap, bone_pairs, foot_clearance, presets, retarget
-from sim.skeleton import Skeleton
+from rig.base.errors import InputError
+from rig.motion import quat
+from rig.motion.bvh import read_bvh
+from rig.motion.gltf_anim import read_gltf_animation
+from rig.motion.gltf_skeleton import read_gltf_skeleton
+from rig.motion.retarget import REQUIRED, JointMap, bone_pairs, foot_clearance, presets, retarget
+from sim.drive.skeleton import Skeleton
 
 SIDES = ("left", "right")
 
@@ -141,7 +141,7 @@ def test_turning_the_clip_turns_the_character(run):
 
 
 def test_cmu_preset_covers_bvh_and_asf_names():
-    from rig.acclaim import read_asf
+    from rig.motion.acclaim import read_asf
 
     assert {"cmu", "cesiumman"} <= set(presets())
     cmap = JointMap.load("cmu")

@@ -1,4 +1,4 @@
-"""Roles found from a skeleton's shape (rig.role_map): the presets' answers on CesiumMan and CMU, all
+"""Roles found from a skeleton's shape (rig.motion.role_map): the presets' answers on CesiumMan and CMU, all
 roles with the right sides on other skeletons, mirrored and turned skeletons, facing, explicit maps."""
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from conftest import CMU_BVH, asset
 
-from rig import quat
-from rig.character import body_character, load_character, load_skeleton
-from rig.clip import Clip
-from rig.errors import InputError, JiggleWarning
-from rig.mocap import load_clip
-from rig.retarget import REQUIRED, ROLES, JointMap
-from rig.role_map import auto_roles, facing, resolve_roles
+from rig.base.errors import InputError, JiggleWarning
+from rig.character.load import body_character, load_character, load_skeleton
+from rig.motion import quat
+from rig.motion.clip import Clip
+from rig.motion.mocap import load_clip
+from rig.motion.retarget import REQUIRED, ROLES, JointMap
+from rig.motion.role_map import auto_roles, facing, resolve_roles
 
 DEMO = "scenes/motions/jumping_jacks.toml"
 # the demo skeleton's joints by role (l_ is the character's left)

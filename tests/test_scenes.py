@@ -4,10 +4,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.errors import InputError
-from rig.keyframes import read_keyframes
-from sim.play import drive_kinematic
-from sim.scene import load_scene
+from rig.base.errors import InputError
+from rig.motion.keyframes import read_keyframes
+from sim.bake.scene import load_scene
+from sim.drive.motion import drive_kinematic
 
 SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 MOTIONS = sorted((Path(__file__).resolve().parents[1] / "scenes" / "motions").glob("*.toml"))
@@ -33,8 +33,9 @@ def test_scene_bakes_reduced(path, tmp_path):
     """Every scene bakes (8 frames, a coarse generated body) into a cache with finite, moving skin;
     a scene without [motion] takes the clip from --clip (a CMU BVH when present, else the demo's)."""
     from conftest import ASSETS
-    from sim.caches import read_npz
-    from sim.cli import main
+
+    from sim.app.cli import main
+    from sim.bake.caches import read_npz
     scene = load_scene(path)
     argv = ["bake", str(path), "--out", str(tmp_path), "--frames", "8", "--formats", "npz"]
     if scene.clip is None and scene.builtin is None:
@@ -107,7 +108,7 @@ def test_scene_without_jiggle_keeps_defaults(tmp_path):
 
 
 def test_jiggle_section_with_keyed_blends(tmp_path):
-    from sim.jiggle_params import BlendCurve, JiggleSettings
+    from sim.jiggle.params import BlendCurve, JiggleSettings
     p = _jiggle_scene(tmp_path, """[jiggle]
 substeps = 2
 goal_rate = 240
@@ -142,8 +143,8 @@ goal = [0.9, 0.5, 0.3, 0.5, 0.9]
 
 
 def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
-    from scenes.simple_arm import simple_arm
-    from sim.jiggle_params import default_jiggles
+    from rig.muscle.simple_arm import simple_arm
+    from sim.jiggle.params import default_jiggles
     arm = simple_arm(rings=8, around=8)
     jiggles = default_jiggles(arm.rig)
     p = _jiggle_scene(tmp_path, "[jiggle.muscles.biceps]\ndamping = 0.9\nblend = [[0.0, 0.0], [1.0, 1.0]]\n")

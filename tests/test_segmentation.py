@@ -1,15 +1,15 @@
-"""Skin segmentation (rig.segmentation): the paper's normal test on a "da Vinci" box, the normal
+"""Skin segmentation (rig.muscle.segmentation): the paper's normal test on a "da Vinci" box, the normal
 smoothing, bone segments and frames, exclude/overrides, and CesiumMan's artist weights as the judge."""
 import numpy as np
 import pytest
 import trimesh
-
 from conftest import asset
-from rig.character import Character, bind_clip, body_character, load_character
-from rig.errors import InputError
-from rig.normals import vertex_normals
-from rig.segmentation import (BoneSegments, assign, bone_segments, segment_skin,
-                              smoothed_normals)
+
+from rig.base.errors import InputError
+from rig.character.character import Character, bind_clip
+from rig.character.load import body_character, load_character
+from rig.character.normals import vertex_normals
+from rig.muscle.segmentation import BoneSegments, assign, bone_segments, segment_skin, smoothed_normals
 
 
 def rig_character(vertices, faces, names, parents, positions, dominant=None):
@@ -209,7 +209,7 @@ def test_rigged_figure_limbs_get_regions():
 
 
 def test_generated_body_limbs_get_regions():
-    from rig.mocap import load_clip
+    from rig.motion.mocap import load_clip
     c = body_character(load_clip("scenes/motions/jumping_jacks.toml"))
     seg = segment_skin(c)
     for s in "lr":

@@ -1,4 +1,4 @@
-"""Painted shell deformer weights (rig/shell_weights.py): the weight file's round trip, matching columns
+"""Painted shell deformer weights (rig/skin/shell/weights.py): the weight file's round trip, matching columns
 to the rig's muscles by name, an error naming the file and the key or muscle for each kind of bad
 file, atomic writes, and the gather of w_i for CSR (vertex, muscle) pairs against a loop."""
 from __future__ import annotations
@@ -9,9 +9,8 @@ import warnings
 import numpy as np
 import pytest
 
-from rig.errors import InputError, JiggleWarning
-from rig.shell_weights import (FORMAT, KEYS, find_weights, load_weights, pair_weights, save_weights,
-                               sidecar_path)
+from rig.base.errors import InputError, JiggleWarning
+from rig.skin.shell.weights import FORMAT, KEYS, find_weights, load_weights, pair_weights, save_weights, sidecar_path
 
 NAMES = ["left_biceps", "left_triceps", "belly_fat"]
 

@@ -1,6 +1,6 @@
-"""Shell deformers (rig/shells.py, rig/shell_kernels.py, rig/shell_deformer.py).
+"""Shell deformers (rig/skin/shell/shells.py, rig/skin/shell/kernels.py, rig/skin/shell/deformer.py).
 
-References (module docstring of rig.shells): f(x) = (1 - x^2)^2 on [0, 1];
+References (module docstring of rig.skin.shell.shells): f(x) = (1 - x^2)^2 on [0, 1];
 beta = 1 for rho <= 1 + h d, 0 for rho >= 1 + d, f((rho - 1 - h d) / ((1 - h) d)) between;
 alpha = 1 for rho <= 1, 0 for rho >= 1 + d, f((rho - 1) / d) between;
 q(p_l) = p_l + beta(rho) (r_s - r) u with r_s = 1 + delta + (1 - s) d; the paper's absolute basic
@@ -17,11 +17,25 @@ import pytest
 import warp as wp
 from scipy.spatial.transform import Rotation
 
-from rig.errors import InputError
-from rig.shell_deformer import ShellDeformer
-from rig.shells import (MODES, STAR_PHI, STAR_THETA, TRAJECTORY_SAMPLES, ShellFrames, ShellParams,
-                        alpha, basic_local, beta, cull_pairs, falloff, pair_displacement, project,
-                        shell_numpy, shell_table, star_lookup)
+from rig.base.errors import InputError
+from rig.muscle.shell_params import MODES, ShellParams
+from rig.skin.shell.deformer import ShellDeformer
+from rig.skin.shell.shells import (
+    STAR_PHI,
+    STAR_THETA,
+    TRAJECTORY_SAMPLES,
+    ShellFrames,
+    alpha,
+    basic_local,
+    beta,
+    cull_pairs,
+    falloff,
+    pair_displacement,
+    project,
+    shell_numpy,
+    shell_table,
+    star_lookup,
+)
 
 K = TRAJECTORY_SAMPLES
 SCENE_TOL = 1e-5  # metres, for a scene ~1 m across (float32 kernel vs float64 reference)
@@ -700,7 +714,7 @@ def test_drop_off_limit_keeps_every_move_within_the_drop_off_distance():
         assert np.all(np.linalg.norm(ref - points, axis=1) < reach + 1e-12), mode
         assert np.all(np.linalg.norm(out - points, axis=1) < reach + 1e-5), mode
     # the limit itself: identity below the knee, below reach above it, continuous slope at the knee
-    from rig.shells import LIMIT_KNEE, limit
+    from rig.skin.shell.shells import LIMIT_KNEE, limit
     D = np.array([[1.0, 0.0, 0.0]]) * np.linspace(0.0, 10.0, 2001)[:, None]
     n = np.linalg.norm(limit(D, np.ones(len(D))), axis=1)
     x = D[:, 0]

@@ -1,14 +1,14 @@
 """MuJoCo drives the skeleton: mj_kinematics world positions against an independent NumPy FK."""
+import bvh_reference as ref
 import numpy as np
 import pytest
-
-import bvh_reference as ref
 from conftest import CMU_BVH, asset
-from rig import quat
-from rig.bvh import CMU_UNIT, read_bvh
-from rig.clip import transforms
-from sim.skeleton import Skeleton
 from test_bvh import write_odd_bvh
+
+from rig.motion import quat
+from rig.motion.bvh import CMU_UNIT, read_bvh
+from rig.motion.clip import transforms
+from sim.drive.skeleton import Skeleton
 
 
 @pytest.mark.parametrize("name", CMU_BVH)
@@ -72,7 +72,7 @@ def test_transforms_are_rigid():
 
 @pytest.mark.parametrize("name", ["CesiumMan", "RiggedFigure"])
 def test_exporter_noise_in_translation_keys_makes_no_slide_joints(name):
-    from rig.gltf_anim import read_gltf_animation
+    from rig.motion.gltf_anim import read_gltf_animation
     clip = read_gltf_animation(asset(f"characters/{name}.glb"))
     sk = Skeleton(clip)
     # glTF keys every joint's translation; sub-micrometre wobble is noise: only the root moves

@@ -1,4 +1,4 @@
-"""Skinning (rig/skinning.py, rig/skinning_kernels.py) and vertex normals (rig/normals.py).
+"""Skinning (rig/skin/skinning.py, rig/skin/skinning_kernels.py) and vertex normals (rig/character/normals.py).
 
 References: LBS p = sum_i w_i M_i [v, 1]; DQS (Kavan et al. 2008) blends unit dual quaternions
 (real q, dual 0.5 (0, t) q) in the hemisphere of the largest influence and normalises by |real|.
@@ -13,10 +13,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from rig import quat
-from rig.normals import VertexNormals, vertex_normals
-from rig.skinning import (Skinner, dqs_numpy, lbs_numpy, matrices_to_dual_quats,
-                          normalise_weights)
+from rig.character.character import normalise_weights
+from rig.character.normals import VertexNormals, vertex_normals
+from rig.motion import quat
+from rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy, matrices_to_dual_quats
 
 TOL = 1e-5  # metres
 
@@ -509,7 +509,8 @@ def test_vertex_normals_batch_equals_numpy():
     """The Warp gather (what the bake's USD writer uses) gives the NumPy normals, the fallback
     included, for a deforming sphere with a vertex no face touches."""
     import trimesh
-    from rig.normals import FALLBACK, VertexNormals
+
+    from rig.character.normals import FALLBACK, VertexNormals
     sphere = trimesh.creation.icosphere(subdivisions=3)
     v = np.vstack([sphere.vertices, [[5.0, 5.0, 5.0]]])            # the last vertex is in no face
     rng = np.random.default_rng(3)

@@ -1,21 +1,21 @@
-"""Geodesic zones (rig.zones): body parts from roles, neighbours from the skeleton, a blend that is a
+"""Geodesic zones (rig.anatomy.zones): body parts from roles, neighbours from the skeleton, a blend that is a
 partition of unity mixing only neighbouring zones near their boundary."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from rig.errors import InputError
-from rig.bone_heat import weld
-from rig.zones import blend_weights, body_zones, edge_graph, segment_zones, skeleton_neighbours
+from rig.anatomy.zones import blend_weights, body_zones, edge_graph, segment_zones, skeleton_neighbours
+from rig.base.errors import InputError
+from rig.character.bone_heat import weld
 from tests.conftest import asset
 
 
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.character import load_character
-    from rig.role_map import resolve_roles
-    from rig.segmentation import segment_skin
+    from rig.character.load import load_character
+    from rig.motion.role_map import resolve_roles
+    from rig.muscle.segmentation import segment_skin
     c = load_character(asset("characters/CesiumMan.glb"))
     seg = segment_skin(c)
     roles = resolve_roles(c.skeleton)

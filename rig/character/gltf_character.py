@@ -1,0 +1,224 @@
+"""A skinned character from a glTF 2.0 file (.glb / .gltf), read with pygltflib (trimesh drops skins).
+
+Every mesh primitive skinned by the chosen skin (any number of nodes, meshes and primitives) is
+merged into one skin with consistent indices; vertices are never merged, so UV seams stay split as
+the file has them. Mesh nodes that hang rigidly under a joint of the skin (a prop, an eye) join the
+skin bound to that joint with weight 1. Other meshes are left out with a notice.
+
+Readings (see rig.motion.gltf_io for axes, joints and rigid frames):
+- Rest skin: each skinned primitive's POSITION placed by the skeleton's mesh placement
+  (`CharacterSkeleton.mesh_world`): Z-up metres, the bind pose.
+- Weights: JOINTS_n / WEIGHTS_n sets 0, 1, ... concatenated, checked, then the top k kept and
+  renormalised (see rig.character.character.clean_weights for what is an error and what a warning).
+- Triangles: modes 4 (triangles), 5 (strip) and 6 (fan); points and lines are skipped with a notice.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.character.character import (
+    Character,
+    check_height,
+    clean_weights,
+    drop_degenerate_faces,
+    require_finite_positions,
+    unit_scale,
+)
+from rig.motion.gltf_io import Z_UP, GltfDocument, trs_matrix, world_chain
+from rig.motion.gltf_skeleton import read_gltf_skeleton
+
+
+def gltf_has_skin(path: str | os.PathLike) -> bool:
+    """True when the glTF file has at least one skin used by a mesh node."""
+    doc = GltfDocument(path)
+    return any(nd.skin is not None and nd.mesh is not None for nd in doc.gltf.nodes)
+
+
+def triangles(mode: int, indices: np.ndarray) -> np.ndarray:
+    """(F, 3) triangles from a primitive's index list (n,) for glTF modes 4, 5, 6."""
+    n = len(indices)
+    if mode == 4:
+        return indices[: n - n % 3].reshape(-1, 3)
+    if mode == 5:  # strip: odd triangles flip to keep the winding
+        i = np.arange(max(n - 2, 0))
+        even = i % 2 == 0
+        a = np.where(even, indices[i], indices[i + 1])
+        b = np.where(even, indices[i + 1], indices[i])
+        return np.stack([a, b, indices[i + 2]], 1)
+    if mode == 6:
+        i = np.arange(1, max(n - 1, 1))
+        return np.stack([np.full(len(i), indices[0]), indices[i], indices[i + 1]], 1) if n >= 3 else \
+            np.zeros((0, 3), indices.dtype)
+    return np.zeros((0, 3), indices.dtype)
+
+
+def _node_world(doc: GltfDocument, i: int) -> np.ndarray:
+    chain = ([i] + doc.ancestors(i))[::-1]
+    loc = {}
+    for k in chain:
+        t, r, s, m = doc.node_trs(k)
+        loc[k] = m if m is not None else trs_matrix(t, r, s)
+    return Z_UP @ world_chain(chain, loc)
+
+
+def _influence_sets(attrs) -> list[tuple[int, int]]:
+    """(JOINTS_n, WEIGHTS_n) accessor pairs of a primitive, n = 0, 1, ..."""
+    out, n = [], 0
+    while True:
+        j = getattr(attrs, f"JOINTS_{n}", None)
+        w = getattr(attrs, f"WEIGHTS_{n}", None)
+        if j is None and w is None:
+            return out
+        if j is None or w is None:
+            return out + [(j, w)]
+        out.append((j, w))
+        n += 1
+
+
+def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
+                        unit: str | float | None = None) -> Character:
+    """Read skin number `skin` of a glTF/GLB file and every mesh it deforms as a Character.
+
+    k : influences kept per vertex (top k by weight, renormalised).
+    unit : metres per file unit when the file is not in metres as the spec says (see
+        rig.character.character.unit_scale); a height outside 0.5-2.6 m warns.
+    """
+    skel = read_gltf_skeleton(path, skin)
+    doc = GltfDocument(path)
+    g = doc.gltf
+    p = doc.path
+    s = unit_scale(unit, p)
+    # skin joint k -> tree index
+    tree_of_skin = np.full(len(g.skins[skin].joints), -1, np.int64)
+    for t, sj in enumerate(skel.skin_joint):
+        if sj >= 0:
+            tree_of_skin[sj] = t
+    node_to_tree = {int(n): t for t, n in enumerate(skel.nodes)}
+
+    pos, nrm, uv, faces, jnt, wgt = [], [], [], [], [], []
+    has_normals, has_uvs, offset = True, True, 0
+    skipped = []
+    used_meshes = set()
+    for ni, nd in enumerate(g.nodes):
+        if nd.mesh is None or not 0 <= nd.mesh < len(g.meshes):
+            continue
+        rigid_joint = None
+        if nd.skin == skin:
+            if nd.mesh in used_meshes:
+                continue  # the same mesh skinned twice by one skin lands in the same place
+            used_meshes.add(nd.mesh)
+            place = skel.mesh_world
+        else:
+            rigid_joint = next((node_to_tree[a] for a in doc.ancestors(ni) if a in node_to_tree), None)
+            if nd.skin is not None or rigid_joint is None:
+                skipped.append(g.meshes[nd.mesh].name or f"mesh{nd.mesh}")
+                continue
+            place = _node_world(doc, ni)
+        for pi, prim in enumerate(g.meshes[nd.mesh].primitives):
+            what = f"meshes[{nd.mesh}].primitives[{pi}]"
+            mode = 4 if prim.mode is None else prim.mode
+            if mode not in (4, 5, 6):
+                skipped.append(f"{what} (mode {mode}, not triangles)")
+                continue
+            a = prim.attributes
+            if getattr(a, "POSITION", None) is None:
+                raise InputError("a primitive without POSITION", p, field=f"{what}.attributes")
+            v = doc.accessor(a.POSITION, f"{what}.attributes.POSITION")
+            if v.shape[1] != 3:
+                raise InputError(f"POSITION must be VEC3, found {v.shape[1]} components", p,
+                                 field=f"{what}.attributes.POSITION")
+            require_finite_positions(v, p, f"{what}.attributes.POSITION")
+            nv = len(v)
+            idx = doc.accessor(prim.indices, f"{what}.indices")[:, 0].astype(np.int64) \
+                if prim.indices is not None else np.arange(nv)
+            if len(idx) and (idx.min() < 0 or idx.max() >= nv):
+                raise InputError(f"index {int(idx.max())} is past the primitive's {nv} vertices", p,
+                                 field=f"{what}.indices")
+            pos.append(v @ place[:3, :3].T + place[:3, 3])
+            if getattr(a, "NORMAL", None) is not None:
+                nrm.append(doc.accessor(a.NORMAL, f"{what}.attributes.NORMAL") @ place[:3, :3].T)
+            else:
+                has_normals = False
+            if getattr(a, "TEXCOORD_0", None) is not None:
+                uv.append(doc.accessor(a.TEXCOORD_0, f"{what}.attributes.TEXCOORD_0")[:, :2])
+            else:
+                has_uvs = False
+            faces.append(triangles(mode, idx) + offset)
+            if rigid_joint is not None:
+                jnt.append(np.full((nv, 1), rigid_joint))
+                wgt.append(np.ones((nv, 1)))
+            else:
+                sets = _influence_sets(a)
+                if not sets:
+                    raise InputError("a primitive of the skinned mesh has no JOINTS_0/WEIGHTS_0", p,
+                                     field=f"{what}.attributes")
+                js, ws = [], []
+                for n, (ja, wa) in enumerate(sets):
+                    if ja is None or wa is None:
+                        raise InputError(f"JOINTS_{n} and WEIGHTS_{n} must come together", p,
+                                         field=f"{what}.attributes")
+                    jv = doc.accessor(ja, f"{what}.attributes.JOINTS_{n}")
+                    wv = doc.accessor(wa, f"{what}.attributes.WEIGHTS_{n}")
+                    if len(jv) != nv or len(wv) != nv or jv.shape[1] != wv.shape[1]:
+                        raise InputError(f"JOINTS_{n}/WEIGHTS_{n} do not match POSITION ({nv} vertices)", p,
+                                         field=f"{what}.attributes")
+                    js.append(jv)
+                    ws.append(wv)
+                jv = np.concatenate(js, 1).astype(np.int64)
+                bad = (jv < 0) | (jv >= len(tree_of_skin))
+                live = np.concatenate(ws, 1) > 0
+                if np.any(bad & live):
+                    vtx, c = np.argwhere(bad & live)[0]
+                    raise InputError(f"joint index {int(jv[vtx, c])} at vertex {int(vtx)} is out of range: skin "
+                                     f"{skin} has {len(tree_of_skin)} joints (0..{len(tree_of_skin) - 1})", p,
+                                     field=f"{what}.attributes.JOINTS")
+                jnt.append(np.where(bad, -1, tree_of_skin[np.clip(jv, 0, len(tree_of_skin) - 1)]))
+                wgt.append(np.concatenate(ws, 1))
+            offset += nv
+    if not pos:
+        raise InputError(f"skin {skin} deforms no triangle mesh", p, field=f"skins[{skin}]")
+    if skipped:
+        warnings.warn(f"{p}: left out of the character: {', '.join(skipped)}", JiggleWarning, stacklevel=2)
+
+    vertices = np.concatenate(pos) * s
+    width = max(w.shape[1] for w in wgt)
+    pad = lambda a, fill: np.pad(a, ((0, 0), (0, width - a.shape[1])), constant_values=fill)  # noqa: E731
+    raw_j = np.concatenate([pad(a, 0) for a in jnt])
+    raw_w = np.concatenate([pad(a, 0.0) for a in wgt])
+    faces = drop_degenerate_faces(vertices, np.concatenate(faces), p)
+    bind_world = skel.bind_world.copy()
+    bind_world[:, :3, 3] *= s
+    bind_m = np.stack([skel.mesh_world @ np.linalg.inv(m) for m in skel.inverse_bind_matrices])
+    for t in np.nonzero(skel.skin_joint < 0)[0]:
+        bind_m[t] = skel.bind_world[t]
+    bind_m[:, :3, 3] *= s
+    joints, weights = clean_weights(raw_j, raw_w, skel.num_joints, vertices, bind_world[:, :3, 3], k, p,
+                                    "JOINTS/WEIGHTS")
+    if has_normals:
+        normals = np.concatenate(nrm)
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        normals = np.where(length > 1e-12, normals / np.maximum(length, 1e-12), 0.0)
+        if np.any(length[:, 0] <= 1e-12):
+            from rig.character.normals import vertex_normals
+            normals = np.where(length > 1e-12, normals, vertex_normals(vertices, faces))
+    else:
+        from rig.character.normals import vertex_normals
+        normals = vertex_normals(vertices, faces)
+    character = Character(
+        vertices=vertices, faces=faces, normals=normals, uvs=np.concatenate(uv) if has_uvs and uv else None,
+        joint_names=skel.joint_names, parents=skel.parents, bind_world=bind_world, bind_matrices=bind_m,
+        joints=joints, weights=weights, skeleton=_scaled_clip(skel.to_clip(), s), name=skel.name, source=p,
+        meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin)})
+    check_height(character.height, p)
+    return character
+
+
+def _scaled_clip(clip, s: float):
+    if s == 1.0:
+        return clip
+    from dataclasses import replace
+    return replace(clip, offsets=clip.offsets * s, translations=clip.translations * s)

@@ -1,0 +1,438 @@
+"""Writing a skinned character as glTF 2.0 (.glb or .gltf), the inverse of rig.character.gltf_character.
+
+The file holds one scene: a node per joint (named as the character's joints, hierarchy from its
+parents) and one skinned mesh node at the scene root, without a transform, as the spec asks.
+Everything lives in one buffer: the GLB binary chunk, or a base64 data URI in a .gltf file, so
+either way the character is a single file.
+
+Readings, each the inverse of the reader's (rig.motion.gltf_io, rig.motion.gltf_skeleton, rig.character.gltf_character):
+- Axes and units: jiggle's Z-up metres go back to glTF's Y-up metres through the inverse of
+  ``rig.motion.gltf_io.Z_UP`` (positions, normals, root joint transforms, inverse bind matrices).
+- Joint nodes: local translation and rotation (no scale) of the rigid `bind_world`, so the file's
+  rest pose is the bind pose and Blender shows the skin undeformed. The reader orders joints
+  depth-first, children in file order; a node's children are written in the character's order, so a
+  character whose joints are in depth-first order (every character read from glTF, BVH or MJCF)
+  reads back in the same order.
+- Inverse bind matrices: ``inverse(bind_matrices) @ Z_UP``. The reader takes a joint's bind
+  transform as mesh placement (``Z_UP``, the mesh node is at the root) @ inverse(IBM), which gives
+  `bind_matrices` back, and its `bind_world` is the rigid part of that (exact when bind_matrices is
+  rigid, as for any character read from glTF). Skinning by the file's node transforms and these
+  matrices is the same map as `Character.pose`.
+- Skin weights: JOINTS_n (UNSIGNED_SHORT) / WEIGHTS_n (FLOAT) sets of four, the character's k
+  influences padded with weight 0 and joint 0; rows renormalised to sum 1 in float32.
+- Precision: vertex data and inverse bind matrices are float32 as the spec requires (about 1e-7 m
+  on a human-sized body); node transforms are float64 JSON numbers, exact.
+- Material: copied from `source` (the glTF the character came from) when its skinned mesh has a
+  material with a base colour texture: the material's core fields, its textures (texture
+  coordinate set 0 only, since only TEXCOORD_0 is written), samplers and image bytes, embedded.
+  Material and texture extensions are dropped (the file declares none). Otherwise a plain grey
+  material.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import os
+import struct
+import urllib.parse
+import warnings
+
+import numpy as np
+
+from rig.base.atomic import atomic_path
+from rig.base.errors import InputError, JiggleWarning, require_file
+from rig.motion import quat
+from rig.motion.bvh import Y_TO_Z_UP
+from rig.motion.clip import local_from_world
+from rig.motion.gltf_io import Z_UP, polar_rotation
+
+EXTENSIONS = (".glb", ".gltf")
+GENERATOR = "jiggle"
+
+_FLOAT, _UINT16, _UINT32 = 5126, 5123, 5125
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_Y_UP = Z_UP.T  # jiggle world (Z-up) -> glTF world (Y-up); Z_UP is a rotation
+_DEFAULT_MATERIAL = {"name": "jiggle default",
+                     "pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1.0], "metallicFactor": 0.0,
+                                              "roughnessFactor": 0.8}}
+_PBR_TEXTURES = ("baseColorTexture", "metallicRoughnessTexture")
+_MATERIAL_TEXTURES = ("normalTexture", "occlusionTexture", "emissiveTexture")
+
+
+def write_character(character, path: str | os.PathLike, *, source: str | os.PathLike | None = None,
+                    name: str | None = None, extras: dict | None = None) -> str:
+    """Write `character` (rig.character.character.Character, Z-up metres) as a skinned glTF 2.0 file.
+
+    Parameters
+    ----------
+    path : the file; ".glb" writes one binary GLB, ".gltf" one JSON file with the buffer embedded
+        as a base64 data URI. Written atomically: a failed write leaves nothing under this name.
+    source : the glTF the character came from, whose textured material (if any) is copied so the
+        output looks like it; None (or a source without a textured material) gives a plain material.
+        A missing source file is an InputError.
+    name : the mesh, mesh node and scene name; default the character's name.
+    extras : JSON-serialisable provenance stored as ``asset.extras`` (e.g.
+        {"jiggle": {"morphed_from": "CesiumMan.glb"}}); default {"jiggle": {"from": <source file
+        name>}} when the character has a source.
+
+    Returns the path written. InputError for an unknown extension, a missing folder, NaN or infinite
+    values (naming the field), or indices out of range.
+    """
+    p = os.fspath(path)
+    ext = os.path.splitext(p)[1].lower()
+    if ext not in EXTENSIONS:
+        raise InputError(f"cannot write a glTF character to {ext or '(no extension)'!r}; expected a path ending "
+                         f"in .glb (binary) or .gltf (JSON with embedded data)", p, field="path")
+    folder = os.path.dirname(os.path.abspath(p))
+    if not os.path.isdir(folder):
+        raise InputError(f"the folder {folder} does not exist; create it first", p, field="path")
+    if os.path.isdir(p):
+        raise InputError("expected a file name, found a directory", p, field="path")
+    name = name if name is not None else (character.name or "character")
+    arrays = _checked_arrays(character, p)
+    material = _source_material(source, character.uvs is not None, character.meta.get("skin", 0)) \
+        if source is not None else None
+    if extras is None:
+        extras = {"jiggle": {"from": os.path.basename(character.source)}} if character.source else None
+    if extras is not None:
+        try:
+            json.dumps(extras, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise InputError(f"extras must be JSON-serialisable with finite numbers ({e})", p, field="extras") \
+                from None
+    doc, blob = _document(character, arrays, material, name, extras)
+    with atomic_path(p) as tmp:
+        if ext == ".glb":
+            data = _glb(doc, blob)
+        else:
+            doc["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(blob).decode()
+            data = json.dumps(doc, allow_nan=False, separators=(",", ":")).encode()
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+        _verify(tmp, doc)
+    return p
+
+
+# ---------------------------------------------------------------------------------- checks
+def _finite(a: np.ndarray, path: str, field: str) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    bad = ~np.isfinite(a.reshape(len(a), -1)).all(1) if a.size else np.zeros(len(a), bool)
+    if np.any(bad):
+        raise InputError(f"{int(bad.sum())} of {len(a)} rows are not finite (NaN or infinite), first at row "
+                         f"{int(np.argmax(bad))}; nothing was written", path, field=field)
+    return a
+
+
+def _checked_arrays(c, path: str) -> dict:
+    """The character's arrays converted to the file's types, glTF Y-up; InputError naming the field
+    of the first problem."""
+    V, J = c.num_vertices, c.num_joints
+    if V == 0 or len(c.faces) == 0:
+        raise InputError(f"the character has {V} vertices and {len(c.faces)} faces; a glTF mesh needs at "
+                         f"least one triangle", path, field="faces")
+    if J > 65536:
+        raise InputError(f"{J} joints do not fit JOINTS_n as UNSIGNED_SHORT (at most 65536)", path, field="joints")
+    vertices = _finite(c.vertices, path, "vertices")
+    normals = _finite(c.normals, path, "normals")
+    uvs = None if c.uvs is None else _finite(c.uvs, path, "uvs")
+    bind_world = _finite(c.bind_world, path, "bind_world")
+    bind_m = _finite(c.bind_matrices, path, "bind_matrices")
+    weights = _finite(c.weights, path, "weights")
+    faces = np.asarray(c.faces, dtype=np.int64)
+    if faces.min() < 0 or faces.max() >= V:
+        raise InputError(f"face indices must lie in [0, {V}), found [{faces.min()}, {faces.max()}]", path,
+                         field="faces")
+    joints = np.asarray(c.joints, dtype=np.int64).copy()
+    live = weights > 0
+    if np.any(weights < 0):
+        raise InputError(f"negative weights, first at vertex {int(np.argwhere(weights < 0)[0, 0])}", path,
+                         field="weights")
+    if np.any(live & ((joints < 0) | (joints >= J))):
+        v, k = np.argwhere(live & ((joints < 0) | (joints >= J)))[0]
+        raise InputError(f"joint index {int(joints[v, k])} at vertex {int(v)} is out of range 0..{J - 1}", path,
+                         field="joints")
+    weights = np.where(live, weights, 0.0)
+    joints = np.where(live, joints, 0)
+    for a in range(joints.shape[1]):  # the spec forbids one joint twice with weight in a vertex: merge
+        for b in range(a + 1, joints.shape[1]):
+            dup = (joints[:, a] == joints[:, b]) & (weights[:, a] > 0) & (weights[:, b] > 0)
+            weights[dup, a] += weights[dup, b]
+            weights[dup, b] = 0.0
+            joints[dup, b] = 0
+    total = weights.sum(1)
+    if np.any(total <= 0):
+        raise InputError(f"{int((total <= 0).sum())} vertices have no weight, first vertex "
+                         f"{int(np.argmax(total <= 0))}", path, field="weights")
+    weights = (weights / total[:, None]).astype(np.float32)
+    sets = -(-joints.shape[1] // 4)
+    pad = 4 * sets - joints.shape[1]
+    joints = np.pad(joints, ((0, 0), (0, pad))).astype(np.uint16)
+    weights = np.pad(weights, ((0, 0), (0, pad)))
+
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    if np.any(length[:, 0] <= 1e-12):  # the spec wants unit normals: recompute the degenerate ones
+        from rig.character.normals import vertex_normals
+        normals = np.where(length > 1e-12, normals, vertex_normals(vertices, faces))
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = normals / length
+    try:
+        ibm = np.linalg.inv(bind_m) @ Z_UP
+    except np.linalg.LinAlgError:
+        raise InputError("a bind matrix is singular", path, field="bind_matrices") from None
+    ibm[:, 3] = [0.0, 0.0, 0.0, 1.0]  # exact affine row, as the spec requires
+    _finite(ibm, path, "bind_matrices")
+
+    # Joint node transforms: rigid local transforms of the bind pose; roots carry the axis change.
+    parents = np.asarray(c.parents)
+    world_r = polar_rotation(bind_world[:, :3, :3])
+    rot, tra = local_from_world(parents, world_r, bind_world[:, :3, 3])
+    roots = parents < 0
+    rot[roots] = quat.mul(quat.conj(Y_TO_Z_UP), rot[roots])
+    tra[roots] = tra[roots] @ _Y_UP[:3, :3].T
+    return {
+        "positions": (vertices @ _Y_UP[:3, :3].T).astype(np.float32),
+        "normals": (normals @ _Y_UP[:3, :3].T).astype(np.float32),
+        "uvs": None if uvs is None else uvs.astype(np.float32),
+        "faces": faces.astype(np.uint32),
+        "joints": joints, "weights": weights,
+        "ibm": ibm.transpose(0, 2, 1).reshape(-1, 16).astype(np.float32),  # column-major
+        "rotations": quat.to_xyzw(quat.normalize(rot)), "translations": tra,
+    }
+
+
+# ---------------------------------------------------------------------------------- document
+class _Buffer:
+    """One binary buffer built view by view, each view starting on a 4-byte boundary."""
+
+    def __init__(self):
+        self.parts: list[bytes] = []
+        self.size = 0
+        self.views: list[dict] = []
+
+    def view(self, data: bytes, target: int | None = None) -> int:
+        v = {"buffer": 0, "byteOffset": self.size, "byteLength": len(data)}
+        if target is not None:
+            v["target"] = target
+        self.views.append(v)
+        pad = -len(data) % 4
+        self.parts.append(data + b"\0" * pad)
+        self.size += len(data) + pad
+        return len(self.views) - 1
+
+    def bytes(self) -> bytes:
+        return b"".join(self.parts)
+
+
+def _document(c, a: dict, material: dict | None, name: str, extras: dict | None) -> tuple[dict, bytes]:
+    buf = _Buffer()
+    accessors: list[dict] = []
+
+    def accessor(arr: np.ndarray, ctype: int, kind: str, target: int | None, bounds: bool = False) -> int:
+        arr = np.ascontiguousarray(arr)
+        acc = {"bufferView": buf.view(arr.astype(arr.dtype.newbyteorder("<")).tobytes(), target),
+               "componentType": ctype, "count": int(len(arr)), "type": kind}
+        if bounds:
+            acc["min"] = arr.min(0).tolist()
+            acc["max"] = arr.max(0).tolist()
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    J = c.num_joints
+    attributes = {"POSITION": accessor(a["positions"], _FLOAT, "VEC3", _ARRAY_BUFFER, bounds=True),
+                  "NORMAL": accessor(a["normals"], _FLOAT, "VEC3", _ARRAY_BUFFER)}
+    if a["uvs"] is not None:
+        attributes["TEXCOORD_0"] = accessor(a["uvs"], _FLOAT, "VEC2", _ARRAY_BUFFER)
+    for n in range(a["joints"].shape[1] // 4):
+        attributes[f"JOINTS_{n}"] = accessor(a["joints"][:, 4 * n:4 * n + 4], _UINT16, "VEC4", _ARRAY_BUFFER)
+        attributes[f"WEIGHTS_{n}"] = accessor(a["weights"][:, 4 * n:4 * n + 4], _FLOAT, "VEC4", _ARRAY_BUFFER)
+    indices = accessor(a["faces"].reshape(-1), _UINT32, "SCALAR", _ELEMENT_ARRAY_BUFFER)
+    ibm = accessor(a["ibm"], _FLOAT, "MAT4", None)
+
+    doc: dict = {"asset": {"version": "2.0", "generator": GENERATOR}}
+    if extras is not None:
+        doc["asset"]["extras"] = extras
+    mat = dict(_DEFAULT_MATERIAL)
+    if material is not None:
+        mat = material["material"]
+        if material.get("copyright"):
+            doc["asset"]["copyright"] = material["copyright"]
+        images = []
+        for data, mime, image_name in material["images"]:
+            image = {"bufferView": buf.view(data), "mimeType": mime}
+            if image_name:
+                image["name"] = image_name
+            images.append(image)
+        if images:
+            doc["images"] = images
+            doc["textures"] = material["textures"]
+            if material["samplers"]:
+                doc["samplers"] = material["samplers"]
+
+    parents = np.asarray(c.parents)
+    nodes = []
+    for j in range(J):
+        node = {"name": c.joint_names[j], "translation": a["translations"][j].tolist(),
+                "rotation": a["rotations"][j].tolist()}
+        children = np.nonzero(parents == j)[0].tolist()
+        if children:
+            node["children"] = children
+        nodes.append(node)
+    nodes.append({"name": name, "mesh": 0, "skin": 0})
+    roots = np.nonzero(parents < 0)[0].tolist()
+    skin = {"name": f"{name} skin", "joints": list(range(J)), "inverseBindMatrices": ibm}
+    if len(roots) == 1:
+        skin["skeleton"] = roots[0]
+    doc.update({
+        "scene": 0,
+        "scenes": [{"name": name, "nodes": roots + [J]}],
+        "nodes": nodes,
+        "meshes": [{"name": name, "primitives": [{"attributes": attributes, "indices": indices, "mode": 4,
+                                                   "material": 0}]}],
+        "materials": [mat],
+        "skins": [skin],
+        "accessors": accessors,
+        "bufferViews": buf.views,
+        "buffers": [{"byteLength": buf.size}],
+    })
+    # keep the usual top-level order for a human reader
+    order = ["asset", "scene", "scenes", "nodes", "meshes", "materials", "textures", "images", "samplers", "skins",
+             "accessors", "bufferViews", "buffers"]
+    return {k: doc[k] for k in order if k in doc}, buf.bytes()
+
+
+def _glb(doc: dict, blob: bytes) -> bytes:
+    text = json.dumps(doc, allow_nan=False, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)  # the JSON chunk is padded with spaces, the binary one with zeros
+    blob += b"\0" * (-len(blob) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    return (struct.pack("<4sII", b"glTF", 2, total) + struct.pack("<II", len(text), 0x4E4F534A) + text
+            + struct.pack("<II", len(blob), 0x004E4942) + blob)
+
+
+def _verify(path: str, doc: dict) -> None:
+    """Load the written file with pygltflib and check it holds what was meant (a bug otherwise)."""
+    import pygltflib
+    g = pygltflib.GLTF2().load(path)
+    ok = (g is not None and len(g.nodes) == len(doc["nodes"]) and len(g.accessors) == len(doc["accessors"])
+          and len(g.skins) == 1 and g.buffers[0].byteLength == doc["buffers"][0]["byteLength"])
+    if ok and path.lower().endswith(".glb"):
+        ok = len(g.binary_blob() or b"") >= doc["buffers"][0]["byteLength"]
+    if not ok:
+        raise RuntimeError(f"{path}: the written glTF does not load back with pygltflib as written")
+
+
+# ---------------------------------------------------------------------------------- material
+def _source_material(source, has_uvs: bool, skin: int = 0) -> dict | None:
+    """The textured material of `source`'s skinned mesh, ready to embed: {"material", "textures",
+    "samplers", "images": [(bytes, mime, name)], "copyright"}; None when there is none to copy."""
+    src = require_file(source, "source glTF")
+    if os.path.splitext(src)[1].lower() not in EXTENSIONS:
+        return None  # a mesh file has no glTF material to copy
+    from rig.motion.gltf_io import GltfDocument
+    gdoc = GltfDocument(src)
+    d = json.loads(gdoc.gltf.to_json())
+    materials = d.get("materials") or []
+    nodes = d.get("nodes") or []
+    meshes = d.get("meshes") or []
+    users = [nd for nd in nodes if nd.get("skin") is not None and nd.get("mesh") is not None]
+    users.sort(key=lambda nd: nd.get("skin") != skin)  # the character's own skin first
+    for nd in users:
+        if not 0 <= nd["mesh"] < len(meshes):
+            continue
+        for prim in meshes[nd["mesh"]].get("primitives") or []:
+            mi = prim.get("material")
+            if mi is None or not 0 <= mi < len(materials):
+                continue
+            pbr = materials[mi].get("pbrMetallicRoughness") or {}
+            if "baseColorTexture" not in pbr:
+                continue
+            out = _copy_material(gdoc, d, materials[mi], has_uvs)
+            if out is not None:
+                out["copyright"] = (d.get("asset") or {}).get("copyright")
+                return out
+    return None
+
+
+def _copy_material(gdoc, d: dict, mat: dict, has_uvs: bool) -> dict | None:
+    src = gdoc.path
+    new = {k: v for k, v in mat.items() if k not in ("extensions",)}
+    pbr = {k: v for k, v in (mat.get("pbrMetallicRoughness") or {}).items() if k != "extensions"}
+    new["pbrMetallicRoughness"] = pbr
+    textures, samplers, images = [], [], []
+    tex_map, sampler_map, image_map = {}, {}, {}
+
+    def copy_texture(i) -> int | None:
+        if i in tex_map:
+            return tex_map[i]
+        texs = d.get("textures") or []
+        if not isinstance(i, int) or not 0 <= i < len(texs) or texs[i].get("source") is None:
+            return None
+        tex = texs[i]
+        img = tex["source"]
+        if img not in image_map:
+            got = _image_bytes(gdoc, d, img)
+            if got is None:
+                return None
+            image_map[img] = len(images)
+            images.append(got)
+        t = {"source": image_map[img]}
+        s = tex.get("sampler")
+        if s is not None and 0 <= s < len(d.get("samplers") or []):
+            if s not in sampler_map:
+                sampler_map[s] = len(samplers)
+                samplers.append({k: v for k, v in d["samplers"][s].items() if k != "extensions"})
+            t["sampler"] = sampler_map[s]
+        if tex.get("name"):
+            t["name"] = tex["name"]
+        tex_map[i] = len(textures)
+        textures.append(t)
+        return tex_map[i]
+
+    for holder, keys in ((pbr, _PBR_TEXTURES), (new, _MATERIAL_TEXTURES)):
+        for key in keys:
+            info = holder.get(key)
+            if info is None:
+                continue
+            k = copy_texture(info.get("index")) if has_uvs and info.get("texCoord", 0) == 0 else None
+            if k is None:
+                del holder[key]
+                if key == "baseColorTexture":
+                    why = "the character has no texture coordinates" if not has_uvs else \
+                        "its image could not be read (or it uses a texture coordinate set other than 0)"
+                    warnings.warn(f"{src}: the base colour texture is not copied: {why}", JiggleWarning,
+                                  stacklevel=4)
+            else:
+                holder[key] = {kk: vv for kk, vv in info.items() if kk != "extensions"} | {"index": k}
+    return {"material": new, "textures": textures, "samplers": samplers, "images": images}
+
+
+def _image_bytes(gdoc, d: dict, i: int) -> tuple[bytes, str, str] | None:
+    """(bytes, mime type, name) of image `i` of the source, or None when it cannot be embedded."""
+    imgs = d.get("images") or []
+    if not isinstance(i, int) or not 0 <= i < len(imgs):
+        return None
+    img = imgs[i]
+    mime = img.get("mimeType")
+    if img.get("bufferView") is not None:
+        bv = (d.get("bufferViews") or [])[img["bufferView"]]
+        start = bv.get("byteOffset", 0)
+        data = gdoc.buffer(bv["buffer"])[start:start + bv["byteLength"]]
+    elif str(img.get("uri", "")).startswith("data:"):
+        head, _, payload = img["uri"].partition(",")
+        data = base64.b64decode(payload) if ";base64" in head else urllib.parse.unquote_to_bytes(payload)
+        mime = mime or head[5:].split(";")[0]
+    elif img.get("uri"):
+        f = os.path.join(os.path.dirname(gdoc.path), urllib.parse.unquote(img["uri"]))
+        if not os.path.isfile(f):
+            return None
+        with open(f, "rb") as fh:
+            data = fh.read()
+    else:
+        return None
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        mime = "image/png"
+    elif data[:3] == b"\xff\xd8\xff":
+        mime = "image/jpeg"
+    if mime not in ("image/png", "image/jpeg"):
+        return None  # core glTF embeds only PNG and JPEG
+    return bytes(data), mime, img.get("name") or ""

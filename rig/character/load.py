@@ -1,0 +1,134 @@
+"""Loading and making characters: from a file (skinned glTF, or any mesh with automatic weights), or a
+body generated around a skeleton.
+
+:func:`load_character` reads a skinned .glb/.gltf (rig/character/gltf_character.py) or an unskinned
+mesh (rig/character/mesh_io.py) that gets bone-heat weights (:func:`auto_weighted`) from a skeleton
+file (:func:`load_skeleton`); :func:`body_character` wraps rig/character/body.py's generated body.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.character.character import Character, drop_degenerate_faces, end_sites, require_finite_positions
+from rig.motion.clip import Clip, transforms
+
+
+def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Clip | None = None,
+                   k: int = 4, unit: str | float | None = None, up: str = "auto", skin: int = 0) -> Character:
+    """Read a character from a file.
+
+    path : a skinned .glb/.gltf (its own skeleton and weights), or an unskinned .glb/.gltf, .obj, .ply
+        or .stl mesh, which gets automatic weights (bone heat) from `skeleton`: a clip file (its rest
+        pose), an MJCF .xml, a skinned glTF, or a Clip. An unskinned glTF with no skeleton given
+        is an error that says so.
+    k : influences kept per vertex.
+    unit : metres per file unit ("m", "cm", "mm", "in", "ft" or a number); None: metres. A height
+        outside 0.5-2.6 m warns and suggests a unit.
+    up : axis that is up in an OBJ/PLY/STL file, "y", "z" or "auto" (the longer of the y and z
+        extents, since a standing body is taller than it is deep); glTF is always Y-up.
+    """
+    from rig.character.mesh_io import MESH_EXTENSIONS, read_mesh
+    p = os.fspath(path)
+    ext = os.path.splitext(p)[1].lower()
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 8:
+        raise InputError(f"k (influences per vertex) must be a whole number from 1 to 8, got {k!r}", field="k")
+    if ext in (".glb", ".gltf"):
+        from rig.character.gltf_character import gltf_has_skin, read_gltf_character
+        skinned = gltf_has_skin(p)
+        if skinned and skeleton is None:
+            return read_gltf_character(p, skin=skin, k=k, unit=unit)
+        if skinned:
+            warnings.warn(f"{p}: the file's own skin is ignored: weights are computed from the given skeleton",
+                          JiggleWarning, stacklevel=2)
+    elif ext not in MESH_EXTENSIONS:
+        raise InputError(f"unknown character format {ext or '(no extension)'!r}; expected .glb, .gltf or one of "
+                         f"{', '.join(MESH_EXTENSIONS)}", p)
+    mesh = read_mesh(p, unit=unit, up=up)
+    if skeleton is None:
+        raise InputError("the mesh has no skin: give a skeleton (a clip, an MJCF or a skinned glTF) to compute "
+                         "automatic weights from", p, field="skeleton")
+    clip = skeleton if isinstance(skeleton, Clip) else load_skeleton(skeleton)
+    warnings.warn(f"{p}: no skin in the file; computing automatic weights (bone heat) from the skeleton of "
+                  f"{clip.source or clip.name or 'the given clip'}", JiggleWarning, stacklevel=2)
+    return auto_weighted(mesh.vertices, mesh.faces, clip, k=k, name=mesh.name, source=p, uvs=mesh.uvs,
+                         meta={"unit_scale": mesh.unit_scale, "up": mesh.up})
+
+
+def load_skeleton(path: str | os.PathLike) -> Clip:
+    """The rest pose of a skeleton file as a one-frame Clip: a clip (.bvh, .amc, .asf, .toml, glTF
+    animation), an MJCF model (.xml, bodies at qpos0) or a skinned glTF (its bind pose)."""
+    from rig.base.errors import require_file
+    p = require_file(path, "skeleton file")
+    ext = os.path.splitext(p)[1].lower()
+    if ext == ".xml":
+        from rig.motion.mjcf_skeleton import read_mjcf_skeleton
+        return read_mjcf_skeleton(p)
+    if ext in (".glb", ".gltf"):
+        from rig.character.gltf_character import gltf_has_skin
+        if gltf_has_skin(p):
+            from rig.motion.gltf_skeleton import read_gltf_skeleton
+            return read_gltf_skeleton(p).to_clip()
+    if ext == ".toml":
+        from rig.motion.keyframes import read_keyframes
+        c = read_keyframes(p)
+    else:
+        from rig.motion.mocap import load_clip
+        c = load_clip(p)
+    return rest_pose(c)
+
+
+def rest_pose(clip: Clip) -> Clip:
+    """A one-frame clip of `clip`'s rest pose (offsets, rest rotations)."""
+    return replace(clip, rotations=clip.rest_rotations[None], translations=clip.offsets[None])
+
+
+def auto_weighted(vertices: np.ndarray, faces: np.ndarray, clip: Clip, k: int = 4, name: str = "",
+                  source: str = "", uvs: np.ndarray | None = None, meta: dict | None = None) -> Character:
+    """A Character from a mesh (V, 3) / (F, 3) standing in the rest pose of `clip`'s skeleton (same
+    space: Z-up metres), with automatic weights by bone heat diffusion (rig.character.bone_heat)."""
+    from rig.character.bone_heat import bone_heat_weights
+    from rig.character.normals import vertex_normals
+    path = source or None
+    v = np.asarray(vertices, dtype=np.float64)
+    require_finite_positions(v, path)
+    f = drop_degenerate_faces(v, faces, path)
+    bind = transforms(*clip.rest_world())
+    check_overlap(v, bind[:, :3, 3], path)
+    rot, pos = clip.rest_world()
+    joints, weights, report = bone_heat_weights(v, f, pos, clip.parents, k=k, end_positions=end_sites(clip))
+    return Character(vertices=v, faces=f, normals=vertex_normals(v, f), uvs=uvs, joint_names=clip.joint_names,
+                     parents=clip.parents, bind_world=bind, bind_matrices=bind, joints=joints, weights=weights,
+                     skeleton=rest_pose(clip), name=name or clip.name, source=source,
+                     meta={"weights": "bone heat", "bone_heat": report, **(meta or {})})
+
+
+def body_character(clip: Clip, options=None, k: int = 4) -> Character:
+    """A body generated around `clip`'s skeleton (rig.character.body) with automatic weights, bound in the pose
+    it was built in (`Body.bind`: the rest pose, hanging arms swung out); its fat volumes and how it
+    was made are in meta["body"]."""
+    from rig.character.body import BodyOptions, generate_body
+    options = options or BodyOptions()
+    body = generate_body(clip, options)
+    return auto_weighted(body.vertices, body.faces, body.bind, k=k, name=f"{clip.name} body" if clip.name else "body",
+                         meta={"generated": True, "body": body, "body_options": options})
+
+
+def check_overlap(vertices: np.ndarray, joint_positions: np.ndarray, path: str | None) -> None:
+    """InputError when the skeleton does not sit inside the mesh's bounds, or is of another size
+    (a unit or axis mix-up)."""
+    lo, hi = vertices.min(0), vertices.max(0)
+    pad = 0.1 * (hi - lo).max()
+    inside = np.all((joint_positions >= lo - pad) & (joint_positions <= hi + pad), axis=1)
+    size_mesh = float((hi - lo).max())
+    size_skel = float(np.ptp(joint_positions, axis=0).max())
+    if inside.mean() < 0.5 or not 0.3 <= size_skel / max(size_mesh, 1e-12) <= 2.0:
+        h_mesh = float(hi[2] - lo[2])
+        h_skel = float(np.ptp(joint_positions[:, 2]))
+        raise InputError(f"the skeleton does not fit the mesh: {int(inside.sum())} of {len(inside)} joints lie "
+                         f"within the mesh's bounds (mesh {h_mesh:.4g} m tall, skeleton {h_skel:.4g} m); check "
+                         f"the mesh's unit and up axis (--unit, --up)", path, field="skeleton")

@@ -1,0 +1,269 @@
+"""glTF 2.0 animations (.glb, .gltf) as a :class:`~rig.motion.clip.Clip`.
+
+Readings where glTF leaves a choice, stated once here (the joint set, axes and the folding of scale
+into a rigid clip are those of :mod:`rig.motion.gltf_skeleton`, whose docstring says them):
+- Joints: the joints of skin `skin` (default the first) and the nodes joining them into a tree. With
+  ``skin=None``, or in a file without skins, the nodes the animation targets instead. Joints that no
+  channel animates keep their rest TRS; animated nodes above the tree (an animated armature) still
+  move the root, because everything above the root is accumulated into it frame by frame.
+- Channels: translation, rotation and scale; "weights" (morph targets) are skipped. Interpolation as
+  the spec says: LINEAR (lerp; slerp on the shortest arc for rotations), STEP (the key at or before
+  t), CUBICSPLINE (cubic Hermite with the in/out tangents multiplied by the key interval, rotations
+  normalised afterwards). Before the first key a channel holds its first value, after the last its last.
+- Time: the clip starts at the earliest key of the animation (``meta["start_time"]`` keeps it: clip
+  time t is animation time t + start_time) and ends at or just before the latest key.
+- Frame rate: `fps` if given. Otherwise, when the distinct key times of all channels together are
+  evenly spaced (within 0.1 % of the interval) at 10 fps or faster, that rate (snapped to a whole
+  number within 0.1 %), so frames land on keys; else 30 fps. ``meta["fps_rule"]`` says which.
+- Rotations read from normalized integer accessors (BYTE, UBYTE, SHORT, USHORT) are mapped to
+  [-1, 1] as the spec says and renormalised.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from rig.base.errors import InputError
+from rig.motion import quat
+from rig.motion.clip import Clip
+from rig.motion.gltf_io import Z_UP, GltfDocument, joint_tree, rigid_locals, trs_matrix
+
+_WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
+_INTERP = ("LINEAR", "STEP", "CUBICSPLINE")
+MIN_KEY_FPS = 10.0
+DEFAULT_FPS = 30.0
+
+
+def sample_keys(times: np.ndarray, values: np.ndarray, interpolation: str, t: np.ndarray,
+                rotation: bool = False) -> np.ndarray:
+    """Evaluate one glTF sampler at times `t`.
+
+    Parameters
+    ----------
+    times : (K,) seconds, non-decreasing key times.
+    values : (K, C) key values, or (K, 3, C) in-tangent, value, out-tangent for CUBICSPLINE; for
+        rotations w,x,y,z quaternions.
+    interpolation : "LINEAR", "STEP" or "CUBICSPLINE".
+    t : (T,) seconds.
+    rotation : slerp (LINEAR) and normalise (CUBICSPLINE) as quaternions.
+
+    Returns (T, C) float64.
+    """
+    t = np.asarray(t, dtype=float)
+    K = times.shape[0]
+    v = values[:, 1] if interpolation == "CUBICSPLINE" else values
+    if K == 1:
+        out = np.broadcast_to(v[0], (t.shape[0], v.shape[-1])).copy()
+        return quat.normalize(out) if rotation else out
+    after = np.searchsorted(times, t, side="right") - 1  # last key at or before t (-1 before the first)
+    if interpolation == "STEP":
+        out = v[np.clip(after, 0, K - 1)]
+        return quat.normalize(out) if rotation else out
+    i = np.clip(after, 0, K - 2)
+    dt = times[i + 1] - times[i]
+    s = np.where(dt > 0, (t - times[i]) / np.where(dt > 0, dt, 1.0), 1.0)
+    s = np.clip(s, 0.0, 1.0)
+    if interpolation == "LINEAR":
+        if rotation:
+            return quat.slerp(v[i], v[i + 1], s)
+        return v[i] + s[:, None] * (v[i + 1] - v[i])
+    # CUBICSPLINE (glTF 2.0 spec, Appendix C): p(s) = (2s^3 - 3s^2 + 1) v_i + (s^3 - 2s^2 + s) dt b_i
+    #   + (-2s^3 + 3s^2) v_{i+1} + (s^3 - s^2) dt a_{i+1}, with a the in-tangent and b the out-tangent.
+    s2, s3 = s * s, s * s * s
+    h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+    a_next, b_here = values[i + 1, 0], values[i, 2]
+    out = (h00[:, None] * v[i] + (h10 * dt)[:, None] * b_here + h01[:, None] * v[i + 1]
+           + (h11 * dt)[:, None] * a_next)
+    return quat.normalize(out) if rotation else out
+
+
+def _choose(doc: GltfDocument, animation) -> int:
+    anims = doc.gltf.animations
+    names = [a.name or f"animation{k}" for k, a in enumerate(anims)]
+    listing = ", ".join(f"{k}: {n!r}" for k, n in enumerate(names))
+    if animation is None:
+        return 0
+    if isinstance(animation, (int, np.integer)) and not isinstance(animation, bool):
+        if not 0 <= animation < len(anims):
+            raise InputError(f"animation index {animation} is out of range; the file has {listing}", doc.path,
+                             field="animation")
+        return int(animation)
+    if isinstance(animation, str):
+        hits = [k for k, a in enumerate(anims) if a.name == animation]
+        if not hits:
+            hits = [k for k, n in enumerate(names) if n == animation]
+        if not hits and animation.strip().isdigit():  # an index typed on the command line
+            return _choose(doc, int(animation))
+        if not hits:
+            raise InputError(f"no animation named {animation!r}; the file has {listing}", doc.path,
+                             field="animation")
+        return hits[0]
+    raise InputError(f"animation must be a name or an index, got {animation!r}; the file has {listing}",
+                     doc.path, field="animation")
+
+
+def _channels(doc: GltfDocument, ai: int) -> list[tuple[int, str, str, np.ndarray, np.ndarray]]:
+    """Decoded TRS channels of animation `ai`: (node, path, interpolation, key times (K,), values)."""
+    g = doc.gltf
+    anim = g.animations[ai]
+    out = []
+    for ci, ch in enumerate(anim.channels):
+        where = f"animations[{ai}].channels[{ci}]"
+        tgt = ch.target
+        if tgt is None or tgt.path not in (*_WIDTH, "weights"):
+            raise InputError(f"target path {getattr(tgt, 'path', None)!r} is not translation, rotation, scale "
+                             f"or weights", doc.path, field=f"{where}.target.path")
+        if tgt.path == "weights" or tgt.node is None:
+            continue  # morph weights do not move joints; a channel without node is ignored by the spec
+        if not 0 <= tgt.node < len(g.nodes):
+            raise InputError(f"node {tgt.node} does not exist", doc.path, field=f"{where}.target.node")
+        if not 0 <= ch.sampler < len(anim.samplers):
+            raise InputError(f"sampler {ch.sampler} does not exist", doc.path, field=f"{where}.sampler")
+        sw = f"animations[{ai}].samplers[{ch.sampler}]"
+        smp = anim.samplers[ch.sampler]
+        interp = smp.interpolation or "LINEAR"
+        if interp not in _INTERP:
+            raise InputError(f"interpolation {interp!r}; expected LINEAR, STEP or CUBICSPLINE", doc.path,
+                             field=f"{sw}.interpolation")
+        times = doc.accessor(smp.input, f"{sw}.input")
+        if times.shape[1] != 1 or times.shape[0] == 0:
+            raise InputError("key times must be a non-empty SCALAR accessor", doc.path, field=f"{sw}.input")
+        times = times[:, 0]
+        if not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0):
+            raise InputError("key times must be finite and increasing", doc.path, field=f"{sw}.input")
+        vals = doc.accessor(smp.output, f"{sw}.output")
+        w = _WIDTH[tgt.path]
+        per_key = 3 if interp == "CUBICSPLINE" else 1
+        if vals.shape != (times.shape[0] * per_key, w):
+            raise InputError(f"expected {times.shape[0] * per_key} values of {w} components for "
+                             f"{times.shape[0]} {interp} keys of {tgt.path}, found {vals.shape[0]} of "
+                             f"{vals.shape[1]}", doc.path, field=f"{sw}.output")
+        if not np.all(np.isfinite(vals)):
+            raise InputError("key values hold NaN or inf", doc.path, field=f"{sw}.output")
+        if tgt.path == "rotation":
+            vals = quat.from_xyzw(vals)  # the permutation is linear: tangents convert the same way
+        if per_key == 3:
+            vals = vals.reshape(times.shape[0], 3, w)
+        if g.nodes[tgt.node].matrix is not None:
+            raise InputError("a node with a matrix cannot be animated (glTF 2.0 spec)", doc.path,
+                             field=f"{where}.target.node")
+        out.append((int(tgt.node), tgt.path, interp, times, vals))
+    return out
+
+
+def _frame_rate(channels) -> tuple[float, str]:
+    keys = np.unique(np.concatenate([c[3] for c in channels]))
+    if keys.shape[0] >= 2:
+        d = np.diff(keys)
+        step = float(np.median(d))
+        if step > 0 and np.all(np.abs(d - step) <= 1e-3 * step) and 1.0 / step >= MIN_KEY_FPS:
+            fps = 1.0 / step
+            if abs(fps - round(fps)) <= 1e-3 * fps:
+                fps = float(round(fps))
+            return fps, "key rate (evenly spaced keys)"
+    return DEFAULT_FPS, f"default {DEFAULT_FPS:g} fps (keys not evenly spaced at >= {MIN_KEY_FPS:g} fps)"
+
+
+def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = None, fps: float | None = None,
+                        skin: int | None = 0) -> Clip:
+    """Read one animation of a glTF/GLB file as a Clip (Z-up, metres); see the module docstring.
+
+    Parameters
+    ----------
+    path : .glb or .gltf (external or data-URI buffers).
+    animation : name or index (a string of digits that is no animation's name counts as an index);
+        None for the first.
+    fps : frames per second to sample at; None for the key rate or 30 (module docstring).
+    skin : which skin's joints form the skeleton; None for the animated nodes instead.
+    """
+    doc = GltfDocument(path)
+    g = doc.gltf
+    if not g.animations:
+        raise InputError(f"the file has no animation (it holds {doc.contents()})", doc.path, field="animations")
+    if fps is not None and (not np.isfinite(fps) or fps <= 0):
+        raise InputError(f"fps must be a positive number, got {fps}", doc.path, field="fps")
+    ai = _choose(doc, animation)
+    channels = _channels(doc, ai)
+    aname = g.animations[ai].name or f"animation{ai}"
+    if not channels:
+        raise InputError(f"animation {aname!r} has no translation, rotation or scale channel", doc.path,
+                         field=f"animations[{ai}].channels")
+
+    if skin is not None and g.skins:
+        if not isinstance(skin, (int, np.integer)) or not 0 <= skin < len(g.skins):
+            raise InputError(f"skin {skin!r} does not exist; the file has skins 0..{len(g.skins) - 1}",
+                             doc.path, field="skin")
+        members = list(g.skins[skin].joints or [])
+        if not members:
+            raise InputError("the skin lists no joints", doc.path, field=f"skins[{skin}].joints")
+    else:
+        members = sorted({c[0] for c in channels})
+    order, parents = joint_tree(doc, members)
+    J = len(order)
+
+    t0 = min(float(c[3][0]) for c in channels)
+    t1 = max(float(c[3][-1]) for c in channels)
+    if fps is None:
+        fps, rule = _frame_rate(channels)
+    else:
+        rule = "given"
+    span = (t1 - t0) * fps
+    n = int(round(span)) + 1 if abs(span - round(span)) < 1e-4 else int(np.floor(span)) + 1
+    times = t0 + np.arange(n) / fps
+    T = n
+
+    # Every node the clip depends on: the joints and everything above the roots.
+    needed = set(order)
+    for j, nd in enumerate(order):
+        if parents[j] < 0:
+            needed.update(doc.ancestors(nd))
+    trs = {}
+    for nd in needed:
+        t, r, s, m = doc.node_trs(nd)
+        trs[nd] = {"translation": np.broadcast_to(t, (T, 3)).copy(), "rotation": np.broadcast_to(r, (T, 4)).copy(),
+                   "scale": np.broadcast_to(s, (T, 3)).copy(), "matrix": m}
+    animated = set()
+    for nd, path_, interp, kt, kv in channels:
+        if nd in trs:
+            trs[nd][path_] = sample_keys(kt, kv, interp, times, rotation=path_ == "rotation")
+            animated.add(nd)
+
+    def local(nd):
+        d = trs[nd]
+        if d["matrix"] is not None:
+            return np.broadcast_to(d["matrix"], (T, 4, 4))
+        return trs_matrix(d["translation"], d["rotation"], d["scale"])
+
+    local_m = np.stack([local(nd) for nd in order], axis=1)
+    local_r = np.stack([trs[nd]["rotation"] for nd in order], axis=1)
+    above = np.broadcast_to(np.eye(4), (T, J, 4, 4)).copy()
+    for j, nd in enumerate(order):
+        if parents[j] < 0:
+            m = np.broadcast_to(Z_UP, (T, 4, 4)).copy()
+            for a in doc.ancestors(nd)[::-1]:
+                m = m @ local(a)
+            above[:, j] = m
+    rot, tra, _ = rigid_locals(parents, above, local_m, local_r)
+
+    # Rest pose: the same folding on the nodes' own TRS.
+    rest = [doc.node_trs(nd) for nd in order]
+    rest_m = np.stack([m if m is not None else trs_matrix(t, r, s) for t, r, s, m in rest])[None]
+    rest_r = np.stack([r for _, r, _, _ in rest])[None]
+    rest_above = np.broadcast_to(np.eye(4), (1, J, 4, 4)).copy()
+    for j, nd in enumerate(order):
+        if parents[j] < 0:
+            m = Z_UP.copy()
+            for a in doc.ancestors(nd)[::-1]:
+                t, r, s, mm = doc.node_trs(a)
+                m = m @ (mm if mm is not None else trs_matrix(t, r, s))
+            rest_above[0, j] = m
+    rest_rot, rest_tra, _ = rigid_locals(parents, rest_above, rest_m, rest_r)
+
+    meta = {"format": "glTF", "animation": aname, "animation_index": ai, "start_time": t0,
+            "end_time": t1, "fps_rule": rule, "channels": len(channels),
+            "animated_joints": sum(nd in animated for nd in order),
+            "joint_source": f"skin {skin}" if (skin is not None and g.skins) else "animated nodes"}
+    return Clip(joint_names=[doc.node_names[nd] for nd in order], parents=parents, offsets=rest_tra[0],
+                rest_rotations=rest_rot[0], rotations=rot, translations=tra, fps=fps,
+                name=os.path.splitext(os.path.basename(doc.path))[0], source=doc.path, meta=meta)

@@ -1,0 +1,42 @@
+"""Load any supported mocap file into a :class:`~rig.motion.clip.Clip`, chosen by extension."""
+from __future__ import annotations
+
+import os
+
+from rig.base.errors import InputError, require_file
+from rig.motion.clip import Clip
+
+CLIP_EXTENSIONS = (".bvh", ".amc", ".asf", ".glb", ".gltf", ".toml")
+
+
+def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
+              animation: str | int | None = None, scale: float | None = None,
+              tpose: str = "auto") -> Clip:
+    """Read a clip.
+
+    path : .bvh; .amc (its .asf from `skeleton`, else the one .asf beside it); .asf alone (its rest
+        pose as a one-frame clip); .glb/.gltf with animations (`animation` by name or index, default
+        the first); .toml keyframes (rig.motion.keyframes, as the built-in demo motion).
+    scale : metres per file unit for BVH (None: recognise CMU or guess, see rig.motion.bvh).
+    tpose : BVH first-frame handling, "auto", "skip" or "keep".
+    """
+    p = require_file(path, "clip file")
+    ext = os.path.splitext(p)[1].lower()
+    if ext == ".bvh":
+        from rig.motion.bvh import read_bvh
+        return read_bvh(p, scale=scale, tpose=tpose)
+    if ext == ".amc":
+        from rig.motion.acclaim import find_asf, read_amc, read_asf
+        asf = read_asf(skeleton if skeleton is not None else find_asf(p))
+        return read_amc(p, asf)
+    if ext == ".asf":
+        from rig.motion.acclaim import read_asf
+        return read_asf(p).rest_clip()
+    if ext in (".glb", ".gltf"):
+        from rig.motion.gltf_anim import read_gltf_animation
+        return read_gltf_animation(p, animation)
+    if ext == ".toml":
+        from rig.motion.keyframes import read_keyframes
+        return read_keyframes(p)
+    raise InputError(f"unknown clip format {ext or '(no extension)'!r}; expected one of "
+                     f"{', '.join(CLIP_EXTENSIONS)}", p)

@@ -1,0 +1,425 @@
+"""Fit a musculoskeletal template to a character from the outside in (Pratscher et al. 2005, section 3).
+
+    character --segment_skin--> a region of skin per bone segment (normal test, low-frequency normals)
+    template  --roles-------->  per muscle: the template bone's region, cut to its span along the bone
+                                and sector about it, split by the pair's partition plane, or into
+                                strips for a multi-belly muscle
+              --fit_ellipsoid-> best-fit ellipsoid of the region's triangles
+              --attachments-->  origin, hinges, insertion, each a point riding its own bone
+              --conform------>  the ellipsoid's mesh inflated toward the skin (embree rays)
+              --build_muscle_rig--> the thesis muscle (action curve, 5 x 8 section CVs, loft)
+
+Template bones name roles (rig.motion.retarget.ROLES) that rig.motion.role_map maps onto the character's joints. A
+template bone may span several skeleton bones (CMU's spine has three joints between the hips and the
+chest): its region is the union of their regions and its frame is the straight line between the two
+joints. A skin triangle belongs to the region of the majority of its corners.
+
+Attachment defaults (where the template gives no joint or position): the origin sits at the bone's
+start and rides the bone's start joint; the insertion sits at the bone's end and rides its end joint;
+the hinges sit at the ends of the fitted ellipsoid's major axis and ride the bone's start joint. A
+relative position (x, y, z) is start + L (x e_along + y e_front + z e_side) in the bone's frame at bind
+(L its length; e_front the character's front made perpendicular to the bone, e_side = e_along x
+e_front); an absolute one is a world point at bind (metres, Z-up).
+
+Multi-belly muscles (thesis 5.1) are N fusiform bellies side by side: the region is cut into N strips
+of equal area across the bone (along the region's principal direction most perpendicular to it); each
+strip gets its own ellipsoid and origin (its major-axis end nearest the bone's start, riding the
+origin joint), and all share the template's insertion and attributes, the one main control.
+Fat ("fake") muscles are fitted the same way to their patch of skin; their `depth` is the least
+half-thickness, and a patch thinner than that is pushed inward so its outer side stays at the skin.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.base.frozen import frozen_array
+from rig.character.character import Character
+from rig.muscle.conform import ConformReport, conform
+from rig.muscle.ellipsoid import Ellipsoid, fit_ellipsoid, surface_moments
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How to fit.
+
+    iterations, lam : normal smoothing for the segmentation (paper: 25 iterations, lambda 1).
+    subdivisions : icosphere level of each muscle's mesh (3: 642 vertices).
+    exclude : joint names or segment labels left out of the segmentation.
+    overrides : {segment label: vertex indices} forced into a region.
+    volume : rule keeping the muscles' volume ("exact", "sqrt", "thesis", "none").
+    joint_map : a joint map preset name or TOML path naming the template's roles; None: automatic.
+    reach : skin hits farther than this many ellipsoid radii along a conforming ray are ignored.
+    smoothing : passes smoothing each conformed muscle's displacement over its mesh (rig.muscle.conform).
+    min_vertices : a coarser skin is subdivided (same surface) for fitting, see `_dense_skin`.
+    """
+
+    iterations: int = 25
+    lam: float = 1.0
+    subdivisions: int = 3
+    exclude: tuple[str, ...] = ()
+    overrides: dict | None = None
+    volume: str = "exact"
+    joint_map: str | None = None
+    reach: float = 3.0
+    smoothing: int = 8
+    min_vertices: int = 8000
+
+    def __post_init__(self):
+        if not (isinstance(self.iterations, int) and 0 <= self.iterations <= 1000):
+            raise InputError(f"expected an integer in [0, 1000], got {self.iterations!r}", field="iterations")
+        if not 0.0 <= self.lam <= 1.0:
+            raise InputError(f"expected a number in [0, 1], got {self.lam!r}", field="lambda")
+        if not (isinstance(self.subdivisions, int) and 1 <= self.subdivisions <= 5):
+            raise InputError(f"expected an integer in [1, 5], got {self.subdivisions!r}", field="subdivisions")
+        if not self.reach > 0:
+            raise InputError(f"expected a positive number, got {self.reach!r}", field="reach")
+
+
+@dataclass(frozen=True, eq=False)
+class FittedMuscle:
+    """One fitted muscle at bind (world metres).
+
+    name, kind ("muscle" | "fat"), group (the pair's bone label, or the multi-belly's name), side
+        ("upper" | "lower" | "single").
+    bone : joint index a, the start joint of the template bone (its frame carries the muscle).
+    bone_label : "parent>child" joint names of the template bone.
+    ellipsoid : the best-fit ellipsoid.
+    vertices, faces : (n, 3) conformed mesh, (f, 3) int32.
+    joints : (4,) int32 joints carrying origin, origin hinge, insertion hinge, insertion.
+    points : (4, 3) those points at bind.
+    region : (k,) int32 skin triangles fitted.
+    plane : (point (3,), normal (3,)) of the pair's partition plane on this muscle's side, or None.
+    report : the conforming rays' hits and misses.
+    spec : the template entry it came from.
+    """
+
+    name: str
+    kind: str
+    group: str
+    side: str
+    bone: int
+    bone_label: str
+    ellipsoid: Ellipsoid
+    vertices: np.ndarray
+    faces: np.ndarray
+    joints: np.ndarray
+    points: np.ndarray
+    region: np.ndarray
+    plane: tuple | None
+    report: ConformReport
+    spec: object
+
+    def __post_init__(self):
+        for k in ("vertices", "points"):
+            object.__setattr__(self, k, frozen_array(getattr(self, k)))
+        for k in ("faces", "joints", "region"):
+            object.__setattr__(self, k, frozen_array(getattr(self, k), np.int32))
+
+    @property
+    def tendons(self) -> np.ndarray:
+        """(2, 3, 3) metres: origin -> hinge -> belly start, belly end -> hinge -> insertion."""
+        ends = self.ellipsoid.ends
+        p = self.points
+        return np.stack([[p[0], p[1], ends[0]], [ends[1], p[2], p[3]]])
+
+
+@dataclass(frozen=True, eq=False)
+class Musculature:
+    """A character's fitted muscles.
+
+    character, template, roles ({role: joint index}), segmentation (rig.muscle.segmentation.Segmentation),
+    front (3,) the character's front, skin (vertices (V', 3), faces (F', 3), region (V',)) the skin fitted
+    to (the character's, subdivided when coarse; FittedMuscle.region indexes its faces), muscles (tuple
+    of FittedMuscle), rig (rig.muscle.model.MuscleRig,
+    same order), skipped ((name, reason), ...) template muscles that could not be fitted, timings
+    {stage: seconds}.
+    """
+
+    character: Character
+    template: object
+    roles: dict
+    segmentation: object
+    front: np.ndarray
+    skin: tuple
+    muscles: tuple
+    rig: object
+    skipped: tuple = ()
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.muscles)
+
+    def muscle(self, name: str) -> FittedMuscle:
+        for m in self.muscles:
+            if m.name == name:
+                return m
+        raise KeyError(f"no muscle named {name!r}; muscles: {', '.join(self.names)}")
+
+
+@dataclass(frozen=True)
+class _Bone:
+    """A template bone on this character: joints, straight line, frame and region triangles."""
+
+    label: str
+    parent: int
+    child: int
+    start: np.ndarray
+    end: np.ndarray
+    frame: np.ndarray  # (3, 3) rows e_along, e_front, e_side
+    faces: np.ndarray  # skin triangles in its region
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(self.end - self.start))
+
+    def point(self, position, default: np.ndarray) -> np.ndarray:
+        if position is None:
+            return default
+        xyz = np.asarray(position.xyz, dtype=np.float64)
+        if position.type == "absolute":
+            return xyz
+        return self.start + self.length * (xyz @ self.frame)
+
+
+def bone_frame(start: np.ndarray, end: np.ndarray, front: np.ndarray) -> np.ndarray:
+    """(3, 3) rows e_along, e_front, e_side of a bone at bind: e_front is the character's front made
+    perpendicular to the bone (world +Z when the bone points along the front), e_side = e_along x e_front."""
+    along = end - start
+    along = along / np.linalg.norm(along)
+    f = front - (front @ along) * along
+    if np.linalg.norm(f) < 0.2:
+        z = np.array([0.0, 0.0, 1.0])
+        f = z - (z @ along) * along
+    f = f / np.linalg.norm(f)
+    return np.stack([along, f, np.cross(along, f)])
+
+
+def _chain(parents: np.ndarray, top: int, bottom: int) -> list[int] | None:
+    """Joints from `top` down to `bottom` (both included), or None when bottom is not below top."""
+    path = [bottom]
+    while path[-1] != top:
+        p = int(parents[path[-1]])
+        if p < 0:
+            return None
+        path.append(p)
+    return path[::-1]
+
+
+def _collapsed_into(parents: np.ndarray, pos: np.ndarray, j: int) -> int:
+    """The joint that starts `j`'s bone segments: j itself, or the ancestor it sits on through
+    zero-length links (the tolerance of rig.muscle.segmentation.bone_segments, 1e-6 of the skeleton's size)."""
+    eps = 1e-6 * max(float(np.ptp(pos, axis=0).max()), 1e-9)
+    while parents[j] >= 0 and np.linalg.norm(pos[j] - pos[parents[j]]) <= eps:
+        j = int(parents[j])
+    return j
+
+
+def fit_musculature(character: Character, template="human", options: FitOptions = FitOptions(), *,
+                    roles: dict | None = None, front: np.ndarray | None = None) -> Musculature:
+    """Fit `template` (a Template, a built-in name or a path) to `character`.
+
+    roles : {role: joint index}; default: rig.motion.role_map.resolve_roles(character.skeleton, options.joint_map).
+    front : (3,) the character's front; default: from the legs (rig.motion.role_map.facing).
+
+    Template muscles whose region is empty or too small are skipped with a JiggleWarning (listed in
+    `Musculature.skipped`); a template label the character's skeleton cannot map raises InputError
+    listing the labels it knows.
+    """
+    import trimesh
+
+    from rig.motion.role_map import facing, resolve_roles
+    from rig.muscle.model import MuscleSpec, build_muscle_rig
+    from rig.muscle.segmentation import segment_skin
+    from rig.muscle.template import Template, check_labels, load_template
+
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    tpl = template if isinstance(template, Template) else load_template(template)
+    roles = resolve_roles(character.skeleton, options.joint_map) if roles is None else dict(roles)
+    check_labels(tpl, roles, character.joint_names)
+    pos = character.bind_positions
+    front = facing(pos, roles)[0] if front is None else np.asarray(front, float) / np.linalg.norm(front)
+    seg = segment_skin(character, iterations=options.iterations, lam=options.lam, exclude=options.exclude,
+                       overrides=options.overrides)
+    timings["segmentation"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    V, F, region = _dense_skin(character.vertices, character.faces, seg, options.min_vertices)
+    face_region = _face_regions(region, F)
+    centroids = V[F].mean(axis=1)
+    normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # area-weighted
+    skin = trimesh.Trimesh(V, F, process=False)
+    names = character.joint_names
+
+    fitted: list[FittedMuscle] = []
+    skipped: list[tuple[str, str]] = []
+
+    def skip(name: str, reason: str) -> None:
+        skipped.append((name, reason))
+        warnings.warn(f"muscle {name!r} skipped: {reason}", JiggleWarning, stacklevel=3)
+
+    for pair in tpl.pairs:
+        p_joint, c_joint = roles[pair.parent], roles[pair.child]
+        label = f"{names[p_joint]}>{names[c_joint]}"
+        chain = _chain(character.parents, p_joint, c_joint)
+        if chain is None:
+            raise InputError(f"the template bone {pair.parent}>{pair.child} does not follow the skeleton: "
+                             f"{names[c_joint]!r} is not below {names[p_joint]!r}", tpl.source or None,
+                             field=f"bone {pair.parent}>{pair.child}")
+        start, end = pos[p_joint], pos[c_joint]
+        if np.linalg.norm(end - start) < 1e-4:
+            for m in pair.muscles:
+                skip(m.name, f"its bone {label} has zero length")
+            continue
+        segs = seg.segments
+        # a chain joint at its parent's place (CMU's LowerBack on Hips) starts no segment of its own:
+        # rig.muscle.segmentation collapsed it, and its bone is the segment from the joint it collapsed into
+        starts = chain[:-1] + [_collapsed_into(character.parents, pos, j) for j in chain[:-1]]
+        on_chain = np.isin(segs.parent, starts) & np.isin(segs.child, chain[1:])
+        bone = _Bone(label=label, parent=p_joint, child=c_joint, start=start, end=end,
+                     frame=bone_frame(start, end, front),
+                     faces=np.nonzero(np.isin(face_region, np.nonzero(on_chain)[0]))[0])
+        for m in pair.muscles:
+            plane = _plane(bone, pair, m)
+            pieces = _sub_region(bone, m, plane, centroids)
+            if len(pieces) == 0:
+                skip(m.name, f"its region on {label} is empty")
+                continue
+            strips = _strips(V, F, pieces, bone, m.count) if m.kind == "multi_belly" else [pieces]
+            for k, faces in enumerate(strips):
+                name = m.name if len(strips) == 1 else f"{m.name}_{k + 1}"
+                if len(faces) < 3:
+                    skip(name, f"its region on {label} has only {len(faces)} triangles")
+                    continue
+                fitted.append(_fit_one(name, m, pair, bone, faces, plane, V, F, normals, skin, roles,
+                                       options, group=m.name if len(strips) > 1 else label,
+                                       belly=len(strips) > 1))
+    timings["fit"] = time.perf_counter() - t1
+    if not fitted:
+        raise InputError("no muscle of the template could be fitted to this character", character.source or None)
+
+    t2 = time.perf_counter()
+    specs = [MuscleSpec(name=f.name, kind=f.kind, group=f.group, bone=f.bone,
+                        bones=f.joints, points=f.points, ends=f.ellipsoid.ends, up=f.ellipsoid.axes[1],
+                        surface=f.vertices, rim_scale=f.spec.rim_scale, bulge_scale=f.spec.bulge_scale,
+                        main_scale=f.spec.main_scale, bulge_position=f.spec.bulge_position, tone=f.spec.tone,
+                        middle_offset=np.zeros(3))
+             for f in fitted]
+    rig = build_muscle_rig(specs, character.bind_world, volume=options.volume)
+    timings["muscle model"] = time.perf_counter() - t2
+    timings["total"] = time.perf_counter() - t0
+    return Musculature(character=character, template=tpl, roles=roles, segmentation=seg, front=front,
+                       skin=(V, F, region), muscles=tuple(fitted), rig=rig, skipped=tuple(skipped), timings=timings)
+
+
+def _dense_skin(vertices: np.ndarray, faces: np.ndarray, seg, min_vertices: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The skin to fit to: the character's, split into four triangles per triangle (midpoints, same
+    surface) until it has `min_vertices`, so that a coarse mesh (RiggedFigure: 370 vertices) still
+    gives every sub-region, strip and pair half enough triangles to fit. The character's own vertices
+    keep their regions (overrides included); a new midpoint vertex is assigned by the same normal test
+    with its endpoints' low-frequency normals averaged. Returns vertices, faces, region per vertex."""
+    from rig.muscle.segmentation import assign
+    V, F = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+    region, low = np.asarray(seg.region), np.asarray(seg.low_normals)
+    while len(V) < min_vertices and len(F):
+        edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+        unique, inverse = np.unique(edges, axis=0, return_inverse=True)
+        mid = len(V) + inverse.reshape(3, -1).T  # (F, 3) midpoints of edges 01, 12, 20
+        new_v = 0.5 * (V[unique[:, 0]] + V[unique[:, 1]])
+        n = low[unique[:, 0]] + low[unique[:, 1]]
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        new_r, _ = assign(new_v, n, seg.segments)
+        a, b, c = F[:, 0], F[:, 1], F[:, 2]
+        ab, bc, ca = mid[:, 0], mid[:, 1], mid[:, 2]
+        F = np.concatenate([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
+                            np.stack([ab, bc, ca], 1)])
+        V, region, low = np.vstack([V, new_v]), np.concatenate([region, new_r]), np.vstack([low, n])
+    return V, F.astype(np.int32), region
+
+
+def _face_regions(region: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) the region of the majority of each triangle's corners (the first corner's on a three-way tie)."""
+    r = region[faces]
+    out = r[:, 0].copy()
+    two = r[:, 1] == r[:, 2]
+    out[two] = r[two, 1]
+    return out
+
+
+def _sub_region(bone: _Bone, m, plane, centroids: np.ndarray) -> np.ndarray:
+    """The bone region's triangles within the muscle's span along the bone, sector about it and side of
+    the pair's partition plane."""
+    faces = bone.faces
+    c = centroids[faces] - bone.start
+    t = (c @ bone.frame[0]) / bone.length
+    keep = (t >= m.span[0]) & (t <= m.span[1])
+    if m.sector is not None:
+        ang = np.degrees(np.arctan2(c @ bone.frame[2], c @ bone.frame[1]))
+        keep &= (ang - m.sector[0]) % 360.0 <= m.sector[1] - m.sector[0]
+    if plane is not None:
+        keep &= (centroids[faces] - plane[0]) @ plane[1] >= 0
+    return faces[keep]
+
+
+def _plane(bone: _Bone, pair, m) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pair's partition plane through the bone's centre, normal turned toward this muscle's side:
+    theta = cos(angle) e_front + sin(angle) e_side; the "upper" muscle lies on theta's side."""
+    if m.type == "single":
+        return None
+    a = np.radians(pair.partition_deg)
+    theta = np.cos(a) * bone.frame[1] + np.sin(a) * bone.frame[2]
+    return 0.5 * (bone.start + bone.end), theta if m.type == "upper" else -theta
+
+
+def _strips(V: np.ndarray, F: np.ndarray, faces: np.ndarray, bone: _Bone, count: int) -> list[np.ndarray]:
+    """`faces` cut into `count` strips of equal area across the bone, along the region's principal
+    direction most perpendicular to it."""
+    _, _, cov = surface_moments(V, F[faces])
+    w, v = np.linalg.eigh(cov)
+    spread = np.clip(w, 0.0, None) * (1.0 - (v.T @ bone.frame[0]) ** 2)  # variance across the bone
+    across = v[:, np.argmax(spread)]
+    tri = V[F[faces]]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    s = tri.mean(axis=1) @ across
+    order = np.argsort(s)
+    cum = np.cumsum(area[order]) / max(area.sum(), 1e-30)
+    k = np.minimum((cum * count).astype(int), count - 1)
+    return [np.sort(faces[order[k == i]]) for i in range(count)]
+
+
+def _fit_one(name, m, pair, bone: _Bone, faces, plane, V, F, normals, skin, roles, options: FitOptions,
+             group: str, belly: bool) -> FittedMuscle:
+    n = normals[faces].sum(axis=0)
+    area2 = np.linalg.norm(normals[faces], axis=1).sum()
+    # a patch of skin (pectoral, fat) has a clear outward side; a ring around a limb does not
+    outward = n / np.linalg.norm(n) if np.linalg.norm(n) > 0.3 * area2 else (plane[1] if plane else None)
+    thickness = max(m.thickness_min, m.depth if m.kind == "fat" else 0.0)
+    e = fit_ellipsoid(V, F[faces], along=bone.frame[0], outward=outward, thickness_min=thickness)
+    pts, tri = e.mesh(options.subdivisions)
+    allowed = np.zeros(len(F), bool)
+    allowed[bone.faces] = True
+    conformed, report = conform(e, pts, skin, nu=m.nu, plane=plane, reach=options.reach, allowed=allowed,
+                                faces=tri, smoothing=options.smoothing)
+    ends = e.ends
+
+    def joint(att, default: int) -> int:
+        return roles[att.joint] if att.joint is not None else default
+
+    origin_default = ends[0] if belly else bone.start
+    points = np.stack([bone.point(m.origin.position, origin_default),
+                       bone.point(m.o_hinge.position, ends[0]),
+                       bone.point(m.i_hinge.position, ends[1]),
+                       bone.point(m.insertion.position, bone.end)])
+    joints = np.array([joint(m.origin, bone.parent), joint(m.o_hinge, bone.parent),
+                       joint(m.i_hinge, bone.parent), joint(m.insertion, bone.child)], dtype=np.int32)
+    return FittedMuscle(name=name, kind="fat" if m.kind == "fat" else "muscle", group=group, side=m.type,
+                        bone=bone.parent, bone_label=bone.label, ellipsoid=e, vertices=conformed, faces=tri,
+                        joints=joints, points=points, region=faces, plane=plane, report=report,
+                        spec=m)

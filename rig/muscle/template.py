@@ -1,0 +1,1011 @@
+"""Musculoskeletal templates (Pratscher et al. 2005, section 3.4, Figure 5).
+
+A template stores, for each muscle or muscle pair, where it sits and how it attaches, never its
+geometry: the bone whose skin region it is fitted to (parent and child joint labels), the pair's
+partition plane, and per muscle its name, pair id and type, the four attachment points (origin,
+origin hinge, insertion hinge, insertion) each with the bone it rides and an optional position,
+the part of the bone's region it takes (span along the bone, sector around it), section scales,
+shaping parameters and default jiggle parameters. The geometry is made again for every character
+by fitting and conforming to its skin, so one template serves characters of any shape.
+
+Labels are roles (:data:`rig.motion.retarget.ROLES`: ``hips``, ``spine``, ``chest``, ``left_upper_arm``,
+...), not joint names: a skeleton's role map (``rig.motion.role_map.resolve_roles``, from a joint map
+preset, a user's joint map or the automatic one) turns them into joints, so one template serves
+naming schemes as different as CMU's and CesiumMan's. :func:`check_labels` says which labels a
+skeleton lacks.
+
+Two file forms hold the same template, and each converts to the other without loss:
+
+XML, the paper's layout (``.xml``)::
+
+    <musculoskeletalTemplate name="human">
+      <boneMusclePair>
+        <bone><parentJoint>left_upper_arm</parentJoint><childJoint>left_lower_arm</childJoint></bone>
+        <partition angle="0.0"/>
+        <muscle pairId="0" type="upper" kind="muscle">
+          <name>left_biceps</name>
+          <origin><parentJoint>left_upper_arm</parentJoint>
+                  <position type="relative" x="0.0" y="0.0" z="0.0"/></origin>
+          <oHinge/> <iHinge/> <insertion>...</insertion>
+          <span t0="0.25" t1="1.0"/>  <sector a0="-60" a1="60"/>
+          <sections rim="1" bulge="1" main="1" bulgePosition="0.25"/>
+          <shape tone="1" nu="3" thicknessMin="0.004" depth="0.03" count="1"/>
+          <jiggle frequency="7" damping="0.5" goalTendon="0.9" goalBelly="0.4" density="1060"
+                  strength="1" springFrequency="7" springDamping="0.3" friction="0"/>
+          <shell sticky="1" hard="0.5" dropOff="1" weight="1" slippage="1" mode="stretch"/>
+        </muscle>
+      </boneMusclePair>
+    </musculoskeletalTemplate>
+
+A file whose root is a single ``<boneMusclePair>`` (as in the paper's Figure 5) is read as a
+template of one pair. Files are parsed with defusedxml and DTDs are refused, so entity expansion
+("billion laughs") and external entities never run.
+
+TOML (``.toml``)::
+
+    name = "human"
+    [[pair]]
+    bone = ["left_upper_arm", "left_lower_arm"]
+    partition = 0.0
+    [[pair.muscle]]
+    name = "left_biceps"
+    pair_id = 0
+    type = "upper"
+    insertion = { parent_joint = "left_lower_arm", position = { type = "relative", x = 1.12, y = 0.08, z = 0.0 } }
+    span = [0.25, 1.0]
+    tone = 1.0
+    jiggle = { frequency = 7.0, damping = 0.5, goal_tendon = 0.9, goal_belly = 0.4, density = 1060.0 }
+    shell = { sticky = 1.0, hard = 0.5, drop_off = 1.0, weight = 1.0, slippage = 1.0, mode = "stretch" }
+
+Everything but the bone and a muscle's name is optional; a missing value takes its default (the
+jiggle and shell defaults depend on the kind; a partial ``jiggle`` or ``shell`` table takes the rest
+of its values from the kind's default). Writers write every value that is set, so a file read back
+gives an equal :class:`Template`. Unknown elements, attributes and keys are errors (a typo must not
+pass silently), and every number is checked against its range; errors name the file, the field
+(``pair[3].muscle[1].tone``, in the TOML spelling for both forms) and, in XML, the line.
+
+Meaning of the fields (the bone frame is the one in the project's muscle contract: e_along from the
+bone's start to its end, e_front the character's front made perpendicular, e_side = e_along x
+e_front; angles about the bone go from e_front toward e_side, degrees):
+
+- partition : the plane through the bone segment's centre that splits its region into the pair's
+  two muscles; its normal is at this angle (0: normal along e_front, a front/back split). The
+  ``upper`` muscle takes the side the normal points to, ``lower`` the other; ``single`` muscles
+  ignore the plane.
+- span (t0, t1) : fraction along the bone of the sub-region the muscle takes (t0 < t1; may reach
+  past the ends, e.g. a deltoid starting above the shoulder joint). sector (a0, a1) : angles about
+  the bone it takes (a0 < a1 <= a0 + 360), or None for all around.
+- attachments : ``joint`` is the role label of the bone the point rides (None: origin rides the
+  pair's parent joint, insertion its child joint, the hinges the parent joint); ``position`` is
+  ``relative``: start + L (x e_along + y e_front + z e_side) in the muscle's bone frame at bind (L
+  the bone's length), or ``absolute``: world metres at bind (character specific, as in the paper's
+  Figure 5); None: origin at the bone's start, insertion at its end, hinges at the ends of the
+  fitted muscle's major axis.
+- rim_scale, bulge_scale, main_scale : scales of the fitted muscle's rim, bulge and main
+  cross-sections; bulge_position : where the bulge sections sit, as a fraction of the belly from
+  each end (0..0.5); tone : 0..1, how strongly the volume rule thickens the muscle.
+- nu : the conforming attenuation of section 3.3; thickness_min : metres, thinnest fitted radius;
+  depth : metres, fat only: thickness of the fat layer under the skin (the fitted fat is at least
+  this thick; default FAT_DEPTH for fat, 0 for muscles, which use thickness_min).
+- kind : ``muscle``, ``fat`` (soft tissue that jiggles, no tendons to speak of) or ``multi_belly``
+  (``count`` bellies in a row along the span, like the rectus abdominis).
+- jiggle : default particle parameters for the simulation (:class:`Jiggle`: frequency Hz and damping
+  ratio of the goal springs, goal weights at the tendons and the belly, density kg/m^3, jiggle
+  strength 0..1, neighbour springs' frequency Hz and damping ratio, friction 1/s).
+- shell : the muscle's skin deformer (:class:`rig.muscle.shell_params.ShellParams`: sticky s, hard h, drop_off d
+  in local units of the muscle's radius, weight w, slippage l, mode basic/stretch/trajectory);
+  default :func:`rig.muscle.shell_params.default_shell` of the kind. The per-vertex painted weights are not part
+  of the template (they belong to a character: rig/skin/shell/weights.py).
+"""
+from __future__ import annotations
+
+import importlib.resources
+import math
+import os
+import re
+import tomllib
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field, fields
+
+from defusedxml.common import DefusedXmlException, DTDForbidden, EntitiesForbidden, ExternalReferenceForbidden
+from defusedxml.ElementTree import DefusedXMLParser
+
+from rig.base.atomic import atomic_path
+from rig.base.errors import InputError, require_file
+from rig.motion.retarget import ROLES
+from rig.muscle.shell_params import ShellParams, check_params, default_shell
+
+TYPES = ("upper", "lower", "single")
+KINDS = ("muscle", "fat", "multi_belly")
+POSITION_TYPES = ("relative", "absolute")
+ATTACHMENTS = ("origin", "o_hinge", "i_hinge", "insertion")
+SUFFIXES = (".toml", ".xml")
+MAX_BELLIES = 8
+
+_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_.\-]*\Z")
+
+
+# ----------------------------------------------------------------------------------- dataclasses
+@dataclass(frozen=True)
+class Position:
+    """An attachment point's place at bind.
+
+    type : "relative": xyz = (x, y, z) in bone lengths in the muscle's bone frame, the point being
+        start + L (x e_along + y e_front + z e_side); "absolute": xyz in world metres.
+    xyz : (3,) floats.
+    """
+
+    type: str
+    xyz: tuple[float, float, float]
+
+    def __post_init__(self):
+        object.__setattr__(self, "xyz", tuple(float(v) for v in self.xyz))
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """One of a muscle's four attachment points.
+
+    joint : role label of the bone the point rides, or None for the default (origin: the pair's
+        parent joint; insertion: its child joint; hinges: its parent joint).
+    position : where it is at bind, or None for the default (origin: the bone's start; insertion:
+        the bone's end; hinges: the ends of the fitted muscle's major axis).
+    """
+
+    joint: str | None = None
+    position: Position | None = None
+
+
+@dataclass(frozen=True)
+class Jiggle:
+    """Default simulation parameters of one muscle (sim/jiggle/params.py explains the model).
+
+    frequency_hz : natural frequency of the goal springs, Hz, for a particle of goal weight 1/2 at
+        strength 1.
+    damping_ratio : of the goal springs (1 = critical).
+    goal_tendon, goal_belly : goal weights (0..1) at the tendon ends and in the belly.
+    density : kg/m^3, for the particle masses.
+    strength : jiggle strength in [0, 1]: the goal springs' compliance scale (0 glues the particles to
+        their goals; an offset under a given acceleration grows in proportion to it).
+    spring_frequency_hz : neighbour springs, as the frequency of one spring on the mean particle
+        mass, Hz (0: no neighbour springs).
+    spring_damping_ratio : of the neighbour springs.
+    friction : drag on the particles' world velocity, 1/s.
+    """
+
+    frequency_hz: float
+    damping_ratio: float
+    goal_tendon: float
+    goal_belly: float
+    density: float
+    strength: float = 1.0
+    spring_frequency_hz: float = 7.0
+    spring_damping_ratio: float = 0.3
+    friction: float = 0.0
+
+    def __post_init__(self):
+        for f in fields(self):
+            object.__setattr__(self, f.name, float(getattr(self, f.name)))
+
+
+# Muscle: a stiff goal spring in the 6-8 Hz range and half-critical damping, so a belly wobbles a
+# few times after a landing; fat: slower (4 Hz), more loosely held and less damped, as soft tissue
+# sways visibly longer (a softer fat, 2.8 Hz at goal 0.15, swung 15 cm off a running body).
+# Densities: skeletal muscle about 1060 kg/m^3, adipose tissue about 900. Neighbour springs as stiff
+# as the goal springs carry a wobble along the muscle as a wave.
+MUSCLE_JIGGLE = Jiggle(frequency_hz=7.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0,
+                       spring_frequency_hz=7.0, spring_damping_ratio=0.3)
+FAT_JIGGLE = Jiggle(frequency_hz=4.0, damping_ratio=0.3, goal_tendon=0.9, goal_belly=0.3, density=900.0,
+                    spring_frequency_hz=4.0, spring_damping_ratio=0.2)
+
+
+def default_jiggle(kind: str) -> Jiggle:
+    """The jiggle parameters a muscle of this kind gets when its template gives none."""
+    return FAT_JIGGLE if kind == "fat" else MUSCLE_JIGGLE
+
+
+FAT_DEPTH = 0.02
+"""metres: the fat layer's thickness when a fat entry gives no depth (a moderate 2 cm)."""
+
+
+def default_depth(kind: str) -> float:
+    """The depth (metres) a muscle of this kind gets when its template gives none: FAT_DEPTH for fat,
+    0 for muscles (their thinnest radius is thickness_min)."""
+    return FAT_DEPTH if kind == "fat" else 0.0
+
+
+@dataclass(frozen=True)
+class MuscleTemplate:
+    """One muscle (or fat mass) of a template; see the module docstring for the meaning of each field.
+
+    span : (t0, t1) fraction along the bone; sector : (a0, a1) degrees about the bone or None.
+    depth : metres. depth, jiggle and shell given as None at construction take the kind's default
+    (:func:`default_depth`, :func:`default_jiggle`, :func:`rig.muscle.shell_params.default_shell`), so templates
+    compare equal whether a default was written out or left to apply.
+    """
+
+    name: str
+    pair_id: int | None = None
+    type: str = "single"
+    kind: str = "muscle"
+    count: int = 1
+    origin: Attachment = Attachment()
+    o_hinge: Attachment = Attachment()
+    i_hinge: Attachment = Attachment()
+    insertion: Attachment = Attachment()
+    span: tuple[float, float] = (0.0, 1.0)
+    sector: tuple[float, float] | None = None
+    rim_scale: float = 1.0
+    bulge_scale: float = 1.0
+    main_scale: float = 1.0
+    bulge_position: float = 0.25
+    tone: float = 1.0
+    nu: float = 3.0
+    thickness_min: float = 0.004
+    depth: float | None = None  # None -> default_depth(kind)
+    jiggle: Jiggle | None = None
+    shell: ShellParams | None = None  # None -> default_shell(kind)
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        set_("span", tuple(float(v) for v in self.span))
+        if self.sector is not None:
+            set_("sector", tuple(float(v) for v in self.sector))
+        for k in ("rim_scale", "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min"):
+            set_(k, float(getattr(self, k)))
+        set_("depth", default_depth(self.kind) if self.depth is None else float(self.depth))
+        if self.jiggle is None:
+            set_("jiggle", default_jiggle(self.kind))
+        if self.shell is None:
+            set_("shell", default_shell(self.kind))
+
+    def attachment(self, which: str) -> Attachment:
+        """The attachment `which` ("origin", "o_hinge", "i_hinge" or "insertion")."""
+        return getattr(self, which)
+
+
+@dataclass(frozen=True)
+class BoneMusclePair:
+    """The muscles fitted to one bone's skin region.
+
+    parent, child : role labels of the bone's start and end joints.
+    partition_deg : angle of the partition plane's normal about the bone, degrees from e_front
+        toward e_side (0: front/back split); used by "upper"/"lower" muscles.
+    muscles : the muscles on this bone.
+    """
+
+    parent: str
+    child: str
+    partition_deg: float = 0.0
+    muscles: tuple[MuscleTemplate, ...] = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "partition_deg", float(self.partition_deg))
+        object.__setattr__(self, "muscles", tuple(self.muscles))
+
+    def riding(self, muscle: MuscleTemplate) -> tuple[str, str, str, str]:
+        """Role labels of the bones that `muscle`'s origin, origin hinge, insertion hinge and insertion
+        ride, with the defaults applied (origin and hinges: parent, insertion: child)."""
+        default = {"origin": self.parent, "o_hinge": self.parent, "i_hinge": self.parent, "insertion": self.child}
+        return tuple(muscle.attachment(w).joint or default[w] for w in ATTACHMENTS)
+
+
+@dataclass(frozen=True)
+class Template:
+    """A musculoskeletal template.
+
+    name : a label ("human").
+    pairs : the bones and their muscles, in file order.
+    source : the file it was read from ("" when built in code); not part of equality, so the same
+        template read from its XML and its TOML form compares equal.
+    """
+
+    name: str
+    pairs: tuple[BoneMusclePair, ...]
+    source: str = field(default="", compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "pairs", tuple(self.pairs))
+
+    def muscles(self) -> tuple[tuple[BoneMusclePair, MuscleTemplate], ...]:
+        """Every muscle with the pair it belongs to, in file order."""
+        return tuple((p, m) for p in self.pairs for m in p.muscles)
+
+    def labels(self) -> set[str]:
+        """The role labels the template uses (bones and attachments)."""
+        return {label for _, label in _label_uses(self)}
+
+
+# ----------------------------------------------------------------------------------- validation
+def _label_uses(t: Template):
+    """(field, label) for every label the template names."""
+    for i, p in enumerate(t.pairs):
+        yield f"pair[{i}].bone", p.parent
+        yield f"pair[{i}].bone", p.child
+        for j, m in enumerate(p.muscles):
+            for w in ATTACHMENTS:
+                joint = m.attachment(w).joint
+                if joint is not None:
+                    yield f"pair[{i}].muscle[{j}].{w}.parent_joint", joint
+
+
+def _fmt_range(lo, hi, lo_open=False, hi_open=False) -> str:
+    g = lambda v: f"{v:g}"  # noqa: E731
+    return f"{'(' if lo_open else '['}{g(lo)}, {g(hi)}{')' if hi_open else ']'}"
+
+
+class _Checker:
+    """Raises InputError naming the file, the field and (XML) the line of the element it came from."""
+
+    def __init__(self, path: str | None, lines: dict[str, int] | None):
+        self.path = path
+        self.lines = {} if lines is None else lines
+
+    def line(self, fld: str) -> int | None:
+        while fld:
+            if fld in self.lines:
+                return self.lines[fld]
+            cut = max(fld.rfind("."), fld.rfind("["))
+            fld = fld[:cut] if cut > 0 else ""
+        return None
+
+    def fail(self, message: str, fld: str):
+        raise InputError(message, self.path, line=self.line(fld), field=fld)
+
+    def number(self, value, fld: str, lo, hi, lo_open=False, hi_open=False, unit: str = "") -> None:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        if ok:
+            ok = (value > lo if lo_open else value >= lo) and (value < hi if hi_open else value <= hi)
+        if not ok:
+            self.fail(f"expected a number in {_fmt_range(lo, hi, lo_open, hi_open)}{unit}, got {value!r}", fld)
+
+    def choice(self, value, fld: str, options) -> None:
+        if value not in options:
+            self.fail(f"expected one of {', '.join(options)}, got {value!r}", fld)
+
+    def shell(self, values, fld: str) -> None:
+        """Check deformer parameters (a ShellParams or {attr: value} with all six) with the ranges of
+        rig.muscle.shell_params.check_params, naming `fld`.<parameter>."""
+        get = values.get if isinstance(values, dict) else lambda k: getattr(values, k)
+        try:
+            check_params(*(get(attr) for attr, _ in _SHELL), where=fld)
+        except InputError as e:
+            self.fail(e.message, e.field or fld)
+
+    def label(self, value, fld: str) -> None:
+        if value not in ROLES:
+            self.fail(f"unknown joint label {value!r}; template labels are roles: {', '.join(ROLES)}", fld)
+
+
+def validate_template(t: Template, path: str | None = None, lines: dict[str, int] | None = None) -> Template:
+    """Check every label, choice and number of `t` against its range; return `t`.
+
+    Raises InputError naming `path` (default ``t.source``), the field (``pair[3].muscle[1].tone``)
+    and, when `lines` maps fields to lines, the line.
+    """
+    c = _Checker(path if path is not None else (t.source or None), lines)
+    if not isinstance(t.name, str) or not t.name.strip() or not t.name.isprintable():
+        c.fail(f"expected a non-empty printable name, got {t.name!r}", "name")
+    if not t.pairs:
+        c.fail("the template has no bone muscle pairs", "pair")
+    names: dict[str, str] = {}
+    pair_ids: dict[int, int] = {}
+    for i, p in enumerate(t.pairs):
+        pf = f"pair[{i}]"
+        c.label(p.parent, f"{pf}.bone")
+        c.label(p.child, f"{pf}.bone")
+        if p.parent == p.child:
+            c.fail(f"a bone needs two different joints, got {p.parent!r} twice", f"{pf}.bone")
+        c.number(p.partition_deg, f"{pf}.partition", -360, 360, unit=" degrees")
+        if not p.muscles:
+            c.fail("the pair has no muscles", f"{pf}.muscle")
+        halves: dict[tuple[int, str], int] = {}
+        for j, m in enumerate(p.muscles):
+            mf = f"{pf}.muscle[{j}]"
+            if not isinstance(m.name, str) or not _NAME.match(m.name):
+                c.fail(f"expected a name of letters, digits, '_', '.', '-' starting with a letter, got {m.name!r}",
+                       f"{mf}.name")
+            if m.name in names:
+                c.fail(f"muscle name {m.name!r} is used twice (first at {names[m.name]})", f"{mf}.name")
+            names[m.name] = mf
+            c.choice(m.type, f"{mf}.type", TYPES)
+            c.choice(m.kind, f"{mf}.kind", KINDS)
+            if m.pair_id is not None:
+                if isinstance(m.pair_id, bool) or not isinstance(m.pair_id, int) or m.pair_id < 0:
+                    c.fail(f"expected a non-negative integer, got {m.pair_id!r}", f"{mf}.pair_id")
+                if pair_ids.setdefault(m.pair_id, i) != i:
+                    c.fail(f"pair id {m.pair_id} is already used by pair[{pair_ids[m.pair_id]}] (another bone)",
+                           f"{mf}.pair_id")
+            if m.type != "single":
+                if m.pair_id is None:
+                    c.fail(f"an {m.type!r} muscle is half of a pair and needs a pair id", f"{mf}.pair_id")
+                if (m.pair_id, m.type) in halves:
+                    c.fail(f"pair id {m.pair_id} already has an {m.type!r} muscle "
+                           f"({p.muscles[halves[m.pair_id, m.type]].name})", f"{mf}.type")
+                halves[m.pair_id, m.type] = j
+            if isinstance(m.count, bool) or not isinstance(m.count, int) or not 1 <= m.count <= MAX_BELLIES:
+                c.fail(f"expected an integer in [1, {MAX_BELLIES}], got {m.count!r}", f"{mf}.count")
+            if m.kind != "multi_belly" and m.count != 1:
+                c.fail(f"count is the number of bellies of a 'multi_belly' muscle; a {m.kind!r} has 1, got "
+                       f"{m.count}", f"{mf}.count")
+            for w in ATTACHMENTS:
+                a = m.attachment(w)
+                if a.joint is not None:
+                    c.label(a.joint, f"{mf}.{w}.parent_joint")
+                if a.position is not None:
+                    pos = a.position
+                    c.choice(pos.type, f"{mf}.{w}.position.type", POSITION_TYPES)
+                    bound, unit = (10.0, " bone lengths") if pos.type == "relative" else (1000.0, " metres")
+                    for axis, v in zip("xyz", pos.xyz):
+                        c.number(v, f"{mf}.{w}.position.{axis}", -bound, bound, unit=unit)
+            t0, t1 = m.span
+            c.number(t0, f"{mf}.span", -0.5, 1.5, unit=" (t0, fraction of the bone)")
+            c.number(t1, f"{mf}.span", -0.5, 1.5, unit=" (t1, fraction of the bone)")
+            if not t0 < t1:
+                c.fail(f"expected t0 < t1, got ({t0:g}, {t1:g})", f"{mf}.span")
+            if m.sector is not None:
+                a0, a1 = m.sector
+                c.number(a0, f"{mf}.sector", -360, 360, unit=" (a0, degrees)")
+                c.number(a1, f"{mf}.sector", -360, 720, unit=" (a1, degrees)")
+                if not a0 < a1 <= a0 + 360:
+                    c.fail(f"expected a0 < a1 <= a0 + 360 degrees, got ({a0:g}, {a1:g})", f"{mf}.sector")
+            for k in ("rim_scale", "bulge_scale", "main_scale"):
+                c.number(getattr(m, k), f"{mf}.{k}", 0, 10, lo_open=True)
+            c.number(m.bulge_position, f"{mf}.bulge_position", 0, 0.5)
+            c.number(m.tone, f"{mf}.tone", 0, 1)
+            c.number(m.nu, f"{mf}.nu", 0, 100)
+            c.number(m.thickness_min, f"{mf}.thickness_min", 0, 0.5, unit=" metres")
+            c.number(m.depth, f"{mf}.depth", 0, 0.5, unit=" metres")
+            jg = m.jiggle
+            c.number(jg.frequency_hz, f"{mf}.jiggle.frequency", 0, 100, lo_open=True, unit=" Hz")
+            c.number(jg.damping_ratio, f"{mf}.jiggle.damping", 0, 10)
+            c.number(jg.goal_tendon, f"{mf}.jiggle.goal_tendon", 0, 1)
+            c.number(jg.goal_belly, f"{mf}.jiggle.goal_belly", 0, 1)
+            c.number(jg.density, f"{mf}.jiggle.density", 100, 5000, unit=" kg/m^3")
+            c.number(jg.strength, f"{mf}.jiggle.strength", 0, 1)
+            c.number(jg.spring_frequency_hz, f"{mf}.jiggle.spring_frequency", 0, 100, unit=" Hz")
+            c.number(jg.spring_damping_ratio, f"{mf}.jiggle.spring_damping", 0, 10)
+            c.number(jg.friction, f"{mf}.jiggle.friction", 0, 100, unit=" 1/s")
+            if not isinstance(m.shell, ShellParams):
+                c.fail(f"expected rig.muscle.shell_params.ShellParams, got {type(m.shell).__name__}", f"{mf}.shell")
+            c.shell(m.shell, f"{mf}.shell")
+    return t
+
+
+def check_labels(template: Template, roles: dict[str, int], joint_names=None) -> None:
+    """Raise InputError when `template` uses a label the skeleton's role map `roles` ({role: joint
+    index}, from ``rig.motion.role_map.resolve_roles``) lacks. The message lists the missing labels with the
+    first field naming each, and the known labels (the roles found, with their joints when
+    `joint_names` is given)."""
+    missing: dict[str, str] = {}
+    for fld, label in _label_uses(template):
+        if label not in roles:
+            missing.setdefault(label, fld)
+    if not missing:
+        return
+    known = []
+    for role in sorted(roles, key=lambda r: ROLES.index(r) if r in ROLES else len(ROLES)):
+        j = roles[role]
+        if joint_names is not None and 0 <= j < len(joint_names):
+            known.append(f"{role} ({joint_names[j]})")
+        else:
+            known.append(role)
+    what = ", ".join(f"{label!r} (at {fld})" for label, fld in missing.items())
+    first = next(iter(missing.values()))
+    raise InputError(f"the skeleton's role map has no joint for template label(s) {what}; known labels: "
+                     f"{', '.join(known) or 'none'} (give a joint map that names the missing roles)",
+                     template.source or None, field=first)
+
+
+# ----------------------------------------------------------------------------------- shared reading
+# TOML key (snake_case) <-> XML attribute (camelCase), per element
+_SECTIONS = (("rim_scale", "rim"), ("bulge_scale", "bulge"), ("main_scale", "main"),
+             ("bulge_position", "bulgePosition"))
+_SHAPE = (("tone", "tone"), ("nu", "nu"), ("thickness_min", "thicknessMin"), ("depth", "depth"),
+          ("count", "count"))
+_JIGGLE = (("frequency", "frequency", "frequency_hz"), ("damping", "damping", "damping_ratio"),
+           ("goal_tendon", "goalTendon", "goal_tendon"), ("goal_belly", "goalBelly", "goal_belly"),
+           ("density", "density", "density"), ("strength", "strength", "strength"),
+           ("spring_frequency", "springFrequency", "spring_frequency_hz"),
+           ("spring_damping", "springDamping", "spring_damping_ratio"), ("friction", "friction", "friction"))
+_SHELL = (("sticky", "sticky"), ("hard", "hard"), ("drop_off", "dropOff"), ("weight", "weight"),
+          ("slippage", "slippage"), ("mode", "mode"))  # ShellParams attribute = TOML key
+_XML_ATTACH = {"origin": "origin", "o_hinge": "oHinge", "i_hinge": "iHinge", "insertion": "insertion"}
+
+
+def _jiggle_of(kind, given: dict) -> Jiggle:
+    """A Jiggle from {snake key: value}, the kind's default filling what is missing."""
+    base = default_jiggle(kind if kind in KINDS else "muscle")
+    return Jiggle(**{attr: given.get(key, getattr(base, attr)) for key, _, attr in _JIGGLE})
+
+
+def _shell_of(kind, given: dict, c: _Checker, fld: str) -> ShellParams:
+    """A ShellParams from {snake key: value} (numbers and a mode string, types already checked), the
+    kind's default filling what is missing; ranges are checked here so that the error names `fld`
+    (``pair[0].muscle[1].shell.sticky``), the file and the line, not just the parameter."""
+    base = default_shell(kind if kind in KINDS else "muscle")
+    values = {attr: given.get(attr, getattr(base, attr)) for attr, _ in _SHELL}
+    c.shell(values, fld)
+    return ShellParams(**values)
+
+
+def _stem(path: str | None) -> str:
+    return os.path.splitext(os.path.basename(path))[0] if path else "template"
+
+
+# ----------------------------------------------------------------------------------- TOML
+def template_from_toml(text: str, path: str | None = None) -> Template:
+    """Parse the TOML form; InputError naming `path` and the field for any problem."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"not valid TOML: {e}", path) from None
+    c = _Checker(path, None)
+
+    def keys(table, fld, allowed, required=()):
+        if not isinstance(table, dict):
+            c.fail(f"expected a table, got {table!r}", fld)
+        extra = [k for k in table if k not in allowed]
+        if extra:
+            c.fail(f"unknown key(s) {', '.join(map(repr, extra))}; expected {', '.join(allowed)}",
+                   f"{fld}.{extra[0]}" if fld else extra[0])
+        for k in required:
+            if k not in table:
+                c.fail(f"missing key {k!r}", f"{fld}.{k}" if fld else k)
+
+    def num(v, fld):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            c.fail(f"expected a number, got {v!r}", fld)
+        return float(v)
+
+    def integer(v, fld):
+        if isinstance(v, bool) or not isinstance(v, int):
+            c.fail(f"expected an integer, got {v!r}", fld)
+        return v
+
+    def string(v, fld):
+        if not isinstance(v, str):
+            c.fail(f"expected a string, got {v!r}", fld)
+        return v
+
+    def pair_of(v, fld, conv):
+        if not isinstance(v, list) or len(v) != 2:
+            c.fail(f"expected a list of two values, got {v!r}", fld)
+        return tuple(conv(x, fld) for x in v)
+
+    def attachment(v, fld):
+        keys(v, fld, ("parent_joint", "position"))
+        pos = None
+        if "position" in v:
+            pv, pf = v["position"], f"{fld}.position"
+            keys(pv, pf, ("type", "x", "y", "z"), required=("type", "x", "y", "z"))
+            pos = Position(string(pv["type"], f"{pf}.type"), tuple(num(pv[a], f"{pf}.{a}") for a in "xyz"))
+        joint = string(v["parent_joint"], f"{fld}.parent_joint") if "parent_joint" in v else None
+        return Attachment(joint, pos)
+
+    muscle_keys = ("name", "pair_id", "type", "kind", "count", *ATTACHMENTS, "span", "sector", "rim_scale",
+                   "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min", "depth", "jiggle", "shell")
+    keys(doc, "", ("name", "pair"), required=("pair",))
+    name = string(doc["name"], "name") if "name" in doc else _stem(path)
+    if not isinstance(doc["pair"], list):
+        c.fail("expected an array of tables [[pair]]", "pair")
+    pairs = []
+    for i, pt in enumerate(doc["pair"]):
+        pf = f"pair[{i}]"
+        keys(pt, pf, ("bone", "partition", "muscle"), required=("bone", "muscle"))
+        parent, child = pair_of(pt["bone"], f"{pf}.bone", string)
+        partition = num(pt["partition"], f"{pf}.partition") if "partition" in pt else 0.0
+        if not isinstance(pt["muscle"], list):
+            c.fail("expected an array of tables [[pair.muscle]]", f"{pf}.muscle")
+        muscles = []
+        for j, mt in enumerate(pt["muscle"]):
+            mf = f"{pf}.muscle[{j}]"
+            keys(mt, mf, muscle_keys, required=("name",))
+            kw = {"name": string(mt["name"], f"{mf}.name")}
+            if "pair_id" in mt:
+                kw["pair_id"] = integer(mt["pair_id"], f"{mf}.pair_id")
+            for k in ("type", "kind"):
+                if k in mt:
+                    kw[k] = string(mt[k], f"{mf}.{k}")
+            if "count" in mt:
+                kw["count"] = integer(mt["count"], f"{mf}.count")
+            for w in ATTACHMENTS:
+                if w in mt:
+                    kw[w] = attachment(mt[w], f"{mf}.{w}")
+            for k in ("span", "sector"):
+                if k in mt:
+                    kw[k] = pair_of(mt[k], f"{mf}.{k}", num)
+            for k in ("rim_scale", "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min",
+                      "depth"):
+                if k in mt:
+                    kw[k] = num(mt[k], f"{mf}.{k}")
+            given = {}
+            if "jiggle" in mt:
+                jf = f"{mf}.jiggle"
+                keys(mt["jiggle"], jf, tuple(k for k, _, _ in _JIGGLE))
+                given = {k: num(v, f"{jf}.{k}") for k, v in mt["jiggle"].items()}
+            kw["jiggle"] = _jiggle_of(kw.get("kind", "muscle"), given)
+            given = {}
+            if "shell" in mt:
+                sf = f"{mf}.shell"
+                keys(mt["shell"], sf, tuple(k for k, _ in _SHELL))
+                given = {k: string(v, f"{sf}.{k}") if k == "mode" else num(v, f"{sf}.{k}")
+                         for k, v in mt["shell"].items()}
+                kw["shell"] = _shell_of(kw.get("kind", "muscle"), given, c, sf)
+            muscles.append(MuscleTemplate(**kw))
+        pairs.append(BoneMusclePair(parent, child, partition, tuple(muscles)))
+    return validate_template(Template(name, tuple(pairs), source=path or ""), path)
+
+
+def _toml_str(s: str) -> str:
+    out = []
+    for ch in s:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04x}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _num_str(v) -> str:
+    return str(v) if isinstance(v, int) and not isinstance(v, bool) else repr(float(v))
+
+
+def template_to_toml(t: Template) -> str:
+    """The TOML form of `t` (every set value written; read back it compares equal)."""
+    validate_template(t)
+    lines = ["# jiggle musculoskeletal template (rig/muscle/template.py describes the fields)",
+             f"name = {_toml_str(t.name)}", ""]
+    for p in t.pairs:
+        lines += ["[[pair]]", f"bone = [{_toml_str(p.parent)}, {_toml_str(p.child)}]",
+                  f"partition = {_num_str(p.partition_deg)}", ""]
+        for m in p.muscles:
+            lines += ["[[pair.muscle]]", f"name = {_toml_str(m.name)}"]
+            if m.pair_id is not None:
+                lines.append(f"pair_id = {m.pair_id}")
+            lines += [f"type = {_toml_str(m.type)}", f"kind = {_toml_str(m.kind)}", f"count = {m.count}"]
+            for w in ATTACHMENTS:
+                a = m.attachment(w)
+                parts = []
+                if a.joint is not None:
+                    parts.append(f"parent_joint = {_toml_str(a.joint)}")
+                if a.position is not None:
+                    x, y, z = a.position.xyz
+                    parts.append(f"position = {{ type = {_toml_str(a.position.type)}, x = {_num_str(x)}, "
+                                 f"y = {_num_str(y)}, z = {_num_str(z)} }}")
+                if parts:
+                    lines.append(f"{w} = {{ {', '.join(parts)} }}")
+            lines.append(f"span = [{_num_str(m.span[0])}, {_num_str(m.span[1])}]")
+            if m.sector is not None:
+                lines.append(f"sector = [{_num_str(m.sector[0])}, {_num_str(m.sector[1])}]")
+            for k in ("rim_scale", "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min"):
+                lines.append(f"{k} = {_num_str(getattr(m, k))}")
+            lines.append(f"depth = {_num_str(m.depth)}")
+            jg = ", ".join(f"{k} = {_num_str(getattr(m.jiggle, attr))}" for k, _, attr in _JIGGLE)
+            lines.append(f"jiggle = {{ {jg} }}")
+            sh = ", ".join(f"{k} = {_toml_str(m.shell.mode) if k == 'mode' else _num_str(getattr(m.shell, k))}"
+                           for k, _ in _SHELL)
+            lines += [f"shell = {{ {sh} }}", ""]
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------- XML
+class _LineTreeBuilder(ET.TreeBuilder):
+    """A TreeBuilder that remembers the line each element starts on (expat knows it while parsing)."""
+
+    def __init__(self):
+        super().__init__()
+        self.expat = None
+        self.lines: dict[int, int] = {}
+
+    def start(self, tag, attrs):
+        elem = super().start(tag, attrs)
+        if self.expat is not None:
+            self.lines[id(elem)] = self.expat.CurrentLineNumber
+        return elem
+
+
+def _parse_xml(data: bytes, path: str | None) -> tuple[ET.Element, dict[int, int]]:
+    """The root element and {id(element): line}; InputError for malformed or hostile XML."""
+    builder = _LineTreeBuilder()
+    parser = DefusedXMLParser(target=builder, forbid_dtd=True, forbid_entities=True, forbid_external=True)
+    builder.expat = parser.parser
+    try:
+        parser.feed(data)
+        root = parser.close()
+    except ET.ParseError as e:
+        line = e.position[0] if getattr(e, "position", None) else None
+        msg = re.sub(r":\s*line \d+, column \d+$", "", str(e))
+        raise InputError(f"not well-formed XML: {msg}", path, line=line) from None
+    except DefusedXmlException as e:
+        line = getattr(parser.parser, "CurrentLineNumber", None)
+        if isinstance(e, DTDForbidden):
+            what = "a document type declaration (<!DOCTYPE ...>)"
+        elif isinstance(e, EntitiesForbidden):
+            what = f"an entity declaration ({e.name!r})"
+        elif isinstance(e, ExternalReferenceForbidden):
+            what = "a reference to an external resource"
+        else:
+            what = "an unsafe construct"
+        raise InputError(f"refused: the XML holds {what}; templates use no DTDs or entities (they could expand "
+                         f"without bound or read other files)", path, line=line) from None
+    return root, builder.lines
+
+
+def template_from_xml(data: bytes | str, path: str | None = None) -> Template:
+    """Parse the XML form (root ``musculoskeletalTemplate``, or a single ``boneMusclePair``);
+    InputError naming `path`, the line and the field for any problem."""
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    root, elem_lines = _parse_xml(data, path)
+    lines: dict[str, int] = {}
+    c = _Checker(path, lines)
+
+    def at(elem, fld):
+        if id(elem) in elem_lines:
+            lines.setdefault(fld, elem_lines[id(elem)])
+        return fld
+
+    def no_text(elem, fld):
+        for text in (elem.text, *(ch.tail for ch in elem)):
+            if text and text.strip():
+                c.fail(f"unexpected text {text.strip()!r} in <{elem.tag}>", fld)
+
+    def children(elem, fld, allowed, repeat=()):
+        """{tag: [elements]} of elem's children; unknown tags and repeats of single ones are errors."""
+        no_text(elem, fld)
+        out: dict[str, list] = {}
+        for ch in elem:
+            if ch.tag not in allowed:
+                at(ch, f"{fld}.{ch.tag}")
+                c.fail(f"unknown element <{ch.tag}> in <{elem.tag}>; expected "
+                       f"{', '.join('<' + a + '>' for a in allowed)}", f"{fld}.{ch.tag}")
+            if ch.tag in out and ch.tag not in repeat:
+                at(ch, f"{fld}.{ch.tag}")
+                c.fail(f"<{ch.tag}> given twice in <{elem.tag}>", f"{fld}.{ch.tag}")
+            out.setdefault(ch.tag, []).append(ch)
+        return out
+
+    def attrs(elem, fld, allowed, required=()):
+        extra = [a for a in elem.attrib if a not in allowed]
+        if extra:
+            c.fail(f"unknown attribute(s) {', '.join(extra)} of <{elem.tag}>; expected "
+                   f"{', '.join(allowed) or 'none'}", fld)
+        for a in required:
+            if a not in elem.attrib:
+                c.fail(f"<{elem.tag}> needs the attribute {a}", fld)
+        return elem.attrib
+
+    def text_of(elem, fld):
+        if len(elem):
+            c.fail(f"<{elem.tag}> holds text only, found <{elem[0].tag}>", fld)
+        text = (elem.text or "").strip()
+        if not text:
+            c.fail(f"<{elem.tag}> is empty", fld)
+        return text
+
+    def num(s, fld):
+        try:
+            return float(s)
+        except ValueError:
+            c.fail(f"expected a number, got {s!r}", fld)
+
+    def integer(s, fld):
+        try:
+            return int(s.strip())
+        except ValueError:
+            c.fail(f"expected an integer, got {s!r}", fld)
+
+    def bone(elem, fld):
+        at(elem, fld)
+        kids = children(elem, fld, ("parentJoint", "childJoint"))
+        for tag in ("parentJoint", "childJoint"):
+            if tag not in kids:
+                c.fail(f"<bone> needs a <{tag}>", fld)
+        return tuple(text_of(kids[t][0], fld) for t in ("parentJoint", "childJoint"))
+
+    def attachment(elem, fld):
+        at(elem, fld)
+        attrs(elem, fld, ())
+        kids = children(elem, fld, ("parentJoint", "position"))
+        joint = pos = None
+        if "parentJoint" in kids:
+            joint = text_of(kids["parentJoint"][0], at(kids["parentJoint"][0], f"{fld}.parent_joint"))
+        if "position" in kids:
+            pe = kids["position"][0]
+            pf = at(pe, f"{fld}.position")
+            for a in ("type", "x", "y", "z"):
+                at(pe, f"{pf}.{a}")
+            a = attrs(pe, pf, ("type", "x", "y", "z"), required=("type", "x", "y", "z"))
+            children(pe, pf, ())
+            pos = Position(a["type"], tuple(num(a[k], f"{pf}.{k}") for k in "xyz"))
+        return Attachment(joint, pos)
+
+    def muscle(elem, mf):
+        at(elem, mf)
+        a = attrs(elem, mf, ("pairId", "type", "kind"))
+        kw = {}
+        if "pairId" in a:
+            kw["pair_id"] = integer(a["pairId"], at(elem, f"{mf}.pair_id"))
+        for k in ("type", "kind"):
+            if k in a:
+                kw[k] = a[k].strip()
+                at(elem, f"{mf}.{k}")
+        kids = children(elem, mf, ("name", *_XML_ATTACH.values(), "span", "sector", "sections", "shape", "jiggle",
+                                           "shell"))
+        if "name" not in kids:
+            c.fail("<muscle> needs a <name>", f"{mf}.name")
+        kw["name"] = text_of(kids["name"][0], at(kids["name"][0], f"{mf}.name"))
+        for w, tag in _XML_ATTACH.items():
+            if tag in kids:
+                kw[w] = attachment(kids[tag][0], f"{mf}.{w}")
+        for k, ends in (("span", ("t0", "t1")), ("sector", ("a0", "a1"))):
+            if k in kids:
+                e = kids[k][0]
+                f = at(e, f"{mf}.{k}")
+                ea = attrs(e, f, ends, required=ends)
+                children(e, f, ())
+                kw[k] = tuple(num(ea[x], f) for x in ends)
+        for tag, table in (("sections", _SECTIONS), ("shape", _SHAPE)):
+            if tag in kids:
+                e = kids[tag][0]
+                at(e, f"{mf}.{tag}")
+                ea = attrs(e, f"{mf}.{tag}", tuple(x for _, x in table))
+                children(e, f"{mf}.{tag}", ())
+                for key, x in table:
+                    if x in ea:
+                        f = at(e, f"{mf}.{key}")
+                        kw[key] = integer(ea[x], f) if key == "count" else num(ea[x], f)
+        given = {}
+        if "jiggle" in kids:
+            e = kids["jiggle"][0]
+            jf = at(e, f"{mf}.jiggle")
+            ea = attrs(e, jf, tuple(x for _, x, _ in _JIGGLE))
+            children(e, jf, ())
+            given = {key: num(ea[x], at(e, f"{jf}.{key}")) for key, x, _ in _JIGGLE if x in ea}
+        kw["jiggle"] = _jiggle_of(kw.get("kind", "muscle"), given)
+        if "shell" in kids:
+            e = kids["shell"][0]
+            sf = at(e, f"{mf}.shell")
+            ea = attrs(e, sf, tuple(x for _, x in _SHELL))
+            children(e, sf, ())
+            given = {key: ea[x].strip() if key == "mode" else num(ea[x], at(e, f"{sf}.{key}"))
+                     for key, x in _SHELL if x in ea}
+            if "mode" in given:
+                at(e, f"{sf}.mode")
+            kw["shell"] = _shell_of(kw.get("kind", "muscle"), given, c, sf)
+        return MuscleTemplate(**kw)
+
+    def pair(elem, i):
+        pf = at(elem, f"pair[{i}]")
+        attrs(elem, pf, ())
+        kids = children(elem, pf, ("bone", "partition", "muscle"), repeat=("muscle",))
+        if "bone" not in kids:
+            c.fail("<boneMusclePair> needs a <bone>", f"{pf}.bone")
+        parent, child = bone(kids["bone"][0], f"{pf}.bone")
+        partition = 0.0
+        if "partition" in kids:
+            e = kids["partition"][0]
+            f = at(e, f"{pf}.partition")
+            partition = num(attrs(e, f, ("angle",), required=("angle",))["angle"], f)
+            children(e, f, ())
+        if "muscle" not in kids:
+            c.fail("<boneMusclePair> has no <muscle>", f"{pf}.muscle")
+        muscles = tuple(muscle(e, f"{pf}.muscle[{j}]") for j, e in enumerate(kids["muscle"]))
+        return BoneMusclePair(parent, child, partition, muscles)
+
+    if root.tag == "boneMusclePair":
+        name, pairs = _stem(path), (pair(root, 0),)
+    elif root.tag == "musculoskeletalTemplate":
+        at(root, "name")
+        name = attrs(root, "name", ("name",)).get("name", _stem(path))
+        kids = children(root, "pair", ("boneMusclePair",), repeat=("boneMusclePair",))
+        pairs = tuple(pair(e, i) for i, e in enumerate(kids.get("boneMusclePair", [])))
+    else:
+        lines["template"] = elem_lines.get(id(root), 1)
+        c.fail(f"the root element is <{root.tag}>; expected <musculoskeletalTemplate> or <boneMusclePair>",
+               "template")
+    return validate_template(Template(name, pairs, source=path or ""), path, lines)
+
+
+def template_to_xml(t: Template) -> str:
+    """The XML form of `t` in the paper's layout (every set value written; read back it compares equal)."""
+    validate_template(t)
+    sub = ET.SubElement
+    root = ET.Element("musculoskeletalTemplate", name=t.name)
+    for p in t.pairs:
+        pe = sub(root, "boneMusclePair")
+        be = sub(pe, "bone")
+        sub(be, "parentJoint").text = p.parent
+        sub(be, "childJoint").text = p.child
+        sub(pe, "partition", angle=_num_str(p.partition_deg))
+        for m in p.muscles:
+            attrib = {} if m.pair_id is None else {"pairId": str(m.pair_id)}
+            me = sub(pe, "muscle", attrib, type=m.type, kind=m.kind)
+            sub(me, "name").text = m.name
+            for w, tag in _XML_ATTACH.items():
+                a = m.attachment(w)
+                if a.joint is None and a.position is None:
+                    continue
+                ae = sub(me, tag)
+                if a.joint is not None:
+                    sub(ae, "parentJoint").text = a.joint
+                if a.position is not None:
+                    x, y, z = (_num_str(v) for v in a.position.xyz)
+                    sub(ae, "position", type=a.position.type, x=x, y=y, z=z)
+            sub(me, "span", t0=_num_str(m.span[0]), t1=_num_str(m.span[1]))
+            if m.sector is not None:
+                sub(me, "sector", a0=_num_str(m.sector[0]), a1=_num_str(m.sector[1]))
+            sub(me, "sections", {x: _num_str(getattr(m, k)) for k, x in _SECTIONS})
+            sub(me, "shape", {x: _num_str(getattr(m, k)) for k, x in _SHAPE})
+            sub(me, "jiggle", {x: _num_str(getattr(m.jiggle, attr)) for _, x, attr in _JIGGLE})
+            sub(me, "shell", {x: m.shell.mode if k == "mode" else _num_str(getattr(m.shell, k)) for k, x in _SHELL})
+    ET.indent(root, "  ")
+    return ('<?xml version="1.0" encoding="utf-8"?>\n'
+            "<!-- jiggle musculoskeletal template (rig/muscle/template.py describes the fields) -->\n"
+            + ET.tostring(root, encoding="unicode") + "\n")
+
+
+# ----------------------------------------------------------------------------------- files
+def _suffix(path: str) -> str:
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix not in SUFFIXES:
+        raise InputError(f"a template file ends in .xml or .toml, got {suffix or 'no suffix'!r}", path)
+    return suffix
+
+
+def _from_bytes(data: bytes, path: str) -> Template:
+    if _suffix(path) == ".xml":
+        return template_from_xml(data, path)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError("not a UTF-8 text file; expected TOML", path) from None
+    return template_from_toml(text, path)
+
+
+def read_template(path: str | os.PathLike) -> Template:
+    """Read a template file (.xml or .toml, by suffix)."""
+    p = os.fspath(path)
+    _suffix(p)
+    p = require_file(p, "template file")
+    with open(p, "rb") as fh:
+        return _from_bytes(fh.read(), p)
+
+
+def write_template(template: Template, path: str | os.PathLike) -> str:
+    """Write `template` to `path` (.xml or .toml, by suffix) atomically (a temporary file in the same
+    folder, then os.replace); return the path."""
+    p = os.fspath(path)
+    text = template_to_xml(template) if _suffix(p) == ".xml" else template_to_toml(template)
+    with atomic_path(p) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
+    return p
+
+
+def builtin_templates() -> list[str]:
+    """Names of the templates shipped in rig/muscle/templates (each in .toml and .xml form)."""
+    folder = importlib.resources.files("rig.muscle") / "templates"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_template(name_or_path: str | os.PathLike, form: str = ".toml") -> Template:
+    """A template from a file path, or a built-in one by name ("human"; `form` ".toml" or ".xml" picks
+    which of its two equal files is read)."""
+    s = os.fspath(name_or_path)
+    if os.path.isfile(s) or os.path.splitext(s)[1] or os.sep in s or "/" in s:
+        return read_template(s)
+    res = importlib.resources.files("rig.muscle") / "templates" / f"{s}{form}"
+    if form not in SUFFIXES or not res.is_file():
+        raise InputError(f"no built-in template named {s!r} (form {form!r}); built-in templates are "
+                         f"{', '.join(builtin_templates())}, or give a path to a .xml or .toml file",
+                         field="template")
+    return _from_bytes(res.read_bytes(), str(res))
+
+
+__all__ = ["Position", "Attachment", "Jiggle", "MuscleTemplate", "BoneMusclePair", "Template", "MUSCLE_JIGGLE",
+           "FAT_JIGGLE", "FAT_DEPTH", "default_jiggle", "default_depth", "validate_template", "check_labels", "template_from_toml",
+           "template_to_toml", "template_from_xml", "template_to_xml", "read_template", "write_template",
+           "load_template", "builtin_templates", "TYPES", "KINDS", "POSITION_TYPES", "ATTACHMENTS"]

@@ -1,0 +1,105 @@
+"""Warp kernel of the influence-object deformer; the launch wrapper is :class:`rig.skin.influence.InfluenceDeformer`,
+the NumPy reference :func:`rig.skin.influence.influence_numpy`.
+
+Everything is float32. Pairs (vertex, muscle) are CSR: vertex ``i`` owns pairs
+``pair_offsets[i] .. pair_offsets[i + 1] - 1``. Muscle ``m`` owns CVs ``40 m .. 40 m + 39`` of the flat
+CV arrays, section-major (section ``k``, ring CV ``j`` at ``8 k + j``).
+
+A pair's loft parameters (w, v) are fixed at bind, so its basis is precomputed there (see
+:class:`rig.muscle.loft_attach.InfluenceBinding`): the 5 section weights of the not-a-knot spline at w and their
+d/dw, and the 4 non-zero weights of the periodic cubic ring basis at v (and d/dv) with the ring index
+of the first. The kernel then evaluates, per section k,
+``R_k = sum_r ring[r] CV[k, (first + r) mod 8]`` (and ``Rv_k`` with ``ring_dv``) and
+``X = sum_k sec[k] R_k``, ``Xw = sum_k sec_dw[k] R_k``, ``Xv = sum_k sec[k] Rv_k``.
+"""
+from __future__ import annotations
+
+import warp as wp
+
+
+@wp.func
+def frame_apply(xw: wp.vec3, xv: wp.vec3, eps: float, offset: wp.vec3):
+    """offset (along e1, e2, n) in the loft frame e1 = unit(Xw), n = unit(Xv x Xw) (outward),
+    e2 = n x e1, as a world vector. An axis is 0 where its vector is too short to normalise: e1 when
+    |Xw| <= eps, n when |Xv x Xw| <= eps |Xw| (the ring's tangent across Xw under eps); eps is the
+    muscle's FRAME_EPS x size (rig.muscle.loft_attach.loft_frame does the same)."""
+    lw = wp.length(xw)
+    e1 = wp.vec3(0.0, 0.0, 0.0)
+    n = wp.vec3(0.0, 0.0, 0.0)
+    if lw > eps:
+        e1 = xw / lw
+        c = wp.cross(xv, xw)
+        lc = wp.length(c)
+        if lc > eps * lw:
+            n = c / lc
+    e2 = wp.cross(n, e1)
+    return offset[0] * e1 + offset[1] * e2 + offset[2] * n
+
+
+@wp.kernel
+def influence_displace(
+    # model
+    pair_offsets: wp.array(dtype=wp.int32),
+    pair_muscle: wp.array(dtype=wp.int32),
+    pair_weight: wp.array(dtype=wp.float32),
+    section: wp.array2d(dtype=wp.float32),
+    section_dw: wp.array2d(dtype=wp.float32),
+    ring_first: wp.array(dtype=wp.int32),
+    ring: wp.array2d(dtype=wp.float32),
+    ring_dv: wp.array2d(dtype=wp.float32),
+    offset: wp.array(dtype=wp.vec3),
+    muscle_eps: wp.array(dtype=wp.float32),
+    # state in
+    points: wp.array(dtype=wp.vec3),
+    cvs_cur: wp.array(dtype=wp.vec3),
+    cvs_ref: wp.array(dtype=wp.vec3),
+    # out
+    positions_out: wp.array(dtype=wp.vec3),
+):
+    """positions_out[i] = points[i] + sum_pairs weight * (attach(cvs_cur) - attach(cvs_ref)), metres,
+    attach = X(w, v) + offset in the loft frame at (w, v).
+
+    The point part is evaluated on the CV differences (X is linear in the CVs), and the derivatives
+    on CVs relative to the muscle's first CV (their weights sum to 0): in float32 that keeps the
+    result exact to the size of the muscle and its motion rather than to the distance from the
+    origin, and exactly 0 where cvs_cur == cvs_ref.
+    """
+    i = wp.tid()
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    for p in range(pair_offsets[i], pair_offsets[i + 1]):
+        weight = pair_weight[p]
+        if weight != 0.0:
+            m = pair_muscle[p]
+            base = m * 40
+            first = ring_first[p]
+            c0 = cvs_cur[base]
+            f0 = cvs_ref[base]
+            dx = wp.vec3(0.0, 0.0, 0.0)
+            xw_cur = wp.vec3(0.0, 0.0, 0.0)
+            xv_cur = wp.vec3(0.0, 0.0, 0.0)
+            xw_ref = wp.vec3(0.0, 0.0, 0.0)
+            xv_ref = wp.vec3(0.0, 0.0, 0.0)
+            for k in range(5):
+                r_cur = wp.vec3(0.0, 0.0, 0.0)
+                r_ref = wp.vec3(0.0, 0.0, 0.0)
+                rv_cur = wp.vec3(0.0, 0.0, 0.0)
+                rv_ref = wp.vec3(0.0, 0.0, 0.0)
+                for r in range(4):
+                    j = base + 8 * k + (first + r) % 8
+                    c = cvs_cur[j] - c0
+                    f = cvs_ref[j] - f0
+                    r_cur += ring[p, r] * c
+                    r_ref += ring[p, r] * f
+                    rv_cur += ring_dv[p, r] * c
+                    rv_ref += ring_dv[p, r] * f
+                # the section and ring weights each sum to 1: X = c0 + sum (section * ring) (CV - c0)
+                dx += section[p, k] * (r_cur - r_ref)
+                xw_cur += section_dw[p, k] * r_cur
+                xw_ref += section_dw[p, k] * r_ref
+                xv_cur += section[p, k] * rv_cur
+                xv_ref += section[p, k] * rv_ref
+            o = offset[p]
+            eps = muscle_eps[m]
+            acc += weight * (c0 - f0 + dx + frame_apply(xw_cur, xv_cur, eps, o)
+                             - frame_apply(xw_ref, xv_ref, eps, o))
+    positions_out[i] = points[i] + acc

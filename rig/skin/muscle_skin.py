@@ -1,0 +1,279 @@
+"""Skin driven by the bones and the muscles: LBS (or DQS), then every muscle's deformer.
+
+    joint world transforms --Skinner (Warp)--------------------------> smooth-skinned positions
+    muscle CVs (static now; jiggled and blended later)
+        --MuscleFrames--> per muscle E_ref (rest ellipsoid riding its bone), E_cur (fitted to the CVs)
+        --ShellDeformer (Warp)--> shells in series on the culled (vertex, muscle) pairs    "shell"
+        --InfluenceDeformer (Warp)--> the muscle surface carries its bound vertices         "influence"
+    or, with no smooth skinning at all, feature points anchored to the bones and muscles drive a
+    zoned RBF interpolation of the whole skin (rig.skin.rbf_skin.RBFSkin, Simmons et al. 2002)    "rbf"
+
+The artist's skin is kept: both deformers act on the change of each muscle relative to the bone it
+rides (rig/skin/shell/shells.py says how the paper's absolute shells became relative), so at the bind pose with
+the muscles at rest the result is the smooth-skinned skin, which at bind is the artist's skin.
+
+Built once (`MuscleSkin(...)`): the Skinner's rest mesh and weights, the muscle frames, the pair list
+culled at bind, the painted weights and the deformer's device arrays. Per frame (`pose`): one launch
+for the skinning, a few NumPy operations over all muscles at once for their frames, one launch for the
+deformer; nothing loops in Python over muscles, pairs or vertices.
+
+Per chunk of T frames (`pose_batch`, `lbs_batch`: the bake), for S sets of muscle states (e.g. the
+static and the blended CVs): one LBS/DQS launch for the T frames, shared by the sets, the frames of
+all sets and frames in a few NumPy operations (the bones' part once), one upload and one shell launch
+for all sets and frames. Influence objects still launch once per frame and set.
+"""
+from __future__ import annotations
+
+import warnings
+from typing import Sequence
+
+import numpy as np
+import warp as wp
+
+from rig.base.errors import InputError, JiggleWarning
+from rig.character.character import Character
+from rig.muscle.loft_attach import bind_influence
+from rig.muscle.model import MuscleRig
+from rig.muscle.shell_params import ShellParams, default_shell
+from rig.skin.influence import InfluenceDeformer
+from rig.skin.shell.deformer import ShellBatch, ShellDeformer
+from rig.skin.shell.frames import MuscleFrames
+from rig.skin.shell.shells import beta, cull_pairs, shell_table
+from rig.skin.skinning import character_skinner
+
+SKINNING = ("shell", "influence", "rbf")
+"""How the muscles move the skin: the shell deformers (Pratscher et al.), influence objects (the
+thesis's Maya setup), or anatomy-driven RBF interpolation (Simmons et al.; no LBS underneath)."""
+
+
+class MuscleSkin:
+    """A character's skin over its bones and muscles.
+
+    Parameters
+    ----------
+    character : the skinned character (rest skin, weights, bind transforms).
+    rig : its muscles (rig.muscle.model.MuscleRig), in the character's joint order.
+    shells : one ShellParams per muscle, or None for each kind's default (rig.muscle.shell_params.default_shell).
+    skinning : "shell" (default), "influence" or "rbf" (`method`, `weights`, `margin` and `star` do not
+        apply to it; `rbf` takes rig.skin.rbf_skin.RBFSkinOptions, `segmentation` and `roles` save their
+        recomputation).
+    method : "lbs" (default) or "dqs", the smooth skinning underneath.
+    weights : (V, M) painted per-vertex weights w_i in [0, 1] (rig.skin.shell.weights), or None for 1.
+        Influence objects multiply them by the muscle's overall weight w and the shell fall-off beta
+        at bind, so a muscle's pull fades out smoothly at the edge of the region it binds.
+    margin : culling margin: a (vertex, muscle) pair is kept when the vertex lies within
+        (1 + d)(1 + margin) of the muscle's rest ellipsoid (local units) at bind.
+    star : give each deformer its muscle's star-shaped offsets (Pratscher et al. 4.3.2).
+    device : Warp device.
+    """
+
+    def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
+                 skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
+                 margin: float = 0.25, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
+                 roles=None):
+        if skinning not in SKINNING:
+            raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
+        if method not in ("lbs", "dqs"):
+            raise InputError(f"expected 'lbs' or 'dqs', got {method!r}", field="method")
+        if rig.num_joints != character.num_joints:
+            raise InputError(f"the muscle rig has {rig.num_joints} joints, the character {character.num_joints}",
+                             field="rig")
+        if not (np.isfinite(margin) and margin >= 0.0):
+            raise InputError(f"expected a number >= 0, got {margin}", field="margin")
+        M, V = rig.M, character.num_vertices
+        shells = [default_shell(k) for k in rig.kinds] if shells is None else list(shells)
+        if len(shells) != M or not all(isinstance(s, ShellParams) for s in shells):
+            raise InputError(f"expected {M} ShellParams, one per muscle, got {len(shells)}", field="shells")
+        painted = np.ones((V, M), np.float32) if weights is None else np.asarray(weights, np.float32)
+        if painted.shape != (V, M):
+            raise InputError(f"expected ({V}, {M}) weights (vertices, muscles), got {painted.shape}",
+                             field="weights")
+        if not np.all((painted >= 0.0) & (painted <= 1.0)):
+            raise InputError("painted weights must lie in [0, 1] (and not be NaN)", field="weights")
+
+        self.character, self.rig, self.shells = character, rig, tuple(shells)
+        self.skinning, self.method, self.device = skinning, method, wp.get_device(device)
+        self.frames = MuscleFrames.build(rig, character.bind_world, star=star)
+        self.table = shell_table(shells, star=self.frames.star if star else None,
+                                 star_index=self.frames.star_index if star else None)
+        self.skinner = character_skinner(character, device)
+        if skinning == "rbf":  # the feature points carry the muscles: no (vertex, muscle) pairs to cull
+            from rig.skin.rbf_skin import RBFSkin, RBFSkinOptions
+            self.pair_offsets, self.pair_muscle = np.zeros(V + 1, np.int64), np.zeros(0, np.int64)
+            self.pair_weight = np.zeros(0, np.float32)
+            self.deformer = RBFSkin(character, rig, segmentation=segmentation, roles=roles,
+                                    options=rbf or RBFSkinOptions(), device=device)
+            return
+        offsets, muscle = cull_pairs(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
+                                     star=self.table.star, star_index=self.table.star_index)
+        vertex = np.repeat(np.arange(V), np.diff(offsets))
+        pair_w = painted[vertex, muscle]
+        self.pair_offsets, self.pair_muscle = offsets, muscle
+        if skinning == "shell":
+            self.pair_weight = pair_w.astype(np.float32)
+            self.deformer = ShellDeformer(self.table, offsets, muscle, self.pair_weight, device=device)
+        else:
+            self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
+            binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
+            self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device)
+
+    @classmethod
+    def from_musculature(cls, mus, *, weights=None, character_path=None, **kw) -> "MuscleSkin":
+        """The skin of a fitted musculature (rig.muscle.fit), each muscle's deformer from its template
+        entry. `weights`: a painted weights file (.npz, rig.skin.shell.weights), an array (V, M), or None for
+        the file beside `character_path` when there is one, else 1. Other keywords as the constructor."""
+        from rig.skin.shell.weights import find_weights, load_weights
+        names = mus.rig.names
+        if weights is None and character_path is not None:
+            weights = find_weights(character_path)
+        if weights is not None and not isinstance(weights, np.ndarray):
+            weights = load_weights(weights, names, mus.character.num_vertices)
+        shells = [m.spec.shell for m in mus.muscles]
+        if kw.get("skinning") == "rbf":
+            kw = {"segmentation": mus.segmentation, "roles": mus.roles, **kw}
+        return cls(mus.character, mus.rig, shells, weights=weights, **kw)
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def num_pairs(self) -> int:
+        """The (vertex, muscle) pairs kept at bind."""
+        return len(self.pair_muscle)
+
+    def pairs_per_muscle(self) -> np.ndarray:
+        """(M,) number of vertices each muscle may move."""
+        return np.bincount(self.pair_muscle, minlength=self.rig.M)
+
+    def _bind_falloff(self, vertex: np.ndarray, muscle: np.ndarray) -> np.ndarray:
+        """(P,) the shell attenuation beta of each pair's vertex at bind (influence weights fade with it)."""
+        E_inv = np.linalg.inv(self.frames.E_rest)[muscle]
+        p = np.einsum("pij,pj->pi", E_inv[:, :3, :3], self.character.vertices[vertex]) + E_inv[:, :3, 3]
+        r = np.linalg.norm(p, axis=1)
+        t = self.table
+        return t.weight[muscle] * beta(r, t.hard[muscle], t.drop_off[muscle])
+
+    # ------------------------------------------------------------------ per frame
+    def lbs(self, world: np.ndarray) -> np.ndarray:
+        """Smooth skinning alone, (V, 3) float32 metres, for joint world transforms (J, 4, 4)."""
+        return self.skinner.skin(self.character.skin_matrices(world), self.method)
+
+    def pose(self, world: np.ndarray, cvs: np.ndarray | None = None, curve: np.ndarray | None = None,
+             frame: int | None = None) -> np.ndarray:
+        """Deformed skin (V, 3) float32 metres.
+
+        world : (J, 4, 4) rigid joint world transforms, metres, the character's joint order.
+        cvs : (N, 3) the muscles' section CVs this frame (static, jiggled or blended), metres; None:
+            the static shape for `world` (MuscleRig.static).
+        curve : (M, 5, 3) the action-curve CVs; None: the static ones for `world`.
+        frame : the frame's index, only for the warning that names a muscle skipped this frame.
+        """
+        world = np.asarray(world, dtype=np.float64)
+        if self.skinning == "rbf":  # the features ride the CVs; the action curve is not needed
+            cvs = self.rig.static(world).cvs if cvs is None else cvs
+            return self.deformer.pose(world, self._finite_cvs(cvs, world, frame))
+        if cvs is None or curve is None:
+            static = self.rig.static(world)
+            cvs = static.cvs if cvs is None else cvs
+            curve = static.curve if curve is None else curve
+        points = self.skinner.launch(self.character.skin_matrices(world), self.method)
+        if self.skinning == "shell":
+            fr, skipped = self.frames.frame(world, cvs, curve, frame=frame or 0)
+            for s in skipped:
+                warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning, stacklevel=2)
+            out = self.deformer.launch(points, fr)
+        else:
+            cvs = np.asarray(cvs, dtype=np.float64)
+            ref = self.frames.carried_rest_cvs(world)
+            bad = ~np.isfinite(cvs.reshape(self.rig.M, -1)).all(axis=1)
+            if bad.any():
+                self._warn(np.nonzero(bad)[0], frame, "its CVs hold NaN or inf")
+                cvs = np.where(np.repeat(bad, self.rig.CVS_PER_MUSCLE)[:, None], ref, cvs)
+            out = self.deformer.launch(points, cvs, ref)
+        result = out.numpy()
+        return result.copy() if self.device.is_cpu else result
+
+    def lbs_batch(self, world: np.ndarray) -> np.ndarray:
+        """Smooth skinning alone of T frames, (T, V, 3) float32 metres, for joint world transforms
+        (T, J, 4, 4): `lbs` frame by frame, in one upload and one launch."""
+        world = self._check_world_batch(world)
+        return self.skinner.skin_batch(self.character.skin_matrices(world), self.method)
+
+    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0) -> list[np.ndarray]:
+        """Deformed skins of T frames for S sets of muscle states: S arrays (T, V, 3) float32 metres.
+
+        world : (T, J, 4, 4) rigid joint world transforms, metres, the character's joint order.
+        cvs_sets : S arrays (T, N, 3) of section CVs, metres (e.g. the static and the blended CVs);
+            None: the static CVs for `world`.
+        curves : S arrays (T, M, 5, 3) of action-curve CVs, metres; None: the static ones.
+        first_frame : index of world[0], for the warnings naming a muscle skipped at a frame.
+
+        Set s at frame t equals ``pose(world[t], cvs_sets[s][t], curves[s][t], frame=first_frame + t)``
+        to float32 rounding. The smooth skin is computed once for all sets (one launch for the T
+        frames), the muscle frames of every set and frame in a few NumPy operations (the bones' part
+        and the reference centres' curve parameters shared by sets over one curve), then one upload
+        and one shell launch for all sets and frames. Influence objects ("influence") launch once per
+        frame and set (acceptable: the bake's default is the shells).
+        """
+        world = self._check_world_batch(world)
+        S = len(cvs_sets)
+        if S == 0 or len(curves) != S:
+            raise InputError(f"expected as many curves as CVs sets (at least one), got {len(curves)} and {S}",
+                             field="curves")
+        T, V = len(world), self.character.num_vertices
+        if T == 0:
+            return [np.zeros((0, V, 3), np.float32) for _ in range(S)]
+        if any(c is None for c in cvs_sets) or any(k is None for k in curves):
+            static = self.rig.static(world)
+            cvs_sets = [static.cvs if c is None else c for c in cvs_sets]
+            curves = [static.curve if k is None else k for k in curves]
+        if self.skinning == "rbf":
+            return self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
+        points = self.skinner.launch_batch(self.character.skin_matrices(world), self.method)  # (T, V)
+        if self.skinning == "shell":
+            arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame)
+            for sk in skipped:
+                for s in sk:
+                    warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
+                                  stacklevel=2)
+            out = self.deformer.launch_batch(points, ShellBatch(*arrays)).numpy()        # (S, T, V, 3)
+            return [out[s].copy() for s in range(S)]
+        # influence objects: one launch per frame and set over the shared smooth skin
+        ref = self.frames.carried_rest_cvs(world)                                          # (T, N, 3)
+        out = [np.empty((T, V, 3), np.float32) for _ in range(S)]
+        for s in range(S):
+            cvs = np.asarray(cvs_sets[s], dtype=np.float64)
+            if cvs.shape != ref.shape:
+                raise InputError(f"expected CVs {ref.shape}, got {cvs.shape}", field="cvs_sets")
+            bad = ~np.isfinite(cvs.reshape(T, self.rig.M, -1)).all(axis=2)                 # (T, M)
+            for t in range(T):
+                c = cvs[t]
+                if bad[t].any():
+                    self._warn(np.nonzero(bad[t])[0], first_frame + t, "its CVs hold NaN or inf")
+                    c = np.where(np.repeat(bad[t], self.rig.CVS_PER_MUSCLE)[:, None], ref[t], c)
+                out[s][t] = self.deformer.launch(points[t], c, ref[t]).numpy()
+        return out
+
+    def _finite_cvs(self, cvs, world: np.ndarray, first_frame: int | None) -> np.ndarray:
+        """CVs (N, 3) or (T, N, 3) with every muscle holding NaN or inf put back on its rest shape carried
+        by its bone (with the warning that names it), so the RBF skin stays finite."""
+        cvs = np.asarray(cvs, dtype=np.float64)
+        bad = ~np.isfinite(cvs.reshape(cvs.shape[:-2] + (self.rig.M, -1))).all(axis=-1)
+        if not bad.any():
+            return cvs
+        ref = self.frames.carried_rest_cvs(world)
+        rows = np.repeat(bad, self.rig.CVS_PER_MUSCLE, axis=-1)[..., None]
+        for t, m in zip(*np.nonzero(bad.reshape(-1, self.rig.M))):
+            self._warn([m], None if first_frame is None else first_frame + int(t), "its CVs hold NaN or inf")
+        return np.where(rows, ref, cvs)
+
+    def _check_world_batch(self, world) -> np.ndarray:
+        world = np.asarray(world, dtype=np.float64)
+        J = self.character.num_joints
+        if world.ndim != 4 or world.shape[1:] != (J, 4, 4):
+            raise InputError(f"expected (T, {J}, 4, 4) joint world transforms, got {world.shape}", field="world")
+        return world
+
+    def _warn(self, muscles, frame, why: str) -> None:
+        names = ", ".join(repr(self.rig.names[m]) for m in muscles)
+        at = "" if frame is None else f" at frame {frame}"
+        warnings.warn(f"muscle {names} skipped{at}: {why}; the skin there follows the bones only",
+                      JiggleWarning, stacklevel=3)

@@ -1,0 +1,542 @@
+"""`jiggle compare OUT_DIR`: what the jiggle did to a bake, as numbers, plots, pictures and one report.
+
+Reads OUT_DIR/bake.npz (sim.bake.caches) and writes into OUT_DIR, each file atomically (rig.base.atomic), an
+earlier run's outputs replaced:
+
+metrics.json      the numbers below, strict JSON (no NaN: a missing value is null), units in key names
+displacement.npz  per-vertex skin displacement: max_m (V,) and rms_m (V,) float32 metres, over time
+amplitude.png     per-muscle jiggle amplitude over time (the largest 8 labelled, the rest grey)
+energy.png        per-muscle jiggle energy over time
+spectrum.png      per-muscle amplitude spectrum, the dominant frequency marked
+displacement.png  the skin's largest and RMS displacement per frame, and a histogram over vertices
+peak.png          static | dynamic skin at the peak frame (sim.app.compare_render), unless render=False
+clip.mp4          the same over the whole clip (clip.gif when ffmpeg fails), unless render/video False
+report.html       one self-contained page with all of it (sim.app.report)
+
+Definitions (the bake's muscle CVs are the *blended* ones, so everything here is what the skin gets):
+
+- skin displacement of vertex v at frame t: |skin_final - skin_static| (metres);
+- muscle amplitude a_m(t): the largest CV distance |dynamic - static| over the muscle's CVs;
+  its RMS is sqrt(mean_t a_m(t)^2);
+- jiggle energy (see :func:`muscle_energy`), the dominant frequency (see :func:`muscle_spectrum`);
+- settle time: as `jiggle simulate` (sim.app.jiggle_outputs.settle_time).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from typing import Callable
+
+import numpy as np
+
+from rig.base.atomic import atomic_path
+from rig.base.errors import InputError
+from sim.app.jiggle_outputs import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
+from sim.bake.caches import BakeData, read_npz
+
+FORMAT = "jiggle.compare/1"
+BAKE = "bake.npz"
+PARTIAL = ".partial"
+STILL = 1e-6
+"""metres: a muscle whose amplitude never exceeds this (a micrometre) does not move (no frequency)."""
+MIN_FRAMES = 8
+"""Fewer frames than this give no dominant frequency."""
+MIN_CYCLES = 2
+"""A dominant frequency needs at least this many periods in the clip; a slower peak in the spectrum
+cannot be told from a drift, so the frequency is then None ("too short to resolve")."""
+TOP = 8
+"""Muscles labelled in the plots (the largest peaks)."""
+
+
+
+# ---------------------------------------------------------------------------------------- input
+def load_bake(out_dir: str | os.PathLike) -> BakeData:
+    """OUT_DIR/bake.npz read back; InputError naming the path for a missing folder or cache and for
+    an unfinished bake (only a `.partial/` folder there)."""
+    out_dir = os.fspath(out_dir)
+    if not os.path.exists(out_dir):
+        raise InputError(f"no such folder; run `jiggle bake ... --out {out_dir}` first", out_dir)
+    if not os.path.isdir(out_dir):
+        raise InputError("expected the folder a bake wrote (jiggle bake --out OUT_DIR), found a file",
+                         out_dir)
+    path = os.path.join(out_dir, BAKE)
+    if not os.path.exists(path):
+        if os.path.isdir(os.path.join(out_dir, PARTIAL)):
+            raise InputError(f"the bake is unfinished (only {PARTIAL}/ is there, no {BAKE}); run "
+                             f"`jiggle bake --resume --out {out_dir}` to finish it", out_dir)
+        raise InputError(f"no {BAKE} here; run `jiggle bake ... --out {out_dir}` first", path)
+    return read_npz(path)
+
+
+def _number(value, least: float = 0.0, strict: bool = True) -> float | None:
+    """A finite float above `least` (at least `least` when not strict) from hand-written params, else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    value = float(value)
+    ok = math.isfinite(value) and (value > least if strict else value >= least)
+    return value if ok else None
+
+
+def read_params(text: str, names) -> tuple[dict, list[dict]]:
+    """The bake's params JSON as (whole dict, one dict per muscle of `names`: mass_kg, frequency_hz,
+    damping_ratio, kind, each None when absent or unusable). Tolerant: test data may lack any key."""
+    try:
+        params = json.loads(text)
+    except ValueError:
+        params = {}
+    params = params if isinstance(params, dict) else {}
+    table = params.get("muscles")
+    table = table if isinstance(table, dict) else {}
+    muscles = []
+    for name in names:
+        entry = table.get(name)
+        entry = entry if isinstance(entry, dict) else {}
+        kind = entry.get("kind")
+        muscles.append({"mass_kg": _number(entry.get("mass_kg")),
+                        "frequency_hz": _number(entry.get("frequency_hz")),
+                        "damping_ratio": _number(entry.get("damping_ratio"), strict=False),
+                        "kind": kind if isinstance(kind, str) else None})
+    return params, muscles
+
+
+# ---------------------------------------------------------------------------------------- skin
+def skin_displacement(static: np.ndarray, final: np.ndarray, chunk: int = 32) -> np.ndarray:
+    """(T, V) float32 metres: |final - static| per frame and vertex, from (T, V, 3) skins.
+
+    Differences are taken in float64 a few frames at a time, so a long bake needs no (T, V, 3)
+    float64 temporary."""
+    T, V = static.shape[:2]
+    out = np.empty((T, V), np.float32)
+    for a in range(0, T, chunk):
+        d = final[a:a + chunk].astype(np.float64) - static[a:a + chunk]
+        out[a:a + chunk] = np.sqrt(np.einsum("tvi,tvi->tv", d, d))
+    return out
+
+
+def _summary(x: np.ndarray) -> dict:
+    """max, mean, p50, p95, p99 of x (metres) in mm."""
+    if x.size == 0:
+        return {k: None for k in ("max_mm", "mean_mm", "p50_mm", "p95_mm", "p99_mm")}
+    p50, p95, p99 = np.percentile(x, (50, 95, 99))
+    return {"max_mm": 1e3 * float(x.max()), "mean_mm": 1e3 * float(x.mean()),
+            "p50_mm": 1e3 * float(p50), "p95_mm": 1e3 * float(p95), "p99_mm": 1e3 * float(p99)}
+
+
+def skin_metrics(disp: np.ndarray, times: np.ndarray, chunk: int = 32) -> tuple[dict, dict, dict]:
+    """From disp (T, V) metres: (skin facts, peak-frame facts, arrays).
+
+    arrays: max_m / rms_m (V,) per vertex over time, frame_max_m / frame_rms_m (T,) per frame over
+    vertices (float64). The peak frame is the frame whose largest vertex displacement is largest.
+    Squares are summed in float64 a few frames at a time (no (T, V) float64 copy)."""
+    T, V = disp.shape
+    vmax = disp.max(axis=0).astype(np.float64) if V else np.zeros(0)
+    fmax = disp.max(axis=1).astype(np.float64) if V else np.zeros(T)
+    sq_v, sq_f = np.zeros(V), np.zeros(T)
+    for a in range(0, T, chunk):
+        d2 = disp[a:a + chunk].astype(np.float64) ** 2
+        sq_v += d2.sum(axis=0)
+        sq_f[a:a + chunk] = d2.sum(axis=1)
+    vrms = np.sqrt(sq_v / T)
+    frms = np.sqrt(sq_f / V) if V else np.zeros(T)
+    k = int(np.argmax(fmax))
+    v = int(np.argmax(disp[k])) if V else None
+    skin = {"displacement": "|skin_final - skin_static| per vertex and frame",
+            "max_mm": 1e3 * float(fmax[k]), "mean_mm": 1e3 * float(disp.mean(dtype=np.float64)) if V else None,
+            "max_vertex": v, "max_frame": k, "max_time_s": float(times[k]),
+            "per_vertex_max": _summary(vmax), "per_vertex_rms": _summary(vrms)}
+    peak = {"frame": k, "time_s": float(times[k]),
+            "rule": "the frame whose largest vertex displacement is largest",
+            "max_mm": 1e3 * float(fmax[k]), "rms_mm": 1e3 * float(frms[k]),
+            "total_frame": int(np.argmax(frms)),
+            "total_rule": "total_frame: the frame with the largest RMS (total) displacement over vertices"}
+    return skin, peak, {"max_m": vmax, "rms_m": vrms, "frame_max_m": fmax, "frame_rms_m": frms}
+
+
+# ---------------------------------------------------------------------------------------- muscles
+def muscle_offsets(data: BakeData) -> np.ndarray:
+    """(T, N, 3) float64 metres: every CV's offset d = dynamic - static."""
+    return data.muscle_cvs_dynamic.astype(np.float64) - data.muscle_cvs_static
+
+
+def muscle_amplitude(d: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(T, M) metres: each muscle's largest CV distance |d| per frame (0 for a muscle without CVs).
+
+    d : (T, N, 3) metres, CV offsets. offsets : (M + 1,) muscle m owns CVs offsets[m]:offsets[m + 1]."""
+    dist = np.linalg.norm(d, axis=2)
+    M = len(offsets) - 1
+    out = np.zeros((d.shape[0], M))
+    for m in range(M):                  # analysis after the bake, a few dozen muscles: clarity first
+        a, b = offsets[m], offsets[m + 1]
+        if b > a:
+            out[:, m] = dist[:, a:b].max(axis=1)
+    return out
+
+
+def muscle_energy(d: np.ndarray, times: np.ndarray, offsets: np.ndarray, masses: np.ndarray,
+                  omegas: np.ndarray) -> np.ndarray:
+    """(T, M) jiggle energy per muscle and frame: J (or J/kg with masses of 1, see below).
+
+    Each CV is a harmonic oscillator around its goal (the static CV), so its energy is kinetic plus
+    spring energy of the offset::
+
+        E_m(t) = sum over CVs c of muscle m of 0.5 m_c (|v_c(t)|^2 + w_m^2 |d_c(t)|^2)
+
+    d : (T, N, 3) metres, d_c = dynamic - static. v_c = dd_c/dt (m/s) by central differences over
+        `times` (np.gradient; one-sided at the ends; 0 for a single frame).
+    times : (T,) seconds. offsets : (M + 1,) CV ranges.
+    masses : (M,) kg, the muscle's mass shared evenly by its CVs (m_c = mass / CVs); 1 for J/kg.
+    omegas : (M,) rad/s, w = 2 pi frequency_hz of the muscle's goal spring: the nominal one (a
+        particle's own also scales with its goal weight and the strength, sim.jiggle.params), so the
+        spring term is the energy of a muscle-wide oscillator, comparable between muscles and bakes.
+    """
+    T = d.shape[0]
+    v = np.gradient(d, times, axis=0) if T > 1 else np.zeros_like(d)
+    per_cv = np.einsum("tni,tni->tn", v, v), np.einsum("tni,tni->tn", d, d)
+    M = len(offsets) - 1
+    out = np.zeros((T, M))
+    for m in range(M):
+        a, b = offsets[m], offsets[m + 1]
+        if b > a:
+            m_c = masses[m] / (b - a)
+            out[:, m] = 0.5 * m_c * (per_cv[0][:, a:b].sum(axis=1) + omegas[m] ** 2 * per_cv[1][:, a:b].sum(axis=1))
+    return out
+
+
+def muscle_spectrum(d: np.ndarray, offsets: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """(freqs (K,) Hz, amplitude (K, M) metres): each muscle's amplitude spectrum.
+
+    Every CV offset component (x, y, z) minus its mean over time is Hann-windowed and Fourier
+    transformed over the frames (taken as evenly spaced at fps, K = T // 2 + 1 bins of fps / T Hz);
+    the powers are summed over xyz and averaged over the muscle's CVs, so a muscle's spectrum is the
+    RMS over its CVs of their vector amplitude: a CV swinging A sin(2 pi f t) along any direction gives
+    A at f (the window's gain is divided out). Summing powers (not averaging offset vectors) keeps
+    modes in which CVs move against each other (a belly breathing in and out)."""
+    T = d.shape[0]
+    freqs = np.fft.rfftfreq(T, 1.0 / fps)
+    M = len(offsets) - 1
+    amp = np.zeros((len(freqs), M))
+    if T < 2:
+        return freqs, amp
+    w = np.hanning(T)
+    gain = w.sum() / 2.0                    # a unit sinusoid's peak |X| under the window
+    for m in range(M):
+        a, b = offsets[m], offsets[m + 1]
+        if b > a:
+            x = d[:, a:b] - d[:, a:b].mean(axis=0)
+            X = np.fft.rfft(x * w[:, None, None], axis=0)
+            amp[:, m] = np.sqrt((np.abs(X) ** 2).sum(axis=2).mean(axis=1)) / gain
+    return freqs, amp
+
+
+def dominant_frequency(freqs: np.ndarray, amp: np.ndarray, frames: int, moving: bool) -> float | None:
+    """Hz of the largest peak of one spectrum amp (K,), refined by a parabola through the log
+    amplitudes of the peak bin and its neighbours; None when the muscle does not move, the clip has
+    fewer than MIN_FRAMES frames, or the peak lies below MIN_CYCLES periods per clip."""
+    if not moving or frames < MIN_FRAMES or len(amp) < 3 or not np.any(amp[1:] > 0):
+        return None
+    k = 1 + int(np.argmax(amp[1:]))
+    if k < MIN_CYCLES:
+        return None
+    delta = 0.0
+    if k + 1 < len(amp) and amp[k - 1] > 0 and amp[k + 1] > 0:
+        lo, mid, hi = np.log(amp[k - 1]), np.log(amp[k]), np.log(amp[k + 1])
+        den = lo - 2.0 * mid + hi
+        delta = float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5)) if den < 0 else 0.0
+    return float(freqs[k] + delta * (freqs[1] - freqs[0]))
+
+
+# ---------------------------------------------------------------------------------------- analysis
+def analyse(data: BakeData) -> dict:
+    """Everything compare measures, before anything is written. Keys (arrays float64 unless said):
+
+    params, per_muscle : read_params of the bake's params.
+    disp : (T, V) float32 metres, skin displacement; skin, peak, skin_arrays : skin_metrics of it.
+    amplitude (T, M) metres; freqs (K,) Hz and spectrum (K, M) metres (muscle_spectrum);
+    dominant_hz : M floats or None; energy (T, M) in energy_unit ("J", or "J/kg" when any muscle
+    lacks mass_kg, so that one plot has one unit); order : muscle indices, largest peak first;
+    muscles : name -> JSON-ready facts, in that order.
+    """
+    T, V = data.skin_static.shape[:2]
+    times, names, offsets = data.times, list(data.muscle_names), data.muscle_cv_offsets
+    params, per_muscle = read_params(data.params, names)
+    disp = skin_displacement(data.skin_static, data.skin_final)
+    skin, peak, arrays = skin_metrics(disp, times)
+
+    d = muscle_offsets(data)
+    amp = muscle_amplitude(d, offsets)
+    freqs, spectrum = muscle_spectrum(d, offsets, data.fps)
+    peaks = amp.max(axis=0)
+    dominant = [dominant_frequency(freqs, spectrum[:, m], T, bool(peaks[m] > STILL)) for m in range(len(names))]
+    # masses: all muscles in J only when every muscle has one, so the energy plot has one unit
+    per_kg = any(p["mass_kg"] is None for p in per_muscle)
+    masses = np.array([1.0 if per_kg else p["mass_kg"] for p in per_muscle])
+    omega_src = [("params", p["frequency_hz"]) if p["frequency_hz"] is not None else
+                 ("measured", dominant[m]) if dominant[m] is not None else (None, 0.0)
+                 for m, p in enumerate(per_muscle)]
+    omegas = np.array([2.0 * np.pi * f for _, f in omega_src])
+    energy = muscle_energy(d, times, offsets, masses, omegas)
+    energy_unit = "J/kg" if per_kg else "J"
+    order = [int(i) for i in np.argsort(-peaks, kind="stable")]
+
+    muscles = {}
+    for m in order:
+        a, e, p = amp[:, m], energy[:, m], per_muscle[m]
+        k, ke = int(np.argmax(a)), int(np.argmax(e))
+        settle = settle_time(times, a, k) if a[k] > STILL else 0.0
+        muscles[names[m]] = {
+            "kind": p["kind"], "cvs": int(offsets[m + 1] - offsets[m]),
+            "peak_mm": 1e3 * a[k], "peak_time_s": times[k], "peak_frame": k,
+            "rms_mm": 1e3 * math.sqrt(float((a ** 2).mean())), "end_mm": 1e3 * a[-1],
+            "peak_energy_j": e[ke], "peak_energy_time_s": times[ke], "mean_energy_j": float(e.mean()),
+            "dominant_hz": dominant[m], "settle_s": settle,
+            "mass_kg": p["mass_kg"], "frequency_hz": p["frequency_hz"], "damping_ratio": p["damping_ratio"],
+            "energy_frequency_hz": omega_src[m][1] if omega_src[m][0] else None,
+            "energy_frequency_from": omega_src[m][0],
+        }
+    return {"params": params, "per_muscle": per_muscle, "disp": disp, "skin": skin, "peak": peak,
+            "skin_arrays": arrays, "amplitude": amp, "freqs": freqs, "spectrum": spectrum, "dominant_hz": dominant,
+            "energy": energy, "energy_unit": energy_unit, "order": order, "muscles": muscles}
+
+
+# ---------------------------------------------------------------------------------------- plots
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(fig, path: str) -> str:
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    _pyplot().close(fig)
+    return path
+
+
+def _curves(ax, times, values, names, order, top):
+    """The `top` first muscles of `order` as labelled lines, the rest thin grey without a label."""
+    for m in order[top:]:
+        ax.plot(times, values[:, m], color="0.75", lw=0.7)
+    for m in order[:top]:
+        ax.plot(times, values[:, m], lw=1.4, label=names[m])
+    _legend(ax, order)
+    ax.grid(alpha=0.3)
+    ax.set_xlabel("time (s)")
+
+
+def _legend(ax, order):
+    """The legend right of the axes, where it hides no curve."""
+    if len(order):
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+
+
+def plot_amplitude(path, times, amp, names, order, top=TOP, title=""):
+    """amplitude.png: amplitude (T, M) metres over time, shown in mm."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(10, 4))
+    _curves(ax, times, 1e3 * amp, names, order, top)
+    ax.set_ylabel("jiggle amplitude (mm)\nmax |dynamic - static| CV")
+    ax.set_title(title or "muscle jiggle amplitude")
+    return _save(fig, path)
+
+
+def plot_energy(path, times, energy, names, order, unit, top=TOP, title=""):
+    """energy.png: energy (T, M) in `unit` over time."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(10, 4))
+    _curves(ax, times, energy, names, order, top)
+    ax.set_ylabel(f"jiggle energy ({unit})")
+    ax.set_title(title or "muscle jiggle energy: 0.5 m (|v|^2 + w^2 |d|^2) over CVs")
+    return _save(fig, path)
+
+
+def plot_spectrum(path, freqs, amp, names, order, dominant, top=TOP, title=""):
+    """spectrum.png: amplitude spectra (K, M) metres in mm, a dot on each dominant frequency."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for m in order[top:]:
+        ax.plot(freqs, 1e3 * amp[:, m], color="0.75", lw=0.7)
+    for m in order[:top]:
+        line, = ax.plot(freqs, 1e3 * amp[:, m], lw=1.4,
+                        label=names[m] + ("" if dominant[m] is None else f" ({dominant[m]:.2f} Hz)"))
+        if dominant[m] is not None:
+            k = int(np.argmin(np.abs(freqs - dominant[m])))     # the dot at the peak bin's height
+            ax.plot([dominant[m]], [1e3 * amp[k, m]], "o", color=line.get_color())
+            ax.axvline(dominant[m], color=line.get_color(), ls=":", lw=0.8)
+    _legend(ax, order)
+    ax.grid(alpha=0.3)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("amplitude (mm)\nRMS over CVs, Hann window")
+    ax.set_title(title or "muscle jiggle spectrum (dots: dominant frequency)")
+    return _save(fig, path)
+
+
+def plot_displacement(path, times, arrays, peak_frame, title=""):
+    """displacement.png: per-frame largest and RMS skin displacement (mm) over time, the peak frame
+    marked; beside it a histogram of the per-vertex largest displacement."""
+    plt = _pyplot()
+    fig, (ax, hx) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw={"width_ratios": [2, 1]})
+    ax.plot(times, 1e3 * arrays["frame_max_m"], lw=1.4, label="largest vertex")
+    ax.plot(times, 1e3 * arrays["frame_rms_m"], lw=1.4, label="RMS over vertices")
+    ax.axvline(times[peak_frame], color="0.4", ls=":", lw=1.0, label=f"peak frame {peak_frame}")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("skin displacement (mm)\n|final - static|")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(title or "skin displacement per frame")
+    vmax = 1e3 * arrays["max_m"]
+    hx.hist(vmax, bins=40, color=(0.85, 0.45, 0.2))
+    hx.set_yscale("log")                      # most of a body stays put: a linear axis shows one bar
+    hx.set_xlabel("largest displacement per vertex (mm)")
+    hx.set_ylabel("vertices (log)")
+    hx.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+# ---------------------------------------------------------------------------------------- json
+def clean(value, digits: int = 9):
+    """`value` as strict JSON: numpy numbers to Python, floats to `digits` significant digits,
+    NaN and infinities to None; dicts, lists and tuples recursively."""
+    if isinstance(value, dict):
+        return {str(k): clean(v, digits) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [clean(v, digits) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return float(f"{value:.{digits}g}") if math.isfinite(value) else None
+    return value if value is None or isinstance(value, str) else str(value)
+
+
+def _write_json(path: str, doc: dict) -> str:
+    with atomic_path(path) as tmp, open(tmp, "w") as fh:
+        json.dump(doc, fh, indent=2, allow_nan=False)
+    return path
+
+
+def _label(value) -> str | None:
+    """A short name for a params "clip" / "character" entry: a string, or a dict with a name, a file,
+    a built-in scene or a generated body (as sim.bake.setup writes them)."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, dict):
+        if isinstance(value.get("name"), str):
+            return value["name"]
+        for key in ("file", "path"):
+            if isinstance(value.get(key), str):
+                return os.path.basename(value[key])
+        if isinstance(value.get("builtin"), str):
+            return f"the built-in {value['builtin']}"
+        if "generated" in value:
+            return "a generated body"
+    return None
+
+
+# ---------------------------------------------------------------------------------------- all
+def compare(out_dir: str, *, render: bool = True, video: bool = True,
+            progress: Callable[[int], None] | None = None) -> dict:
+    """Analyse OUT_DIR/bake.npz and write the files of the module docstring into OUT_DIR.
+
+    render : False skips peak.png and the video (metrics, plots and report.html are still written).
+    video : False skips only the video.
+    progress : called as progress(n) with the frames just rendered (n = 1 per frame, as tqdm's
+        update), 1 + len(sim.app.compare_render.video_frames(T)) calls in all with render and video.
+    Returns {"files": {key: path}, "metrics": the metrics.json dict}; keys of files: metrics,
+    displacement, amplitude, energy, spectrum, displacement_plot, peak, video, report.
+    InputError for a missing, unfinished or unreadable bake.
+    """
+    out_dir = os.fspath(out_dir)
+    timings = {}
+    t0 = time.perf_counter()
+    data = load_bake(out_dir)
+    timings["read_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    an = analyse(data)
+    T, V = data.skin_static.shape[:2]
+    times, names, params = data.times, list(data.muscle_names), an["params"]
+    skin, peak, arrays, order = an["skin"], an["peak"], an["skin_arrays"], an["order"]
+    amp, energy, energy_unit, dominant = an["amplitude"], an["energy"], an["energy_unit"], an["dominant_hz"]
+    timings["analysis_s"] = time.perf_counter() - t0
+
+    files = {}
+
+    def out(name):
+        return os.path.join(out_dir, name)
+
+    t0 = time.perf_counter()
+    with atomic_path(out("displacement.npz")) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, max_m=arrays["max_m"].astype(np.float32), rms_m=arrays["rms_m"].astype(np.float32))
+    files["displacement"] = out("displacement.npz")
+    files["amplitude"] = plot_amplitude(out("amplitude.png"), times, amp, names, order)
+    by_energy = [int(i) for i in np.argsort(-energy.max(axis=0), kind="stable")]
+    files["energy"] = plot_energy(out("energy.png"), times, energy, names, by_energy, energy_unit)
+    files["spectrum"] = plot_spectrum(out("spectrum.png"), an["freqs"], an["spectrum"], names, order, dominant)
+    files["displacement_plot"] = plot_displacement(out("displacement.png"), times, arrays, peak["frame"])
+    timings["plots_s"] = time.perf_counter() - t0
+
+    video_info = None
+    if render and V:
+        from sim.app.compare_render import render_outputs
+        t0 = time.perf_counter()
+        rendered = render_outputs(data, peak["frame"], an["disp"], out_dir, video=video, progress=progress)
+        files.update(rendered["files"])
+        video_info = rendered.get("video")
+        timings.update(rendered["timings"])
+    # pictures of an earlier run beside these numbers would read as this run's
+    for key, names_ in (("peak", ("peak.png",)), ("video", ("clip.mp4", "clip.gif"))):
+        keep = os.path.basename(files[key]) if key in files else None
+        for name in names_:
+            if name != keep and os.path.exists(out(name)):
+                os.remove(out(name))
+
+    files["metrics"] = out("metrics.json")
+    files["report"] = out("report.html")
+    metrics = {
+        "format": FORMAT, "bake": os.path.abspath(os.path.join(out_dir, BAKE)),
+        "title": _title(params),
+        "source": {"clip": params.get("clip"), "character": params.get("character"),
+                   **{k: params[k] for k in ("scene", "template", "drive", "skinning") if k in params}},
+        "settings": params.get("settings") if isinstance(params.get("settings"), dict) else {},
+        "frames": T, "fps": data.fps, "duration_s": float(times[-1] - times[0]) if T else 0.0,
+        "start_s": float(times[0]), "end_s": float(times[-1]), "vertices": V, "muscle_count": len(names),
+        "skin": skin, "peak": peak,
+        "amplitude": "largest CV distance |dynamic - static| (the bake's blended CVs); rms: over time",
+        "energy": "per muscle, sum over its CVs of 0.5 m_cv (|v|^2 + w^2 |d|^2); d = dynamic - static, "
+                  "v = dd/dt (central differences), m_cv = mass_kg / CVs, w = 2 pi frequency_hz "
+                  "(params; else the measured dominant frequency)"
+                  + ("; params lack masses, so m_cv = 1 / CVs: energy per kg" if energy_unit == "J/kg" else ""),
+        "energy_unit": energy_unit,
+        "frequency_method": "Hann-windowed FFT of every CV's offset (mean removed), power summed over xyz "
+                            "and averaged over the muscle's CVs; largest peak, parabolic refinement; null "
+                            f"when the muscle stays within {STILL * 1e3:g} mm, the clip has fewer than "
+                            f"{MIN_FRAMES} frames or the peak is below {MIN_CYCLES} periods per clip",
+        "frequency_resolution_hz": data.fps / T,
+        "settle_rule": f"amplitude below {SETTLE_FRACTION:g} x its peak for {SETTLE_WINDOW:g} s (or to the "
+                       "end), seconds after the peak; null: never",
+        "muscles": an["muscles"],
+        "video": video_info,
+        "files": {k: os.path.basename(v) for k, v in files.items()},
+        "timings_s": timings,
+    }
+    metrics = clean(metrics)
+    _write_json(files["metrics"], metrics)
+
+    from sim.app.report import write_report
+    t0 = time.perf_counter()
+    write_report(files["report"], metrics, files)
+    timings["report_s"] = time.perf_counter() - t0
+    metrics["timings_s"] = clean(timings)
+    return {"files": files, "metrics": metrics}
+
+
+def _title(params: dict) -> str:
+    clip, character = _label(params.get("clip")), _label(params.get("character"))
+    parts = [p for p in (clip, character and f"on {character}") if p]
+    return "jiggle compare" + (f": {' '.join(parts)}" if parts else "")

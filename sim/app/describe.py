@@ -1,0 +1,97 @@
+"""`jiggle inspect`: what a file holds, as a dict (for --json) and as text."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from rig.base.errors import InputError, require_file
+from rig.motion.clip import Clip
+
+MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off")
+
+
+def describe_clip(clip: Clip) -> dict:
+    """Joints, frames, fps, duration, units, T-pose and extents of a clip."""
+    _, rest = clip.rest_world()
+    ends = clip.end_world(clip.rest_rotations[None], rest[None]) if len(clip.end_parents) else np.zeros((1, 0, 3))
+    pts = np.concatenate([rest, ends[0]])
+    root = clip.root_translation
+    return {
+        "kind": "clip", "name": clip.name, "format": clip.meta.get("format", ""),
+        "joints": clip.num_joints, "joint_names": list(clip.joint_names), "end_sites": int(len(clip.end_parents)),
+        "frames": clip.num_frames, "fps": clip.fps, "duration_s": round(clip.duration, 6),
+        "units": clip.meta.get("units", "metres"), "tpose": clip.meta.get("tpose", "n/a"),
+        "rest_height_m": round(float(np.ptp(pts[:, 2])), 4),
+        "root_travel_m": round(float(np.linalg.norm(root[-1, :2] - root[0, :2])), 4),
+        "root_height_range_m": [round(float(root[:, 2].min()), 4), round(float(root[:, 2].max()), 4)],
+        "meta": {k: v for k, v in clip.meta.items() if k not in ("units", "tpose", "format")},
+    }
+
+
+def describe_mesh(path: str) -> dict:
+    import trimesh
+    try:
+        m = trimesh.load(path, process=False, force="mesh")
+    except Exception as e:  # trimesh raises many types for a malformed file
+        raise InputError(f"cannot read the mesh ({type(e).__name__}: {e})", path) from None
+    v = np.asarray(m.vertices)
+    return {"kind": "character", "format": os.path.splitext(path)[1][1:].upper(), "vertices": int(len(v)),
+            "faces": int(len(m.faces)), "joints": 0, "skins": 0, "animations": [],
+            "bounds_m": v.min(0).round(4).tolist() + v.max(0).round(4).tolist() if len(v) else [],
+            "note": "no skin: 'jiggle play CLIP --character FILE' computes automatic weights from the clip's "
+                    "skeleton (bone heat); --unit and --up say the file's unit and up axis"}
+
+
+def describe_mjcf(path: str) -> dict:
+    import mujoco
+    try:
+        m = mujoco.MjModel.from_xml_path(path)
+    except Exception as e:  # MuJoCo reports XML and schema errors as ValueError with the line
+        raise InputError(f"not a loadable MJCF model: {e}", path) from None
+    jt = {0: "free", 1: "ball", 2: "slide", 3: "hinge"}
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, i) for i in range(m.njnt)]
+    kinds = [jt[int(t)] for t in m.jnt_type]
+    return {"kind": "mjcf", "bodies": int(m.nbody - 1), "joints": int(m.njnt), "nq": int(m.nq), "nv": int(m.nv),
+            "joint_types": {k: kinds.count(k) for k in sorted(set(kinds))}, "joint_names": names,
+            "total_mass_kg": round(float(np.sum(m.body_mass)), 3)}
+
+
+def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose="auto") -> dict:
+    """A description of any file jiggle reads: clip, character, or MJCF."""
+    from rig.motion.mocap import load_clip
+    p = require_file(path)
+    ext = os.path.splitext(p)[1].lower()
+    if ext in (".bvh", ".amc", ".asf"):
+        out = describe_clip(load_clip(p, skeleton=skeleton, scale=scale, tpose=tpose))
+    elif ext in (".glb", ".gltf"):
+        from rig.motion.gltf_skeleton import describe_gltf
+        out = {"kind": "character", **describe_gltf(p)}
+        if out.get("animations"):
+            out["clip"] = describe_clip(load_clip(p, animation=animation))
+    elif ext in MESH_EXTENSIONS:
+        out = describe_mesh(p)
+    elif ext == ".xml":
+        out = describe_mjcf(p)
+    else:
+        raise InputError(f"unknown file type {ext or '(no extension)'!r}; expected a clip (.bvh .amc .asf .glb "
+                         f".gltf), a character (.glb .gltf .obj .ply .stl) or an MJCF (.xml)", p)
+    return {"file": p, **out}
+
+
+def format_report(report: dict, indent: str = "") -> str:
+    """Readable text for an inspect report."""
+    lines = []
+    for k, v in report.items():
+        if isinstance(v, dict) and v:
+            lines.append(f"{indent}{k}:")
+            lines.append(format_report(v, indent + "  "))
+        elif isinstance(v, list) and v and isinstance(v[0], dict):
+            lines.append(f"{indent}{k}:")
+            for item in v:
+                lines.append(f"{indent}  - " + ", ".join(f"{a}={b}" for a, b in item.items()))
+        elif isinstance(v, list) and len(v) > 8 and all(isinstance(x, str) for x in v):
+            lines.append(f"{indent}{k}: {', '.join(v)}")
+        else:
+            lines.append(f"{indent}{k}: {v}")
+    return "\n".join(lines)

@@ -1,0 +1,132 @@
+"""report.html of `jiggle compare`: one self-contained page (plain HTML and CSS, pictures and the
+video embedded as base64 data URIs, no external URL), so it can be mailed or opened offline.
+
+Sections: title, source and settings (from the bake's params), key numbers, the muscle table
+(largest peak first), the plots, the peak picture, the video.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import json
+import os
+
+from rig.base.atomic import atomic_path
+
+MIME = {".png": "image/png", ".gif": "image/gif", ".mp4": "video/mp4"}
+PLOTS = (("amplitude", "Jiggle amplitude"), ("energy", "Jiggle energy"), ("spectrum", "Spectrum"),
+         ("displacement_plot", "Skin displacement"))
+
+CSS = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
+h1 { font-size: 1.6em; } h2 { font-size: 1.2em; margin-top: 1.6em; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; font-size: 0.9em; }
+th, td { padding: 0.25em 0.7em; border-bottom: 1px solid #e4e4e4; text-align: left; overflow-wrap: anywhere; }
+td.n { text-align: right; font-variant-numeric: tabular-nums; }
+.kv th { color: #555; font-weight: normal; }
+img, video { max-width: 100%; border: 1px solid #ddd; }
+.note { color: #666; font-size: 0.85em; }
+"""
+
+
+def data_uri(path: str) -> str:
+    """The file at `path` as a base64 data URI (type from its suffix)."""
+    mime = MIME.get(os.path.splitext(path)[1].lower(), "application/octet-stream")
+    with open(path, "rb") as fh:
+        return f"data:{mime};base64," + base64.b64encode(fh.read()).decode("ascii")
+
+
+def _e(value) -> str:
+    """Escaped text of a value; None as a dash, dicts and lists as compact JSON."""
+    if value is None:
+        return "&ndash;"
+    if isinstance(value, (dict, list, bool)):
+        value = json.dumps(value, separators=(", ", ": "))
+    return html.escape(str(value))
+
+
+def _num(value, fmt: str = ".2f") -> str:
+    return "&ndash;" if value is None else format(value, fmt)
+
+
+def _kv(rows) -> str:
+    body = "".join(f"<tr><th>{_e(k)}</th><td>{v}</td></tr>" for k, v in rows)
+    return f'<table class="kv">{body}</table>'
+
+
+def _muscle_table(muscles: dict, energy_unit: str) -> str:
+    head = ("muscle", "kind", "peak (mm)", "at (s)", "RMS (mm)", f"peak energy ({energy_unit})",
+            f"mean energy ({energy_unit})", "dominant (Hz)", "set (Hz)", "damping", "settle (s)")
+    rows = []
+    for name, m in muscles.items():        # metrics.json lists them largest peak first
+        cells = [_e(name), _e(m.get("kind")), _num(m.get("peak_mm")), _num(m.get("peak_time_s"), ".3f"),
+                 _num(m.get("rms_mm")), _num(m.get("peak_energy_j"), ".3g"), _num(m.get("mean_energy_j"), ".3g"),
+                 _num(m.get("dominant_hz")), _num(m.get("frequency_hz")), _num(m.get("damping_ratio")),
+                 "never" if m.get("settle_s") is None and m.get("peak_mm") else _num(m.get("settle_s"), ".3f")]
+        rows.append("<tr>" + "".join(f"<td>{c}</td>" if i < 2 else f'<td class="n">{c}</td>'
+                                     for i, c in enumerate(cells)) + "</tr>")
+    return ("<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
+
+
+def render_report(metrics: dict, files: dict) -> str:
+    """The page as a string. metrics : the metrics.json dict. files : key -> path of the outputs
+    (amplitude, energy, spectrum, displacement_plot, peak, video; absent keys are left out)."""
+    m = metrics
+    skin, peak = m.get("skin", {}), m.get("peak", {})
+    pv, pr = skin.get("per_vertex_max", {}), skin.get("per_vertex_rms", {})
+    parts = [f"<h1>{_e(m.get('title', 'jiggle compare'))}</h1>",
+             f'<p class="note">bake: {_e(m.get("bake"))}</p>',
+             "<h2>Source</h2>", _kv((k, _e(v)) for k, v in (m.get("source") or {}).items())]
+    settings = m.get("settings") or {}
+    if settings:
+        parts += ["<h2>Settings</h2>", _kv((k, _e(v)) for k, v in settings.items())]
+    parts += ["<h2>Key numbers</h2>", _kv([
+        ("frames", f"{m.get('frames')} at {_num(m.get('fps'), 'g')} fps, {_num(m.get('duration_s'), '.3f')} s"),
+        ("skin vertices", _e(m.get("vertices"))),
+        ("largest skin displacement", f"{_num(skin.get('max_mm'))} mm (vertex {_e(skin.get('max_vertex'))}, "
+                                      f"frame {_e(skin.get('max_frame'))}, {_num(skin.get('max_time_s'), '.3f')} s)"),
+        ("peak frame", f"{_e(peak.get('frame'))} at {_num(peak.get('time_s'), '.3f')} s: largest "
+                       f"{_num(peak.get('max_mm'))} mm, RMS {_num(peak.get('rms_mm'))} mm ({_e(peak.get('rule'))})"),
+        ("per-vertex largest (mm)", f"p50 {_num(pv.get('p50_mm'))}, p95 {_num(pv.get('p95_mm'))}, "
+                                    f"p99 {_num(pv.get('p99_mm'))}, mean {_num(pv.get('mean_mm'))}"),
+        ("per-vertex RMS (mm)", f"p50 {_num(pr.get('p50_mm'))}, p95 {_num(pr.get('p95_mm'))}, "
+                                f"p99 {_num(pr.get('p99_mm'))}, max {_num(pr.get('max_mm'))}"),
+        ("muscles", _e(m.get("muscle_count"))),
+    ])]
+    unit = m.get("energy_unit", "J")
+    parts += ["<h2>Muscles</h2>", _muscle_table(m.get("muscles") or {}, unit),
+              f'<p class="note">amplitude: {_e(m.get("amplitude"))}. energy ({_e(unit)}): {_e(m.get("energy"))}. '
+              f'frequency: {_e(m.get("frequency_method"))}; resolution {_num(m.get("frequency_resolution_hz"), ".3g")} '
+              f'Hz. settle: {_e(m.get("settle_rule"))}.</p>']
+    parts.append("<h2>Plots</h2>")
+    for key, caption in PLOTS:
+        if key in files:
+            parts.append(f'<figure><img alt="{_e(caption)}" src="{data_uri(files[key])}">'
+                         f"<figcaption>{_e(caption)}</figcaption></figure>")
+    if "peak" in files:
+        parts += ["<h2>Peak frame</h2>", f'<img alt="peak frame" src="{data_uri(files["peak"])}">',
+                  '<p class="note">left: static skin; right: with the jiggle, coloured by how far it moved.</p>']
+    if "video" in files:
+        v = m.get("video") or {}
+        src = data_uri(files["video"])
+        media = (f'<video controls loop muted autoplay playsinline src="{src}"></video>'
+                 if files["video"].endswith(".mp4") else f'<img alt="clip" src="{src}">')
+        parts += ["<h2>Clip</h2>", media,
+                  f'<p class="note">{_e(v.get("frames"))} frames at {_num(v.get("fps"), ".3g")} fps (every '
+                  f'{_num(v.get("every"), ".3g")} bake frames, real time); colour scale '
+                  f'{_e(v.get("colour_scale_mm"))} mm for all frames.</p>']
+    timings = m.get("timings_s") or {}
+    if timings:
+        parts.append('<p class="note">timings (s): ' + ", ".join(f"{_e(k)} {_num(t, '.2f')}"
+                                                               for k, t in timings.items()) + "</p>")
+    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{_e(m.get('title', 'jiggle compare'))}</title><style>{CSS}</style></head>\n<body>\n"
+            + "\n".join(parts) + "\n</body></html>\n")
+
+
+def write_report(path: str, metrics: dict, files: dict) -> str:
+    """Write render_report(metrics, files) to `path`, atomically; return the path."""
+    text = render_report(metrics, files)
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    return path

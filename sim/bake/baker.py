@@ -1,0 +1,336 @@
+"""`jiggle bake`: a clip baked into caches, chunk by chunk, resumable.
+
+    BakeSetup (sim.bake.setup: motion, character, muscles, skin, jiggle, output times)
+      per chunk of `chunk` output frames:
+        goal knots of the chunk (+ MARGIN each side) --drive--> joint world transforms
+          --MuscleRig.static--> static CVs --GoalTrack, particles (sim.jiggle.secondary.run)--> dynamic CVs
+          --blend--> final CVs --MuscleSkin (LBS + shell deformers)--> skin_static, skin_final
+        -> OUT/.partial/chunk_NNNNN.npz (atomic), with the particles' state at the chunk's last frame
+      all chunks -> OUT/bake.npz, bake.usdc|usda, bake.pc2 (atomic), bake.json; .partial removed
+
+Resuming: a chunk goes on from the particle state stored with the one before it, over the same step
+grid and the same goal knots (the knots of a chunk reach MARGIN knots past its ends, so the knot
+velocities and cut tests inside it see the same neighbours whatever was baked before). An
+interrupted bake resumed with `--resume` therefore repeats exactly the arithmetic of an unbroken one:
+its caches are equal bit for bit (tests/test_bake.py kills a bake to show it). The manifest stores
+the parameter set's key; resuming with other parameters is refused, naming what differs.
+
+A folder holds either a finished bake (its caches and bake.json) or an unfinished one (.partial/):
+starting a new bake removes the old caches first, and the caches are written only once every chunk
+is there, each through a temporary file renamed at the end, so no cache that looks complete is ever
+a partial one.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import time
+from typing import Callable
+
+import numpy as np
+
+from rig.base.atomic import atomic_path
+from rig.base.errors import InputError
+from sim.bake.caches import BakeData, write_npz, write_pc2, write_usd
+from sim.bake.setup import BakeSetup
+from sim.jiggle.goal_track import build_track
+from sim.jiggle.params import CVS
+from sim.jiggle.secondary import TIME_EPS, run
+
+PARTIAL = ".partial"
+MANIFEST = "manifest.json"
+MANIFEST_FORMAT = "jiggle.partial/1"
+SUMMARY = "bake.json"
+MARGIN = 3
+"""Goal knots past each end of a chunk (>= 2: a knot velocity needs its two neighbours, a cut test
+an interval's two neighbours)."""
+PAUSE_ENV = "JIGGLE_BAKE_PAUSE"
+"""Seconds to wait after each chunk is written (0 when unset): lets a test kill a bake between chunks."""
+CACHE_NAMES = {"npz": "bake.npz", "usdc": "bake.usdc", "usda": "bake.usda", "pc2": "bake.pc2"}
+
+
+def chunk_path(out_dir: str, c: int) -> str:
+    return os.path.join(out_dir, PARTIAL, f"chunk_{c:05d}.npz")
+
+
+def chunk_frames(setup: BakeSetup, c: int) -> tuple[int, int]:
+    """Output frames [f0, f1) of chunk c."""
+    return c * setup.chunk, min(len(setup.times), (c + 1) * setup.chunk)
+
+
+def num_chunks(setup: BakeSetup) -> int:
+    return -(-len(setup.times) // setup.chunk)
+
+
+# ---------------------------------------------------------------------------------------- chunks
+class Baker:
+    """Bakes the chunks of one BakeSetup in order; holds the particle model and solver (built once)
+    and the time spent per stage (seconds)."""
+
+    def __init__(self, setup: BakeSetup):
+        self.setup = setup
+        s = setup
+        self.blend = (np.stack([(j.blend or s.settings.blend)(s.times) for j in s.jiggles], axis=1)
+                      if s.jiggles else np.zeros((len(s.times), 0)))
+        self.model = self.solver = None
+        self.timings = dict.fromkeys(("drive_s", "static_s", "simulate_s", "skin_s", "write_s"), 0.0)
+        if np.any(self.blend != 0):          # blend 0 everywhere: the static CVs, no simulation
+            from sim.jiggle.particles import muscle_model
+            from sim.jiggle.solver import ParticleSolver
+            self.model = muscle_model(s.rig, list(s.jiggles), s.settings.device, gravity=s.settings.gravity)
+            self.solver = ParticleSolver(self.model)
+
+    def chunk(self, c: int, state) -> dict:
+        """Arrays of chunk c (see the module), going on from `state` ((x, v) of the particles at the
+        chunk's first frame - 1, None for chunk 0)."""
+        s, rig, clock = self.setup, self.setup.rig, time.perf_counter
+        f0, f1 = chunk_frames(s, c)
+        a = max(f0 - 1, 0)
+        times = s.times
+        ka = max(0, int(np.searchsorted(s.knots, times[a] - TIME_EPS)) - MARGIN)
+        kb = min(len(s.knots), int(np.searchsorted(s.knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
+        kt = s.knots[ka:kb]
+        t = clock()
+        world_k = np.asarray(s.world_at(kt), dtype=np.float64)
+        joints = np.asarray(s.joints_at(times[f0:f1]), dtype=np.float32)
+        self.timings["drive_s"] += clock() - t
+        t = clock()
+        static = rig.static(world_k)
+        at = np.searchsorted(kt, times[f0:f1] - TIME_EPS)
+        st, curve, world = static.cvs[at], static.curve[at], world_k[at]
+        self.timings["static_s"] += clock() - t
+        t = clock()
+        new_state = None
+        if self.model is None:
+            dyn = st
+        else:
+            track = build_track(kt, static.cvs, ratio=s.settings.cut_ratio, jump=s.settings.cut_jump,
+                                names=rig.names, offsets=rig.cv_offsets)
+            dyn, new_state = run(self.model, track, times[a:f1], s.settings.substeps,
+                                 s.settings.preroll if c == 0 else 0.0, self.solver,
+                                 start=state if c > 0 else None, return_state=True)
+            dyn = dyn[1:] if c > 0 else dyn
+        b = np.repeat(self.blend[f0:f1], CVS, axis=1)[:, :, None]
+        cvs = st + b * (dyn - st)
+        self.timings["simulate_s"] += clock() - t
+        t = clock()
+        skin_static, skin_final = skin_frames(s.skin, world, (st, cvs), curve, f0)
+        self.timings["skin_s"] += clock() - t
+        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
+            bad = ~np.isfinite(skin)
+            if bad.any():                       # never into a cache: stop while the chunks so far are kept
+                k, v = np.argwhere(bad)[0][:2]
+                raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; nothing "
+                                 f"of this chunk was written", field=name)
+        out = {"frames": np.array([f0, f1]), "skin_static": skin_static, "skin_final": skin_final,
+               "joint_world": joints, "cvs_static": st.astype(np.float32), "cvs_dynamic": cvs.astype(np.float32)}
+        if new_state is not None:
+            out["state_x"], out["state_v"] = new_state
+        return out
+
+
+def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, first_frame: int) -> list[np.ndarray]:
+    """Skins (T, V, 3) float32 for each CV set (T, N, 3) over world (T, J, 4, 4), curve (T, M, 5, 3):
+    batched over frames when the skin can (MuscleSkin.pose_batch), frame by frame otherwise."""
+    if hasattr(skin, "pose_batch"):
+        return list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first_frame))
+    return [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=first_frame + k) for k in range(len(world))])
+            for cvs in cvs_sets]
+
+
+# ---------------------------------------------------------------------------------------- files
+@contextlib.contextmanager
+def _writing(path: str):
+    try:
+        with atomic_path(path) as tmp:
+            yield tmp
+    except OSError as e:
+        raise InputError(f"cannot write: {e.strerror or e}; the bake so far is kept (run again with --resume)",
+                         path) from None
+
+
+def _save_chunk(path: str, arrays: dict) -> None:
+    with _writing(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+
+
+def _load_chunk(path: str, key_frames) -> dict | None:
+    """A chunk's arrays, or None when the file is missing or unreadable (it is then baked again)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception:  # noqa: BLE001 - a damaged chunk of any kind is baked again
+        return None
+    if list(data.get("frames", [])) != list(key_frames):
+        return None
+    return data
+
+
+def _write_json(path: str, obj) -> None:
+    with _writing(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(obj, fh, indent=2, allow_nan=False)
+            fh.write("\n")
+
+
+def cache_paths(out_dir: str, formats) -> dict:
+    return {f: os.path.join(out_dir, CACHE_NAMES[f]) for f in formats}
+
+
+COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "energy.png", "spectrum.png",
+                 "displacement.png", "peak.png", "clip.mp4", "clip.gif", "report.html")
+"""What `jiggle compare` writes beside a bake (sim/app/compare.py): stale once the bake is redone."""
+
+
+def _remove_finished(out_dir: str) -> None:
+    """Drop a finished bake's caches, summary and comparison, so the folder never mixes two bakes."""
+    for name in (*CACHE_NAMES.values(), SUMMARY, *COMPARE_NAMES):
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(os.path.join(out_dir, name))
+
+
+def _diff(a, b, prefix="") -> list[str]:
+    """Keys (dotted) whose values differ between two parameter dicts."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for k in sorted(set(a) | set(b)):
+            out += _diff(a.get(k), b.get(k), f"{prefix}{k}.")
+        return out
+    return [] if a == b else [prefix.rstrip(".")]
+
+
+# ---------------------------------------------------------------------------------------- bake
+def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Callable[[int], None] | None = None,
+         log: Callable[[str], None] = lambda s: None) -> dict:
+    """Bake `setup` into `out_dir` (see the module) and return the summary written to bake.json.
+
+    resume : go on with the unfinished bake in out_dir (InputError when there is none, or when it
+        was started with other parameters).
+    progress : called with the number of frames each chunk adds (resumed chunks included once).
+    """
+    out_dir = os.path.abspath(out_dir)
+    partial = os.path.join(out_dir, PARTIAL)
+    manifest_path = os.path.join(partial, MANIFEST)
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot create the output folder: {e.strerror or e}", out_dir, field="--out") from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise InputError("the output folder is not writable", out_dir, field="--out")
+    n = num_chunks(setup)
+    manifest = {"format": MANIFEST_FORMAT, "key": setup.key, "frames": len(setup.times), "chunk": setup.chunk,
+                "chunks": n, "params": setup.params}
+    t_start = time.perf_counter()
+    done, state = 0, None
+    if resume:
+        done, state = _resume(setup, out_dir, manifest_path, log)
+    else:
+        if os.path.isdir(partial):
+            log(f"removing an unfinished bake in {out_dir} (--resume would have finished it)")
+        shutil.rmtree(partial, ignore_errors=True)
+        _remove_finished(out_dir)
+        _write_json(manifest_path, manifest)
+    if progress is not None and done:
+        progress(chunk_frames(setup, done - 1)[1])
+    baker = Baker(setup)
+    for c in range(done, n):
+        arrays = baker.chunk(c, state)
+        state = (arrays["state_x"], arrays["state_v"]) if "state_x" in arrays else None
+        t = time.perf_counter()
+        _save_chunk(chunk_path(out_dir, c), arrays)
+        baker.timings["write_s"] += time.perf_counter() - t
+        if os.environ.get(PAUSE_ENV):
+            time.sleep(float(os.environ[PAUSE_ENV]))
+        if progress is not None:
+            f0, f1 = chunk_frames(setup, c)
+            progress(f1 - f0)
+    loop_s = time.perf_counter() - t_start
+    t = time.perf_counter()
+    files = assemble(setup, out_dir)
+    write_s = time.perf_counter() - t
+    summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
+    _write_json(os.path.join(out_dir, SUMMARY), summary)
+    shutil.rmtree(partial, ignore_errors=True)
+    return summary
+
+
+def _resume(setup: BakeSetup, out_dir: str, manifest_path: str, log) -> tuple[int, tuple | None]:
+    """(chunks already baked, particle state after the last of them) of the unfinished bake."""
+    if not os.path.isfile(manifest_path):
+        if os.path.isfile(os.path.join(out_dir, SUMMARY)):
+            raise InputError("this bake is already finished; nothing to resume (run without --resume to bake "
+                             "again)", out_dir, field="--resume")
+        raise InputError("no unfinished bake here to resume; run without --resume", out_dir, field="--resume")
+    try:
+        with open(manifest_path, encoding="utf-8") as fh:
+            old = json.load(fh)
+    except (OSError, ValueError) as e:
+        raise InputError(f"the unfinished bake's manifest is unreadable ({e}); run without --resume", manifest_path,
+                         field="--resume") from None
+    if old.get("format") != MANIFEST_FORMAT or old.get("key") != setup.key:
+        changed = _diff(old.get("params", {}), setup.params) or ["format"]
+        raise InputError(f"the unfinished bake was started with other parameters ({', '.join(changed[:8])}"
+                         f"{', ...' if len(changed) > 8 else ''}); give the same ones to --resume, or run without "
+                         f"--resume to start over", out_dir, field="--resume")
+    done, state = 0, None
+    for c in range(num_chunks(setup)):
+        data = _load_chunk(chunk_path(out_dir, c), chunk_frames(setup, c))
+        if data is None:
+            break
+        done = c + 1
+        state = (data["state_x"], data["state_v"]) if "state_x" in data else None
+    log(f"resuming: {done} of {num_chunks(setup)} chunks already baked "
+        f"({chunk_frames(setup, done - 1)[1] if done else 0} of {len(setup.times)} frames)")
+    return done, state
+
+
+def assemble(setup: BakeSetup, out_dir: str) -> dict:
+    """Write the caches from the chunks (every chunk must be there); returns {format: path}."""
+    parts = []
+    for c in range(num_chunks(setup)):
+        data = _load_chunk(chunk_path(out_dir, c), chunk_frames(setup, c))
+        if data is None:
+            raise InputError(f"chunk {c} is missing or damaged; run again with --resume", chunk_path(out_dir, c))
+        parts.append(data)
+
+    def cat(key):
+        return np.concatenate([p[key] for p in parts])
+    rig = setup.rig
+    data = BakeData(skin_static=cat("skin_static"), skin_final=cat("skin_final"),
+                    faces=setup.character.faces, fps=setup.fps, times=setup.times,
+                    joint_names=setup.joint_names, joint_world=cat("joint_world"), muscle_names=tuple(rig.names),
+                    muscle_cvs_static=cat("cvs_static"), muscle_cvs_dynamic=cat("cvs_dynamic"),
+                    muscle_cv_offsets=rig.cv_offsets, muscle_faces=rig.surface_faces,
+                    params=json.dumps(setup.params, sort_keys=True, allow_nan=False))
+    files = cache_paths(out_dir, setup.formats)
+    for fmt, path in files.items():
+        if fmt == "npz":
+            write_npz(data, path, compress=False)
+        elif fmt in ("usdc", "usda"):
+            muscles = rig.surface(data.muscle_cvs_dynamic.astype(np.float64)).astype(np.float32)
+            write_usd(data, path, muscle_points=muscles, usda=fmt == "usda")
+        elif fmt == "pc2":
+            write_pc2(data.skin_final, path, setup.fps, start_time=float(setup.times[0]))
+    return files
+
+
+def _summary(setup: BakeSetup, out_dir: str, files: dict, baker: Baker, loop_s: float, write_s: float,
+             resumed: int) -> dict:
+    """bake.json: what was baked, the files, the speed and the largest jiggle."""
+    T = len(setup.times)
+    baked = T - (chunk_frames(setup, resumed - 1)[1] if resumed else 0)
+    return {
+        "name": setup.name, "frames": T, "fps": setup.fps,
+        "start_s": float(setup.times[0]), "end_s": float(setup.times[-1]),
+        "vertices": setup.character.num_vertices, "muscles": setup.rig.M, "chunks": num_chunks(setup),
+        "resumed_after_chunks": resumed, "key": setup.key,
+        "files": {f: os.path.relpath(p, out_dir) for f, p in files.items()},
+        "timings": {**{k: round(v, 4) for k, v in setup.timings.items()},
+                    **{k: round(v, 4) for k, v in baker.timings.items()},
+                    "frames_s": round(loop_s, 4), "caches_s": round(write_s, 4),
+                    "frames_per_s": round(baked / loop_s, 2) if loop_s > 0 and baked else None},
+        "params": setup.params,
+    }

@@ -1,0 +1,415 @@
+"""Scenes: a TOML file naming the motion, how to play it and how its muscles jiggle (the built-in
+default is scenes/default.toml).
+
+Layout (paths relative to the scene file)::
+
+    name = "default"
+    builtin = "simple_arm"        # optional: a scene made in code (rig/muscle/simple_arm.py, the thesis's
+                                  # example: its cylinder, muscle and flex); no [motion]/[character] then
+    [motion]                      # optional: without it, `jiggle bake SCENE --clip FILE` gives the motion
+    file = "jumping_jacks.toml"   # keyframed TOML (rig.motion.keyframes) or any clip: BVH, AMC, glTF;
+                                  # ${VAR} takes an environment variable ("${JIGGLE_ASSETS}/mocap/...")
+    skeleton = "01.asf"           # optional, for an AMC (${VAR} too)
+    animation = 0                 # optional, for glTF
+    start = 0.0                   # optional, seconds
+    end = 2.0                     # optional, seconds
+    [character]                   # optional: default a body generated around the clip's skeleton
+    file = "${JIGGLE_ASSETS}/characters/CesiumMan.glb"   # a skinned glTF/GLB (the clip is retargeted)
+    skin = 0                      # which skin of the glTF
+    unit = "m"                    # the file's unit
+    template = "human"            # muscle template: built-in name or .toml/.xml (relative to the scene)
+    resolution = 20000            # generated body: vertex count; belly, chest, glutes, upper_arms:
+    belly = 0.04                  #   metres of fat (rig.character.body.BodyOptions)
+    influences = 4                # skin weights kept per vertex
+    skinning = "shell"            # how muscles move the skin: "shell", "influence" or "rbf"
+    method = "lbs"                # smooth skinning underneath: "lbs" or "dqs"
+    [skeleton]
+    drive = "kinematic"           # or "physics"
+    [output]
+    fps = 60                      # optional, default the clip's
+    focus = ["belly_fat"]         # optional: muscles `jiggle simulate` frames and draws (default: the
+                                  # most jiggling ones)
+    formats = ["npz", "usdc"]     # `jiggle bake` caches: npz, usdc or usda, pc2
+    chunk = 64                    # `jiggle bake` frames per chunk written (and resumed)
+    [jiggle]                      # optional: the secondary motion (`jiggle simulate`), sim.jiggle.params
+    substeps = 4                  # integration steps per output frame, >= 1
+    goal_rate = 120               # Hz, goal sampling (default max(120, fps))
+    gravity = false
+    preroll = 0.0                 # seconds
+    strength = 1.0                # jiggle strength J in [0, 1] of every muscle (default: each muscle's)
+    blend = 1.0                   # static_dyn_blend: a number in [0, 1] or keys [[t_s, b], ...]
+    cut_ratio = 8.0
+    cut_jump = 0.1                # metres
+    [jiggle.muscles.belly_fat]    # per muscle, keys of sim.jiggle.params.OVERRIDES
+    damping = 0.3
+    blend = [[0.0, 0.0], [0.5, 1.0]]
+
+A ``${VAR}`` at the start of a path whose value is relative is taken from the current directory, as
+the shell would (``JIGGLE_ASSETS=../shared/assets jiggle simulate scenes/belly_run.toml``); an unset
+variable is an error naming it. Blend key times are seconds of the motion as played (after start/end).
+Muscle names under [jiggle.muscles] are checked against the rig when they are applied
+(:meth:`Scene.apply_jiggle`), since the scene does not know the character's muscles.
+
+The thesis's simple arm (rig/muscle/simple_arm.py) has no scene file: its cylinder, bones and fast flex
+are made in code, and it is what `jiggle simulate` runs when given no scene and no clip.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Mapping, Sequence
+
+from rig.base.errors import InputError
+from rig.base.tomlfile import read_toml
+from rig.motion.clip import Clip
+from sim.jiggle.params import OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
+
+_JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump")
+_BODY = ("resolution", "belly", "chest", "glutes", "upper_arms")
+_CHARACTER = {"file", "skin", "unit", "template", "influences", "skinning", "method", *_BODY}
+_KNOWN = {"name": None, "builtin": None,
+          "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
+          "character": _CHARACTER, "skeleton": {"drive"}, "output": {"fps", "focus", "formats", "chunk"},
+          "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}}
+BUILTINS = ("simple_arm",)
+FORMATS = ("npz", "usdc", "usda", "pc2")
+"""Cache formats `jiggle bake` writes (usdc and usda are one USD stage, crate or text)."""
+
+
+def default_scene() -> str:
+    """Path of the built-in demo scene, scenes/default.toml."""
+    from importlib import resources
+    return str(resources.files("scenes").joinpath("default.toml"))
+
+
+@dataclass(frozen=True)
+class CharacterSpec:
+    """A scene's [character] table, checked; None: not given (the command's default applies).
+
+    file : absolute path of a skinned glTF/GLB, None for a body generated around the clip's skeleton.
+    template : a built-in template name or an absolute .toml/.xml path.
+    body : BodyOptions keywords for a generated body (resolution, belly, chest, glutes, upper_arms).
+    """
+
+    file: str | None = None
+    skin: int | None = None
+    unit: str | None = None
+    template: str | None = None
+    body: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    influences: int | None = None
+    skinning: str | None = None
+    method: str | None = None
+_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A loaded scene. fps: output frames per second (None: the clip's).
+
+    jiggle : the [jiggle] section's settings (sim.jiggle.params.JiggleSettings), None without one.
+    muscle_jiggle : muscle name -> its [jiggle.muscles.NAME] table (keys of
+        sim.jiggle.params.OVERRIDES, values checked; blends parsed to BlendCurve), read-only.
+    focus : muscles the pictures frame ([output] focus), () for the default.
+    clip : the motion, None when the scene has no [motion] (the command line gives it) or is built in.
+    character : the [character] table (CharacterSpec). builtin : a scene made in code (BUILTINS).
+    formats : `jiggle bake` cache formats ([output] formats), None for the default. chunk : frames
+        per bake chunk, None for the default.
+    """
+
+    name: str
+    path: str
+    clip: Clip | None
+    drive: str
+    fps: float | None
+    jiggle: JiggleSettings | None = None
+    muscle_jiggle: Mapping[str, Mapping] = field(default_factory=lambda: MappingProxyType({}))
+    focus: tuple[str, ...] = ()
+    character: CharacterSpec = CharacterSpec()
+    builtin: str | None = None
+    formats: tuple[str, ...] | None = None
+    chunk: int | None = None
+
+    def apply_jiggle(self, jiggles: Sequence) -> list:
+        """`jiggles` (sim.jiggle.params.MuscleJiggle, one per muscle of the rig) with this scene's
+        per-muscle tables applied; InputError naming the scene, the muscles the rig lacks and the
+        rig's muscles."""
+        return apply_muscle_jiggle(jiggles, self.muscle_jiggle, self.path)
+
+
+def apply_muscle_jiggle(jiggles: Sequence, tables: Mapping[str, Mapping], path: str | None = None) -> list:
+    """Each MuscleJiggle in `jiggles` with its table of `tables` (name -> OVERRIDES keys) applied."""
+    names = [j.name for j in jiggles]
+    missing = [n for n in tables if n not in names]
+    if missing:
+        raise InputError(f"the rig has no muscle {', '.join(repr(n) for n in missing)}; its muscles are "
+                         f"{', '.join(names) or '(none)'}", path, field="jiggle.muscles")
+    out = []
+    for j in jiggles:
+        if j.name in tables:
+            j = _override(j, tables[j.name], f"jiggle.muscles.{j.name}", path)
+        out.append(j)
+    return out
+
+
+def _override(mj: MuscleJiggle, table: Mapping, where: str, path: str | None, lines: "_Lines | None" = None):
+    """override(mj, table) with its errors naming the file, the line when known and `where`.KEY."""
+    try:
+        return override(mj, dict(table), where)
+    except InputError as e:
+        key = e.field or ""
+        key = key[len(where) + 1:] if key.startswith(f"{where}.") else key   # override names the user's key
+        message = e.message
+        for prefix in (f"muscle {mj.name!r}: ", f"{where}: "):
+            message = message.removeprefix(prefix)
+        at = (lines.key(where, key) if key in OVERRIDES else lines.table(where)) if lines else None
+        raise InputError(message, path, at, field=f"{where}.{key}" if key in OVERRIDES else where) from None
+    except (TypeError, ValueError) as e:   # e.g. a goal that is not a list of numbers
+        raise InputError(f"bad value: {e}", path, lines.table(where) if lines else None, field=where) from None
+
+
+def expand_path(value, path: str, field_name: str, line: int | None = None) -> str:
+    """A scene path with ${VAR} replaced by the environment variable (made absolute from the current
+    directory when it starts the path); InputError naming the variable when it is unset or empty."""
+    if not isinstance(value, str) or not value:
+        raise InputError(f"expected a file name (a string), found {value!r}", path, line, field=field_name)
+
+    def sub(m: re.Match) -> str:
+        v = os.environ.get(m.group(1))
+        if not v:
+            raise InputError(f"environment variable {m.group(1)} is not set; set it to the folder the path "
+                             f"{value!r} needs (e.g. {m.group(1)}=../shared/assets)", path, line, field=field_name)
+        return os.path.abspath(v) if m.start() == 0 else v
+    return _VAR.sub(sub, value)
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    p, doc = read_toml(path, "scene file")
+    lines = _Lines(p)
+    for key, sub in doc.items():
+        if key not in _KNOWN:
+            raise InputError(f"unknown section; expected one of {', '.join(_KNOWN)}", p, lines.table(key), field=key)
+        if _KNOWN[key] is not None:
+            if not isinstance(sub, dict):
+                raise InputError("expected a table", p, lines.key("", key), field=key)
+            for k in sub:
+                if k not in _KNOWN[key]:
+                    raise InputError(f"unknown key; expected one of {', '.join(sorted(_KNOWN[key]))}", p,
+                                     lines.key(key, k), field=f"{key}.{k}")
+    here = os.path.dirname(os.path.abspath(p))
+    builtin = doc.get("builtin")
+    if builtin is not None:
+        if builtin not in BUILTINS:
+            raise InputError(f"unknown built-in scene {builtin!r}; expected one of {', '.join(BUILTINS)}", p,
+                             lines.key("", "builtin"), field="builtin")
+        for key in ("motion", "character"):
+            if key in doc:
+                raise InputError(f"a built-in scene ({builtin}) makes its own {key}; remove [{key}]", p,
+                                 lines.table(key), field=key)
+    motion = doc.get("motion", {})
+    if motion and "file" not in motion:
+        raise InputError("[motion] needs a file (or leave [motion] out and give --clip)", p,
+                         lines.table("motion"), field="motion.file")
+    clip = None if not motion else _read_motion(motion, p, here, lines)
+    drive = doc.get("skeleton", {}).get("drive", "kinematic")
+    if drive not in ("kinematic", "physics"):
+        raise InputError(f"expected 'kinematic' or 'physics', found {drive!r}", p, field="skeleton.drive")
+    output = doc.get("output", {})
+    fps = output.get("fps")
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0):
+        raise InputError(f"expected a positive number, found {fps!r}", p, lines.key("output", "fps"), field="output.fps")
+    focus = output.get("focus", [])
+    focus = [focus] if isinstance(focus, str) else focus
+    if not isinstance(focus, list) or not all(isinstance(f, str) and f for f in focus):
+        raise InputError(f"expected a muscle name or a list of them, found {focus!r}", p,
+                         lines.key("output", "focus"), field="output.focus")
+    formats = output.get("formats")
+    if formats is not None:
+        formats = parse_formats(formats, p, lines.key("output", "formats"), "output.formats")
+    chunk = output.get("chunk")
+    if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1):
+        raise InputError(f"expected a whole number >= 1 of frames, found {chunk!r}", p, lines.key("output", "chunk"),
+                         field="output.chunk")
+    character = _character(doc.get("character", {}), p, here, lines)
+    settings, tables = (None, {}) if "jiggle" not in doc else _jiggle_section(doc["jiggle"], p, lines)
+    return Scene(name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), path=p, clip=clip,
+                 drive=drive, fps=None if fps is None else float(fps), jiggle=settings,
+                 muscle_jiggle=MappingProxyType(tables), focus=tuple(focus), character=character,
+                 builtin=builtin, formats=formats, chunk=chunk)
+
+
+def parse_formats(value, path=None, line=None, where="--formats") -> tuple[str, ...]:
+    """Cache formats from a list (or a comma-separated string): a tuple of FORMATS, no duplicates,
+    at most one of usdc/usda; InputError naming `where` otherwise."""
+    items = value.split(",") if isinstance(value, str) else value
+    if not isinstance(items, (list, tuple)) or not items or not all(isinstance(f, str) for f in items):
+        raise InputError(f"expected a list of {', '.join(FORMATS)}, found {value!r}", path, line, field=where)
+    items = [f.strip().lower().lstrip(".") for f in items]
+    bad = [f for f in items if f not in FORMATS]
+    if bad:
+        raise InputError(f"unknown cache format {', '.join(map(repr, bad))}; expected some of {', '.join(FORMATS)}",
+                         path, line, field=where)
+    if "usdc" in items and "usda" in items:
+        raise InputError("usdc and usda are the same stage; pick one", path, line, field=where)
+    return tuple(dict.fromkeys(items))
+
+
+def _read_motion(motion: dict, p: str, here: str, lines: "_Lines") -> Clip:
+    mfile = os.path.join(here, expand_path(motion["file"], p, "motion.file", lines.key("motion", "file")))
+    if not os.path.isfile(mfile):
+        raise InputError(f"motion file {mfile} not found", p, lines.key("motion", "file"), field="motion.file")
+    if mfile.lower().endswith(".toml"):
+        from rig.motion.keyframes import read_keyframes
+        clip = read_keyframes(mfile)
+    else:
+        from rig.motion.mocap import load_clip
+        skel = motion.get("skeleton")
+        skel = os.path.join(here, expand_path(skel, p, "motion.skeleton", lines.key("motion", "skeleton"))) if skel else None
+        clip = load_clip(mfile, skeleton=skel, animation=motion.get("animation"), scale=motion.get("scale"),
+                         tpose=motion.get("tpose", "auto"))
+    if "start" in motion or "end" in motion:
+        clip = clip.between(float(motion.get("start", 0.0)), motion.get("end"))
+    return clip
+
+
+def _character(table: dict, p: str, here: str, lines: "_Lines") -> CharacterSpec:
+    """The [character] table checked, paths expanded and made absolute."""
+    def at(k):
+        return lines.key("character", k)
+    kw, body = {}, {}
+    for k, v in table.items():
+        where = f"character.{k}"
+        if k in ("file", "template"):
+            if k == "template" and isinstance(v, str) and v and not v.lower().endswith((".toml", ".xml")):
+                kw[k] = v                                   # a built-in template's name
+                continue
+            f = os.path.join(here, expand_path(v, p, where, at(k)))
+            if not os.path.isfile(f):
+                raise InputError(f"file {f} not found", p, at(k), field=where)
+            kw[k] = f
+        elif k in ("skinning", "method"):
+            choices = ("shell", "influence", "rbf") if k == "skinning" else ("lbs", "dqs")
+            if v not in choices:
+                raise InputError(f"expected one of {', '.join(choices)}, found {v!r}", p, at(k), field=where)
+            kw[k] = v
+        elif k == "unit":
+            if not isinstance(v, (str, int, float)) or isinstance(v, bool):
+                raise InputError(f"expected a unit (m, cm, mm, in, ft) or metres per unit, found {v!r}", p, at(k),
+                                 field=where)
+            kw[k] = str(v)
+        elif k in ("skin", "influences", "resolution"):
+            least = 0 if k == "skin" else 1
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise InputError(f"expected a whole number >= {least}, found {v!r}", p, at(k), field=where)
+            (body if k == "resolution" else kw)[k] = v
+        else:                                               # fat volumes, metres
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
+                raise InputError(f"expected metres >= 0, found {v!r}", p, at(k), field=where)
+            body[k] = float(v)
+    if body and "file" in kw:
+        raise InputError(f"{', '.join(body)} shape a generated body; a character file has its own shape", p,
+                         at(next(iter(body))), field=f"character.{next(iter(body))}")
+    return CharacterSpec(body=MappingProxyType(body), **kw)
+
+
+def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
+    """(JiggleSettings, {muscle: checked table}) of a [jiggle] table."""
+    kw = {}
+    for k in _JIGGLE_SETTINGS:
+        if k not in sec:
+            continue
+        v, where = sec[k], f"jiggle.{k}"
+        line = lines.key("jiggle", k)
+        if k == "blend":
+            try:
+                v = BlendCurve.parse(v, where)
+            except InputError as e:
+                raise InputError(e.message, p, line, field=where) from None
+        elif k == "gravity":
+            if not isinstance(v, bool):
+                raise InputError(f"expected true or false, found {v!r}", p, line, field=where)
+        elif k == "substeps":
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InputError(f"expected a whole number >= 1, found {v!r}", p, line, field=where)
+        elif isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"expected a number, found {v!r}", p, line, field=where)
+        elif k == "preroll" and v < 0:
+            raise InputError(f"expected seconds >= 0, found {v!r}", p, line, field=where)
+        elif k == "strength" and not 0.0 <= v <= 1.0:
+            raise InputError(f"jiggle strength must be in [0, 1], found {v!r}", p, line, field=where)
+        kw[k] = float(v) if k in ("goal_rate", "preroll", "strength", "cut_ratio", "cut_jump") else v
+    try:
+        settings = JiggleSettings(**kw)
+    except InputError as e:
+        f = e.field if e.field in _JIGGLE_SETTINGS else None
+        raise InputError(e.message, p, lines.key("jiggle", f) if f else None,
+                         field=f"jiggle.{f}" if f else "jiggle") from None
+
+    muscles = sec.get("muscles", {})
+    if not isinstance(muscles, dict):
+        raise InputError("expected tables [jiggle.muscles.NAME]", p, lines.key("jiggle", "muscles"),
+                         field="jiggle.muscles")
+    # a stand-in muscle checks each table's values now, so a typo fails before any fitting or simulation
+    probe = MuscleJiggle(name="probe", frequency_hz=7.0, damping_ratio=0.5, goal=section_goals(0.9, 0.4),
+                         density=1000.0)
+    tables = {}
+    for name, table in muscles.items():
+        where = f"jiggle.muscles.{name}"
+        if not isinstance(table, dict):
+            raise InputError(f"expected a table of {', '.join(OVERRIDES)}", p, lines.key("jiggle.muscles", name),
+                             field=where)
+        for k in table:
+            if k not in OVERRIDES:
+                raise InputError(f"unknown key; expected one of {', '.join(OVERRIDES)}", p, lines.key(where, k),
+                                 field=f"{where}.{k}")
+        t = dict(table)
+        if "blend" in t:
+            try:
+                t["blend"] = BlendCurve.parse(t["blend"], f"{where}.blend")
+            except InputError as e:
+                raise InputError(e.message, p, lines.key(where, "blend"), field=e.field) from None
+        _override(probe, t, where, p, lines)
+        tables[name] = MappingProxyType(t)
+    return settings, tables
+
+
+class _Lines:
+    """Best-effort line numbers of TOML tables and keys (tomllib gives none), for error messages."""
+
+    _HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
+
+    def __init__(self, path: str):
+        try:
+            with open(path, encoding="utf-8") as fh:
+                self._text = fh.read().splitlines()
+        except (OSError, UnicodeDecodeError):
+            self._text = []
+
+    @staticmethod
+    def _norm(name: str) -> str:
+        return ".".join(part.strip().strip('"\'') for part in name.split("."))
+
+    def table(self, name: str) -> int | None:
+        """1-based line of the header [name], or of a key `name = ...` at the top."""
+        for i, s in enumerate(self._text, 1):
+            m = self._HEADER.match(s)
+            if m and self._norm(m.group(1)) == name:
+                return i
+        return self.key("", name) if "." not in name else None
+
+    def key(self, table: str, key: str) -> int | None:
+        """1-based line of `key = ...` inside [table] ("" for the top), or of the header [table.key]."""
+        current = ""
+        pat = re.compile(r"^\s*[\"']?" + re.escape(key) + r"[\"']?\s*=")
+        for i, s in enumerate(self._text, 1):
+            m = self._HEADER.match(s)
+            if m:
+                current = self._norm(m.group(1))
+                name = f"{table}.{key}" if table else key
+                if current == name or current.startswith(f"{name}."):
+                    return i
+            elif current == table and pat.match(s):
+                return i
+        return None

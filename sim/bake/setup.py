@@ -1,0 +1,378 @@
+"""What a bake runs on, resolved from a scene and the command line: the motion, the character, its
+fitted muscles and skin, the jiggle parameters, the output times, and the parameter set that names
+the bake (stored in every cache and used to check that `--resume` goes on with the same bake).
+
+`BakeRequest` is what the user asked for (every field None means "the scene's, else the default");
+`prepare(request)` does the slow, one-off work (read files, generate a body, retarget, fit the
+template, bind the skin, drive the skeleton) and returns a `BakeSetup`, which `sim.bake.baker` turns into
+caches frame chunk by frame chunk.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from types import MappingProxyType
+from typing import Callable, Mapping
+
+import numpy as np
+
+from rig.base.errors import InputError
+from sim.jiggle.params import BlendCurve, JiggleSettings
+from sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
+
+BAKE_FPS = 30.0
+"""Output frames per second when neither the command line nor the scene says."""
+DEFAULT_FORMATS = ("npz", "usdc")
+DEFAULT_CHUNK = 64
+"""Frames per chunk: each chunk is simulated, skinned and written on its own (and resumed from)."""
+VERSION = 1
+"""Bumped when the bake's arithmetic changes, so `--resume` never splices two versions' chunks."""
+
+
+@dataclass(frozen=True)
+class BakeRequest:
+    """A bake as asked for; None: the scene's value, else the default.
+
+    scene : scene TOML path (None: the clip alone, or the built-in demo scene without a clip).
+    clip : motion file (BVH, AMC, glTF), over the scene's [motion]; skeleton, animation, scale, tpose
+        read it (rig.motion.mocap.load_clip).
+    character : skinned glTF/GLB (the clip is retargeted onto it), over the scene's [character] file.
+    template : muscle template, a built-in name or a .toml/.xml path.
+    fps, substeps, blend (static_dyn_blend of every muscle), jiggle (strength J of every muscle).
+    start, end : seconds of the clip. frames : only the first N output frames.
+    drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
+    body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
+    method ("lbs"/"dqs"), joint_map, clip_map, character_map, skin, unit: as `jiggle simulate`.
+    """
+
+    scene: str | None = None
+    clip: str | None = None
+    skeleton: str | None = None
+    animation: str | int | None = None
+    scale: float | None = None
+    tpose: str = "auto"
+    character: str | None = None
+    template: str | None = None
+    fps: float | None = None
+    substeps: int | None = None
+    blend: float | None = None
+    jiggle: float | None = None
+    start: float | None = None
+    end: float | None = None
+    frames: int | None = None
+    drive: str | None = None
+    formats: tuple | None = None
+    chunk: int | None = None
+    body: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    influences: int | None = None
+    skinning: str | None = None
+    method: str | None = None
+    joint_map: str | None = None
+    clip_map: str | None = None
+    character_map: str | None = None
+    skin: int | None = None
+    unit: str | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class BakeSetup:
+    """Everything the chunked bake needs.
+
+    name : the bake's title. skin : rig.skin.muscle_skin.MuscleSkin (character, muscle rig, deformers).
+    jiggles : one MuscleJiggle per muscle. settings : JiggleSettings.
+    times : (T,) output times, seconds of the clip. fps : output rate. knots : (K,) goal knot times.
+    world_at : knot times (k,) -> (k, J, 4, 4) the character's joint world transforms (the drive's).
+    joints_at : output times (t,) -> (t, J_clip, 4, 4) the clip's own joints (the npz's joint_world).
+    joint_names : the clip's own joint names. formats, chunk : caches to write, frames per chunk.
+    params : the full parameter set (JSON-ready); key : its hash, naming this bake.
+    timings : seconds spent preparing, by step.
+    """
+
+    name: str
+    skin: object
+    jiggles: tuple
+    settings: JiggleSettings
+    times: np.ndarray
+    fps: float
+    knots: np.ndarray
+    world_at: Callable
+    joints_at: Callable
+    joint_names: tuple
+    formats: tuple
+    chunk: int
+    params: dict
+    key: str
+    timings: dict
+
+    @property
+    def rig(self):
+        return self.skin.rig
+
+    @property
+    def character(self):
+        return self.skin.character
+
+
+def file_digest(path: str) -> str:
+    """sha256 of a file's bytes (hex), so a bake names exactly what it read."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def jsonable(x):
+    """x with dataclasses, BlendCurves, numpy arrays and scalars turned into JSON values
+    (non-finite floats become strings, so the JSON stays strict)."""
+    if isinstance(x, BlendCurve):
+        return {"times": jsonable(x.times), "values": jsonable(x.values)}
+    if is_dataclass(x) and not isinstance(x, type):
+        return {f.name: jsonable(getattr(x, f.name)) for f in fields(x)}
+    if isinstance(x, Mapping):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return jsonable(x.item())
+    if isinstance(x, float) and not math.isfinite(x):
+        return str(x)
+    return x
+
+
+def params_key(params: dict) -> str:
+    """A short hash of the canonical JSON of `params`."""
+    text = json.dumps(params, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def output_times(duration: float, fps: float, start: float | None, end: float | None,
+                 frames: int | None) -> np.ndarray:
+    """(T,) seconds of the clip: start..end (default the whole clip) every 1/fps, the first `frames`."""
+    s = 0.0 if start is None else float(start)
+    e = duration if end is None else float(end)
+    if not 0.0 <= s < e <= duration + 1e-9:
+        raise InputError(f"expected 0 <= start < end <= {duration:.4g} s (the motion's length), got start {s:g}, "
+                         f"end {e:g}", field="--start/--end")
+    times = s + np.arange(int(np.floor((e - s) * fps + 1e-9)) + 1) / fps
+    return times if frames is None else times[:frames]
+
+
+def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> BakeSetup:
+    """Resolve `req` against its scene and do the one-off work (see the module)."""
+    from sim.bake.scene import load_scene
+    timings = {}
+    t = time.perf_counter()
+    scene = load_scene(req.scene) if req.scene is not None else None
+    if scene is None and req.clip is None:
+        from sim.bake.scene import default_scene
+        scene = load_scene(default_scene())
+    if scene is not None and scene.builtin is not None:
+        return _prepare_builtin(req, scene, log)
+    spec = scene.character if scene is not None else None
+    pick = _picker(req, spec)
+    drive = req.drive or (scene.drive if scene is not None else "kinematic")
+    clip, clip_source = _clip(req, scene)
+    timings["read_s"] = time.perf_counter() - t
+
+    from rig.character.body import BodyOptions
+    from rig.character.load import body_character, load_character
+    t = time.perf_counter()
+    character_file = req.character or (spec.file if spec is not None else None)
+    source = clip
+    body = None
+    if character_file is not None and req.body:
+        raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
+                         f"the character {os.path.basename(character_file)} has its own", field="--character")
+    if character_file is not None:
+        from rig.motion.retarget import retarget_onto
+        clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log)
+        character = load_character(character_file, k=pick("influences", 4), unit=pick("unit", None),
+                                   skin=pick("skin", 0))
+        what = os.path.basename(character_file)
+    else:
+        body = BodyOptions(**{**(dict(spec.body) if spec is not None else {}), **dict(req.body)})
+        character = body_character(clip, body, k=pick("influences", 4))
+        what = "generated body"
+    log(f"character: {what}, {character.num_vertices} vertices, {character.num_joints} joints "
+        f"({time.perf_counter() - t:.1f} s)")
+    timings["character_s"] = time.perf_counter() - t
+
+    from rig.muscle.fit import FitOptions, fit_musculature
+    from rig.skin.muscle_skin import MuscleSkin
+    from sim.jiggle.params import default_jiggles
+    t = time.perf_counter()
+    template = req.template or (spec.template if spec is not None else None) or "human"
+    mus = fit_musculature(character, template, FitOptions(joint_map=req.joint_map))
+    jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
+    if scene is not None:
+        jiggles = scene.apply_jiggle(jiggles)
+    skinning, method = pick("skinning", "shell"), pick("method", "lbs")
+    skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file)
+    log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
+        f"pairs ({time.perf_counter() - t:.1f} s)")
+    timings["fit_s"] = time.perf_counter() - t
+
+    fps = float(req.fps or (scene.fps if scene is not None else None) or BAKE_FPS)
+    times = output_times(clip.duration, fps, req.start, req.end, req.frames)
+    settings, jiggles = _settings(req, scene, jiggles)
+    knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, fps))
+    t = time.perf_counter()
+    world_at = _drive(clip, drive, knots, log)
+    timings["drive_s"] = time.perf_counter() - t
+    if source is clip:
+        joints_at, joint_names = world_at, tuple(clip.joint_names)
+    else:
+        from rig.motion.clip import transforms
+        from sim.drive.skeleton import Skeleton
+        sk = Skeleton(source)
+        joints_at = lambda ts: transforms(*sk.world(np.asarray(ts)))  # noqa: E731
+        joint_names = tuple(source.joint_names)
+
+    params = {
+        "jiggle_bake": VERSION,
+        "scene": None if scene is None else {"path": scene.path, "sha256": file_digest(scene.path)},
+        "clip": {"file": clip_source, "sha256": file_digest(clip_source) if os.path.isfile(clip_source) else None,
+                 "name": source.name, "duration_s": source.duration},
+        "character": ({"file": os.path.abspath(character_file), "sha256": file_digest(character_file)}
+                      if character_file else {"generated": jsonable(body)}),
+        "template": template if not os.path.isfile(str(template)) else
+        {"file": os.path.abspath(template), "sha256": file_digest(template)},
+        "vertices": character.num_vertices,
+        "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
+        "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4)},
+        "settings": jsonable(settings),
+        "muscles": _muscle_params(mus.rig, jiggles),
+        "chunk": _chunk(req, scene),
+    }
+    return BakeSetup(name=scene.name if scene is not None else source.name, skin=skin, jiggles=tuple(jiggles),
+                     settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
+                     joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
+                     chunk=params["chunk"], params=params, key=params_key(params), timings=timings)
+
+
+def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
+    """The thesis's simple arm (rig/muscle/simple_arm.py): its cylinder, biceps and fast flex."""
+    for name in ("clip", "character", "template", "drive", "joint_map", "clip_map", "character_map"):
+        if getattr(req, name) is not None:
+            raise InputError(f"the built-in scene {scene.builtin!r} makes its own character and motion; "
+                             f"drop --{name.replace('_', '-')}", field=f"--{name.replace('_', '-')}")
+    from rig.muscle.simple_arm import FLEX_DURATION, simple_arm
+    from rig.skin.muscle_skin import MuscleSkin
+    from sim.jiggle.params import default_jiggles
+    arm = simple_arm()
+    pick = _picker(req, scene.character)
+    skinning, method = pick("skinning", "shell"), pick("method", "lbs")
+    skin = MuscleSkin(arm.character, arm.rig, skinning=skinning, method=method)
+    jiggles = scene.apply_jiggle(default_jiggles(arm.rig))
+    fps = float(req.fps or scene.fps or BAKE_FPS)
+    times = output_times(FLEX_DURATION, fps, req.start, req.end, req.frames)
+    settings, jiggles = _settings(req, scene, jiggles)
+    knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, fps))
+    log(f"built-in scene {scene.builtin}: {arm.character.num_vertices} vertices, {arm.rig.M} muscle")
+    params = {
+        "jiggle_bake": VERSION, "scene": {"path": scene.path, "sha256": file_digest(scene.path),
+                                          "builtin": scene.builtin},
+        "clip": {"file": None, "name": scene.builtin, "duration_s": FLEX_DURATION},
+        "character": {"builtin": scene.builtin}, "template": None, "vertices": arm.character.num_vertices,
+        "drive": "kinematic", "fps": fps, "frames": len(times), "start_s": float(times[0]),
+        "end_s": float(times[-1]), "skinning": {"deformer": skinning, "method": method, "influences": None},
+        "settings": jsonable(settings), "muscles": _muscle_params(arm.rig, jiggles), "chunk": _chunk(req, scene),
+    }
+    return BakeSetup(name=scene.name, skin=skin, jiggles=tuple(jiggles), settings=settings, times=times, fps=fps,
+                     knots=knots, world_at=arm.world_at, joints_at=arm.world_at,
+                     joint_names=tuple(arm.character.joint_names), formats=_formats(req, scene),
+                     chunk=params["chunk"], params=params, key=params_key(params), timings={})
+
+
+def _picker(req: BakeRequest, spec):
+    """pick(name, default): the request's value, else the scene's [character] one, else default."""
+    def pick(name, default):
+        v = getattr(req, name)
+        if v is None and spec is not None:
+            v = getattr(spec, name)
+        return default if v is None else v
+    return pick
+
+
+def _clip(req: BakeRequest, scene):
+    """(clip, its file) from --clip over the scene's [motion]."""
+    if req.clip is not None:
+        from rig.motion.mocap import load_clip
+        if not os.path.isfile(req.clip):
+            raise InputError("clip file not found", req.clip, field="--clip")
+        anim = req.animation
+        if isinstance(anim, str) and anim.lstrip("-").isdigit():
+            anim = int(anim)
+        clip = load_clip(req.clip, skeleton=req.skeleton, animation=anim, scale=req.scale, tpose=req.tpose)
+        return clip, os.path.abspath(req.clip)
+    if scene.clip is None:
+        raise InputError("the scene has no [motion]: give the clip with --clip FILE (BVH, AMC or glTF)",
+                         scene.path, field="--clip")
+    return scene.clip, scene.clip.source or scene.path
+
+
+def _settings(req: BakeRequest, scene, jiggles):
+    """(JiggleSettings, jiggles): the scene's [jiggle] with the command line's over it; --blend
+    replaces every muscle's own blend curve too."""
+    settings = scene.jiggle if scene is not None and scene.jiggle is not None else JiggleSettings()
+    given = {"substeps": req.substeps, "strength": req.jiggle,
+             "blend": None if req.blend is None else BlendCurve.constant(req.blend)}
+    settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
+    if req.blend is not None:
+        jiggles = [replace(j, blend=None) for j in jiggles]
+    if settings.strength is not None:
+        jiggles = [replace(j, strength=settings.strength) for j in jiggles]
+    return settings, list(jiggles)
+
+
+def _formats(req: BakeRequest, scene) -> tuple:
+    return tuple(req.formats or (scene.formats if scene is not None else None) or DEFAULT_FORMATS)
+
+
+def _chunk(req: BakeRequest, scene) -> int:
+    return int(req.chunk or (scene.chunk if scene is not None else None) or DEFAULT_CHUNK)
+
+
+def _drive(clip, drive: str, knots: np.ndarray, log) -> Callable:
+    """world_at for the knots: the clip's skeleton posed by MuJoCo (kinematic), or simulated by MuJoCo
+    on a floor following the clip (physics, run once over every knot since it carries state)."""
+    from rig.motion.clip import transforms
+    from sim.drive.skeleton import Skeleton
+    if drive == "kinematic":
+        sk = Skeleton(clip)
+        return lambda ts: transforms(*sk.world(np.asarray(ts, dtype=np.float64)))
+    if drive != "physics":
+        raise InputError(f"expected 'kinematic' or 'physics', got {drive!r}", field="--drive")
+    from sim.drive.motion import drive_physics
+    t = time.perf_counter()
+    motion = drive_physics(clip, knots)
+    world = transforms(motion.rotations, motion.positions)
+    log(f"physics drive: {len(knots)} knots simulated ({time.perf_counter() - t:.1f} s)")
+
+    def world_at(ts):
+        ts = np.asarray(ts, dtype=np.float64)
+        k = np.clip(np.searchsorted(knots, ts - 1e-9), 0, len(knots) - 1)
+        if np.any(np.abs(knots[k] - ts) > 1e-9):
+            raise ValueError("the physics drive was run at the goal knots only")
+        return world[k]
+    return world_at
+
+
+def _muscle_params(rig, jiggles) -> dict:
+    """Per muscle: kind, rest volume, mass and every jiggle parameter (JSON-ready)."""
+    volumes = rig.volumes(rig.rest_cvs)
+    out = {}
+    for m, j in enumerate(jiggles):
+        d = jsonable(j)
+        d.pop("name", None)
+        out[rig.names[m]] = {"kind": rig.kinds[m], "volume_m3": float(volumes[m]),
+                             "mass_kg": float(volumes[m] * j.density), **d}
+    return out
+

@@ -1,0 +1,275 @@
+"""What the animator sets for the secondary motion: per-muscle jiggle parameters and the blend curves.
+
+The particle model (sim/jiggle/particles.py) puts one particle on each of a muscle's 40 CVs. These are the
+knobs, all in continuous time so that nothing depends on the frame rate or the substep count:
+
+- Goal springs. Particle i is pulled toward its goal (the static CV) with angular frequency
+
+      omega_i = 2 pi f / sqrt(J) * sqrt(w_i / (1 - w_i))
+
+  and damping ratio zeta, relative to the goal's velocity:
+  ``y'' = -omega_i^2 y - 2 zeta omega_i y' + ...`` for the offset y = x - goal.
+  f (Hz) is the frequency a particle of goal weight 1/2 has at strength 1. The goal weight w_i in
+  [0, 1] scales the stiffness by w / (1 - w), so w = 1 glues the particle (infinitely stiff), w = 0
+  frees it and w = 1/2 keeps f.
+- Jiggle strength J in [0, 1] replaces Maya's goal smoothness (the thesis's "jiggle strength"). It
+  scales the goal springs' compliance: stiffness k = k(J = 1) / J. A quasi-static offset under an
+  acceleration a is a / omega^2, so **the jiggle's size grows in proportion to J**, while the damping
+  ratio, and so how many wobbles a landing makes, stays put; the wobble gets faster as J drops, by
+  1 / sqrt(J). J = 0 glues every particle to its goal. Users who think in frequency and damping give
+  ``frequency`` and ``damping`` and leave J at 1.
+- Neighbour springs with their own frequency (on the mean particle mass) and damping ratio, and a
+  friction: a drag on the world velocity, 1/s.
+- Masses: the muscle's rest volume times its density, shared over the sections in proportion to
+  their volume and over each section's 8 CVs equally.
+
+Goal weights default from the template's tendon and belly values: sections (end, bulge, middle,
+bulge, end) get (tendon, mean, belly, mean, tendon); painted weights (one per CV) replace them.
+
+``static_dyn_blend`` (the thesis appendix's blend shape) mixes static and dynamic CVs before the
+skin deformers, ``cvs = static + b (dynamic - static)``: a :class:`BlendCurve` per muscle, keyable
+(linear between keys, held before the first and after the last), defaulting to the global curve.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from rig.base.errors import InputError
+from rig.base.frozen import frozen_array
+
+CVS = 40
+SECTIONS, RING = 5, 8
+
+
+@dataclass(frozen=True, eq=False)
+class BlendCurve:
+    """A value in [0, 1] over time: keys `times` (K,) seconds ascending, `values` (K,), linear between
+    keys and held outside them. K = 1 is a constant."""
+
+    times: np.ndarray
+    values: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "times", frozen_array(np.atleast_1d(self.times)))
+        object.__setattr__(self, "values", frozen_array(np.atleast_1d(self.values)))
+
+    @classmethod
+    def constant(cls, value: float) -> "BlendCurve":
+        return cls(np.zeros(1), np.array([float(value)]))
+
+    @classmethod
+    def parse(cls, value, where: str) -> "BlendCurve":
+        """A number, or keys [[t, b], ...] (seconds, blend); InputError naming `where` otherwise."""
+        if isinstance(value, BlendCurve):
+            return value
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            keys = np.array([[0.0, float(value)]])
+        else:
+            try:
+                keys = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError):
+                keys = np.zeros((0, 0))
+            if keys.ndim != 2 or keys.shape[1] != 2 or len(keys) == 0:
+                raise InputError(f"expected a number in [0, 1] or keys [[time_s, blend], ...], got {value!r}",
+                                 field=where)
+        if not np.isfinite(keys).all():
+            raise InputError("blend keys hold NaN or inf", field=where)
+        if np.any(np.diff(keys[:, 0]) <= 0):
+            raise InputError(f"blend key times must increase, got {keys[:, 0].tolist()}", field=where)
+        bad = (keys[:, 1] < 0) | (keys[:, 1] > 1)
+        if bad.any():
+            raise InputError(f"blend must be in [0, 1], got {keys[bad, 1][0]:g} at t = {keys[bad, 0][0]:g} s",
+                             field=where)
+        return cls(keys[:, 0], keys[:, 1])
+
+    def __call__(self, t) -> np.ndarray:
+        """Blend at times `t` (seconds), same shape."""
+        return np.interp(np.asarray(t, dtype=np.float64), self.times, self.values)
+
+    @property
+    def is_zero(self) -> bool:
+        return bool(np.all(self.values == 0.0))
+
+
+@dataclass(frozen=True, eq=False)
+class MuscleJiggle:
+    """One muscle's simulation parameters (see the module docstring for the model).
+
+    name : the muscle. frequency_hz : f > 0, Hz. damping_ratio : zeta >= 0 of the goal springs.
+    strength : J in [0, 1]. density : kg/m^3 > 0. spring_frequency_hz : >= 0, Hz (0: no neighbour
+    springs). spring_damping_ratio : >= 0. friction : >= 0, 1/s.
+    goal : (40,) goal weights in [0, 1], one per CV (rig.muscle.model order: section-major, 8 per ring).
+    blend : the muscle's static_dyn_blend curve, or None for the global one.
+    """
+
+    name: str
+    frequency_hz: float
+    damping_ratio: float
+    goal: np.ndarray
+    density: float
+    strength: float = 1.0
+    spring_frequency_hz: float = 0.0
+    spring_damping_ratio: float = 0.0
+    friction: float = 0.0
+    blend: BlendCurve | None = None
+
+    def __post_init__(self):
+        where = f"muscle {self.name!r}"
+        for f in ("frequency_hz", "damping_ratio", "density", "strength", "spring_frequency_hz",
+                  "spring_damping_ratio", "friction"):
+            try:
+                v = float(getattr(self, f))
+            except (TypeError, ValueError):
+                raise InputError(f"{where}: {f} must be a number, got {getattr(self, f)!r}", field=f) from None
+            if not math.isfinite(v):
+                raise InputError(f"{where}: {f} is NaN or inf", field=f)
+            object.__setattr__(self, f, v)
+        g = np.asarray(self.goal, dtype=np.float64).reshape(-1)
+        if g.shape != (CVS,):
+            raise InputError(f"{where}: goal weights must be {CVS} values (one per CV), got {g.size}", field="goal")
+        bad = ~((g >= 0) & (g <= 1))
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(f"{where}: goal weight of CV {k} must be in [0, 1], got {g[k]:g}", field="goal")
+        object.__setattr__(self, "goal", frozen_array(g))
+        checks = (("frequency_hz", self.frequency_hz > 0, "> 0 Hz"),
+                  ("damping_ratio", self.damping_ratio >= 0, ">= 0"),
+                  ("density", self.density > 0, "> 0 kg/m^3"),
+                  ("strength", 0 <= self.strength <= 1, "in [0, 1]"),
+                  ("spring_frequency_hz", self.spring_frequency_hz >= 0, ">= 0 Hz"),
+                  ("spring_damping_ratio", self.spring_damping_ratio >= 0, ">= 0"),
+                  ("friction", self.friction >= 0, ">= 0 1/s"))
+        for f, ok, expect in checks:
+            if not ok:
+                raise InputError(f"{where}: {f} must be {expect}, got {getattr(self, f):g}", field=f)
+        if self.blend is not None and not isinstance(self.blend, BlendCurve):
+            object.__setattr__(self, "blend", BlendCurve.parse(self.blend, f"{where}.blend"))
+
+    def goal_stiffness(self) -> np.ndarray:
+        """(40,) omega_i^2, 1/s^2, per unit mass; inf where the particle is glued (w = 1 or J = 0)."""
+        w = self.goal
+        if self.strength == 0.0:
+            return np.full(CVS, np.inf)
+        with np.errstate(divide="ignore"):
+            k = (2.0 * math.pi * self.frequency_hz) ** 2 / self.strength * w / (1.0 - w)
+        return np.where(w >= 1.0, np.inf, k)
+
+
+def section_goals(tendon: float, belly: float) -> np.ndarray:
+    """(40,) goal weights: sections (end, bulge, middle, bulge, end) get (tendon, mean, belly, mean, tendon)."""
+    mid = 0.5 * (tendon + belly)
+    return np.repeat(np.array([tendon, mid, belly, mid, tendon], dtype=np.float64), RING)
+
+
+def from_template(name: str, jiggle) -> MuscleJiggle:
+    """A MuscleJiggle from a template's rig.muscle.template.Jiggle."""
+    return MuscleJiggle(name=name, frequency_hz=jiggle.frequency_hz, damping_ratio=jiggle.damping_ratio,
+                        goal=section_goals(jiggle.goal_tendon, jiggle.goal_belly), density=jiggle.density,
+                        strength=jiggle.strength, spring_frequency_hz=jiggle.spring_frequency_hz,
+                        spring_damping_ratio=jiggle.spring_damping_ratio, friction=jiggle.friction)
+
+
+def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
+    """One MuscleJiggle per muscle of `rig` (rig.muscle.model.MuscleRig): from `templates` (a sequence
+    of Jiggle, one per muscle, e.g. the fitted muscles' template entries) or the kind's default."""
+    from rig.muscle.template import default_jiggle
+    if templates is None:
+        templates = [default_jiggle(k) for k in rig.kinds]
+    if len(templates) != rig.M:
+        raise InputError(f"expected {rig.M} jiggle entries (one per muscle), got {len(templates)}", field="jiggle")
+    return [from_template(n, j) for n, j in zip(rig.names, templates)]
+
+
+OVERRIDES = ("frequency", "damping", "strength", "goal", "goal_tendon", "goal_belly", "density",
+             "spring_frequency", "spring_damping", "friction", "blend")
+ATTRIBUTES = {"frequency": "frequency_hz", "damping": "damping_ratio", "spring_frequency": "spring_frequency_hz",
+         "spring_damping": "spring_damping_ratio"}
+
+
+def override(mj: MuscleJiggle, values: dict, where: str | None = None) -> MuscleJiggle:
+    """`mj` with keys of OVERRIDES replaced (a scene's per-muscle table or a CLI option). ``goal`` is
+    40 weights, 5 (one per section) or one number; ``goal_tendon``/``goal_belly`` rebuild the section
+    defaults; ``blend`` is a number or keys [[t, b], ...]."""
+    where = where or f"muscle {mj.name!r}"
+    unknown = sorted(set(values) - set(OVERRIDES))
+    if unknown:
+        raise InputError(f"unknown jiggle key(s) {', '.join(unknown)}; expected {', '.join(OVERRIDES)}", field=where)
+    kw = {}
+    for k, v in values.items():
+        if k == "blend":
+            kw["blend"] = BlendCurve.parse(v, f"{where}.blend")
+        elif k == "goal":
+            g = np.asarray(v, dtype=np.float64).reshape(-1)
+            if g.size == 1:
+                g = np.full(CVS, g[0])
+            elif g.size == SECTIONS:
+                g = np.repeat(g, RING)
+            elif g.size != CVS:
+                raise InputError(f"goal must be one weight, {SECTIONS} (per section) or {CVS} (per CV), got {g.size}",
+                                 field=f"{where}.goal")
+            kw["goal"] = g
+        elif k not in ("goal_tendon", "goal_belly"):
+            kw[ATTRIBUTES.get(k, k)] = v
+    if "goal_tendon" in values or "goal_belly" in values:
+        g = mj.goal
+        kw.setdefault("goal", section_goals(values.get("goal_tendon", g[0]), values.get("goal_belly", g[2 * RING])))
+    try:
+        return replace(mj, **kw)
+    except InputError as e:
+        # name the key the user wrote (damping), not the attribute (damping_ratio)
+        key = {a: k for k, a in ATTRIBUTES.items()}.get(e.field, e.field)
+        message = e.message.replace(f"muscle {mj.name!r}", where).replace(f": {e.field} ", f": {key} ")
+        raise InputError(message, field=f"{where}.{key}") from None
+
+
+@dataclass(frozen=True)
+class JiggleSettings:
+    """Settings of one simulation run.
+
+    substeps : >= 1 integration steps per output frame (the solver splits further where the goal
+        track's knots or the neighbour springs' stability need it; results do not depend on it).
+    goal_rate : Hz, the rate at which static goals are sampled from the motion (the goal track's
+        knots); None: max(120, output fps). Output times are always knots too.
+    gravity : add g = 9.81 m/s^2 along -Z. Off by default: the static muscle already is the shape the
+        artist sees under gravity; on, the muscles also sag below it by g / omega^2.
+    preroll : seconds. 0: start settled at the first frame's goals, moving with them (offset and
+        relative velocity zero; at the gravity sag when gravity is on). > 0: start at the bind pose,
+        at rest, that long before the first frame, the goals blending to the first frame's over the
+        first half and holding over the second.
+    blend : the global static_dyn_blend curve (muscles without their own use it).
+    strength : if given, every muscle's jiggle strength J (the CLI's --jiggle).
+    cut_ratio, cut_jump : a knot interval is a cut (a teleport) when its largest CV move exceeds
+        cut_jump metres and cut_ratio times the largest move in each neighbouring interval; the
+        particles are glued through it and restart at their goals.
+    device : Warp device.
+    """
+
+    substeps: int = 4
+    goal_rate: float | None = None
+    gravity: bool = False
+    preroll: float = 0.0
+    blend: BlendCurve = field(default_factory=lambda: BlendCurve.constant(1.0))
+    strength: float | None = None
+    cut_ratio: float = 8.0
+    cut_jump: float = 0.1
+    device: str = "cpu"
+
+    def __post_init__(self):
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) or self.substeps < 1:
+            raise InputError(f"expected an integer >= 1, got {self.substeps!r}", field="substeps")
+        for f, lo, strict in (("goal_rate", 0.0, True), ("preroll", 0.0, False), ("cut_ratio", 1.0, True),
+                              ("cut_jump", 0.0, True)):
+            v = getattr(self, f)
+            if v is None:
+                continue
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or \
+                    not (v > lo if strict else v >= lo):
+                raise InputError(f"expected a finite number {'>' if strict else '>='} {lo:g}, got {v!r}", field=f)
+        if not isinstance(self.blend, BlendCurve):
+            object.__setattr__(self, "blend", BlendCurve.parse(self.blend, "blend"))
+        if self.strength is not None and not (isinstance(self.strength, (int, float)) and 0 <= self.strength <= 1):
+            raise InputError(f"jiggle strength must be in [0, 1], got {self.strength!r}", field="strength")
+

@@ -1,0 +1,149 @@
+"""The layout shows the pipeline: imports run one way between the stage packages, and no module
+imports itself back through others (no cycle).
+
+The rule, as the test states it: every module belongs to a stage package (the first two parts of its
+name, e.g. ``rig.muscle`` for ``rig.muscle.fit``, ``rig.skin`` for ``rig.skin.shell.kernels``). Each
+stage has a rank (LAYERS); a module may import a module of its own stage or of a stage of LOWER
+rank, never one of the same rank in another stage (peers such as sim.jiggle and sim.drive stay
+independent) nor of a higher one. Every import counts: at the top of a file or inside a function.
+The library (rig, sim) imports no scene module: scenes are data it loads.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("rig", "sim")
+LAYERS = {
+    "rig.base": 0,
+    "rig.motion": 1,
+    "rig.character": 2,
+    "rig.muscle": 3,
+    "rig.anatomy": 4,
+    "rig.skin": 5,
+    "sim.jiggle": 6,
+    "sim.drive": 6,
+    "sim.bake": 7,
+    "sim.app": 8,
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for top in PACKAGES for p in sorted((ROOT / top).rglob("*.py"))}
+
+
+def imports_of(name: str, path: Path, known: set[str]) -> list[tuple[str, int]]:
+    """(imported module, line) for every import of a jiggle module in the file, relative ones resolved;
+    `from pkg import mod` counts as importing pkg.mod."""
+    is_pkg = path.name == "__init__.py"
+    package = name if is_pkg else name.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            subs = [f"{mod}.{a.name}" for a in node.names if f"{mod}.{a.name}" in known]
+            out += [(s, node.lineno) for s in subs] or [(mod, node.lineno)]
+    return [(m, line) for m, line in out if m.split(".")[0] in (*PACKAGES, "scenes")]
+
+
+def stage(module: str) -> str:
+    return ".".join(module.split(".")[:2])
+
+
+def graph() -> dict[str, list[tuple[str, int]]]:
+    mods = modules()
+    return {name: imports_of(name, path, set(mods)) for name, path in mods.items()}
+
+
+def test_every_module_is_in_a_stage_package():
+    loose = [m for m in modules() if m not in PACKAGES and stage(m) not in LAYERS]
+    assert not loose, f"modules outside the stage packages {sorted(LAYERS)}: {loose}"
+
+
+def test_imports_run_down_the_stages():
+    bad = []
+    for name, deps in graph().items():
+        if name in PACKAGES:
+            continue
+        here = stage(name)
+        for dep, line in deps:
+            if dep.split(".")[0] == "scenes":
+                bad.append(f"{name} (line {line}) imports the scene module {dep}: scenes are data the library loads")
+                continue
+            there = stage(dep)
+            if there == here or there in PACKAGES and dep == there:
+                continue
+            if there not in LAYERS:
+                bad.append(f"{name} (line {line}) imports {dep}, which is in no stage package")
+            elif LAYERS[there] >= LAYERS[here]:
+                bad.append(f"{name} (line {line}) imports {dep}: {there} (rank {LAYERS[there]}) is not below "
+                           f"{here} (rank {LAYERS[here]})")
+    assert not bad, "imports against the pipeline's direction:\n" + "\n".join(bad)
+
+
+def find_cycle(edges: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of the directed graph as [a, b, ..., a], or None."""
+    colour: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        colour[n] = 1
+        stack.append(n)
+        for m in sorted(edges.get(n, ())):
+            if colour.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if m not in colour and (found := visit(m)):
+                return found
+        stack.pop()
+        colour[n] = 2
+        return None
+
+    for n in sorted(edges):
+        if n not in colour and (found := visit(n)):
+            return found
+    return None
+
+
+def test_no_import_cycle():
+    g = graph()
+    edges = {name: {d for d, _ in deps if d in g and d != name} for name, deps in g.items()}
+    cycle = find_cycle(edges)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_checks_catch_an_upward_import_and_a_cycle():
+    # the checker itself: a made-up graph with a cycle, and a rank pair the rule refuses
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+    assert LAYERS["rig.skin"] > LAYERS["rig.muscle"] > LAYERS["rig.character"] > LAYERS["rig.motion"]
+    assert LAYERS["sim.app"] > LAYERS["sim.bake"] > LAYERS["sim.jiggle"] == LAYERS["sim.drive"] > LAYERS["rig.skin"]
+
+
+@pytest.mark.parametrize("package", sorted(LAYERS))
+def test_each_stage_says_what_it_takes_and_gives(package):
+    init = ROOT / package.replace(".", "/") / "__init__.py"
+    assert init.is_file(), f"{package} has no __init__.py"
+    doc = ast.get_docstring(ast.parse(init.read_text(encoding="utf-8")))
+    assert doc and len(doc.split()) >= 20, f"{package}/__init__.py needs a docstring saying what the stage takes in and gives out"
+
+
+def test_every_module_has_a_docstring():
+    missing = [name for name, path in modules().items()
+               if path.name != "__init__.py" and not ast.get_docstring(ast.parse(path.read_text(encoding="utf-8")))]
+    assert not missing, f"modules without a docstring: {missing}"
