@@ -4,7 +4,7 @@
 
 1. 40 muscles x 40 particles (the simple arm's biceps copied 40 times on a grid, default jiggles), goals
    at 30 fps from each copy's elbow swinging at its own phase while the whole grid sways, 8 substeps
-   per frame: ms per frame of sim.jiggle.secondary.run (which also uploads the track and reads every frame back)
+   per frame: ms per frame of sim.jiggle.simulate.run (which also uploads the track and reads every frame back)
    and of ParticleSolver.integrate alone, against the float64 NumPy reference step_numpy doing the same
    steps. The issue's budget: under 1 ms per frame on one core. Also the largest position difference
    from the reference, for run and for ParticleSolver.step called step by step: integrate merges each
@@ -50,7 +50,8 @@ from rig.muscle.simple_arm import arm_world, simple_arm  # noqa: E402
 from sim.jiggle.goal_track import build_track  # noqa: E402
 from sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
 from sim.jiggle.particles import ParticleBuilder  # noqa: E402
-from sim.jiggle.secondary import jiggle_rig, run, step_times  # noqa: E402
+from sim.jiggle.secondary import jiggle_rig  # noqa: E402
+from sim.jiggle.simulate import run, step_times  # noqa: E402
 from sim.jiggle.solver import ParticleSolver, step_numpy  # noqa: E402
 
 FPS, SUBSTEPS = 30, 8
@@ -145,7 +146,7 @@ def bench_frame(arm, device: str, quick: bool) -> None:
     print(f"## 40 muscles x 40 particles ({model.num_particles} particles, {model.num_springs} springs), "
           f"{FPS} fps, {SUBSTEPS} substeps ({(len(grid) - 1) / frames:.1f} steps per frame, max step "
           f"{solver.max_step * 1e3:.2f} ms), {frames} frames, device {device}")
-    print(f"  sim.jiggle.secondary.run                    {ms_run:7.3f} ms/frame   ({'<' if ms_run < 1 else '>='} 1 ms: "
+    print(f"  sim.jiggle.simulate.run                     {ms_run:7.3f} ms/frame   ({'<' if ms_run < 1 else '>='} 1 ms: "
           f"{'holds' if ms_run < 1 else 'FAILS'})")
     print(f"  ParticleSolver.integrate alone    {ms_int:7.3f} ms/frame")
     print(f"  NumPy reference (step_numpy)      {ms_np:7.3f} ms/frame   run is {ms_np / ms_run:.1f}x faster, "

@@ -12,7 +12,8 @@ from rig.skin.muscle_skin import MuscleSkin
 from sim.jiggle.goal_track import build_track, find_cuts
 from sim.jiggle.params import BlendCurve, JiggleSettings, default_jiggles, override
 from sim.jiggle.particles import muscle_model
-from sim.jiggle.secondary import equilibrium, jiggle_rig, knot_times, step_times
+from sim.jiggle.secondary import jiggle_rig, knot_times
+from sim.jiggle.simulate import equilibrium, step_times
 
 
 def flex(t):

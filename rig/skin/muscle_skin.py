@@ -277,3 +277,19 @@ class MuscleSkin:
         at = "" if frame is None else f" at frame {frame}"
         warnings.warn(f"muscle {names} skipped{at}: {why}; the skin there follows the bones only",
                       JiggleWarning, stacklevel=3)
+
+
+def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray) -> list[np.ndarray]:
+    """The pipeline's skin stage: skins (T, V, 3) float32 metres, one per CV set (T, N, 3), over joint
+    world transforms (T, J, 4, 4) and action curves (T, M, 5, 3).
+
+    frames : (T,) the frame numbers, for warnings naming a muscle skipped at a frame. Batched over
+    the frames in one launch per set (MuscleSkin.pose_batch, equal to posing frame by frame) when the
+    frames are consecutive and the skin can; frame by frame otherwise.
+    """
+    frames = np.asarray(frames, dtype=np.int64).reshape(-1)
+    if hasattr(skin, "pose_batch") and (len(frames) < 2 or np.all(np.diff(frames) == 1)):
+        first = int(frames[0]) if len(frames) else 0
+        return list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first))
+    return [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=int(frames[k])) for k in range(len(world))])
+            for cvs in cvs_sets]

@@ -26,6 +26,7 @@ import numpy as np
 
 from rig.base.atomic import atomic_path
 from rig.base.errors import InputError
+from rig.skin.muscle_skin import skin_frames
 from sim.app.mesh_render import SKIN, frame_camera
 from sim.jiggle.secondary import JiggleResult
 
@@ -291,11 +292,9 @@ def write_jiggle_outputs(result: JiggleResult, skin, world: np.ndarray, out_dir:
     frames = list(range(0, T, every))
     if skin is not None and render and T:
         t0 = time.perf_counter()
-        static_skin, dyn_skin = [], []
-        for k in frames:
-            static_skin.append(skin.pose(world[k], result.static[k], result.curve[k], frame=k))
-            dyn_skin.append(skin.pose(world[k], result.cvs[k], result.curve[k], frame=k))
-        static_skin, dyn_skin = np.stack(static_skin), np.stack(dyn_skin)
+        sel = np.asarray(frames)
+        static_skin, dyn_skin = skin_frames(skin, world[sel], (result.static[sel], result.cvs[sel]),
+                                            result.curve[sel], sel)
         move = 1e3 * np.linalg.norm(dyn_skin.astype(np.float64) - static_skin, axis=2)       # (F, V) mm
         kk = int(np.argmax(move.max(axis=1)))
         facts["skin"] = {"vertices": int(move.shape[1]), "peak_move_mm": round(float(move.max()), 3),
@@ -305,7 +304,6 @@ def write_jiggle_outputs(result: JiggleResult, skin, world: np.ndarray, out_dir:
 
         t0 = time.perf_counter()
         rig = skin.rig
-        sel = np.asarray(frames)
         sm = rig.surface(result.static[sel])[:, focus_idx]                  # (F, m, P, 3)
         dm = rig.surface(result.cvs[sel])[:, focus_idx]
         P = sm.shape[2]

@@ -2,9 +2,11 @@
 
     BakeSetup (sim.bake.setup: motion, character, muscles, skin, jiggle, output times)
       per chunk of `chunk` output frames:
-        goal knots of the chunk (+ MARGIN each side) --drive--> joint world transforms
-          --MuscleRig.static--> static CVs --GoalTrack, particles (sim.jiggle.secondary.run)--> dynamic CVs
-          --blend--> final CVs --MuscleSkin (LBS + shell deformers)--> skin_static, skin_final
+        goal knots of the chunk (+ MARGIN each side) --drive (sim.drive)--> joint world transforms
+          --MuscleRig.static (rig.muscle)--> static CVs
+          --goals, simulate (sim.jiggle.simulate)--> dynamic CVs
+          --blend (sim.jiggle.blend)--> final CVs
+          --skin_frames (rig.skin.muscle_skin: LBS + shell deformers)--> skin_static, skin_final
         -> OUT/.partial/chunk_NNNNN.npz (atomic), with the particles' state at the chunk's last frame
       all chunks -> OUT/bake.npz, bake.usdc|usda, bake.pc2 (atomic), bake.json; .partial removed
 
@@ -33,11 +35,13 @@ import numpy as np
 
 from rig.base.atomic import atomic_path
 from rig.base.errors import InputError
+from rig.skin.muscle_skin import skin_frames
 from sim.bake.caches import BakeData, write_npz, write_pc2, write_usd
 from sim.bake.setup import BakeSetup
-from sim.jiggle.goal_track import build_track
-from sim.jiggle.params import CVS
-from sim.jiggle.secondary import TIME_EPS, run
+from sim.jiggle.blend import blend, blend_weights, needs_simulation
+from sim.jiggle.particles import muscle_model
+from sim.jiggle.simulate import TIME_EPS, goals, simulate
+from sim.jiggle.solver import ParticleSolver
 
 PARTIAL = ".partial"
 MANIFEST = "manifest.json"
@@ -72,52 +76,44 @@ class Baker:
     def __init__(self, setup: BakeSetup):
         self.setup = setup
         s = setup
-        self.blend = (np.stack([(j.blend or s.settings.blend)(s.times) for j in s.jiggles], axis=1)
-                      if s.jiggles else np.zeros((len(s.times), 0)))
+        self.blend = blend_weights(s.jiggles, s.settings, s.times)
         self.model = self.solver = None
         self.timings = dict.fromkeys(("drive_s", "static_s", "simulate_s", "skin_s", "write_s"), 0.0)
-        if np.any(self.blend != 0):          # blend 0 everywhere: the static CVs, no simulation
-            from sim.jiggle.particles import muscle_model
-            from sim.jiggle.solver import ParticleSolver
+        if needs_simulation(self.blend):          # blend 0 everywhere: the static CVs, no simulation
             self.model = muscle_model(s.rig, list(s.jiggles), s.settings.device, gravity=s.settings.gravity)
             self.solver = ParticleSolver(self.model)
 
     def chunk(self, c: int, state) -> dict:
         """Arrays of chunk c (see the module), going on from `state` ((x, v) of the particles at the
-        chunk's first frame - 1, None for chunk 0)."""
-        s, rig, clock = self.setup, self.setup.rig, time.perf_counter
+        chunk's first frame - 1, None for chunk 0). One stage after another, each for the whole chunk:
+        drive -> static CVs -> goals, simulate -> blend -> skin."""
+        s, rig = self.setup, self.setup.rig
         f0, f1 = chunk_frames(s, c)
-        a = max(f0 - 1, 0)
+        a = max(f0 - 1, 0)                       # a chunk after the first goes on from the frame before it
         times = s.times
         ka = max(0, int(np.searchsorted(s.knots, times[a] - TIME_EPS)) - MARGIN)
         kb = min(len(s.knots), int(np.searchsorted(s.knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
         kt = s.knots[ka:kb]
-        t = clock()
-        world_k = np.asarray(s.world_at(kt), dtype=np.float64)
-        joints = np.asarray(s.joints_at(times[f0:f1]), dtype=np.float32)
-        self.timings["drive_s"] += clock() - t
-        t = clock()
-        static = rig.static(world_k)
-        at = np.searchsorted(kt, times[f0:f1] - TIME_EPS)
-        st, curve, world = static.cvs[at], static.curve[at], world_k[at]
-        self.timings["static_s"] += clock() - t
-        t = clock()
-        new_state = None
-        if self.model is None:
-            dyn = st
-        else:
-            track = build_track(kt, static.cvs, ratio=s.settings.cut_ratio, jump=s.settings.cut_jump,
-                                names=rig.names, offsets=rig.cv_offsets)
-            dyn, new_state = run(self.model, track, times[a:f1], s.settings.substeps,
-                                 s.settings.preroll if c == 0 else 0.0, self.solver,
-                                 start=state if c > 0 else None, return_state=True)
-            dyn = dyn[1:] if c > 0 else dyn
-        b = np.repeat(self.blend[f0:f1], CVS, axis=1)[:, :, None]
-        cvs = st + b * (dyn - st)
-        self.timings["simulate_s"] += clock() - t
-        t = clock()
-        skin_static, skin_final = skin_frames(s.skin, world, (st, cvs), curve, f0)
-        self.timings["skin_s"] += clock() - t
+        at = np.searchsorted(kt, times[f0:f1] - TIME_EPS)     # the output frames among the knots
+
+        with self._timed("drive_s"):
+            world_k = np.asarray(s.world_at(kt), dtype=np.float64)
+            joints = np.asarray(s.joints_at(times[f0:f1]), dtype=np.float32)
+        with self._timed("static_s"):
+            static = rig.static(world_k)
+            st, curve, world = static.cvs[at], static.curve[at], world_k[at]
+        with self._timed("simulate_s"):
+            new_state = None
+            if self.model is None:
+                dyn = st
+            else:
+                track = goals(rig, kt, static.cvs, s.settings)
+                dyn, new_state = simulate(self.model, track, times[a:f1], s.settings, solver=self.solver,
+                                          preroll=None if c == 0 else 0.0, start=state if c > 0 else None)
+                dyn = dyn[1:] if c > 0 else dyn
+            cvs = blend(st, dyn, self.blend[f0:f1])
+        with self._timed("skin_s"):
+            skin_static, skin_final = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1))
         for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
             bad = ~np.isfinite(skin)
             if bad.any():                       # never into a cache: stop while the chunks so far are kept
@@ -130,14 +126,13 @@ class Baker:
             out["state_x"], out["state_v"] = new_state
         return out
 
-
-def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, first_frame: int) -> list[np.ndarray]:
-    """Skins (T, V, 3) float32 for each CV set (T, N, 3) over world (T, J, 4, 4), curve (T, M, 5, 3):
-    batched over frames when the skin can (MuscleSkin.pose_batch), frame by frame otherwise."""
-    if hasattr(skin, "pose_batch"):
-        return list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first_frame))
-    return [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=first_frame + k) for k in range(len(world))])
-            for cvs in cvs_sets]
+    @contextlib.contextmanager
+    def _timed(self, stage: str):
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[stage] += time.perf_counter() - t
 
 
 # ---------------------------------------------------------------------------------------- files
