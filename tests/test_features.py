@@ -23,7 +23,7 @@ from rig.character.character import Character, bind_clip
 from rig.character.normals import vertex_normals
 from rig.muscle.loft_attach import closest_points
 from rig.muscle.segmentation import bone_segments
-from rig.muscle.simple_arm import RADIUS, simple_arm
+from rig.muscle.simple_arm import RADIUS, capped_tube, simple_arm
 from rig.skin.influence import _attach
 
 
@@ -77,21 +77,7 @@ def tube_character(radius, length: float = 0.3, rings: int = 31, around: int = 4
     """A closed surface of revolution r(z) around one bone from the origin down to (0, 0, -length),
     both joints at identity rotation, every vertex weighted to the root. radius: callable of z (<= 0)."""
     z = -np.linspace(0.0, length, rings)
-    t = 2.0 * np.pi * np.arange(around) / around
-    r = radius(z)
-    v = np.concatenate([np.column_stack([(r[:, None] * np.cos(t)).ravel(), (r[:, None] * np.sin(t)).ravel(),
-                                         np.repeat(z, around)]), [(0.0, 0.0, 0.0), (0.0, 0.0, z[-1])]])
-    i = np.arange(rings - 1)[:, None] * around
-    j = np.arange(around)[None, :]
-    a, b = i + j, i + (j + 1) % around
-    c, d = a + around, b + around
-    side = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
-    top, bottom = len(v) - 2, len(v) - 1
-    jj = np.arange(around)
-    caps = np.concatenate([np.stack([np.full(around, top), (jj + 1) % around, jj], 1),
-                           np.stack([np.full(around, bottom), (rings - 1) * around + jj,
-                                     (rings - 1) * around + (jj + 1) % around], 1)])
-    f = np.concatenate([side, caps]).astype(np.int32)
+    v, f = capped_tube(z, radius(z), around)
     names, parents = ("root", "tip"), np.array([-1, 0], np.int32)
     bind = np.tile(np.eye(4), (2, 1, 1))
     bind[1, 2, 3] = -length
@@ -479,6 +465,7 @@ def cesium():
     return ch, mus, segments, fs, seconds
 
 
+@pytest.mark.slow
 def test_cesiumman_default_features(cesium):
     ch, mus, segments, fs, seconds = cesium
     h = ch.height

@@ -90,13 +90,14 @@ def arm_world(elbow_deg) -> np.ndarray:
     return w[0] if np.ndim(a) == 0 else w
 
 
-def cylinder(rings: int = 64, around: int = 48) -> tuple[np.ndarray, np.ndarray]:
-    """A capped cylinder from the shoulder to the wrist: vertices (V, 3), faces (F, 3) outward."""
-    z = -np.linspace(0.0, UPPER + FORE, rings)
+def capped_tube(z: np.ndarray, r: np.ndarray, around: int) -> tuple[np.ndarray, np.ndarray]:
+    """A closed surface of revolution about the Z axis: rings at heights z (R,) metres, going down
+    (-Z), of radii r (R,) metres, `around` vertices each, and a centre vertex capping each end.
+    Returns vertices (R * around + 2, 3) and faces (F, 3) int32, outward."""
+    rings = len(z)
     t = 2.0 * np.pi * np.arange(around) / around
-    ring = np.stack([RADIUS * np.cos(t), RADIUS * np.sin(t)], axis=1)
-    v = np.concatenate([np.column_stack([np.tile(ring, (rings, 1)), np.repeat(z, around)]),
-                        [(0.0, 0.0, 0.0), (0.0, 0.0, z[-1])]])
+    v = np.concatenate([np.column_stack([(r[:, None] * np.cos(t)).ravel(), (r[:, None] * np.sin(t)).ravel(),
+                                         np.repeat(z, around)]), [(0.0, 0.0, 0.0), (0.0, 0.0, z[-1])]])
     i = np.arange(rings - 1)[:, None] * around
     j = np.arange(around)[None, :]
     a, b = i + j, i + (j + 1) % around
@@ -109,6 +110,12 @@ def cylinder(rings: int = 64, around: int = 48) -> tuple[np.ndarray, np.ndarray]
                            np.stack([np.full(around, bottom), (rings - 1) * around + jj,
                                      (rings - 1) * around + (jj + 1) % around], 1)])
     return v, np.concatenate([side, caps]).astype(np.int32)
+
+
+def cylinder(rings: int = 64, around: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """A capped cylinder from the shoulder to the wrist: vertices (V, 3), faces (F, 3) outward."""
+    z = -np.linspace(0.0, UPPER + FORE, rings)
+    return capped_tube(z, np.full(rings, RADIUS), around)
 
 
 def arm_character(rings: int = 64, around: int = 48) -> Character:
