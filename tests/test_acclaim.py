@@ -385,6 +385,7 @@ def _only_input_errors(fn):
         fn()
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_fuzz_amc(data, fuzz_dir):

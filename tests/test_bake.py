@@ -116,6 +116,7 @@ def test_interrupted_bake_resumes_to_the_same_caches(capsys, tmp_path, arm_bake,
     assert json.loads((tmp_path / "bake.json").read_text())["resumed_after_chunks"] == 3
 
 
+@pytest.mark.slow
 def test_killed_bake_resumes_to_the_same_caches(tmp_path, arm_bake):
     """A real kill (SIGKILL, no clean-up at all) between chunks, then --resume in a new process."""
     cmd = [sys.executable, "-m", "sim.app.cli", "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",

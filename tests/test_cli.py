@@ -49,6 +49,7 @@ def test_inspect_mjcf(capsys):
     assert code == 0 and rep["nq"] == 63 and rep["joint_types"] == {"free": 1, "hinge": 56}
 
 
+@pytest.mark.slow
 def test_play_writes_pictures_and_motion(capsys, tmp_path):
     """`jiggle play` on the demo's own keyframed motion (the demo itself bakes: tests/test_demo.py)."""
     out_dir = tmp_path / "play"
@@ -158,6 +159,7 @@ def test_play_physics_drive_saves_foot_forces(capsys, tmp_path):
     assert summary["drive"] == "physics" and summary["rms_joint_error_m"] < 0.05
 
 
+@pytest.mark.slow
 def test_body_command_writes_mesh_pictures_and_facts(capsys, tmp_path):
     code, out, err = run(capsys, "body", "--out", str(tmp_path), "--resolution", "10000", "--belly", "0.03")
     assert code == 0, err

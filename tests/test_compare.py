@@ -265,6 +265,7 @@ def test_view_looks_across_the_motion():
     assert abs(d[0]) < 1e-9 and d[2] > 0                  # seen from +-Y, slightly above
 
 
+@pytest.mark.slow
 def test_render_smoke(tmp_path):
     """peak.png and the video from a real off-screen render (PyVista, EGL); a second run without
     renders removes them, so no picture of an earlier run stays beside new numbers."""

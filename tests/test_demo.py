@@ -1,3 +1,4 @@
+import pytest
 """The built-in demo (the README's first command), reduced for CI: it needs no file from outside the
 repository, bakes and compares into one folder and prints where the report is."""
 import json
@@ -9,6 +10,7 @@ from sim.app.cli import main
 from sim.bake.caches import read_npz
 
 
+@pytest.mark.slow
 def test_demo_bakes_and_compares(capsys, tmp_path):
     code = main(["demo", "--out", str(tmp_path), "--frames", "30", "--resolution", "6000"])
     out, err = capsys.readouterr()

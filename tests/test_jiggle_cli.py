@@ -148,6 +148,7 @@ def test_scene_with_an_unset_variable_says_which(capsys, tmp_path, monkeypatch):
     assert code == 2 and "motion.file: environment variable JIGGLE_ASSETS is not set" in err
 
 
+@pytest.mark.slow
 def test_belly_scene_jiggles_on_the_runner(capsys, tmp_path, monkeypatch):
     asset("mocap/cmu_bvh/09_11.bvh")
     monkeypatch.setenv("JIGGLE_ASSETS", str(ASSETS))

@@ -131,6 +131,7 @@ def offsets(r) -> np.ndarray:
     return np.linalg.norm(r.dynamic - r.static, axis=2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rel", CLIPS, ids=[p.split("/")[-1] for p in CLIPS])
 def test_shared_clip_stays_bounded_at_soft_goals(musculatures, rel):
     from rig.motion.mocap import load_clip

@@ -108,6 +108,7 @@ def test_marker_features_pin_the_markers(canon, target):
     assert res.report["marker_max_m"] < 1e-6
 
 
+@pytest.mark.slow
 def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
     from rig.anatomy.markers import write_markers
     from rig.character.load import load_character
@@ -138,6 +139,7 @@ def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
     assert moved[t.vertices[:, 0] < -0.03].max() < 1e-5 and moved.max() > 0.1
 
 
+@pytest.mark.slow
 def test_bad_markers(tmp_path, canon, target):
     from rig.anatomy.markers import write_markers
     from rig.anatomy.morph import morph

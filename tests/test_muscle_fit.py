@@ -263,6 +263,7 @@ def test_fat_masses_are_fat_and_at_least_their_depth_thick(fits, name):
 
 
 # ------------------------------------------------------------------------------- volume over a clip
+@pytest.mark.slow
 def test_volume_is_kept_over_every_frame_of_a_cmu_clip(fits):
     """The template fitted to a body generated around a CMU clip's skeleton, driven by that clip through
     MuJoCo (sim.drive.skeleton.Skeleton) over every frame: the default "exact" rule holds every muscle's
@@ -437,6 +438,7 @@ def test_cli_refuses_bad_options(capsys, tmp_path):
 
 
 # ------------------------------------------------------------------------------- the command
+@pytest.mark.slow
 def test_cli_fit_writes_musculature_facts_and_picture(capsys, tmp_path, fits):
     cesium = asset("characters/CesiumMan.glb")
     out_toml, png = tmp_path / "fit" / "muscles.toml", tmp_path / "pics" / "fit.png"
@@ -466,6 +468,7 @@ def test_cli_fit_writes_musculature_facts_and_picture(capsys, tmp_path, fits):
     assert not list(png.parent.glob(".*")) and not list(out_toml.parent.glob(".*"))  # no temporary files
 
 
+@pytest.mark.slow
 def test_cli_fit_default_generated_body_without_picture(capsys, tmp_path):
     out_toml = tmp_path / "muscles.toml"
     code, out, err = run(capsys, "fit", "--no-render", "--out", out_toml)

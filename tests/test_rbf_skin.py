@@ -36,6 +36,7 @@ def _turn(c, world, joint: str, axis, degrees: float) -> np.ndarray:
     return w
 
 
+@pytest.mark.slow
 def test_bind_pose_is_the_artists_skin_and_topology_is_kept(skin):
     c, mus, sk = skin
     rbf = sk.deformer
@@ -113,6 +114,7 @@ def test_nan_muscle_falls_back_to_its_rest_shape_with_a_warning(skin):
     assert np.isfinite(got).all()
 
 
+@pytest.mark.slow
 def test_bake_with_rbf_skinning(tmp_path):
     from sim.app.cli import main
     clip = asset("mocap/cmu_bvh/02_03.bvh")

@@ -28,6 +28,7 @@ def test_there_is_a_default_scene():
     assert any(p.name == "default.toml" for p in SCENES)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)
 def test_scene_bakes_reduced(path, tmp_path):
     """Every scene bakes (8 frames, a coarse generated body) into a cache with finite, moving skin;

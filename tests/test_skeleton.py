@@ -11,6 +11,7 @@ from rig.motion.clip import transforms
 from sim.drive.skeleton import Skeleton
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CMU_BVH)
 def test_mujoco_world_positions_equal_independent_fk_on_every_frame(name):
     path = asset(f"mocap/cmu_bvh/{name}.bvh")
