@@ -6,12 +6,12 @@ NURBS object", weighted by painted per-vertex muscle weights. Ours is the RELATI
 artist's skin is reproduced exactly at bind and the deformer adds only what the muscles do beyond
 their bones:
 
-Bind (:func:`bind_influence`)
+Bind (:func:`rig.muscle.loft_attach.bind_influence`)
     For each (vertex, muscle) pair, the foot point of the vertex on the muscle's smooth loft
     ``X(w, v)`` (rig/muscle/loft.py; w in [0, 4] across the sections, clamped, so a vertex beyond an end
     attaches to the end ring; v in [0, 8) around, periodic) built from its 40 rest CVs: the nearest
     sample of a 33 x 64 grid, then Newton's method on ``|X(w, v) - p|^2`` with a step search and w
-    held at a bound it presses against (:func:`closest_points`). The vertex's offset
+    held at a bound it presses against (:func:`rig.muscle.loft_attach.closest_points`). The vertex's offset
     ``o = p - X(w, v)`` is stored in the loft frame at (w, v):
     ``e1 = unit(dX/dw)``, ``n = unit(dX/dv x dX/dw)`` (outward for the loft's orientation: sections
     from origin to insertion, v turning from a section's up vector U toward its side T x U, the
@@ -31,8 +31,9 @@ Pairs are CSR, sorted by vertex: ``pair_offsets`` (V + 1,) int, ``pair_muscle`` 
 ``pair_weight`` (P,) float in [0, 1] (painted). Flat CVs (N, 3), N = 40 M, muscle m owning rows
 40 m .. 40 m + 39 section-major, as rig.muscle.model.MuscleRig.rest_cvs.
 
-- :func:`bind_influence` -> :class:`InfluenceBinding` (frozen, per pair parameters and the kernel's
-  precomputed basis).
+- :func:`rig.muscle.loft_attach.bind_influence` -> :class:`InfluenceBinding` (frozen, per pair
+  parameters and the kernel's precomputed basis; the attachment is the muscle stage's, shared with
+  the anatomy's feature points).
 - :class:`InfluenceDeformer`: the Warp launcher (kernel in :mod:`rig.skin.influence_kernels`). (w, v) are
   fixed per pair, so the spline bases are evaluated once at bind: per pair the 5 section weights and
   their d/dw, and the 4 non-zero ring weights and their d/dv with the index of the first ring CV;

@@ -51,8 +51,8 @@ At the bind pose E_cur == E_ref and every D is exactly 0. A vertex's pairs are a
 ascending muscle order, each D evaluated at the already-displaced point; inactive muscles (NaN or
 degenerate frames) are skipped.
 
-Contents: parameters (:class:`ShellParams`, :func:`check_params`, :func:`default_shell`), the
-per-muscle table (:class:`ShellTable`, :func:`shell_table`), the per-frame state
+Contents: the per-muscle table (:class:`ShellTable`, :func:`shell_table`, from each muscle's
+:class:`ShellParams`, which its template carries: rig/muscle/shell_params.py), the per-frame state
 (:class:`ShellFrames`), the float64 NumPy references (:func:`falloff`, :func:`beta`, :func:`alpha`,
 :func:`star_lookup`, :func:`project`, :func:`basic_local`, :func:`shell_numpy`) and the bind-time
 culling (:func:`cull_pairs`). The Warp kernel is :mod:`rig.skin.shell.kernels`, its launcher
@@ -75,9 +75,9 @@ STAR_THETA = 17
 STAR_PHI = 32
 """Star table columns: azimuths phi_j = -pi + 2 pi j / 32, j = 0..31 (periodic)."""
 TRAJECTORY_SAMPLES = 9
+"""K: samples c(u_k), u_k = k / (K - 1), of a muscle's trajectory curve per frame."""
 LIMIT_KNEE = 0.5
 """The drop-off limit leaves displacements up to this fraction of the drop-off distance unchanged."""
-"""K: samples c(u_k), u_k = k / (K - 1), of a muscle's trajectory curve per frame."""
 
 @dataclass(frozen=True)
 class ShellFrames:
