@@ -77,3 +77,83 @@ def world_positions(joints, frames):
 
 def to_zup_metres(p, scale):
     return np.stack([p[..., 0], -p[..., 2], p[..., 1]], axis=-1) * scale
+
+
+# A hierarchy that exercises the format: 6 channels on a non-root joint, unusual channel orders,
+# position channels placed after rotations, a joint without channels, End Sites, two roots.
+ODD_HIERARCHY = """HIERARCHY
+ROOT base
+{
+  OFFSET 1.0 2.0 3.0
+  CHANNELS 6 Xposition Yposition Zposition Yrotation Xrotation Zrotation
+  JOINT arm
+  {
+    OFFSET 0.0 10.0 0.0
+    CHANNELS 3 Xrotation Zrotation Yrotation
+    JOINT slider
+    {
+      OFFSET 5.0 0.0 0.0
+      CHANNELS 6 Zrotation Xrotation Yrotation Xposition Yposition Zposition
+      JOINT fixed
+      {
+        OFFSET 0.0 0.0 4.0
+        CHANNELS 0
+        End Site
+        {
+          OFFSET 1.0 1.0 1.0
+        }
+      }
+    }
+  }
+  JOINT twist
+  {
+    OFFSET -3.0 0.0 0.0
+    CHANNELS 1 Yrotation
+    End Site
+    {
+      OFFSET 0.0 -2.0 0.0
+    }
+  }
+}
+ROOT prop
+{
+  OFFSET 0.0 0.0 0.0
+  CHANNELS 3 Xposition Yposition Zposition
+  End Site
+  {
+    OFFSET 0.0 1.0 0.0
+  }
+}
+"""
+
+
+def write_odd_bvh(path, frames=40, seed=0):
+    g = np.random.default_rng(seed)
+    n_ch = 6 + 3 + 6 + 0 + 1 + 3
+    data = g.uniform(-90, 90, size=(frames, n_ch))
+    data[:, :3] = g.uniform(-5, 5, size=(frames, 3))      # root position
+    data[:, 12:15] = g.uniform(-2, 8, size=(frames, 3))   # slider local translation
+    data[:, 16:19] = g.uniform(-1, 1, size=(frames, 3))   # prop position
+    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in data)
+    path.write_text(ODD_HIERARCHY + f"MOTION\nFrames: {frames}\nFrame Time: 0.04\n{body}\n")
+    return path
+
+
+# BVH joint -> the ASF bone whose rotation it carries (the bone starting where the BVH joint is
+# meant to sit). Hahne's BVH conversion drops three ASF bones but keeps every rotation: `thorax`
+# (Spine1 carries its rotation; Neck/LeftShoulder/RightShoulder then sit at the thorax START, with
+# zero offset) and `lwrist`/`rwrist` (LeftHand/RightHand carry their rotation; the FingerBase and
+# Thumb joints sit at the wrist START). So a BVH joint above one of those bones sits at its ASF
+# bone's start minus the world vectors of the dropped bones on its chain; see `_chain_positions`.
+BVH_TO_ASF = {
+    "Hips": "root", "LHipJoint": "lhipjoint", "LeftUpLeg": "lfemur", "LeftLeg": "ltibia",
+    "LeftFoot": "lfoot", "LeftToeBase": "ltoes", "RHipJoint": "rhipjoint", "RightUpLeg": "rfemur",
+    "RightLeg": "rtibia", "RightFoot": "rfoot", "RightToeBase": "rtoes", "LowerBack": "lowerback",
+    "Spine": "upperback", "Spine1": "thorax", "Neck": "lowerneck", "Neck1": "upperneck",
+    "Head": "head", "LeftShoulder": "lclavicle", "LeftArm": "lhumerus", "LeftForeArm": "lradius",
+    "LeftHand": "lwrist", "LeftFingerBase": "lhand", "LeftHandIndex1": "lfingers",
+    "LThumb": "lthumb", "RightShoulder": "rclavicle", "RightArm": "rhumerus",
+    "RightForeArm": "rradius", "RightHand": "rwrist", "RightFingerBase": "rhand",
+    "RightHandIndex1": "rfingers", "RThumb": "rthumb",
+}
+DROPPED_BY_BVH = ("thorax", "lwrist", "rwrist")

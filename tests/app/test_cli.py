@@ -53,7 +53,7 @@ def test_inspect_mjcf(capsys):
 def test_play_writes_pictures_and_motion(capsys, tmp_path):
     """`jiggle play` on the demo's own keyframed motion (the demo itself bakes: tests/test_demo.py)."""
     out_dir = tmp_path / "play"
-    motion = Path(__file__).resolve().parents[1] / "scenes" / "motions" / "jumping_jacks.toml"
+    motion = Path(__file__).resolve().parents[2] / "scenes" / "motions" / "jumping_jacks.toml"
     code, out, err = run(capsys, "play", str(motion), "--out", str(out_dir), "--fps", "60", "--end", "0.65",
                          "--poses", "4")
     assert code == 0, err
@@ -184,7 +184,7 @@ def test_play_with_a_mesh_character_warns_and_skins(capsys, tmp_path):
     """An OBJ standing in the clip's rest pose, in centimetres: automatic weights, a warning on stderr."""
     from rig.character.body import BodyOptions, generate_body
     from rig.motion.keyframes import read_keyframes
-    scene = os.path.join(os.path.dirname(__file__), "..", "scenes", "motions", "jumping_jacks.toml")
+    scene = os.path.join(os.path.dirname(__file__), "..", "..", "scenes", "motions", "jumping_jacks.toml")
     clip = read_keyframes(scene)
     body = generate_body(clip, BodyOptions(resolution=10000))
     import trimesh

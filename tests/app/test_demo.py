@@ -1,4 +1,5 @@
 import pytest
+
 """The built-in demo (the README's first command), reduced for CI: it needs no file from outside the
 repository, bakes and compares into one folder and prints where the report is."""
 import json

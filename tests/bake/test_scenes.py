@@ -9,8 +9,8 @@ from rig.motion.keyframes import read_keyframes
 from sim.bake.scene import load_scene
 from sim.drive.motion import drive_kinematic
 
-SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
-MOTIONS = sorted((Path(__file__).resolve().parents[1] / "scenes" / "motions").glob("*.toml"))
+SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").glob("*.toml"))
+MOTIONS = sorted((Path(__file__).resolve().parents[2] / "scenes" / "motions").glob("*.toml"))
 
 
 @pytest.fixture(autouse=True)

@@ -2,8 +2,8 @@
 import bvh_reference as ref
 import numpy as np
 import pytest
+from bvh_reference import write_odd_bvh
 from conftest import CMU_BVH, asset
-from test_bvh import write_odd_bvh
 
 from rig.motion import quat
 from rig.motion.bvh import CMU_UNIT, read_bvh

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import warp as wp
+from arm_muscles import ARM_BIND, arm_world, biceps, brachio
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-from test_muscle_model import ARM_BIND, arm_world, biceps, brachio
 
 from rig.base.errors import InputError, JiggleWarning
 from rig.muscle import loft

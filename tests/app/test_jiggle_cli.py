@@ -9,7 +9,7 @@ from conftest import ASSETS, asset
 
 from sim.app.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 JUMPING_JACKS = ROOT / "scenes" / "motions" / "jumping_jacks.toml"
 
 

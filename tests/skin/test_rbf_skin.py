@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from tests.conftest import asset
+from conftest import asset
 
 
 @pytest.fixture(scope="module")

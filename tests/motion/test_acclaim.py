@@ -8,6 +8,7 @@ import tempfile
 
 import numpy as np
 import pytest
+from bvh_reference import BVH_TO_ASF, DROPPED_BY_BVH
 from conftest import asset
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -21,26 +22,6 @@ from rig.motion.mocap import load_clip
 ASF = "mocap/cmu_amc/01.asf"
 AMC = "mocap/cmu_amc/01_01.amc"
 BVH = "mocap/cmu_bvh/01_01.bvh"
-
-# BVH joint -> the ASF bone whose rotation it carries (the bone starting where the BVH joint is
-# meant to sit). Hahne's BVH conversion drops three ASF bones but keeps every rotation: `thorax`
-# (Spine1 carries its rotation; Neck/LeftShoulder/RightShoulder then sit at the thorax START, with
-# zero offset) and `lwrist`/`rwrist` (LeftHand/RightHand carry their rotation; the FingerBase and
-# Thumb joints sit at the wrist START). So a BVH joint above one of those bones sits at its ASF
-# bone's start minus the world vectors of the dropped bones on its chain; see `_chain_positions`.
-BVH_TO_ASF = {
-    "Hips": "root", "LHipJoint": "lhipjoint", "LeftUpLeg": "lfemur", "LeftLeg": "ltibia",
-    "LeftFoot": "lfoot", "LeftToeBase": "ltoes", "RHipJoint": "rhipjoint", "RightUpLeg": "rfemur",
-    "RightLeg": "rtibia", "RightFoot": "rfoot", "RightToeBase": "rtoes", "LowerBack": "lowerback",
-    "Spine": "upperback", "Spine1": "thorax", "Neck": "lowerneck", "Neck1": "upperneck",
-    "Head": "head", "LeftShoulder": "lclavicle", "LeftArm": "lhumerus", "LeftForeArm": "lradius",
-    "LeftHand": "lwrist", "LeftFingerBase": "lhand", "LeftHandIndex1": "lfingers",
-    "LThumb": "lthumb", "RightShoulder": "rclavicle", "RightArm": "rhumerus",
-    "RightForeArm": "rradius", "RightHand": "rwrist", "RightFingerBase": "rhand",
-    "RightHandIndex1": "rfingers", "RThumb": "rthumb",
-}
-DROPPED_BY_BVH = ("thorax", "lwrist", "rwrist")
-
 
 @pytest.fixture(scope="module")
 def cmu():

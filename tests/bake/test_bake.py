@@ -16,7 +16,7 @@ import pytest
 from sim.app.cli import main
 from sim.bake.caches import read_npz
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ARM = str(ROOT / "scenes" / "simple_arm.toml")
 KEYS = ("skin_static", "skin_final", "times", "joint_world", "muscle_cvs_static", "muscle_cvs_dynamic",
         "muscle_cv_offsets", "faces", "muscle_faces")

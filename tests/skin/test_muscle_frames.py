@@ -12,8 +12,8 @@ import dataclasses
 import numpy as np
 import pytest
 import trimesh
+from arm_muscles import ARM_BIND, arm_world, biceps, brachio, fibonacci_sphere, spec_from_ellipsoid
 from scipy.spatial.transform import Rotation
-from test_muscle_model import ARM_BIND, arm_world, biceps, brachio, fibonacci_sphere, spec_from_ellipsoid
 
 from rig.base.errors import InputError
 from rig.muscle import loft

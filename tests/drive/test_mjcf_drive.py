@@ -152,7 +152,7 @@ def test_joint_map_from_bvh_names(cmu):
     same world rotations (BVH and AMC rotations agree to 0.0003 degrees, see test_acclaim)."""
     clip, drive, _, rot, _ = cmu
     bvh = read_bvh(asset("mocap/cmu_bvh/01_01.bvh")).frames(0, 200)
-    from test_acclaim import BVH_TO_ASF
+    from bvh_reference import BVH_TO_ASF
     d2 = MjcfDrive(asset(HUMANOID), bvh, joint_map=BVH_TO_ASF)
     r2, _ = d2.world()
     err = np.degrees(quat.angle(quat.mul(quat.conj(rot[:200]), r2)))

@@ -3,71 +3,13 @@
 import bvh_reference as ref
 import numpy as np
 import pytest
+from bvh_reference import write_odd_bvh
 from conftest import CMU_BVH, asset
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from rig.base.errors import InputError
 from rig.motion.bvh import CMU_UNIT, read_bvh
-
-# A hierarchy that exercises the format: 6 channels on a non-root joint, unusual channel orders,
-# position channels placed after rotations, a joint without channels, End Sites, two roots.
-ODD_HIERARCHY = """HIERARCHY
-ROOT base
-{
-  OFFSET 1.0 2.0 3.0
-  CHANNELS 6 Xposition Yposition Zposition Yrotation Xrotation Zrotation
-  JOINT arm
-  {
-    OFFSET 0.0 10.0 0.0
-    CHANNELS 3 Xrotation Zrotation Yrotation
-    JOINT slider
-    {
-      OFFSET 5.0 0.0 0.0
-      CHANNELS 6 Zrotation Xrotation Yrotation Xposition Yposition Zposition
-      JOINT fixed
-      {
-        OFFSET 0.0 0.0 4.0
-        CHANNELS 0
-        End Site
-        {
-          OFFSET 1.0 1.0 1.0
-        }
-      }
-    }
-  }
-  JOINT twist
-  {
-    OFFSET -3.0 0.0 0.0
-    CHANNELS 1 Yrotation
-    End Site
-    {
-      OFFSET 0.0 -2.0 0.0
-    }
-  }
-}
-ROOT prop
-{
-  OFFSET 0.0 0.0 0.0
-  CHANNELS 3 Xposition Yposition Zposition
-  End Site
-  {
-    OFFSET 0.0 1.0 0.0
-  }
-}
-"""
-
-
-def write_odd_bvh(path, frames=40, seed=0):
-    g = np.random.default_rng(seed)
-    n_ch = 6 + 3 + 6 + 0 + 1 + 3
-    data = g.uniform(-90, 90, size=(frames, n_ch))
-    data[:, :3] = g.uniform(-5, 5, size=(frames, 3))      # root position
-    data[:, 12:15] = g.uniform(-2, 8, size=(frames, 3))   # slider local translation
-    data[:, 16:19] = g.uniform(-1, 1, size=(frames, 3))   # prop position
-    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in data)
-    path.write_text(ODD_HIERARCHY + f"MOTION\nFrames: {frames}\nFrame Time: 0.04\n{body}\n")
-    return path
 
 
 def test_any_hierarchy_matches_independent_fk(tmp_path):

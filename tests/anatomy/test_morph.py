@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import asset
 
 from rig.base.errors import InputError
 from rig.skin.skinning import pose_character
-from tests.conftest import asset
 
 
 def stretched(p: np.ndarray) -> np.ndarray:

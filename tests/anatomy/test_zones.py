@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import asset
 
 from rig.anatomy.zones import blend_weights, body_zones, edge_graph, segment_zones, skeleton_neighbours
 from rig.base.errors import InputError
 from rig.character.bone_heat import weld
-from tests.conftest import asset
 
 
 @pytest.fixture(scope="module")

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import asset
 
 from rig.anatomy.markers import HUMAN, WIDTHS, find_markers, read_markers, write_markers
 from rig.base.errors import InputError
-from tests.conftest import asset
 
 
 @pytest.fixture(scope="module")
