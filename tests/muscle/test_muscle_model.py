@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 import trimesh
-from arm_muscles import (ARM_BIND, arm_world, biceps, brachio, spec_from_ellipsoid)
+from arm_muscles import ARM_BIND, arm_world, biceps, brachio, spec_from_ellipsoid
 from conftest import asset
 from scipy.interpolate import BSpline, CubicSpline
 from scipy.spatial.transform import Rotation
