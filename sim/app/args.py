@@ -1,0 +1,179 @@
+"""The command line's shared parts: the parser class, argument types, and the argument groups that
+several subcommands take (clip reading, character and generated body, mesh reading, joint maps, the
+bake options of `bake` and `demo`), each defined once.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXIT_USER_ERROR = 2
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own exit code is 2 too; keep the one-line style
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_USER_ERROR, f"jiggle: error: {message}\n")
+
+
+def non_negative(name):
+    def conv(v):
+        try:
+            x = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
+        if not 0 <= x < float("inf"):
+            raise argparse.ArgumentTypeError(f"{name} must be zero or more, got {v!r}")
+        return x
+    return conv
+
+
+def positive(name):
+    def conv(v):
+        try:
+            x = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
+        if not x > 0 or x == float("inf"):
+            raise argparse.ArgumentTypeError(f"{name} must be a positive number, got {v!r}")
+        return x
+    return conv
+
+
+def count(name, zero=False):
+    least = 0 if zero else 1
+
+    def conv(v):
+        try:
+            n = int(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a whole number, got {v!r}") from None
+        if n < least:
+            raise argparse.ArgumentTypeError(f"{name} must be at least {least}, got {v!r}")
+        return n
+    return conv
+
+
+def unit_interval(name):
+    def conv(v):
+        try:
+            x = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
+        if not 0.0 <= x <= 1.0:
+            raise argparse.ArgumentTypeError(f"{name} must be in [0, 1], got {v!r}")
+        return x
+    return conv
+
+
+def animation(value):
+    if value is None:
+        return None
+    return int(value) if value.lstrip("-").isdigit() else value
+
+
+# ---------------------------------------------------------------------------------------- groups
+def clip_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("clip reading")
+    g.add_argument("--skeleton", metavar="ASF", help="the ASF skeleton of an AMC clip (default: the one .asf beside it)")
+    g.add_argument("--animation", metavar="NAME|INDEX", help="glTF animation to play (default: the first)")
+    g.add_argument("--scale", type=float, metavar="M", help="BVH metres per file unit (default: CMU recognised, else guessed from height)")
+    g.add_argument("--tpose", choices=["auto", "skip", "keep"], default="auto",
+                   help="BVH first frame: auto drops a T-pose added by converters (CMU), skip always drops it, keep never (default: auto)")
+
+
+def character_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("character and generated body")
+    if p.prog.split()[-1] not in ("body", "fit", "simulate"):
+        g.add_argument("--no-character", action="store_true", help="skeleton only: no body, no skinning")
+        g.add_argument("--skinning", choices=["lbs", "dqs"], default="lbs",
+                       help="linear blend or dual-quaternion skinning (default: lbs)")
+    influences_option(g)
+    g.add_argument("--resolution", type=count("--resolution"), metavar="N",
+                   help="generated body: target vertex count, 10000-40000 useful (default: 20000)")
+    from rig.character.body import BodyOptions
+    for name, what in (("belly", "belly"), ("chest", "chest"), ("glutes", "glutes"), ("upper-arms", "upper arms")):
+        default = getattr(BodyOptions(), name.replace("-", "_"))
+        g.add_argument(f"--{name}", type=non_negative(f"--{name}"), metavar="M",
+                       help=f"generated body: fat on the {what}, metres it pushes the skin out; 0 for none "
+                            f"(default: {default:g})")
+
+
+def mesh_options(g) -> None:
+    """How to read a character file: --skin, --unit, --up (play and fit)."""
+    g.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of a glTF character (default: 0)")
+    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per unit "
+                   "(default: m)")
+    g.add_argument("--up", choices=["auto", "y", "z"], default="auto",
+                   help="up axis of an OBJ/PLY/STL character (default: auto, the longer of y and z)")
+
+
+def map_options(g) -> None:
+    """Joint maps for retargeting a clip onto a character: --clip-map, --character-map (play and deform)."""
+    g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
+    g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
+
+
+def bake_options(p: argparse.ArgumentParser, out: str) -> None:
+    """Options shared by `jiggle bake` and `jiggle demo`."""
+    from sim.bake.scene import FORMATS
+    p.add_argument("--out", default=out, help=f"output folder (default: {out})")
+    p.add_argument("--resume", action="store_true", help="finish the interrupted bake in --out (same parameters)")
+    g = p.add_argument_group("time")
+    g.add_argument("--fps", type=positive("--fps"), metavar="N", help="output frames per second (default: the "
+                   "scene's, else 30)")
+    g.add_argument("--start", type=non_negative("--start"), metavar="S", help="first frame, seconds of the clip "
+                   "(default: 0)")
+    g.add_argument("--end", type=non_negative("--end"), metavar="E", help="last frame, seconds of the clip "
+                   "(default: its end)")
+    g.add_argument("--frames", type=count("--frames"), metavar="N", help="only the first N output frames")
+    g.add_argument("--drive", choices=["kinematic", "physics"], help="kinematic: MuJoCo poses the skeleton from the "
+                   "clip; physics: MuJoCo simulates the body on a floor following it (default: the scene's, else "
+                   "kinematic)")
+    g = p.add_argument_group("jiggle (over the scene's [jiggle] section)")
+    g.add_argument("--substeps", type=count("--substeps"), metavar="N", help="integration steps per output frame "
+                   "(default: 4)")
+    g.add_argument("--blend", type=unit_interval("--blend"), metavar="B", help="static_dyn_blend of every muscle: "
+                   "0 static, 1 dynamic (default: the scene's curves, else 1)")
+    g.add_argument("--jiggle", type=unit_interval("--jiggle"), metavar="J", help="jiggle strength of every muscle "
+                   "in [0, 1] (default: each muscle's, 1)")
+    g = p.add_argument_group("caches")
+    g.add_argument("--formats", metavar="LIST", help=f"comma-separated cache formats: {', '.join(FORMATS)} "
+                   "(default: the scene's, else npz,usdc)")
+    g.add_argument("--chunk", type=count("--chunk"), metavar="N", help="frames per chunk written and resumed "
+                   "(default: 64)")
+    g = p.add_argument_group("skin")
+    g.add_argument("--skinning", choices=["shell", "influence", "rbf"], help="how the muscles move the skin: shell, influence or rbf "
+                   "(default: shell)")
+    g.add_argument("--method", choices=["lbs", "dqs"], help="smooth skinning underneath (default: lbs)")
+    g.add_argument("--influences", type=count("--influences"), metavar="K", help="skin weights kept per vertex "
+                   "(default: 4)")
+    g.add_argument("--resolution", type=count("--resolution"), metavar="N",
+                   help="generated body: target vertex count (default: the scene's, else 20000)")
+    for name in ("belly", "chest", "glutes", "upper-arms"):
+        g.add_argument(f"--{name}", type=non_negative(f"--{name}"), metavar="M",
+                       help=f"generated body: metres of fat on the {name.replace('-', ' ')}")
+
+
+def template_option(g) -> None:
+    """--template: the muscle template that commands fitting muscles to a character take."""
+    g.add_argument("--template", metavar="T", help="muscle template: built-in name or .toml/.xml (default: human)")
+
+
+def joint_map_option(g) -> None:
+    """--joint-map: the joint map naming a template's roles on the character."""
+    g.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles")
+
+
+def muscle_skin_options(g) -> None:
+    """--skinning, --method: how the muscles move the skin, over which smooth skinning."""
+    g.add_argument("--skinning", choices=["shell", "influence", "rbf"], default="shell",
+                   help="how the muscles move the skin: shell deformers, influence objects or anatomy-driven RBF "
+                   "(default: shell)")
+    g.add_argument("--method", choices=["lbs", "dqs"], default="lbs", help="smooth skinning underneath (default: lbs)")
+
+
+def influences_option(g) -> None:
+    """--influences: skin weights kept per vertex when a character is read or weighted."""
+    g.add_argument("--influences", type=count("--influences"), default=4, metavar="K",
+                   help="skin weights kept per vertex (default: 4)")

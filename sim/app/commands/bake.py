@@ -1,0 +1,100 @@
+"""`jiggle bake`: a clip baked into caches (USD, npz, pc2), chunk by chunk, with a progress bar and
+--resume after Ctrl-C (sim/bake).
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+from sim.app.args import bake_options, clip_options, joint_map_option, map_options, template_option
+
+
+def bake_request(args):
+    """The BakeRequest of `jiggle bake` (or `jiggle demo`) arguments."""
+    from types import MappingProxyType
+
+    from sim.bake.scene import parse_formats
+    from sim.bake.setup import BakeRequest
+    body = {k: getattr(args, k) for k in ("resolution", "belly", "chest", "glutes", "upper_arms")
+            if getattr(args, k, None) is not None}
+    formats = None if getattr(args, "formats", None) is None else parse_formats(args.formats)
+    return BakeRequest(
+        scene=getattr(args, "scene", None), clip=getattr(args, "clip", None), skeleton=getattr(args, "skeleton", None),
+        animation=getattr(args, "animation", None), scale=getattr(args, "scale", None),
+        tpose=getattr(args, "tpose", "auto"), character=getattr(args, "character", None),
+        template=getattr(args, "template", None), fps=args.fps, substeps=args.substeps, blend=args.blend,
+        jiggle=args.jiggle, start=args.start, end=args.end, frames=args.frames, drive=args.drive,
+        formats=formats, chunk=args.chunk, body=MappingProxyType(body), influences=args.influences,
+        skinning=args.skinning, method=args.method, joint_map=getattr(args, "joint_map", None),
+        clip_map=getattr(args, "clip_map", None), character_map=getattr(args, "character_map", None),
+        skin=getattr(args, "skin", None), unit=getattr(args, "unit", None))
+
+
+def run_bake(request, out_dir: str, resume: bool = False) -> dict:
+    """Prepare and bake with a progress bar; on Ctrl-C say how to resume and re-raise."""
+    from tqdm import tqdm
+
+    from sim.bake.baker import bake
+    from sim.bake.setup import prepare
+
+    def log(s):
+        print(f"  {s}", file=sys.stderr)
+    setup = prepare(request, log)
+    T = len(setup.times)
+    print(f"baking {setup.name!r}: {T} frames at {setup.fps:g} fps ({setup.times[0]:.3f}-{setup.times[-1]:.3f} s), "
+          f"{setup.character.num_vertices} vertices, {setup.rig.M} muscles -> {os.path.abspath(out_dir)}",
+          file=sys.stderr)
+    with tqdm(total=T, unit="frame", desc="bake", disable=None, file=sys.stderr, dynamic_ncols=True) as bar:
+        try:
+            summary = bake(setup, out_dir, resume=resume, progress=bar.update,
+                           log=lambda s: bar.write(f"  {s}", file=sys.stderr))
+        except KeyboardInterrupt:
+            bar.close()
+            print(f"jiggle: interrupted after {bar.n} of {T} frames; the chunks baked so far are kept in "
+                  f"{os.path.join(out_dir, '.partial')}: run the same command with --resume to finish", file=sys.stderr)
+            raise
+    return summary
+
+
+def print_bake(summary: dict, out_dir: str) -> None:
+    tm = summary["timings"]
+    fps = tm.get("frames_per_s")
+    print(f"{summary['name']}: {summary['frames']} frames, {summary['vertices']} vertices, {summary['muscles']} "
+          f"muscles baked in {tm['frames_s']:.2f} s" + (f" ({fps:.0f} frames/s)" if fps else "") +
+          f", caches written in {tm['caches_s']:.2f} s")
+    for k, f in summary["files"].items():
+        print(f"  {k:5s} {os.path.join(out_dir, f)}")
+    print(f"  json  {os.path.join(out_dir, 'bake.json')}")
+
+
+def run(args) -> int:
+    summary = run_bake(bake_request(args), args.out, resume=args.resume)
+    print_bake(summary, args.out)
+    return 0
+
+
+def add_parser(sub) -> None:
+    """The `jiggle bake` subcommand and its options."""
+    p = sub.add_parser("bake", help="bake jiggle for a clip into caches (USD, npz, pc2)",
+                       description="Clip -> MuJoCo skeleton -> static muscles -> particles -> blend -> skinning -> "
+                                   "caches. Writes bake.npz, bake.usdc (or .usda) and optionally bake.pc2, with "
+                                   "bake.json (parameters, timings), into --out. Long bakes are written in chunks: "
+                                   "Ctrl-C keeps the chunks done and --resume finishes the bake, equal to an "
+                                   "unbroken one. Without a scene or --clip: the built-in demo scene. "
+                                   "Command-line settings override the scene's.")
+    p.add_argument("scene", nargs="?", metavar="SCENE", help="a scene TOML (scenes/*.toml); its [motion] may be left "
+                   "out and given with --clip")
+    p.add_argument("--clip", metavar="FILE", help="the motion: BVH, AMC (its ASF beside it or --skeleton) or "
+                   "glTF/GLB with animations (--animation)")
+    p.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB: the clip is retargeted onto it "
+                   "(default: the scene's, else a body generated around the clip's skeleton)")
+    template_option(p)
+    bake_options(p, "out/bake")
+    g = p.add_argument_group("character")
+    joint_map_option(g)
+    map_options(g)
+    g.add_argument("--skin", type=int, metavar="N", help="which skin of a glTF character (default: 0)")
+    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per "
+                   "unit (default: m)")
+    clip_options(p)
+    p.set_defaults(func=run)

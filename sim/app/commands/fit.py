@@ -1,0 +1,76 @@
+"""`jiggle fit [CHARACTER]`: fit a template's muscles and fat to a character from the outside in and
+write the musculature, its facts and a picture.
+"""
+from __future__ import annotations
+
+import os
+
+from sim.app.args import character_options, count, mesh_options, unit_interval
+from sim.app.loading import default_scene, generated_character
+
+SKELETON_SUFFIXES = (".bvh", ".asf", ".amc", ".toml", ".xml")
+
+
+def fit_character(path: str | None, args):
+    """The character `jiggle fit` works on: a skinned glTF, a mesh with --skeleton, or a body generated
+    around a skeleton file (clip, ASF, MJCF, keyframed TOML); None: the demo's generated body."""
+    from rig.character.load import load_character, load_skeleton
+    if path is None:
+        from sim.bake.scene import load_scene
+        return generated_character(load_scene(default_scene()).clip, args)
+    if os.path.splitext(path)[1].lower() in SKELETON_SUFFIXES:
+        return generated_character(load_skeleton(path), args)
+    return load_character(path, skeleton=args.skeleton, k=args.influences, unit=args.unit, up=args.up,
+                          skin=args.skin)
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from rig.muscle.fit import FitOptions, fit_musculature
+    from sim.app.fit_outputs import write_fit_outputs
+    character = fit_character(args.character, args)
+    options = FitOptions(iterations=args.iterations, lam=args.smoothing, volume=args.volume,
+                         joint_map=args.joint_map, exclude=tuple(args.exclude or ()))
+    mus = fit_musculature(character, args.template or "human", options)
+    png = None if args.no_render else (args.png or os.path.join(os.path.dirname(args.out) or ".", "fit.png"))
+    json_path = os.path.splitext(args.out)[0] + ".json"
+    files = write_fit_outputs(mus, args.out, png, json_path)
+    rig = mus.rig
+    print(f"fitted {len(mus.muscles)} muscles ({sum(m.kind == 'fat' for m in mus.muscles)} fat) from template "
+          f"{mus.template.name!r} to {character.name or 'the character'} ({character.num_vertices} vertices) in "
+          f"{mus.timings['total']:.2f} s; loft fit error rms {1e3 * float(np.sqrt(np.mean(rig.fit_rms ** 2))):.2f} mm, "
+          f"worst {1e3 * float(rig.fit_max.max()):.2f} mm")
+    for k, f in files.items():
+        print(f"  {k:9s} {f}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    """The `jiggle fit` subcommand and its options."""
+    p = sub.add_parser("fit", help="fit muscles and fat to a character from a template (outside in)",
+                       description="Segment the character's skin by bone, fit the template's ellipsoidal muscles "
+                                   "and muscle pairs to the regions, attach tendons, conform them to the skin and "
+                                   "build the lofted muscle model; write the musculature (TOML), its facts (JSON) "
+                                   "and a picture of the skin over the muscles.")
+    p.add_argument("character", nargs="?", metavar="CHARACTER",
+                   help="a skinned glTF/GLB, a mesh (OBJ/PLY/STL/glTF, with --skeleton), or a skeleton "
+                        "(BVH, ASF, AMC, MJCF, keyframed TOML) to generate a body around (default: the demo's body)")
+    p.add_argument("--template", metavar="T", help="template: built-in name or .toml/.xml file (default: human)")
+    p.add_argument("--out", default="out/fit/muscles.toml", help="musculature TOML (default: out/fit/muscles.toml)")
+    p.add_argument("--png", metavar="FILE", help="picture (default: fit.png beside --out)")
+    p.add_argument("--no-render", action="store_true", help="skip the picture")
+    p.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles (default: "
+                   "a built-in preset that fits, else found from the skeleton)")
+    p.add_argument("--iterations", type=count("--iterations", zero=True), default=25,
+                   help="normal smoothing iterations for the segmentation (default: 25)")
+    p.add_argument("--smoothing", type=unit_interval("--smoothing"), default=1.0, metavar="LAMBDA",
+                   help="normal smoothing lambda in [0, 1] (default: 1)")
+    p.add_argument("--exclude", action="append", metavar="JOINT", help="leave a joint's bones out of the "
+                   "segmentation (repeatable)")
+    p.add_argument("--volume", choices=["exact", "sqrt", "thesis", "none"], default="exact",
+                   help="how muscles keep their volume when they stretch (default: exact)")
+    p.add_argument("--skeleton", metavar="FILE", help="the skeleton of a mesh character (clip, ASF, MJCF)")
+    mesh_options(p)
+    character_options(p)
+    p.set_defaults(func=run)
