@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from rig.skin.gather_kernels import csr_span, entry
+
 
 @wp.func
 def frame_apply(xw: wp.vec3, xv: wp.vec3, eps: float, offset: wp.vec3):
@@ -66,10 +68,10 @@ def influence_displace(
     """
     i = wp.tid()
     acc = wp.vec3(0.0, 0.0, 0.0)
-    for p in range(pair_offsets[i], pair_offsets[i + 1]):
-        weight = pair_weight[p]
+    first, end = csr_span(pair_offsets, i)
+    for p in range(first, end):
+        m, weight = entry(pair_muscle, pair_weight, p)
         if weight != 0.0:
-            m = pair_muscle[p]
             base = m * 40
             first = ring_first[p]
             c0 = cvs_cur[base]

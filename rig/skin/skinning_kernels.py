@@ -7,11 +7,14 @@ Everything is float32. Influences are flat: vertex ``v`` owns entries ``v*k .. v
 
 The per-vertex maths is one ``@wp.func`` per method (:func:`lbs_point`, :func:`dqs_point`), shared by
 the single-frame kernels (dim V) and the batched ones (T frames in one launch, the frames' matrices
-or dual quaternions flattened to (T * J,) and read from ``t * J``).
+or dual quaternions flattened to (T * J,) and read from ``t * J``). A vertex's influences are read
+through rig/skin/gather_kernels.py, as in the shell and influence kernels.
 """
 from __future__ import annotations
 
 import warp as wp
+
+from rig.skin.gather_kernels import entry, fixed_span
 
 
 @wp.func
@@ -28,11 +31,12 @@ def lbs_point(
     matrices[base .. base + J - 1] (base = 0 for one frame, t * J for frame t of a batch)."""
     p = rest[v]
     acc = wp.vec3(0.0, 0.0, 0.0)
-    for i in range(k):
-        w = weights[v * k + i]
+    first, end = fixed_span(k, v)
+    for e in range(first, end):
+        j, w = entry(joints, weights, e)
         # padded influences (weight 0) are common after top-k; skipping them saves the matrix load
         if w != 0.0:
-            acc += w * wp.transform_point(matrices[base + joints[v * k + i]], p)
+            acc += w * wp.transform_point(matrices[base + j], p)
     return acc
 
 
@@ -125,12 +129,13 @@ def dqs_point(
     The first influence of each vertex must be its largest (the wrapper sorts them): the other
     joints' quaternions are flipped into its hemisphere so the blend takes the short way round.
     """
-    pivot = real[base + joints[v * k]]
+    first, end = fixed_span(k, v)
+    pivot = real[base + joints[first]]
     br = wp.quat(0.0, 0.0, 0.0, 0.0)
     bd = wp.quat(0.0, 0.0, 0.0, 0.0)
-    for i in range(k):
-        j = base + joints[v * k + i]
-        w = weights[v * k + i]
+    for e in range(first, end):
+        jj, w = entry(joints, weights, e)
+        j = base + jj
         if wp.dot(real[j], pivot) < 0.0:
             w = -w
         br += w * real[j]

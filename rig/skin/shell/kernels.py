@@ -17,6 +17,8 @@ import math
 
 import warp as wp
 
+from rig.skin.gather_kernels import csr_span, entry
+
 # forward only: these kernels are never differentiated (no adjoint code to compile)
 wp.set_module_options({"enable_backward": False})
 
@@ -149,8 +151,9 @@ def shell_point(
     """
     p = p_in
     K = curve.shape[1]
-    for i in range(pair_offsets[v], pair_offsets[v + 1]):
-        m = pair_muscle[i]
+    first, end = csr_span(pair_offsets, v)
+    for i in range(first, end):
+        m, pw = entry(pair_muscle, pair_weight, i)
         mr = ref + m
         mc = cur + m
         # inactive muscles (NaN CVs, degenerate frames) may hold NaN matrices: never read them
@@ -204,7 +207,7 @@ def shell_point(
                 reach_w = float(0.0)
                 if r >= TINY_R:
                     reach_w = d * wp.length(p - centre[mr]) / r
-                p = p + (weight[m] * pair_weight[i]) * limit(D, reach_w)
+                p = p + (weight[m] * pw) * limit(D, reach_w)
     return p
 
 
