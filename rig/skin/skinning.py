@@ -24,6 +24,7 @@ from rig.base.errors import InputError
 from rig.character.normals import VertexNormals
 from rig.motion import quat
 from rig.skin import skinning_kernels as kernels
+from rig.skin.scratch import Scratch
 
 METHODS = ("lbs", "dqs")
 
@@ -241,7 +242,7 @@ class Skinner:
         self._matrices = None
         self._real = None
         self._dual = None
-        self._batch = {}      # scratch of the batched launch: name -> device array, sized (T, ...)
+        self._scratch = Scratch(self.device)      # the batched launch's buffers, sized (T, ...)
         # batched launches: a thread per frame and vertex (GPU) or per vertex, running through the frames
         # (CPU: Warp's CPU launch divides the index of every thread of a multi-dimensional launch)
         self.thread_per_frame = not self.device.is_cpu
@@ -330,13 +331,6 @@ class Skinner:
                       inputs=[model.rest, model.joints, model.weights, model.k, real, dual, J, stride],
                       outputs=[out])
         return out
-
-    def _scratch(self, name: str, shape: tuple, dtype) -> wp.array:
-        """The batched launch's device buffer `name`, (re)allocated when the shape changes."""
-        buf = self._batch.get(name)
-        if buf is None or buf.shape != shape:
-            buf = self._batch[name] = wp.empty(shape, dtype=dtype, device=self.device)
-        return buf
 
     def normals(self, positions) -> np.ndarray:
         """Unit vertex normals of skinned positions (V, 3) or (N, V, 3), from the faces given."""

@@ -18,6 +18,7 @@ import numpy as np
 import warp as wp
 
 from rig.base.errors import InputError
+from rig.skin.scratch import Scratch
 from rig.skin.shell import kernels as kernels
 from rig.skin.shell.shells import ShellFrames, ShellTable
 
@@ -196,7 +197,7 @@ class ShellDeformer:
         self._centre = wp.empty(M, dtype=wp.vec3, device=self.device)
         self._active = wp.empty(M, dtype=wp.int32, device=self.device)
         self._curve = None
-        self._batch = {}      # scratch of the batched launch: name -> device array, sized (S, T, ...)
+        self._scratch = Scratch(self.device)      # the batched launch's buffers, sized (S, T, ...)
         # batched launches: a thread per frame and vertex (GPU) or per vertex, running through the frames
         # (CPU: Warp's CPU launch divides the index of every thread of a multi-dimensional launch)
         self.thread_per_frame = not self.device.is_cpu
@@ -288,13 +289,6 @@ class ShellDeformer:
                           stride, *state, points],
                   outputs=[out])
         return out
-
-    def _scratch(self, name: str, shape: tuple, dtype) -> wp.array:
-        """The batched launch's device buffer `name`, (re)allocated when the shape changes."""
-        buf = self._batch.get(name)
-        if buf is None or buf.shape != shape:
-            buf = self._batch[name] = wp.empty(shape, dtype=dtype, device=self.device)
-        return buf
 
     def _upload_batch(self, batch: ShellBatch) -> list:
         """Check the active muscles' state is finite and upload the batch once: E_ref, E_ref_inv,
