@@ -19,7 +19,7 @@ import warp as wp
 
 from rig.base.errors import InputError
 from rig.skin.scratch import Scratch
-from rig.skin.shell import kernels as kernels
+from rig.skin.shell import kernels
 from rig.skin.shell.shells import ShellFrames, ShellTable
 
 
@@ -33,6 +33,7 @@ class ShellModel:
     star_max : (max(S, 1),) float32, each table's largest offset (the kernel's early-out bound).
     paired : (num_paired,) int32, ascending, the vertices owning at least one pair (the batched
         launch deforms only these and copies the others).
+    arrays : the same arrays as the kernels' ShellArrays struct (what every launch passes).
     """
 
     pair_offsets: wp.array
@@ -52,6 +53,7 @@ class ShellModel:
     num_pairs: int
     num_muscles: int
     num_paired: int
+    arrays: kernels.ShellArrays
 
 
 @dataclass(frozen=True)
@@ -152,6 +154,19 @@ def check_pairs(pair_offsets, pair_muscle, pair_weight, num_muscles: int
     return off.astype(np.int32), mus.astype(np.int32), w.astype(np.float32)
 
 
+def _struct(struct, fields: dict):
+    """`struct` (a Warp struct instance) with its fields set from `fields`."""
+    for k, v in fields.items():
+        setattr(struct, k, v)
+    return struct
+
+
+def _state(E_ref, E_ref_inv, dE, E_cur_inv, centre, curve, active) -> kernels.ShellState:
+    """The kernels' per-launch state struct over device arrays (no copy)."""
+    return _struct(kernels.ShellState(), dict(E_ref=E_ref, E_ref_inv=E_ref_inv, dE=dE, E_cur_inv=E_cur_inv,
+                                              centre=centre, curve=curve, active=active))
+
+
 class ShellDeformer:
     """All muscles' shell deformers on one skin, in series, with Warp.
 
@@ -182,15 +197,16 @@ class ShellDeformer:
         def i32(a):
             return wp.array(np.asarray(a, np.int32), dtype=wp.int32, device=self.device)
 
-        self.model = ShellModel(
+        arrays = dict(
             pair_offsets=i32(off), pair_muscle=i32(mus), pair_weight=f32(wts),
             sticky=f32(table.sticky), hard=f32(table.hard), drop_off=f32(table.drop_off),
             weight=f32(table.weight), slippage=f32(table.slippage), mode=i32(table.mode),
             star_index=i32(table.star_index),
             star=wp.array(np.asarray(star, np.float32), dtype=wp.float32, device=self.device),
-            star_max=f32(np.max(star, axis=(1, 2))), paired=i32(paired),
-            num_vertices=int(off.shape[0] - 1), num_pairs=int(mus.shape[0]), num_muscles=int(M),
-            num_paired=len(paired))
+            star_max=f32(np.max(star, axis=(1, 2))))
+        self.model = ShellModel(
+            **arrays, paired=i32(paired), num_vertices=int(off.shape[0] - 1), num_pairs=int(mus.shape[0]),
+            num_muscles=int(M), num_paired=len(paired), arrays=_struct(kernels.ShellArrays(), arrays))
         V = self.model.num_vertices
         self._points_out = wp.empty(V, dtype=wp.vec3, device=self.device)
         self._E = [wp.empty(M, dtype=wp.mat44, device=self.device) for _ in range(4)]
@@ -233,12 +249,9 @@ class ShellDeformer:
         if model.num_pairs == 0:
             wp.copy(self._points_out, points)
             return self._points_out
+        state = _state(*self._E, self._centre, self._curve, self._active)
         wp.launch(kernels.shells, dim=model.num_vertices, device=self.device,
-                  inputs=[model.pair_offsets, model.pair_muscle, model.pair_weight,
-                          model.sticky, model.hard, model.drop_off, model.weight, model.slippage,
-                          model.mode, model.star_index, model.star, model.star_max,
-                          *self._E, self._centre, self._curve, self._active, points],
-                  outputs=[self._points_out])
+                  inputs=[model.arrays, state, points], outputs=[self._points_out])
         return self._points_out
 
     def deform_batch(self, points, batch: ShellBatch) -> np.ndarray:
@@ -283,11 +296,7 @@ class ShellDeformer:
         state = self._upload_batch(batch)
         stride = T if self.thread_per_frame else 1
         wp.launch(kernels.shells_batch, dim=(stride, model.num_paired), device=self.device,
-                  inputs=[model.pair_offsets, model.pair_muscle, model.pair_weight,
-                          model.sticky, model.hard, model.drop_off, model.weight, model.slippage,
-                          model.mode, model.star_index, model.star, model.star_max, model.paired, M,
-                          stride, *state, points],
-                  outputs=[out])
+                  inputs=[model.arrays, model.paired, M, stride, _state(*state), points], outputs=[out])
         return out
 
     def _upload_batch(self, batch: ShellBatch) -> list:

@@ -36,6 +36,41 @@ PI = wp.constant(math.pi)
 LIMIT_KNEE = wp.constant(0.5)   # rig.skin.shell.shells.LIMIT_KNEE
 
 
+@wp.struct
+class ShellArrays:
+    """What the kernels read of the deformers' model (rig.skin.shell.deformer.ShellModel), built once:
+    the CSR (vertex, muscle) pairs with their painted weights, each muscle's shell parameters (M,)
+    and the star tables (max(S, 1), 17, 32) with their largest offsets."""
+
+    pair_offsets: wp.array(dtype=wp.int32)
+    pair_muscle: wp.array(dtype=wp.int32)
+    pair_weight: wp.array(dtype=wp.float32)
+    sticky: wp.array(dtype=wp.float32)
+    hard: wp.array(dtype=wp.float32)
+    drop_off: wp.array(dtype=wp.float32)
+    weight: wp.array(dtype=wp.float32)
+    slippage: wp.array(dtype=wp.float32)
+    mode: wp.array(dtype=wp.int32)
+    star_index: wp.array(dtype=wp.int32)
+    star: wp.array3d(dtype=wp.float32)
+    star_max: wp.array(dtype=wp.float32)
+
+
+@wp.struct
+class ShellState:
+    """The muscles' state the kernels read per frame (see :func:`shell_point` for the indexing):
+    reference ellipsoids and their inverses, dE = E_cur - E_ref, the current inverses, the reference
+    centres, the trajectory curves (rows of K samples) and whether each muscle is active."""
+
+    E_ref: wp.array(dtype=wp.mat44)
+    E_ref_inv: wp.array(dtype=wp.mat44)
+    dE: wp.array(dtype=wp.mat44)
+    E_cur_inv: wp.array(dtype=wp.mat44)
+    centre: wp.array(dtype=wp.vec3)
+    curve: wp.array2d(dtype=wp.vec3)
+    active: wp.array(dtype=wp.int32)
+
+
 @wp.func
 def falloff(x: float):
     """(1 - x^2)^2 with x clamped to [0, 1]: 1 below 0, 0 above 1, C1 at both ends."""
@@ -115,26 +150,9 @@ def pull(p_l: wp.vec3, star: wp.array3d(dtype=wp.float32), table: int, s: float,
 @wp.func
 def shell_point(
     # model
-    pair_offsets: wp.array(dtype=wp.int32),
-    pair_muscle: wp.array(dtype=wp.int32),
-    pair_weight: wp.array(dtype=wp.float32),
-    sticky: wp.array(dtype=wp.float32),
-    hard: wp.array(dtype=wp.float32),
-    drop_off: wp.array(dtype=wp.float32),
-    weight: wp.array(dtype=wp.float32),
-    slippage: wp.array(dtype=wp.float32),
-    mode: wp.array(dtype=wp.int32),
-    star_index: wp.array(dtype=wp.int32),
-    star: wp.array3d(dtype=wp.float32),
-    star_max: wp.array(dtype=wp.float32),
+    model: ShellArrays,
     # state in
-    E_ref: wp.array(dtype=wp.mat44),
-    E_ref_inv: wp.array(dtype=wp.mat44),
-    dE: wp.array(dtype=wp.mat44),
-    E_cur_inv: wp.array(dtype=wp.mat44),
-    centre: wp.array(dtype=wp.vec3),
-    curve: wp.array2d(dtype=wp.vec3),
-    active: wp.array(dtype=wp.int32),
+    state: ShellState,
     ref: int,
     cur: int,
     v: int,
@@ -150,55 +168,55 @@ def shell_point(
     offset of star table i (an upper bound of delta for the early out).
     """
     p = p_in
-    K = curve.shape[1]
-    first, end = csr_span(pair_offsets, v)
+    K = state.curve.shape[1]
+    first, end = csr_span(model.pair_offsets, v)
     for i in range(first, end):
-        m, pw = entry(pair_muscle, pair_weight, i)
+        m, pw = entry(model.pair_muscle, model.pair_weight, i)
         mr = ref + m
         mc = cur + m
         # inactive muscles (NaN CVs, degenerate frames) may hold NaN matrices: never read them
-        if active[mc] != 0:
-            d = drop_off[m]
-            table = star_index[m]
+        if state.active[mc] != 0:
+            d = model.drop_off[m]
+            table = model.star_index[m]
             # beyond this local radius rho >= 1 + d for any direction: beta = alpha = 0 and D = 0.
             # Culling keeps a margin beyond the drop-off shell, so many pairs stop here, before the
             # star lookup (the most expensive part)
             reach = 1.0 + d
             if table >= 0:
-                reach = reach + star_max[table]
-            mo = mode[m]
-            p_l = wp.transform_point(E_ref_inv[mr], p)
+                reach = reach + model.star_max[table]
+            mo = model.mode[m]
+            p_l = wp.transform_point(state.E_ref_inv[mr], p)
             r2 = wp.dot(p_l, p_l)
             D = wp.vec3(0.0, 0.0, 0.0)
             moved = False
             if mo == MODE_BASIC:
-                pc_l = wp.transform_point(E_cur_inv[mc], p)
+                pc_l = wp.transform_point(state.E_cur_inv[mc], p)
                 if r2 < reach * reach or wp.dot(pc_l, pc_l) < reach * reach:
-                    q, rho = pull(p_l, star, table, sticky[m], hard[m], d)
-                    qc, rho_c = pull(pc_l, star, table, sticky[m], hard[m], d)
-                    E_cur = E_ref[mr] + dE[mc]
-                    D = wp.transform_point(E_cur, qc) - wp.transform_point(E_ref[mr], q)
+                    q, rho = pull(p_l, model.star, table, model.sticky[m], model.hard[m], d)
+                    qc, rho_c = pull(pc_l, model.star, table, model.sticky[m], model.hard[m], d)
+                    E_cur = state.E_ref[mr] + state.dE[mc]
+                    D = wp.transform_point(E_cur, qc) - wp.transform_point(state.E_ref[mr], q)
                     moved = True
             elif r2 < reach * reach:
-                q, rho = pull(p_l, star, table, sticky[m], hard[m], d)
+                q, rho = pull(p_l, model.star, table, model.sticky[m], model.hard[m], d)
                 al = shell_alpha(rho, d)
                 # a = 0 wherever alpha = 0 (also for l = 0): nothing beyond the drop-off shell moves
                 a = float(0.0)
                 if al > 0.0:
-                    l = slippage[m]
+                    l = model.slippage[m]
                     a = al
                     if l != 1.0:    # pow is the costliest step of a pair; l = 1 is the default
                         a = wp.pow(al, l)
                     if mo == MODE_STRETCH:
                         # (E_cur - E_ref) (q, 1): the difference first, exactly 0 when they are equal
-                        D = a * wp.transform_point(dE[mc], q)
+                        D = a * wp.transform_point(state.dE[mc], q)
                     else:
                         x = a * float(K - 1)
                         j = wp.min(int(x), K - 2)
                         f = x - float(j)
-                        c0 = curve[mc, j]
-                        c = c0 + f * (curve[mc, j + 1] - c0)
-                        D = (c - curve[mc, 0]) + a * wp.transform_vector(dE[mc], q)
+                        c0 = state.curve[mc, j]
+                        c = c0 + f * (state.curve[mc, j + 1] - c0)
+                        D = (c - state.curve[mc, 0]) + a * wp.transform_vector(state.dE[mc], q)
                     moved = True
             if moved:
                 # the drop-off distance along the point's direction, d |L_ref u|, is d |p - c_ref| / r
@@ -206,34 +224,17 @@ def shell_point(
                 r = wp.sqrt(r2)
                 reach_w = float(0.0)
                 if r >= TINY_R:
-                    reach_w = d * wp.length(p - centre[mr]) / r
-                p = p + (weight[m] * pw) * limit(D, reach_w)
+                    reach_w = d * wp.length(p - state.centre[mr]) / r
+                p = p + (model.weight[m] * pw) * limit(D, reach_w)
     return p
 
 
 @wp.kernel
 def shells(
     # model
-    pair_offsets: wp.array(dtype=wp.int32),
-    pair_muscle: wp.array(dtype=wp.int32),
-    pair_weight: wp.array(dtype=wp.float32),
-    sticky: wp.array(dtype=wp.float32),
-    hard: wp.array(dtype=wp.float32),
-    drop_off: wp.array(dtype=wp.float32),
-    weight: wp.array(dtype=wp.float32),
-    slippage: wp.array(dtype=wp.float32),
-    mode: wp.array(dtype=wp.int32),
-    star_index: wp.array(dtype=wp.int32),
-    star: wp.array3d(dtype=wp.float32),
-    star_max: wp.array(dtype=wp.float32),
+    model: ShellArrays,
     # state in
-    E_ref: wp.array(dtype=wp.mat44),
-    E_ref_inv: wp.array(dtype=wp.mat44),
-    dE: wp.array(dtype=wp.mat44),
-    E_cur_inv: wp.array(dtype=wp.mat44),
-    centre: wp.array(dtype=wp.vec3),
-    curve: wp.array2d(dtype=wp.vec3),
-    active: wp.array(dtype=wp.int32),
+    state: ShellState,
     points: wp.array(dtype=wp.vec3),
     # out
     points_out: wp.array(dtype=wp.vec3),
@@ -241,37 +242,18 @@ def shells(
     """One frame, dim V: points_out[v] = points[v] with the vertex's pairs applied in series
     (:func:`shell_point`); the state arrays hold the M muscles of this frame."""
     v = wp.tid()
-    points_out[v] = shell_point(pair_offsets, pair_muscle, pair_weight, sticky, hard, drop_off, weight,
-                                slippage, mode, star_index, star, star_max,
-                                E_ref, E_ref_inv, dE, E_cur_inv, centre, curve, active, 0, 0, v, points[v])
+    points_out[v] = shell_point(model, state, 0, 0, v, points[v])
 
 
 @wp.kernel
 def shells_batch(
     # model
-    pair_offsets: wp.array(dtype=wp.int32),
-    pair_muscle: wp.array(dtype=wp.int32),
-    pair_weight: wp.array(dtype=wp.float32),
-    sticky: wp.array(dtype=wp.float32),
-    hard: wp.array(dtype=wp.float32),
-    drop_off: wp.array(dtype=wp.float32),
-    weight: wp.array(dtype=wp.float32),
-    slippage: wp.array(dtype=wp.float32),
-    mode: wp.array(dtype=wp.int32),
-    star_index: wp.array(dtype=wp.int32),
-    star: wp.array3d(dtype=wp.float32),
-    star_max: wp.array(dtype=wp.float32),
+    model: ShellArrays,
     paired: wp.array(dtype=wp.int32),
     num_muscles: int,
     frame_stride: int,
     # state in
-    E_ref: wp.array(dtype=wp.mat44),
-    E_ref_inv: wp.array(dtype=wp.mat44),
-    dE: wp.array(dtype=wp.mat44),
-    E_cur_inv: wp.array(dtype=wp.mat44),
-    centre: wp.array(dtype=wp.vec3),
-    curve: wp.array2d(dtype=wp.vec3),
-    active: wp.array(dtype=wp.int32),
+    state: ShellState,
     points: wp.array2d(dtype=wp.vec3),
     # out
     points_out: wp.array3d(dtype=wp.vec3),
@@ -293,7 +275,5 @@ def shells_batch(
     T = points.shape[0]
     for s in range(points_out.shape[0]):
         for t in range(b, T, frame_stride):
-            points_out[s, t, v] = shell_point(pair_offsets, pair_muscle, pair_weight, sticky, hard, drop_off,
-                                              weight, slippage, mode, star_index, star, star_max,
-                                              E_ref, E_ref_inv, dE, E_cur_inv, centre, curve, active,
-                                              t * num_muscles, (s * T + t) * num_muscles, v, points[t, v])
+            points_out[s, t, v] = shell_point(model, state, t * num_muscles, (s * T + t) * num_muscles, v,
+                                              points[t, v])
