@@ -41,6 +41,7 @@ import warp as wp  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "jiggle"))
 
 import test_jiggle_clips as clips  # noqa: E402  the tests' elbow flex and frame helper
 from conftest import ASSETS  # noqa: E402  ../shared/assets, or $JIGGLE_ASSETS

@@ -31,6 +31,14 @@ def hermite(pa: wp.vec3, pb: wp.vec3, va: wp.vec3, vb: wp.vec3, H: float):
 
 
 @wp.func
+def segment(pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec3), vel_end: wp.array2d(dtype=wp.vec3),
+            seg: int, i: int):
+    """Particle i's goal on knot interval seg: end positions pa, pb and end velocities va, vb (the Hermite
+    data of :func:`hermite`)."""
+    return pos[seg, i], pos[seg + 1, i], vel_start[seg, i], vel_end[seg, i]
+
+
+@wp.func
 def goal_pos(pa: wp.vec3, pb: wp.vec3, va: wp.vec3, vb: wp.vec3, H: float, s: float):
     c2, c3 = hermite(pa, pb, va, vb, H)
     return pa + s * (va + s * (c2 + s * c3))
@@ -72,10 +80,7 @@ def offsets(
     """Offsets from the goals at s: y = x - g, u = v - g'."""
     t = wp.tid()
     for i in range(t * BLOCK, wp.min(t * BLOCK + BLOCK, x.shape[0])):
-        pa = pos[seg, i]
-        pb = pos[seg + 1, i]
-        va = vel_start[seg, i]
-        vb = vel_end[seg, i]
+        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
         y_out[i] = x[i] - goal_pos(pa, pb, va, vb, H, s)
         u_out[i] = v[i] - goal_vel(pa, pb, va, vb, H, s)
 
@@ -99,10 +104,7 @@ def kick_drift(
     offsets at s0 + h (u_out before any closing kick)."""
     t = wp.tid()
     for i in range(t * BLOCK, wp.min(t * BLOCK + BLOCK, y.shape[0])):
-        pa = pos[seg, i]
-        pb = pos[seg + 1, i]
-        va = vel_start[seg, i]
-        vb = vel_end[seg, i]
+        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
         c2, c3 = hermite(pa, pb, va, vb, H)
         g_vel = va + s0 * (2.0 * c2 + 3.0 * s0 * c3)
         g_acc = 2.0 * c2 + 6.0 * s0 * c3
@@ -152,9 +154,6 @@ def glue(
 ):
     """Particles on their goals, moving with them, at s (a reset)."""
     i = wp.tid()
-    pa = pos[seg, i]
-    pb = pos[seg + 1, i]
-    va = vel_start[seg, i]
-    vb = vel_end[seg, i]
+    pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
     x_out[i] = goal_pos(pa, pb, va, vb, H, s)
     v_out[i] = goal_vel(pa, pb, va, vb, H, s)
