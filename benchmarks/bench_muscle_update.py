@@ -1,6 +1,6 @@
 """Static update of 40 thesis muscles (rig.muscle.model.MuscleRig.static): all CVs of one frame,
 vectorised over muscles, against the tests' per-muscle, per-frame Python reference
-(tests/test_muscle_model.py: reference_static, scipy splines and the loft mesh built point by point),
+(tests/muscle/test_muscle_model.py: reference_static, scipy splines and the loft mesh built point by point),
 both measured in this one run.
 
     .venv/bin/python benchmarks/bench_muscle_update.py
@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "muscle"))
 
 import test_muscle_model as ref  # noqa: E402  the tests' arm, muscles and per-muscle reference
 from timing import best  # noqa: E402  (benchmarks/timing.py)

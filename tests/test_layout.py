@@ -147,3 +147,19 @@ def test_every_module_has_a_docstring():
     missing = [name for name, path in modules().items()
                if path.name != "__init__.py" and not ast.get_docstring(ast.parse(path.read_text(encoding="utf-8")))]
     assert not missing, f"modules without a docstring: {missing}"
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "benchmarks").glob("bench_*.py")), ids=lambda p: p.stem)
+def test_benchmarks_import(path, monkeypatch):
+    """Every benchmark's imports resolve in the current layout (its main() is not run: each has a
+    __main__ guard), so a module or test helper that moves cannot silently break a benchmark."""
+    import importlib.util
+    import sys
+    # as `python benchmarks/bench_x.py` runs it: its folder first on the path (the benchmark's own
+    # sys.path additions are undone afterwards)
+    monkeypatch.setattr(sys, "path", [str(path.parent), *sys.path])
+    spec = importlib.util.spec_from_file_location(f"_bench_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)     # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    assert callable(getattr(module, "main", None)), f"{path.name} has no main()"
