@@ -23,6 +23,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "anatomy"))
 
 from timing import best  # noqa: E402
 
@@ -78,7 +80,7 @@ def main(path: Path = DEFAULT) -> None:
     from rig.character.load import load_character
     from rig.skin.muscle_skin import MuscleSkin
     from rig.skin.rbf_skin import RBFSkinOptions
-    from tests.test_morph import stretched
+    from test_morph import stretched
 
     base = load_character(path)
     t = time.perf_counter()

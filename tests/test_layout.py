@@ -163,3 +163,9 @@ def test_benchmarks_import(path, monkeypatch):
     monkeypatch.setitem(sys.modules, spec.name, module)     # dataclasses look their module up there
     spec.loader.exec_module(module)
     assert callable(getattr(module, "main", None)), f"{path.name} has no main()"
+    # imports inside functions run only with main(): each must at least be findable
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                 else [node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level else [])
+        for name in names:
+            assert importlib.util.find_spec(name) is not None, f"{path.name} line {node.lineno}: no module {name}"
