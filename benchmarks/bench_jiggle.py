@@ -12,7 +12,7 @@
 2. 1e5 particles (2500 copies): one ParticleSolver.step, and integrate over 8 steps / 8, against one
    step_numpy on the same model (goal >= 3x), and the largest difference after 8 steps.
 3. Frame rate / substep independence: jiggle_rig at 24, 30, 60, 120 fps x 1..16 substeps against
-   120 fps x 16 substeps, for the simple arm's fast flex (tests/test_jiggle_clips.py) and for every
+   120 fps x 16 substeps, for the simple arm's fast flex (tests/jiggle/test_jiggle_clips.py) and for every
    muscle of a generated body fitted with the human template running 09_11.bvh (when ../shared/assets
    exists; its first 4/3 s, a frame at every rate), default jiggles: max over common times and CVs of
    |dynamic - ref| / peak, peak = the largest |dynamic - static| of the reference over the muscle set;

@@ -47,7 +47,7 @@ parent's segments. A vertex's region matches the artist when the segment's paren
 vertex's dominant joint. On CesiumMan, among the 2,298 vertices whose dominant weight is >= 0.8:
 99.96% for the normal test (defaults), 99.96% for plain proximity, 98.96% for the literal 25 passes
 (`reference_vertices=None`); over all 3,273 vertices 94.5% against 94.3% for plain proximity.
-tests/test_segmentation.py prints the figures.
+tests/muscle/test_segmentation.py prints the figures.
 """
 from __future__ import annotations
 

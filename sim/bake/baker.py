@@ -14,7 +14,7 @@ Resuming: a chunk goes on from the particle state stored with the one before it,
 grid and the same goal knots (the knots of a chunk reach MARGIN knots past its ends, so the knot
 velocities and cut tests inside it see the same neighbours whatever was baked before). An
 interrupted bake resumed with `--resume` therefore repeats exactly the arithmetic of an unbroken one:
-its caches are equal bit for bit (tests/test_bake.py kills a bake to show it). The manifest stores
+its caches are equal bit for bit (tests/bake/test_bake.py kills a bake to show it). The manifest stores
 the parameter set's key; resuming with other parameters is refused, naming what differs.
 
 A folder holds either a finished bake (its caches and bake.json) or an unfinished one (.partial/):

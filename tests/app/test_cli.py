@@ -51,7 +51,7 @@ def test_inspect_mjcf(capsys):
 
 @pytest.mark.slow
 def test_play_writes_pictures_and_motion(capsys, tmp_path):
-    """`jiggle play` on the demo's own keyframed motion (the demo itself bakes: tests/test_demo.py)."""
+    """`jiggle play` on the demo's own keyframed motion (the demo itself bakes: tests/app/test_demo.py)."""
     out_dir = tmp_path / "play"
     motion = Path(__file__).resolve().parents[2] / "scenes" / "motions" / "jumping_jacks.toml"
     code, out, err = run(capsys, "play", str(motion), "--out", str(out_dir), "--fps", "60", "--end", "0.65",

@@ -98,7 +98,7 @@ def test_jiggle_strength_scales_the_jiggle(arm, flexed):
 
 
 def test_results_do_not_depend_on_frame_rate_or_substeps(arm):
-    # the full table is in benchmarks/bench_jiggle.py and tests/test_jiggle_clips.py; here one pair
+    # the full table is in benchmarks/bench_jiggle.py and tests/jiggle/test_jiggle_clips.py; here one pair
     ref = jiggle_rig(arm.rig, default_jiggles(arm.rig), world_at, np.arange(0, 61) / 60.0, JiggleSettings(substeps=8))
     low = jiggle_rig(arm.rig, default_jiggles(arm.rig), world_at, np.arange(0, 25) / 24.0, JiggleSettings(substeps=1))
     peak = np.linalg.norm(ref.dynamic - ref.static, axis=2).max()

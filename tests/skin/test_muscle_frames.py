@@ -1,6 +1,6 @@
 """Muscle ellipsoid frames for the shell deformer (rig/skin/shell/frames.py).
 
-A synthetic two-bone arm (tests/test_muscle_model.py's fixtures). References: solid moments against
+A synthetic two-bone arm (tests/arm_muscles.py). References: solid moments against
 trimesh's mass properties; the affine fit against np.linalg.lstsq per muscle; the nearest curve
 parameter against a dense sampling; the star tables against a brute-force NumPy ray-triangle test
 (Moller-Trumbore) of every ray against every triangle.
