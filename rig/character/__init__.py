@@ -1,4 +1,4 @@
-"""Stage 2, character: a skinned glTF, any mesh, or a skeleton in; a frozen `Character` out.
+"""Character: a skinned glTF, any mesh, or a skeleton in; a frozen `Character` out.
 
 Takes a skinned .glb/.gltf (`gltf_character`), an OBJ/PLY/STL/glTF mesh with automatic bone-heat
 weights (`mesh_io`, `bone_heat`), or a body generated around a skeleton (`body`), all through

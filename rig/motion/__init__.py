@@ -1,4 +1,4 @@
-"""Stage 1, motion: a mocap clip in, a `Clip` out.
+"""Motion: a mocap clip in, a `Clip` out.
 
 Takes BVH, Acclaim ASF/AMC, glTF animations, the project's keyframe TOML and MJCF skeletons
 (`mocap.load_clip`, `keyframes`, `gltf_anim`, `mjcf_skeleton`); gives a read-only `clip.Clip` (joint

@@ -1,4 +1,4 @@
-"""Stage 3, muscles: templates and a character in; fitted muscles and their static shapes per frame out.
+"""Muscles: templates and a character in; fitted muscles and their static shapes per frame out.
 
 Takes a muscle template (`template`, files in `templates/`) and a Character; fits each muscle from the
 outside in (`segmentation` of the skin by bone, `ellipsoid` fits, `conform`, `fit.fit_musculature`)

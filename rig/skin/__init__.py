@@ -1,7 +1,9 @@
-"""Stage 4, skin: joint transforms and muscle CVs per frame in; the deformed skin out.
+"""Skin: joint transforms and muscle CVs per frame in; the deformed skin out.
 
 `skinning` (LBS / DQS, kernels in `skinning_kernels`) poses the rest skin; then every muscle's shell
 deformer (`shell/`: maths, per-frame frames, Warp kernels, launcher, painted weights), or influence
 objects (`influence`), or the anatomy's RBF (`rbf_skin`) adds what the muscles do beyond their bones.
 `muscle_skin.MuscleSkin` is the one front door (bind once, `pose` / `pose_batch` per frame) and
-`muscle_skin.skin_frames` the pipeline's skin stage. Imports every rig stage below it."""
+`muscle_skin.skin_frames` the pipeline's skin stage. Every kernel reads a vertex's weighted
+influences the same way (`gather_kernels`); batched launches keep their buffers in a `scratch.Scratch`.
+Imports every rig stage below it."""

@@ -1,4 +1,4 @@
-"""Stage 0, drive: a Clip in; joint world transforms at any times out.
+"""Drive: a Clip in; joint world transforms at any times out.
 
 `skeleton.Skeleton` builds a MuJoCo model from the clip's skeleton and poses it (mj_kinematics);
 `physics_drive` makes a MuJoCo humanoid follow the clip on a floor; `mjcf_drive` drives a user's own
