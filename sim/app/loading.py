@@ -19,11 +19,15 @@ def retarget_onto_character(clip, args):
     return retarget_onto(clip, args.character, args.skin, args.clip_map, args.character_map, print)
 
 
+def body_overrides(args) -> dict:
+    """The generated body's options given on the command line (--resolution and the fat volumes)."""
+    return {k: getattr(args, k) for k in ("resolution", "belly", "chest", "glutes", "upper_arms")
+            if getattr(args, k, None) is not None}
+
+
 def body_options(args):
     from rig.character.body import BodyOptions
-    kw = {k: getattr(args, k) for k in ("resolution", "belly", "chest", "glutes", "upper_arms")
-          if getattr(args, k, None) is not None}
-    return BodyOptions(**kw)
+    return BodyOptions(**body_overrides(args))
 
 
 def generated_character(clip, args, quiet=False):

@@ -7,6 +7,7 @@ import os
 import sys
 
 from sim.app.args import bake_options, clip_options, joint_map_option, map_options, template_option
+from sim.app.loading import body_overrides
 
 
 def bake_request(args):
@@ -15,8 +16,7 @@ def bake_request(args):
 
     from sim.bake.scene import parse_formats
     from sim.bake.setup import BakeRequest
-    body = {k: getattr(args, k) for k in ("resolution", "belly", "chest", "glutes", "upper_arms")
-            if getattr(args, k, None) is not None}
+    body = body_overrides(args)
     formats = None if getattr(args, "formats", None) is None else parse_formats(args.formats)
     return BakeRequest(
         scene=getattr(args, "scene", None), clip=getattr(args, "clip", None), skeleton=getattr(args, "skeleton", None),
