@@ -8,8 +8,8 @@ CV arrays, section-major (section ``k``, ring CV ``j`` at ``8 k + j``).
 A pair's loft parameters (w, v) are fixed at bind, so its basis is precomputed there (see
 :class:`rig.muscle.loft_attach.InfluenceBinding`): the 5 section weights of the not-a-knot spline at w and their
 d/dw, and the 4 non-zero weights of the periodic cubic ring basis at v (and d/dv) with the ring index
-of the first. The kernel then evaluates, per section k,
-``R_k = sum_r ring[r] CV[k, (first + r) mod 8]`` (and ``Rv_k`` with ``ring_dv``) and
+of the first (``ring0``). The kernel then evaluates, per section k,
+``R_k = sum_r ring[r] CV[k, (ring0 + r) mod 8]`` (and ``Rv_k`` with ``ring_dv``) and
 ``X = sum_k sec[k] R_k``, ``Xw = sum_k sec_dw[k] R_k``, ``Xv = sum_k sec[k] Rv_k``.
 """
 from __future__ import annotations
@@ -73,7 +73,7 @@ def influence_displace(
         m, weight = entry(pair_muscle, pair_weight, p)
         if weight != 0.0:
             base = m * 40
-            first = ring_first[p]
+            ring0 = ring_first[p]
             c0 = cvs_cur[base]
             f0 = cvs_ref[base]
             dx = wp.vec3(0.0, 0.0, 0.0)
@@ -87,7 +87,7 @@ def influence_displace(
                 rv_cur = wp.vec3(0.0, 0.0, 0.0)
                 rv_ref = wp.vec3(0.0, 0.0, 0.0)
                 for r in range(4):
-                    j = base + 8 * k + (first + r) % 8
+                    j = base + 8 * k + (ring0 + r) % 8
                     c = cvs_cur[j] - c0
                     f = cvs_ref[j] - f0
                     r_cur += ring[p, r] * c
