@@ -16,28 +16,29 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_USER_ERROR, f"jiggle: error: {message}\n")
 
 
-def non_negative(name):
+def _real(name, ok, expected):
+    """A float argument type whose messages name the option: not a number, or not `expected`."""
     def conv(v):
         try:
             x = float(v)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
-        if not 0 <= x < float("inf"):
-            raise argparse.ArgumentTypeError(f"{name} must be zero or more, got {v!r}")
+        if not ok(x):    # written so that NaN fails every check
+            raise argparse.ArgumentTypeError(f"{name} must be {expected}, got {v!r}")
         return x
     return conv
+
+
+def non_negative(name):
+    return _real(name, lambda x: 0 <= x < float("inf"), "zero or more")
 
 
 def positive(name):
-    def conv(v):
-        try:
-            x = float(v)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
-        if not x > 0 or x == float("inf"):
-            raise argparse.ArgumentTypeError(f"{name} must be a positive number, got {v!r}")
-        return x
-    return conv
+    return _real(name, lambda x: 0 < x < float("inf"), "a positive number")
+
+
+def unit_interval(name):
+    return _real(name, lambda x: 0.0 <= x <= 1.0, "in [0, 1]")
 
 
 def count(name, zero=False):
@@ -54,25 +55,12 @@ def count(name, zero=False):
     return conv
 
 
-def unit_interval(name):
-    def conv(v):
-        try:
-            x = float(v)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {v!r}") from None
-        if not 0.0 <= x <= 1.0:
-            raise argparse.ArgumentTypeError(f"{name} must be in [0, 1], got {v!r}")
-        return x
-    return conv
-
-
 def animation(value):
     if value is None:
         return None
     return int(value) if value.lstrip("-").isdigit() else value
 
 
-# ---------------------------------------------------------------------------------------- groups
 def clip_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("clip reading")
     g.add_argument("--skeleton", metavar="ASF", help="the ASF skeleton of an AMC clip (default: the one .asf beside it)")
