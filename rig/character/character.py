@@ -21,6 +21,7 @@ import numpy as np
 from rig.base.errors import InputError, JiggleWarning
 from rig.base.frozen import frozen_array
 from rig.motion.clip import Clip, joint_index, local_from_world
+from rig.motion.gltf_io import polar_rotation
 
 PLAUSIBLE_HEIGHT_M = (0.5, 2.6)
 """A human-like character outside this height (metres) was probably read in the wrong unit."""
@@ -140,7 +141,6 @@ class Character:
 def bind_clip(joint_names, parents, bind_world: np.ndarray, name: str = "", source: str = "",
               fps: float = 30.0) -> Clip:
     """One-frame Clip whose rest pose has world transforms `bind_world` (J, 4, 4) (rigid part used)."""
-    from rig.motion.gltf_io import polar_rotation
     rot, tra = local_from_world(parents, polar_rotation(bind_world[:, :3, :3]), bind_world[:, :3, 3])
     return Clip(joint_names=tuple(joint_names), parents=parents, offsets=tra, rest_rotations=rot,
                 rotations=rot[None], translations=tra[None], fps=fps, name=name, source=source,

@@ -13,9 +13,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from rig.base.errors import InputError, JiggleWarning
+from rig.base.errors import InputError, JiggleWarning, require_file
+from rig.character.body import BodyOptions, generate_body
+from rig.character.bone_heat import bone_heat_weights
 from rig.character.character import Character, drop_degenerate_faces, end_sites, require_finite_positions
+from rig.character.gltf_character import gltf_has_skin, read_gltf_character
+from rig.character.mesh_io import MESH_EXTENSIONS, read_mesh
+from rig.character.normals import vertex_normals
 from rig.motion.clip import Clip, transforms
+from rig.motion.gltf_skeleton import read_gltf_skeleton
+from rig.motion.keyframes import read_keyframes
+from rig.motion.mjcf_skeleton import read_mjcf_skeleton
+from rig.motion.mocap import load_clip
 
 
 def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Clip | None = None,
@@ -32,13 +41,11 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
     up : axis that is up in an OBJ/PLY/STL file, "y", "z" or "auto" (the longer of the y and z
         extents, since a standing body is taller than it is deep); glTF is always Y-up.
     """
-    from rig.character.mesh_io import MESH_EXTENSIONS, read_mesh
     p = os.fspath(path)
     ext = os.path.splitext(p)[1].lower()
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 8:
         raise InputError(f"k (influences per vertex) must be a whole number from 1 to 8, got {k!r}", field="k")
     if ext in (".glb", ".gltf"):
-        from rig.character.gltf_character import gltf_has_skin, read_gltf_character
         skinned = gltf_has_skin(p)
         if skinned and skeleton is None:
             return read_gltf_character(p, skin=skin, k=k, unit=unit)
@@ -62,22 +69,16 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
 def load_skeleton(path: str | os.PathLike) -> Clip:
     """The rest pose of a skeleton file as a one-frame Clip: a clip (.bvh, .amc, .asf, .toml, glTF
     animation), an MJCF model (.xml, bodies at qpos0) or a skinned glTF (its bind pose)."""
-    from rig.base.errors import require_file
     p = require_file(path, "skeleton file")
     ext = os.path.splitext(p)[1].lower()
     if ext == ".xml":
-        from rig.motion.mjcf_skeleton import read_mjcf_skeleton
         return read_mjcf_skeleton(p)
     if ext in (".glb", ".gltf"):
-        from rig.character.gltf_character import gltf_has_skin
         if gltf_has_skin(p):
-            from rig.motion.gltf_skeleton import read_gltf_skeleton
             return read_gltf_skeleton(p).to_clip()
     if ext == ".toml":
-        from rig.motion.keyframes import read_keyframes
         c = read_keyframes(p)
     else:
-        from rig.motion.mocap import load_clip
         c = load_clip(p)
     return rest_pose(c)
 
@@ -91,8 +92,6 @@ def auto_weighted(vertices: np.ndarray, faces: np.ndarray, clip: Clip, k: int = 
                   source: str = "", uvs: np.ndarray | None = None, meta: dict | None = None) -> Character:
     """A Character from a mesh (V, 3) / (F, 3) standing in the rest pose of `clip`'s skeleton (same
     space: Z-up metres), with automatic weights by bone heat diffusion (rig.character.bone_heat)."""
-    from rig.character.bone_heat import bone_heat_weights
-    from rig.character.normals import vertex_normals
     path = source or None
     v = np.asarray(vertices, dtype=np.float64)
     require_finite_positions(v, path)
@@ -111,7 +110,6 @@ def body_character(clip: Clip, options=None, k: int = 4) -> Character:
     """A body generated around `clip`'s skeleton (rig.character.body) with automatic weights, bound in the pose
     it was built in (`Body.bind`: the rest pose, hanging arms swung out); its fat volumes and how it
     was made are in meta["body"]."""
-    from rig.character.body import BodyOptions, generate_body
     options = options or BodyOptions()
     body = generate_body(clip, options)
     return auto_weighted(body.vertices, body.faces, body.bind, k=k, name=f"{clip.name} body" if clip.name else "body",

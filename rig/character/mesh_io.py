@@ -15,6 +15,8 @@ import numpy as np
 
 from rig.base.errors import InputError, require_file
 from rig.character.character import check_height, drop_degenerate_faces, require_finite_positions, unit_scale
+from rig.character.gltf_character import _node_world, triangles
+from rig.motion.gltf_io import GltfDocument
 
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off")
 
@@ -91,8 +93,6 @@ def _read_trimesh(p: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
 
 
 def _read_gltf_meshes(p: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    from rig.character.gltf_character import _node_world, triangles
-    from rig.motion.gltf_io import GltfDocument
     doc = GltfDocument(p)
     g = doc.gltf
     pos, faces, uv = [], [], []
