@@ -9,7 +9,10 @@ amplitude.png     per-muscle jiggle amplitude over time (the largest 8 labelled,
 energy.png        per-muscle jiggle energy over time
 spectrum.png      per-muscle amplitude spectrum, the dominant frequency marked
 displacement.png  the skin's largest and RMS displacement per frame, and a histogram over vertices
+quality.png       skin quality per frame: folded edges of the LBS, static and final skins, jiggle
+                  tears (sim.app.skin_quality)
 peak.png          static | dynamic skin at the peak frame (sim.app.compare_render), unless render=False
+quality_closeups.png  the worst frames for skin quality, close up, static | final, unless render=False
 clip.mp4          the same over the whole clip (clip.gif when ffmpeg fails), unless render/video False
 report.html       one self-contained page with all of it (sim.app.report)
 
@@ -33,7 +36,9 @@ import numpy as np
 
 from rig.base.atomic import atomic_path
 from rig.base.errors import InputError
+from sim.app import skin_quality
 from sim.app.jiggle_outputs import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
+from sim.app.plots import pyplot, save_figure
 from sim.bake.caches import BakeData, read_npz
 
 FORMAT = "jiggle.compare/1"
@@ -301,21 +306,6 @@ def analyse(data: BakeData) -> dict:
 
 
 # ---------------------------------------------------------------------------------------- plots
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def _save(fig, path: str) -> str:
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    _pyplot().close(fig)
-    return path
-
-
 def _curves(ax, times, values, names, order, top):
     """The `top` first muscles of `order` as labelled lines, the rest thin grey without a label."""
     for m in order[top:]:
@@ -335,27 +325,27 @@ def _legend(ax, order):
 
 def plot_amplitude(path, times, amp, names, order, top=TOP, title=""):
     """amplitude.png: amplitude (T, M) metres over time, shown in mm."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4))
     _curves(ax, times, 1e3 * amp, names, order, top)
     ax.set_ylabel("jiggle amplitude (mm)\nmax |dynamic - static| CV")
     ax.set_title(title or "muscle jiggle amplitude")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_energy(path, times, energy, names, order, unit, top=TOP, title=""):
     """energy.png: energy (T, M) in `unit` over time."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4))
     _curves(ax, times, energy, names, order, top)
     ax.set_ylabel(f"jiggle energy ({unit})")
     ax.set_title(title or "muscle jiggle energy: 0.5 m (|v|^2 + w^2 |d|^2) over CVs")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_spectrum(path, freqs, amp, names, order, dominant, top=TOP, title=""):
     """spectrum.png: amplitude spectra (K, M) metres in mm, a dot on each dominant frequency."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4))
     for m in order[top:]:
         ax.plot(freqs, 1e3 * amp[:, m], color="0.75", lw=0.7)
@@ -371,13 +361,13 @@ def plot_spectrum(path, freqs, amp, names, order, dominant, top=TOP, title=""):
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("amplitude (mm)\nRMS over CVs, Hann window")
     ax.set_title(title or "muscle jiggle spectrum (dots: dominant frequency)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_displacement(path, times, arrays, peak_frame, title=""):
     """displacement.png: per-frame largest and RMS skin displacement (mm) over time, the peak frame
     marked; beside it a histogram of the per-vertex largest displacement."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax, hx) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw={"width_ratios": [2, 1]})
     ax.plot(times, 1e3 * arrays["frame_max_m"], lw=1.4, label="largest vertex")
     ax.plot(times, 1e3 * arrays["frame_rms_m"], lw=1.4, label="RMS over vertices")
@@ -393,7 +383,7 @@ def plot_displacement(path, times, arrays, peak_frame, title=""):
     hx.set_xlabel("largest displacement per vertex (mm)")
     hx.set_ylabel("vertices (log)")
     hx.grid(alpha=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 # ---------------------------------------------------------------------------------------- json
@@ -481,6 +471,12 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     files["displacement_plot"] = plot_displacement(out("displacement.png"), times, arrays, peak["frame"])
     timings["plots_s"] = time.perf_counter() - t0
 
+    t0 = time.perf_counter()
+    quality_m = skin_quality.measure(data)
+    quality = skin_quality.summarise(quality_m, times)
+    files["quality_plot"] = skin_quality.plot_quality(out("quality.png"), times, quality)
+    timings["quality_s"] = time.perf_counter() - t0
+
     video_info = None
     if render and V:
         from sim.app.compare_render import render_outputs
@@ -489,8 +485,15 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         files.update(rendered["files"])
         video_info = rendered.get("video")
         timings.update(rendered["timings"])
+        t0 = time.perf_counter()
+        closeups = skin_quality.render_closeups(data, quality_m, quality["worst_frames"], an["disp"],
+                                                out("quality_closeups.png"))
+        if closeups:
+            files["quality_closeups"] = closeups
+        timings["quality_render_s"] = time.perf_counter() - t0
     # pictures of an earlier run beside these numbers would read as this run's
-    for key, names_ in (("peak", ("peak.png",)), ("video", ("clip.mp4", "clip.gif"))):
+    for key, names_ in (("peak", ("peak.png",)), ("video", ("clip.mp4", "clip.gif")),
+                        ("quality_closeups", ("quality_closeups.png",))):
         keep = os.path.basename(files[key]) if key in files else None
         for name in names_:
             if name != keep and os.path.exists(out(name)):
@@ -506,7 +509,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         "settings": params.get("settings") if isinstance(params.get("settings"), dict) else {},
         "frames": T, "fps": data.fps, "duration_s": float(times[-1] - times[0]) if T else 0.0,
         "start_s": float(times[0]), "end_s": float(times[-1]), "vertices": V, "muscle_count": len(names),
-        "skin": skin, "peak": peak,
+        "skin": skin, "peak": peak, "skin_quality": quality,
         "amplitude": "largest CV distance |dynamic - static| (the bake's blended CVs); rms: over time",
         "energy": "per muscle, sum over its CVs of 0.5 m_cv (|v|^2 + w^2 |d|^2); d = dynamic - static, "
                   "v = dd/dt (central differences), m_cv = mass_kg / CVs, w = 2 pi frequency_hz "

@@ -3,6 +3,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from rig.base.atomic import atomic_path
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (no display needed)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def save_figure(fig, path: str) -> str:
+    """Lay out `fig`, write it to `path` as PNG (100 dpi) atomically, close it; return the path."""
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    pyplot().close(fig)
+    return path
+
 
 def plot_joint_trajectories(times: np.ndarray, positions: np.ndarray, names: list[str], path: str,
                             title: str = "") -> str:

@@ -1,8 +1,9 @@
 """report.html of `jiggle compare`: one self-contained page (plain HTML and CSS, pictures and the
 video embedded as base64 data URIs, no external URL), so it can be mailed or opened offline.
 
-Sections: title, source and settings (from the bake's params), key numbers, the muscle table
-(largest peak first), the plots, the peak picture, the video.
+Sections: title, source and settings (from the bake's params), key numbers, skin quality (targets,
+the worst of each measure per skin, the plot and the close-ups), the muscle table (largest peak
+first), the plots, the peak picture, the video.
 """
 from __future__ import annotations
 
@@ -68,6 +69,48 @@ def _muscle_table(muscles: dict, energy_unit: str) -> str:
     return ("<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
 
 
+def _quality_section(q: dict, files: dict) -> list[str]:
+    """Skin quality: the targets (pass / FAIL), a table of the worst frame's value of each measure per
+    skin, the plot and the close-ups."""
+    if not q:
+        return []
+    rows = []
+    for name, t in (q.get("targets") or {}).items():
+        ok = t.get("pass")
+        verdict = '<b style="color:#1a7f37">ok</b>' if ok else '<b style="color:#b42318">FAIL</b>'
+        rows.append((name, f"{_e(_short(t.get('value')))} (limit {_e(_short(t.get('limit')))}) {verdict}"
+                           f' <span class="note">{_e(t.get("rule"))}</span>'))
+    worst = q.get("worst") or {}
+    cols = [s for s in ("lbs", "static", "final") if s in worst]
+    measures = (("folded_edges_max", "folded edges (> 90 deg), most in a frame"),
+                ("sharp_edges_max", "sharp edges (> 60 deg), most in a frame"),
+                ("edge_strain_p99_max", "edge strain p99, worst frame"), ("edge_strain_max", "edge strain max"),
+                ("area_ratio_min", "face area / rest, least"), ("area_ratio_max", "face area / rest, most"))
+    table = ("<table><tr><th>measure</th>" + "".join(f"<th>{_e(c)}</th>" for c in cols) + "</tr>"
+             + "".join(f"<tr><td>{_e(label)}</td>" + "".join(
+                 f'<td class="n">{_e(_short(worst[c].get(key)))}</td>' for c in cols) + "</tr>"
+                 for key, label in measures) + "</table>")
+    j = worst.get("jiggle") or {}
+    rest = q.get("rest") or {}
+    parts = ["<h2>Skin quality</h2>", _kv(rows), table,
+             f'<p class="note">{_e(q.get("edges"))} edges; the rest mesh has {_e(rest.get("folded_edges"))} '
+             f'folded and {_e(rest.get("sharp_edges"))} sharp edges (rest from {_e(q.get("rest_from"))}). '
+             f'Jiggle gradient: p99 up to {_e(_short(j.get("gradient_p99_max")))}, p99.9 up to '
+             f'{_e(_short(j.get("gradient_p999_max")))}, max {_e(_short(j.get("gradient_max")))}; torn edges up to '
+             f'{_e(j.get("torn_edges_max"))} in a frame, in {_e(j.get("frames_with_torn_edges"))} frames.</p>']
+    if "quality_plot" in files:
+        parts.append(f'<img alt="skin quality per frame" src="{data_uri(files["quality_plot"])}">')
+    if "quality_closeups" in files:
+        parts += [f'<img alt="worst frames close up" src="{data_uri(files["quality_closeups"])}">',
+                  f'<p class="note">the worst frames {_e(q.get("worst_frames"))} close up at the place with the '
+                  "most folded and torn edges: static | final.</p>"]
+    return parts
+
+
+def _short(value):
+    return f"{value:.3g}" if isinstance(value, float) else value
+
+
 def render_report(metrics: dict, files: dict) -> str:
     """The page as a string. metrics : the metrics.json dict. files : key -> path of the outputs
     (amplitude, energy, spectrum, displacement_plot, peak, video; absent keys are left out)."""
@@ -93,6 +136,7 @@ def render_report(metrics: dict, files: dict) -> str:
                                 f"p99 {_num(pr.get('p99_mm'))}, max {_num(pr.get('max_mm'))}"),
         ("muscles", _e(m.get("muscle_count"))),
     ])]
+    parts += _quality_section(m.get("skin_quality") or {}, files)
     unit = m.get("energy_unit", "J")
     parts += ["<h2>Muscles</h2>", _muscle_table(m.get("muscles") or {}, unit),
               f'<p class="note">amplitude: {_e(m.get("amplitude"))}. energy ({_e(unit)}): {_e(m.get("energy"))}. '

@@ -6,7 +6,8 @@
           --MuscleRig.static (rig.muscle)--> static CVs
           --goals, simulate (sim.jiggle.simulate)--> dynamic CVs
           --blend (sim.jiggle.blend)--> final CVs
-          --skin_frames (rig.skin.muscle_skin: LBS + shell deformers)--> skin_static, skin_final
+          --skin_frames (rig.skin.muscle_skin: LBS + shell deformers)--> skin_static, skin_final (and
+            skin_lbs, the smooth skin underneath, which compare's skin quality reads against)
         -> OUT/.partial/chunk_NNNNN.npz (atomic), with the particles' state at the chunk's last frame
       all chunks -> OUT/bake.npz, bake.usdc|usda, bake.pc2 (atomic), bake.json; .partial removed
 
@@ -113,14 +114,15 @@ class Baker:
                 dyn = dyn[1:] if c > 0 else dyn
             cvs = blend(st, dyn, self.blend[f0:f1])
         with self._timed("skin_s"):
-            skin_static, skin_final = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1))
-        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
+            skin_static, skin_final, skin_lbs = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1),
+                                                            with_smooth=True)
+        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final), ("skin_lbs", skin_lbs)):
             bad = ~np.isfinite(skin)
             if bad.any():                       # never into a cache: stop while the chunks so far are kept
                 k, v = np.argwhere(bad)[0][:2]
                 raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; nothing "
                                  f"of this chunk was written", field=name)
-        out = {"frames": np.array([f0, f1]), "skin_static": skin_static, "skin_final": skin_final,
+        out = {"frames": np.array([f0, f1]), "skin_static": skin_static, "skin_final": skin_final, "skin_lbs": skin_lbs,
                "joint_world": joints, "cvs_static": st.astype(np.float32), "cvs_dynamic": cvs.astype(np.float32)}
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
@@ -176,7 +178,8 @@ def cache_paths(out_dir: str, formats) -> dict:
 
 
 COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "energy.png", "spectrum.png",
-                 "displacement.png", "peak.png", "clip.mp4", "clip.gif", "report.html")
+                 "displacement.png", "quality.png", "peak.png", "quality_closeups.png", "clip.mp4", "clip.gif",
+                 "report.html")
 """What `jiggle compare` writes beside a bake (sim/app/compare.py): stale once the bake is redone."""
 
 
@@ -294,7 +297,8 @@ def assemble(setup: BakeSetup, out_dir: str) -> dict:
     def cat(key):
         return np.concatenate([p[key] for p in parts])
     rig = setup.rig
-    data = BakeData(skin_static=cat("skin_static"), skin_final=cat("skin_final"),
+    data = BakeData(skin_static=cat("skin_static"), skin_final=cat("skin_final"), skin_lbs=cat("skin_lbs"),
+                    skin_rest=setup.character.vertices,
                     faces=setup.character.faces, fps=setup.fps, times=setup.times,
                     joint_names=setup.joint_names, joint_world=cat("joint_world"), muscle_names=tuple(rig.names),
                     muscle_cvs_static=cat("cvs_static"), muscle_cvs_dynamic=cat("cvs_dynamic"),

@@ -17,6 +17,9 @@ key                    shape, dtype                meaning
 format                 () str                      "jiggle.bake/1"
 skin_static            (T, V, 3) float32           skin from skinning alone, static muscles; m
 skin_final             (T, V, 3) float32           skin with the jiggled muscles; metres
+skin_lbs               (T, V, 3) float32           the smooth skin underneath (LBS/DQS, no muscles);
+                                                   metres; optional (bakes before it lack it)
+skin_rest              (V, 3) float32              the character's rest (bind) skin; metres; optional
 faces                  (F, 3) int32                skin triangles (indices into V)
 fps                    () float64                  output frames per second
 times                  (T,) float64                seconds from the clip's start, increasing
@@ -59,6 +62,8 @@ class BakeData:
 
     skin_static : (T, V, 3) float32 metres, the skin with static muscles.
     skin_final : (T, V, 3) float32 metres, the skin with the jiggled muscles.
+    skin_lbs : (T, V, 3) float32 metres, the smooth skin underneath (LBS or DQS, no muscles), or None.
+    skin_rest : (V, 3) float32 metres, the character's rest (bind) skin, or None.
     faces : (F, 3) int32, skin triangles.
     fps : output frames per second, > 0.
     times : (T,) float64 seconds from the clip's start, strictly increasing.
@@ -85,6 +90,8 @@ class BakeData:
     muscle_cv_offsets: np.ndarray
     muscle_faces: np.ndarray
     params: str
+    skin_lbs: np.ndarray | None = None
+    skin_rest: np.ndarray | None = None
 
     def __post_init__(self):
         def put(name, value):
@@ -105,6 +112,11 @@ class BakeData:
         if T < 1 or skin.shape[2] != 3:
             raise InputError(f"expected shape (T >= 1, V, 3), got {skin.shape}", field="skin_static")
         self._shape("skin_final", array("skin_final", np.float32, 3), (T, V, 3))
+        if self.skin_lbs is not None:
+            self._shape("skin_lbs", array("skin_lbs", np.float32, 3), (T, V, 3))
+        if self.skin_rest is not None:
+            self._shape("skin_rest", array("skin_rest", np.float32, 2), (V, 3))
+            require_finite("skin_rest", self.skin_rest[None], "vertex")
         faces = array("faces", np.int32, 2)
         self._indices("faces", faces, V)
         try:
@@ -141,7 +153,7 @@ class BakeData:
             json.loads(self.params)
         except ValueError as e:
             raise InputError(f"not valid JSON: {e}", field="params") from None
-        for name, item in (("skin_static", "vertex"), ("skin_final", "vertex"),
+        for name, item in (("skin_static", "vertex"), ("skin_final", "vertex"), ("skin_lbs", "vertex"),
                            ("times", None), ("joint_world", "joint"),
                            ("muscle_cvs_static", "CV"), ("muscle_cvs_dynamic", "CV")):
             require_finite(name, getattr(self, name), item)
@@ -171,9 +183,11 @@ class BakeData:
         return names
 
 
-def require_finite(name: str, a: np.ndarray, item: str | None) -> None:
+def require_finite(name: str, a: np.ndarray | None, item: str | None) -> None:
     """Raise InputError naming `name`, the frame and the `item` (vertex, joint, CV) of the first
-    non-finite number in `a` (frame-major: axis 0 is the frame, axis 1 the item)."""
+    non-finite number in `a` (frame-major: axis 0 is the frame, axis 1 the item); None passes."""
+    if a is None:
+        return
     bad = ~np.isfinite(a)
     if not bad.any():
         return
@@ -185,6 +199,7 @@ def require_finite(name: str, a: np.ndarray, item: str | None) -> None:
 
 # ---------------------------------------------------------------------------------------- npz
 _NPZ_KEYS = tuple(f.name for f in fields(BakeData))
+_OPTIONAL_KEYS = ("skin_lbs", "skin_rest")
 
 
 def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) -> None:
@@ -193,6 +208,8 @@ def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) ->
     arrays = {"format": np.array(FORMAT)}
     for name in _NPZ_KEYS:
         value = getattr(data, name)
+        if value is None:
+            continue
         if name in ("joint_names", "muscle_names"):
             value = np.array(value, dtype=str).reshape(-1)
         elif name in ("fps", "params"):
@@ -219,10 +236,10 @@ def read_npz(path: str | os.PathLike) -> BakeData:
     fmt = str(stored["format"])
     if fmt != FORMAT:
         raise InputError(f"unsupported format {fmt!r}, expected {FORMAT!r}", path, field="format")
-    missing = [k for k in _NPZ_KEYS if k not in stored]
+    missing = [k for k in _NPZ_KEYS if k not in stored and k not in _OPTIONAL_KEYS]
     if missing:
         raise InputError(f"missing key (the file lacks {', '.join(missing)})", path, field=missing[0])
-    values = {k: stored[k] for k in _NPZ_KEYS}
+    values = {k: stored[k] for k in _NPZ_KEYS if k in stored}
     values["fps"] = values["fps"].item() if values["fps"].shape == () else values["fps"]
     values["params"] = str(values["params"]) if values["params"].shape == () else values["params"]
     for k in ("joint_names", "muscle_names"):

@@ -184,7 +184,7 @@ def test_report_is_self_contained(baked):
     folder, _, _, _ = baked
     text = (folder / "report.html").read_text()
     assert not external(text)
-    assert text.count('src="data:image/png;base64,') == 4                     # the four plots
+    assert text.count('src="data:image/png;base64,') == 5                     # the five plots
     for name in MUSCLES:
         assert name in text
     assert "synthetic_bounce.bvh" in text and "test sphere" in text and "substeps" in text
@@ -288,8 +288,38 @@ def test_render_smoke(tmp_path):
     assert video["frames"] == T and sum(calls) == 1 + T
     text = open(files["report"]).read()
     assert "data:video/mp4;base64," in text or "data:image/gif;base64," in text
-    assert text.count("data:image/png;base64,") == 5 and not external(text)
+    # five plots, the peak and the skin-quality close-ups
+    assert text.count("data:image/png;base64,") == 7 and not external(text)
+    closeups = iio.imread(files["quality_closeups"])
+    assert closeups.shape[0] >= 2 * 300 and (closeups < 250).any()            # a row per worst frame
 
     compare(str(tmp_path), render=False)
     assert not (tmp_path / "peak.png").exists() and not (tmp_path / "clip.mp4").exists()
+    assert not (tmp_path / "quality_closeups.png").exists()
     assert not (tmp_path / "clip.gif").exists()
+
+
+def test_skin_quality_finds_a_planted_dent(tmp_path):
+    """A vertex of the final skin pushed through the sphere at one frame: compare's skin quality counts
+    its folds and tears at that frame only, fails the targets, picks that frame as the worst, and
+    reports the LBS and rest counts from the bake's own skin_lbs and skin_rest."""
+    import dataclasses
+    data, _ = known_bake()
+    final = data.skin_final.copy()
+    verts, _ = sphere()
+    v, k = 100, 20
+    final[k, v] -= 0.3 * (verts[v] - [0.0, 0.0, 1.0]) / 0.2        # 0.3 m inward: through the middle
+    data = dataclasses.replace(data, skin_final=final, skin_lbs=data.skin_static, skin_rest=verts)
+    write_npz(data, tmp_path / "bake.npz")
+    q = compare(str(tmp_path), render=False)["metrics"]["skin_quality"]
+    assert q["rest_from"] == "skin_rest" and q["rest"]["folded_edges"] == 0
+    per = q["per_frame"]
+    assert per["lbs"]["folded_edges"] == per["static"]["folded_edges"] == [0] * T
+    folds = np.array(per["final"]["folded_edges"])
+    torn = np.array(per["jiggle"]["torn_edges"])
+    assert folds[k] >= 4 and torn[k] >= 4 and folds.sum() == folds[k] and torn.sum() == torn[k]
+    assert k in q["worst_frames"]
+    t = q["targets"]
+    assert not t["torn_edges"]["pass"] and not t["folds_added_over_lbs"]["pass"] and t["folds_added_over_lbs"]["frame"] == k
+    assert (tmp_path / "quality.png").is_file()
+    assert "Skin quality" in (tmp_path / "report.html").read_text() and "FAIL" in (tmp_path / "report.html").read_text()

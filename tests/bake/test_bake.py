@@ -247,8 +247,8 @@ def test_a_nan_skin_stops_the_bake_before_any_cache(capsys, tmp_path, monkeypatc
     from sim.bake import baker as bake_mod
     real = bake_mod.skin_frames
 
-    def poisoned(skin, world, cvs_sets, curve, frames):
-        out = real(skin, world, cvs_sets, curve, frames)
+    def poisoned(skin, world, cvs_sets, curve, frames, **kw):
+        out = real(skin, world, cvs_sets, curve, frames, **kw)
         if frames[0] == 32:
             out[1][5, 7] = np.nan
         return out
