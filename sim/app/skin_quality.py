@@ -175,7 +175,8 @@ def plot_quality(path: str, times: np.ndarray, summary: dict) -> str:
 def render_closeups(data, m: dict, frames: list[int], disp: np.ndarray, path: str) -> str | None:
     """quality_closeups.png: one row per frame of `frames`, static | final, zoomed on the place with
     the most folded and torn edges of the final skin (SkinQuality.worst_vertex), seen along the
-    static skin's normal there made level (the picture stays upright); the final skin coloured by displacement on the bake's scale."""
+    static skin's normal there made level (the picture stays upright); the final skin coloured by
+    displacement on the bake's scale."""
     if not frames:
         return None
     from rig.character.normals import VertexNormals
