@@ -38,7 +38,7 @@ from rig.muscle.shell_params import ShellParams, default_shell
 from rig.skin.influence import InfluenceDeformer
 from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
-from rig.skin.shell.shells import beta, cull_pairs, shell_table
+from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
 from rig.skin.skinning import character_skinner
 
 SKINNING = ("shell", "influence", "rbf")
@@ -62,14 +62,15 @@ class MuscleSkin:
         Influence objects multiply them by the muscle's overall weight w and the shell fall-off beta
         at bind, so a muscle's pull fades out smoothly at the edge of the region it binds.
     margin : culling margin: a (vertex, muscle) pair is kept when the vertex lies within
-        (1 + d)(1 + margin) of the muscle's rest ellipsoid (local units) at bind.
+        (1 + d)(1 + margin) of the muscle's rest ellipsoid (local units) at bind; a shell's pull fades
+        to 0 across that margin (rig.skin.shell.shells.pair_envelope), so the culling line leaves no step.
     star : give each deformer its muscle's star-shaped offsets (Pratscher et al. 4.3.2).
     device : Warp device.
     """
 
     def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
                  skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
-                 margin: float = 0.25, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
+                 margin: float = 0.5, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
                  roles=None):
         if skinning not in SKINNING:
             raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
@@ -110,6 +111,9 @@ class MuscleSkin:
         pair_w = painted[vertex, muscle]
         self.pair_offsets, self.pair_muscle = offsets, muscle
         if skinning == "shell":
+            # every pull fades out before the culling line (shells.pair_envelope)
+            pair_w = pair_w * pair_envelope(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
+                                            offsets, muscle, star=self.table.star, star_index=self.table.star_index)
             self.pair_weight = pair_w.astype(np.float32)
             self.deformer = ShellDeformer(self.table, offsets, muscle, self.pair_weight, device=device)
         else:

@@ -44,7 +44,9 @@ def test_bind_pose_gives_the_artists_skin(arm, arm_skins, mode):
 def test_bending_the_elbow_bulges_the_middle_of_the_upper_arm(arm, arm_skins, mode):
     """Thesis simple example: at 90 deg of flexion the biceps, 30% shorter with its volume kept, is
     ~19% thicker; the skin over the middle of the upper bone moves outward along its normal by
-    ~2.6 mm (shells) / ~3.9 mm (influence objects) compared with LBS, more at 90 deg than at 45."""
+    ~1.4 mm (shells, held below half the drop-off distance so no shell folds the skin where it ends:
+    rig/skin/shell/shells.py) / ~3.9 mm (influence objects) compared with LBS, more at 90 deg than
+    at 45."""
     sel = mid_front(arm)
     n = arm.character.normals[sel]       # the upper arm is rigid under LBS here: rest normals hold
     out = {}
@@ -53,8 +55,8 @@ def test_bending_the_elbow_bulges_the_middle_of_the_upper_arm(arm, arm_skins, mo
         skin = arm_skins[mode]
         move = skin.pose(w) - skin.lbs(w)
         out[angle] = float(np.mean(np.sum(move[sel] * n, axis=1)))
-    assert out[90.0] > 2.0e-3
-    assert out[90.0] > 1.5 * out[45.0] > 0.0
+    assert out[90.0] > (1.0e-3 if mode == "shell" else 2.0e-3)
+    assert out[90.0] > (1.3 if mode == "shell" else 1.5) * out[45.0] > 0.0    # the shells' limit saturates
     print(f"\n{mode}: mid upper arm pushed out by {out[45.0] * 1e3:.2f} mm at 45 deg, {out[90.0] * 1e3:.2f} mm at 90")
 
 

@@ -285,8 +285,9 @@ def test_stretch_translation_moves_the_inside_rigidly_and_the_outside_not_at_all
     d, w, wi = 0.6, 0.8, 0.5
     table = shell_table([ShellParams(sticky=0.4, hard=0.3, drop_off=d, weight=w, slippage=2.0)])
     t = np.array([0.03, -0.02, 0.05])
-    # keep |t| under half the drop-off distance, where the drop-off limit leaves D unchanged
-    t *= 0.45 * d * np.linalg.norm(E_ref[0, :3, :3], axis=0).min() / np.linalg.norm(t)
+    # keep |t| under the knee of the drop-off limit (half its reach), where it leaves D unchanged
+    from rig.skin.shell.shells import LIMIT_KNEE, LIMIT_REACH
+    t *= 0.9 * LIMIT_KNEE * LIMIT_REACH * d * np.linalg.norm(E_ref[0, :3, :3], axis=0).min() / np.linalg.norm(t)
     inside = points_at_local(E_ref[0], unit_dirs(rng, 100) * rng.uniform(0.0, 0.999, 100)[:, None])
     outside = points_at_local(E_ref[0], unit_dirs(rng, 100) * rng.uniform(1 + d, 3.0, 100)[:, None])
     points = np.concatenate([inside, outside])

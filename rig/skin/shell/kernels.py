@@ -34,6 +34,7 @@ THETA_SCALE = wp.constant((17 - 1) / math.pi)
 PHI_SCALE = wp.constant(32 / (2.0 * math.pi))
 PI = wp.constant(math.pi)
 LIMIT_KNEE = wp.constant(0.5)   # rig.skin.shell.shells.LIMIT_KNEE
+LIMIT_REACH = wp.constant(0.5)  # rig.skin.shell.shells.LIMIT_REACH
 
 
 @wp.struct
@@ -219,12 +220,12 @@ def shell_point(
                         D = (c - state.curve[mc, 0]) + a * wp.transform_vector(state.dE[mc], q)
                     moved = True
             if moved:
-                # the drop-off distance along the point's direction, d |L_ref u|, is d |p - c_ref| / r
-                # (L_ref p_l = p - c_ref): no second matrix product
+                # the limit's reach, LIMIT_REACH x the drop-off distance along the point's direction
+                # d |L_ref u| = d |p - c_ref| / r (L_ref p_l = p - c_ref): no second matrix product
                 r = wp.sqrt(r2)
                 reach_w = float(0.0)
                 if r >= TINY_R:
-                    reach_w = d * wp.length(p - state.centre[mr]) / r
+                    reach_w = LIMIT_REACH * d * wp.length(p - state.centre[mr]) / r
                 p = p + (model.weight[m] * pw) * limit(D, reach_w)
     return p
 

@@ -39,14 +39,20 @@ unweighted projection, :func:`project`) and k = w w_i:
 (L: the upper-left 3x3 block of E; c: the muscle's trajectory curve, c(0) the centre of E_ref and
 c(1) the centre of E_cur, sampled at TRAJECTORY_SAMPLES parameters and interpolated piecewise
 linearly; a = 0 wherever alpha = 0, whatever l, so nothing beyond the drop-off shell ever moves).
-Each pair's D (before the weights k) is then held below the muscle's drop-off distance along the
-point's direction, reach = d |L_ref u| (u = E_ref^-1 p / |E_ref^-1 p|: the world gap between the
-muscle's surface and its drop-off shell through the point), by a smooth limit (:func:`limit`:
-unchanged up to reach / 2, saturating toward reach). Why: the relative displacement carries the skin
-by the muscle's own change relative to its bone, which near a tendon end or in a crease LBS has
-folded can be larger than the layer of flesh the deformer owns (a pectoral whose insertion swings
-with the arm moves 2 cm relative to the chest, over skin 1 cm deep); the paper's absolute deformer
-never moves a point farther than its drop-off distance, and the limit keeps that property.
+Each pair's D (before the weights k) is then held below LIMIT_REACH x the muscle's drop-off distance
+along the point's direction, reach = LIMIT_REACH d |L_ref u| (u = E_ref^-1 p / |E_ref^-1 p|; d |L_ref u|
+is the world gap between the muscle's surface and its drop-off shell through the point), by a smooth
+limit (:func:`limit`: unchanged up to reach / 2, saturating toward reach). Why: the relative
+displacement carries the skin by the muscle's own change relative to its bone, which near a tendon
+end or in a crease can be far larger than the layer of flesh the deformer owns (a pectoral whose
+insertion swings with the arm moves its centre 9 cm relative to the chest). The paper's absolute
+deformer never moves a point farther than its drop-off distance; half of it is what keeps the skin
+from folding where the pull fades: D falls to 0 across the drop-off band of width ~d |L_ref u| with
+the fall-off's steepest slope, 8 / (3 sqrt 3) ~ 1.54 per band width, so its gradient stays below
+0.8 with |D| < half the band (a gradient of 1 folds the skin). Measured on the generated body over
+the CMU dance clip 05_02 (issue 18): the whole drop-off distance as the limit folded 31 edges per
+frame on average where LBS folds 8; half of it, 13. Limiting the part across the muscle and the part
+along it separately folded more (22), as two limits let the sum grow past either.
 At the bind pose E_cur == E_ref and every D is exactly 0. A vertex's pairs are applied in series in
 ascending muscle order, each D evaluated at the already-displaced point; inactive muscles (NaN or
 degenerate frames) are skipped.
@@ -77,7 +83,9 @@ STAR_PHI = 32
 TRAJECTORY_SAMPLES = 9
 """K: samples c(u_k), u_k = k / (K - 1), of a muscle's trajectory curve per frame."""
 LIMIT_KNEE = 0.5
-"""The drop-off limit leaves displacements up to this fraction of the drop-off distance unchanged."""
+"""The drop-off limit leaves displacements up to this fraction of its reach unchanged."""
+LIMIT_REACH = 0.5
+"""The drop-off limit's reach: this fraction of the drop-off distance (see the module)."""
 
 @dataclass(frozen=True)
 class ShellFrames:
@@ -409,7 +417,7 @@ def pair_displacement(p, muscle, wi, table: ShellTable, frames: ShellFrames) -> 
     p_l = _apply(frames.E_ref_inv[m], p)
     r = np.linalg.norm(p_l, axis=1, keepdims=True)
     u = np.where(r >= _TINY_R, p_l / np.maximum(r, _TINY_R), 0.0)
-    reach = table.drop_off[m] * np.linalg.norm(np.einsum("nij,nj->ni", E_ref[:, :3, :3], u), axis=1)
+    reach = LIMIT_REACH * table.drop_off[m] * np.linalg.norm(np.einsum("nij,nj->ni", E_ref[:, :3, :3], u), axis=1)
     D[on] = k[:, None] * limit(d_on, reach)
     return D
 
@@ -460,6 +468,35 @@ def shell_numpy(points, pair_offsets, pair_muscle, pair_weight, table: ShellTabl
 
 # ---------------------------------------------------------------------------------------------
 # bind time
+
+
+def pair_envelope(rest_vertices, E_rest, drop_off, margin: float, pair_offsets, pair_muscle, star=None,
+                  star_index=None) -> np.ndarray:
+    """(P,) float64 weight of each culled pair in [0, 1] that falls to 0 at the culling boundary:
+    1 while the vertex's bind radius rho (as in :func:`cull_pairs`) is within the drop-off shell,
+    falloff((rho - (1 + d)) / ((1 + d) margin)) in the margin beyond it.
+
+    Why: culling decides at bind which vertices a shell may move; a vertex culled at bind that the
+    motion brings into the drop-off band stays put while its neighbour moves, a step in the skin
+    along the culling line (issue 18). Multiplied into the pair's weight, this envelope takes every
+    pair's pull smoothly to 0 where the culled set ends. margin 0: 1 for every pair."""
+    p = np.asarray(rest_vertices, np.float64)
+    E_rest = np.asarray(E_rest, np.float64)
+    drop_off = np.asarray(drop_off, np.float64)
+    M = E_rest.shape[0]
+    if star is None and star_index is None:
+        star = np.zeros((0, STAR_THETA, STAR_PHI))
+    star, star_index = _check_star(star, star_index, M)
+    vertex = np.repeat(np.arange(len(p)), np.diff(np.asarray(pair_offsets)))
+    m = np.asarray(pair_muscle, np.int64)
+    if margin <= 0.0 or len(m) == 0:
+        return np.ones(len(m))
+    E_inv = np.linalg.inv(E_rest)[m]
+    p_l = np.einsum("nij,nj->ni", E_inv[:, :3, :3], p[vertex]) + E_inv[:, :3, 3]
+    r, u = _directions(p_l)
+    rho = r - star_lookup(star, star_index[m], u)
+    inner = 1.0 + drop_off[m]
+    return falloff((rho - inner) / (inner * margin))
 
 
 def cull_pairs(rest_vertices, E_rest, drop_off, margin: float = 0.25, star=None, star_index=None
