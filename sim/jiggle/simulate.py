@@ -10,12 +10,13 @@ Two named stage functions, called alike by the bake's chunk loop (sim/bake/baker
 solver's spring limit; the exact goal flow makes the result independent of those choices up to the
 splitting error of the springs (benchmarks/bench_jiggle.py measures it).
 
-Starting: with ``preroll`` 0 the particles start on their goals, moving with them (and, with
-gravity, at their sag), so the first frame shows no jolt; with preroll P > 0 they start at the bind
+Starting: with ``preroll`` 0 the particles start on their goals, moving with them, at the offset
+where the springs balance the goals' acceleration at the first frame (and gravity, with it): the
+quasi-static offset a driven spring settles to, so a clip cut mid-motion shows no jolt; with preroll P > 0 they start at the bind
 pose, at rest, P seconds early, and the goals blend to the first frame over P/2 and hold for P/2.
 Going on from a given state (a chunked bake) repeats the steps an unbroken run would take.
-Cuts: through a cut interval the particles are glued to the (linearly moving) goals, so they restart
-from the far side at rest relative to it.
+Cuts: through a cut interval the particles are glued to the (linearly moving) goals, and on its far
+side they restart as a run starts there (:func:`restart`).
 """
 from __future__ import annotations
 
@@ -59,15 +60,20 @@ def step_times(out_times: np.ndarray, knots: np.ndarray, substeps: int, max_step
     return grid
 
 
-def equilibrium(model: ParticleModel) -> np.ndarray:
-    """(N, 3) metres: the offsets from the goals at which gravity balances the goal and neighbour
-    springs (zero without gravity; zero in a group that nothing holds, which falls freely)."""
+def equilibrium(model: ParticleModel, accel: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) metres: the offsets from the goals at which the goal and neighbour springs balance
+    gravity (when the model has it) and the inertia of goals accelerating at `accel` (N, 3) m/s^2
+    (None: still goals): m (g - a) = k y, the quasi-static offset a driven spring settles to. Zero for
+    glued particles and in a group that nothing holds (it falls freely)."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
     from scipy.sparse.linalg import spsolve
     n = model.num_particles
     y = np.zeros((n, 3))
-    if not model.gravity or n == 0:
+    body = np.zeros((n, 3)) if accel is None else -np.asarray(accel, dtype=np.float64).reshape(n, 3)
+    if model.gravity:
+        body[:, 2] -= GRAVITY
+    if n == 0 or not body.any():
         return y
     i, j = (model.springs[:, 0], model.springs[:, 1]) if model.num_springs else (np.zeros(0, int), np.zeros(0, int))
     graph = sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
@@ -80,9 +86,45 @@ def equilibrium(model: ParticleModel) -> np.ndarray:
     lap = sp.coo_matrix((np.concatenate([-model.spring_k, -model.spring_k]),
                          (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n)).tocsr()
     deg = np.bincount(np.concatenate([i, j]), weights=np.concatenate([model.spring_k, model.spring_k]), minlength=n)
-    a = (lap + sp.diags(deg + k)).tocsr()[free][:, free]
-    y[free, 2] = spsolve(a.tocsc(), -GRAVITY * model.mass[free])
+    a = (lap + sp.diags(deg + k)).tocsr()[free][:, free].tocsc()
+    rhs = model.mass[free, None] * body[free]
+    y[free] = np.stack([spsolve(a, rhs[:, c]) if rhs[:, c].any() else np.zeros(len(rhs)) for c in range(3)], axis=1)
     return y
+
+
+START_WINDOW = 0.1
+"""seconds: the goals' velocity and acceleration at a run's start are fitted over this much of the track."""
+
+
+def start_motion(track: GoalTrack, t0: float, window: float = START_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+    """The goals' velocity (N, 3) m/s and acceleration (N, 3) m/s^2 at t0: a least-squares quadratic
+    in time through the track's knots in [t0, t0 + window] (at least three, the track's first ones
+    after t0 when the window holds fewer; the goal at t0 itself included). Fitted rather than read
+    off one knot interval: mocap's frame-to-frame noise makes a single interval's second difference
+    tens of m/s^2 off, and the start offset follows it (equilibrium)."""
+    times = track.times
+    first = int(np.searchsorted(times, t0 - TIME_EPS))
+    last = max(int(np.searchsorted(times, t0 + window + TIME_EPS, side="right")), first + 3)
+    pick = times[first:min(last, len(times))]
+    if len(pick) < 3:                                   # a track of two knots: its own velocity, no acceleration
+        _, vel, _ = track.sample(t0)
+        return vel, np.zeros_like(vel)
+    t = np.concatenate([[t0], pick[pick > t0 + TIME_EPS]]) - t0
+    pos = np.stack([track.sample(t0 + dt)[0] for dt in t])              # (K, N, 3)
+    basis = np.stack([np.ones_like(t), t, 0.5 * t * t], axis=1)           # p(t) = p0 + v t + a t^2 / 2
+    coef, *_ = np.linalg.lstsq(basis, pos.reshape(len(t), -1), rcond=None)
+    n = pos.shape[1]
+    return coef[1].reshape(n, 3), coef[2].reshape(n, 3)
+
+
+def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: float) -> None:
+    """Put the particles on their goals at time t as a run starts (and restarts after a cut): at the
+    quasi-static offset of the goals' fitted acceleration (and gravity), with their fitted velocity
+    (start_motion); glued particles exactly on their goals, moving with them."""
+    solver.glue(state, control, t)
+    x, v = state.numpy()
+    vel, acc = start_motion(control.track, t)
+    state.assign(x + equilibrium(model, acc), np.where(model.glued[:, None], v, vel))
 
 
 def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps: int = 4,
@@ -136,10 +178,7 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     elif preroll > 0:
         state.assign(model.rest, np.zeros_like(model.rest))
     else:
-        solver.glue(state, control, t0)
-        if model.gravity:
-            x, v = state.numpy()
-            state.assign(x + equilibrium(model), v)
+        restart(model, solver, state, control, t0)
     out = np.empty((len(out_times), model.num_particles, 3))
     wanted = np.searchsorted(out_times, grid - TIME_EPS)
     is_out = (wanted < len(out_times)) & (np.abs(out_times[np.minimum(wanted, len(out_times) - 1)] - grid) <= TIME_EPS)
@@ -158,7 +197,10 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     g = 0
     while g < len(grid) - 1:
         if cut[g]:
-            solver.glue(state, control, grid[g + 1])
+            if g + 1 < len(grid) - 1 and cut[g + 1]:
+                solver.glue(state, control, grid[g + 1])
+            else:                                   # the cut's far side: a fresh start there
+                restart(model, solver, state, control, grid[g + 1])
             g += 1
             record(g, state.x)
             continue

@@ -5,8 +5,8 @@
 - No explosion: every shared CMU clip (BVH and the ASF/AMC one) on a generated body with the human
   template, every muscle at jiggle strength 1 and goal weight 0.1 (soft goals: the fat rings at
   0.93 Hz with damping ratio 0.2): no NaN, no false cut, every particle within BOUND_M of its goal.
-- Cuts: a clip with a spliced teleport is cut there and the particles restart on their goals, exactly
-  as if the clip started at the cut; without cut detection they would fly metres off.
+- Cuts: a clip with a spliced teleport is cut there and the particles restart, exactly as if the clip
+  started at the cut; without cut detection they would fly metres off.
 
 benchmarks/bench_jiggle.py prints the same independence measure as a table (with a body on 09_11) and
 the speed figures.
@@ -177,16 +177,17 @@ def cut_scene(musculatures):
 @pytest.mark.parametrize("jump", [0.5, 5.0])
 def test_spliced_teleport_resets_the_particles_to_their_goals(cut_scene, jump):
     """A root jump of 0.5 m or 5 m within one 1/120 s knot interval (the clip moves < 5 cm per
-    interval there): one cut, ending at the frame T_CUT; at that frame every particle sits on its goal
-    (float32 rounding of positions ~5 m: < 1e-5 m); after it the bake equals a fresh start of the
-    spliced clip at T_CUT (a reset is a restart: at rest relative to the goals); before it, the bake of
-    the clip without the splice (frames up to two knots before the cut see the same goals)."""
+    interval there): one cut, ending at the frame T_CUT; from that frame on the bake equals a fresh
+    start of the spliced clip at T_CUT (a reset is a restart: the particles at the quasi-static offset
+    of their goals' motion there, whatever they did before; float32 rounding of positions ~5 m: < 1e-5
+    m), an offset far below the jump; before it, the bake of the clip without the splice (frames up to
+    two knots before the cut see the same goals)."""
     mus, jiggles, world_at, times = cut_scene
     r = jiggle_rig(mus.rig, jiggles, spliced(world_at, jump), times, JiggleSettings())
     assert r.cuts.size == 1 and abs(r.cuts[0] - T_CUT) <= 1.0 / 120 + 1e-9, r.cuts
     k = int(np.flatnonzero(np.isclose(times, T_CUT))[0])
     at_cut = offsets(r)[k].max()
-    assert at_cut < 1e-5, at_cut
+    assert at_cut < 0.2 * min(jump, 1.0), at_cut
 
     fresh = jiggle_rig(mus.rig, jiggles, spliced(world_at, jump), times[k:], JiggleSettings())
     after = np.abs(r.dynamic[k:] - fresh.dynamic).max()
