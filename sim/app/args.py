@@ -125,6 +125,10 @@ def bake_options(p: argparse.ArgumentParser, out: str) -> None:
                    "0 static, 1 dynamic (default: the scene's curves, else 1)")
     g.add_argument("--jiggle", type=unit_interval("--jiggle"), metavar="J", help="jiggle strength of every muscle "
                    "in [0, 1] (default: each muscle's, 1)")
+    g.add_argument("--gravity", action="store_const", const=True, default=None, help="let the muscles sag under "
+                   "gravity below their static shape (default: the scene's, else off)")
+    g.add_argument("--preroll", type=non_negative("--preroll"), metavar="S", help="start at rest at the bind pose S "
+                   "seconds early (default: the scene's, else 0: start settled on the first frame)")
     g = p.add_argument_group("caches")
     g.add_argument("--formats", metavar="LIST", help=f"comma-separated cache formats: {', '.join(FORMATS)} "
                    "(default: the scene's, else npz,usdc)")

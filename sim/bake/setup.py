@@ -29,7 +29,7 @@ BAKE_FPS = 30.0
 DEFAULT_FORMATS = ("npz", "usdc")
 DEFAULT_CHUNK = 64
 """Frames per chunk: each chunk is simulated, skinned and written on its own (and resumed from)."""
-VERSION = 1
+VERSION = 2
 """Bumped when the bake's arithmetic changes, so `--resume` never splices two versions' chunks."""
 
 
@@ -42,7 +42,8 @@ class BakeRequest:
         read it (rig.motion.mocap.load_clip).
     character : skinned glTF/GLB (the clip is retargeted onto it), over the scene's [character] file.
     template : muscle template, a built-in name or a .toml/.xml path.
-    fps, substeps, blend (static_dyn_blend of every muscle), jiggle (strength J of every muscle).
+    fps, substeps, blend (static_dyn_blend of every muscle), jiggle (strength J of every muscle),
+    gravity (bool), preroll (seconds): over the scene's [jiggle].
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
@@ -61,6 +62,8 @@ class BakeRequest:
     substeps: int | None = None
     blend: float | None = None
     jiggle: float | None = None
+    gravity: bool | None = None
+    preroll: float | None = None
     start: float | None = None
     end: float | None = None
     frames: int | None = None
@@ -322,7 +325,7 @@ def _settings(req: BakeRequest, scene, jiggles):
     """(JiggleSettings, jiggles): the scene's [jiggle] with the command line's over it; --blend
     replaces every muscle's own blend curve too."""
     settings = scene.jiggle if scene is not None and scene.jiggle is not None else JiggleSettings()
-    given = {"substeps": req.substeps, "strength": req.jiggle,
+    given = {"substeps": req.substeps, "strength": req.jiggle, "gravity": req.gravity, "preroll": req.preroll,
              "blend": None if req.blend is None else BlendCurve.constant(req.blend)}
     settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
     if req.blend is not None:

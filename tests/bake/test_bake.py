@@ -147,6 +147,20 @@ def test_blend_zero_bakes_the_static_skin_exactly(capsys, tmp_path):
     np.testing.assert_array_equal(d.muscle_cvs_dynamic, d.muscle_cvs_static)
 
 
+def test_preroll_and_gravity_reach_the_bake(capsys, tmp_path, arm_bake):
+    """--preroll S starts the particles at rest at the bind pose S seconds early (so the first frame is
+    already jiggling), --gravity lets them sag; both are the bake's parameters (bake.json)."""
+    bake_arm(capsys, tmp_path, "--preroll", "0.2", "--gravity", "--formats", "npz", "--frames", "20")
+    d, plain = read_npz(tmp_path / "bake.npz"), read_npz(arm_bake / "bake.npz")
+    settings = json.loads(d.params)["settings"]
+    assert settings["preroll"] == 0.2 and settings["gravity"] is True
+    assert np.abs(d.muscle_cvs_dynamic[0] - d.muscle_cvs_static[0]).max() > 1e-5       # not settled
+    assert np.abs(plain.muscle_cvs_dynamic[0] - plain.muscle_cvs_static[0]).max() < 1e-6
+    with pytest.raises(SystemExit) as e:
+        main(["bake", ARM, "--preroll=-1", "--out", str(tmp_path / "x")])
+    assert e.value.code == 2 and "--preroll must be zero or more" in capsys.readouterr().err
+
+
 def test_jiggle_zero_stays_static(capsys, tmp_path):
     bake_arm(capsys, tmp_path, "--jiggle", "0", "--formats", "npz", "--frames", "40")
     d = read_npz(tmp_path / "bake.npz")
