@@ -12,6 +12,13 @@ The artist's skin is kept: both deformers act on the change of each muscle relat
 rides (rig/skin/shell/shells.py says how the paper's absolute shells became relative), so at the bind pose with
 the muscles at rest the result is the smooth-skinned skin, which at bind is the artist's skin.
 
+The skin spreads what the deformers do to it: their displacement from the smooth skin, static and
+jiggling alike, is smoothed over the surface (rig/skin/surface_smoothing.py, a reach of JIGGLE_REACH of
+the character's size), so a muscle's or a fat pad's outline never shows as a crease, a step or a tear
+(issue 18: on the generated body this took the shells' added folds on the dance clip from +4 to 0 per
+frame on average and every jiggle tear out of the run and jump clips). At bind the displacement is 0,
+so the artist's skin is still kept exactly.
+
 Built once (`MuscleSkin(...)`): the Skinner's rest mesh and weights, the muscle frames, the pair list
 culled at bind, the painted weights and the deformer's device arrays. Per frame (`pose`): one launch
 for the skinning, a few NumPy operations over all muscles at once for their frames, one launch for the
@@ -20,7 +27,8 @@ deformer; nothing loops in Python over muscles, pairs or vertices.
 Per chunk of T frames (`pose_batch`, `lbs_batch`: the bake), for S sets of muscle states (e.g. the
 static and the blended CVs): one LBS/DQS launch for the T frames, shared by the sets, the frames of
 all sets and frames in a few NumPy operations (the bones' part once), one upload and one shell launch
-for all sets and frames. Influence objects still launch once per frame and set.
+for all sets and frames, then one sparse smoothing for all of them. Influence objects still launch once
+per frame and set.
 """
 from __future__ import annotations
 
@@ -39,6 +47,7 @@ from rig.skin.influence import InfluenceDeformer
 from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
 from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
+from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, steps_for_reach
 from rig.skin.skinning import character_skinner
 
 SKINNING = ("shell", "influence", "rbf")
@@ -66,12 +75,15 @@ class MuscleSkin:
         to 0 across that margin (rig.skin.shell.shells.pair_envelope), so the culling line leaves no step.
     star : give each deformer its muscle's star-shaped offsets (Pratscher et al. 4.3.2).
     device : Warp device.
+    spread : how far the skin spreads what the muscles do to it (shell and influence: their
+        displacement from the smooth skin, static and jiggling alike, rig.skin.surface_smoothing), a
+        fraction of the character's largest extent (default JIGGLE_REACH; 0: not at all).
     """
 
     def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
                  skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
                  margin: float = 0.5, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
-                 roles=None):
+                 roles=None, spread: float = JIGGLE_REACH):
         if skinning not in SKINNING:
             raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
         if method not in ("lbs", "dqs"):
@@ -81,6 +93,8 @@ class MuscleSkin:
                              field="rig")
         if not (np.isfinite(margin) and margin >= 0.0):
             raise InputError(f"expected a number >= 0, got {margin}", field="margin")
+        if not (np.isfinite(spread) and spread >= 0.0):
+            raise InputError(f"expected a number >= 0, got {spread}", field="spread")
         M, V = rig.M, character.num_vertices
         shells = [default_shell(k) for k in rig.kinds] if shells is None else list(shells)
         if len(shells) != M or not all(isinstance(s, ShellParams) for s in shells):
@@ -120,6 +134,21 @@ class MuscleSkin:
             self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
             binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
             self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device)
+        # the muscles' displacement of the skin, spread over its surface (rig/skin/surface_smoothing.py)
+        v = character.vertices
+        size = float(np.ptp(v, axis=0).max()) if len(v) else 0.0
+        self.spread = SurfaceSmoothing(character.faces, V, steps_for_reach(v, character.faces, spread * size),
+                                       np.diff(offsets) > 0)
+
+    def _spread(self, smooth: np.ndarray, skins: list) -> list:
+        """Skins (T, V, 3) each smooth + spread(skin - smooth), for the smooth skin (T, V, 3) beneath:
+        one smoothing for all of them (their frames side by side)."""
+        if self.spread.steps == 0 or not skins:
+            return skins
+        d = np.concatenate([np.asarray(k, np.float32) - smooth for k in skins])
+        d = self.spread(d)
+        T = len(smooth)
+        return [smooth + d[i * T:(i + 1) * T] for i in range(len(skins))]
 
     @classmethod
     def from_musculature(cls, mus, *, weights=None, character_path=None, **kw) -> "MuscleSkin":
@@ -192,8 +221,8 @@ class MuscleSkin:
                 self._warn(np.nonzero(bad)[0], frame, "its CVs hold NaN or inf")
                 cvs = np.where(np.repeat(bad, self.rig.CVS_PER_MUSCLE)[:, None], ref, cvs)
             out = self.deformer.launch(points, cvs, ref)
-        result = out.numpy()
-        return result.copy() if self.device.is_cpu else result
+        base = points.numpy()
+        return self._spread(base[None], [out.numpy()[None]])[0][0].copy()
 
     def lbs_batch(self, world: np.ndarray) -> np.ndarray:
         """Smooth skinning alone of T frames, (T, V, 3) float32 metres, for joint world transforms
@@ -236,7 +265,8 @@ class MuscleSkin:
             out = self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
             return list(out) + ([self.lbs_batch(world)] if with_smooth else [])
         points = self.skinner.launch_batch(self.character.skin_matrices(world), self.method)  # (T, V)
-        smooth = [points.numpy().copy()] if with_smooth else []
+        base = points.numpy()
+        smooth = [base.copy()] if with_smooth else []
         if self.skinning == "shell":
             arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame)
             for sk in skipped:
@@ -244,7 +274,7 @@ class MuscleSkin:
                     warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
                                   stacklevel=2)
             out = self.deformer.launch_batch(points, ShellBatch(*arrays)).numpy()        # (S, T, V, 3)
-            return [out[s].copy() for s in range(S)] + smooth
+            return self._spread(base, [out[s] for s in range(S)]) + smooth
         # influence objects: one launch per frame and set over the shared smooth skin
         ref = self.frames.carried_rest_cvs(world)                                          # (T, N, 3)
         out = [np.empty((T, V, 3), np.float32) for _ in range(S)]
@@ -259,7 +289,7 @@ class MuscleSkin:
                     self._warn(np.nonzero(bad[t])[0], first_frame + t, "its CVs hold NaN or inf")
                     c = np.where(np.repeat(bad[t], self.rig.CVS_PER_MUSCLE)[:, None], ref[t], c)
                 out[s][t] = self.deformer.launch(points[t], c, ref[t]).numpy()
-        return out + smooth
+        return self._spread(base, out) + smooth
 
     def _finite_cvs(self, cvs, world: np.ndarray, first_frame: int | None) -> np.ndarray:
         """CVs (N, 3) or (T, N, 3) with every muscle holding NaN or inf put back on its rest shape carried

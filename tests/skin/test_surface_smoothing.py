@@ -1,0 +1,79 @@
+"""The skin's spreading of the muscles' displacement (rig/skin/surface_smoothing.py)."""
+import numpy as np
+import pytest
+
+from rig.base.errors import InputError
+from rig.skin.quality import SkinQuality
+from rig.skin.surface_smoothing import SurfaceSmoothing, mesh_neighbours, steps_for_reach
+
+
+def grid(n=21, size=0.4):
+    x, y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
+    verts = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            faces += [(a, b, c), (a, c, d)]
+    return verts, np.array(faces)
+
+
+def reference(field, faces, steps, step=0.5):
+    """Dense NumPy: x <- (1 - step) x + step mean(neighbours)."""
+    A = mesh_neighbours(faces, len(field)).toarray()
+    mean = A / A.sum(axis=1, keepdims=True)
+    x = field.astype(np.float64)
+    for _ in range(steps):
+        x = (1 - step) * x + step * (mean @ x)
+    return x
+
+
+def test_equals_the_dense_reference_and_keeps_uniform_fields():
+    verts, faces = grid()
+    rng = np.random.default_rng(0)
+    field = rng.normal(size=(3, len(verts), 3)).astype(np.float32)
+    s = SurfaceSmoothing(faces, len(verts), 7)
+    got = s(field)
+    for t in range(3):
+        np.testing.assert_allclose(got[t], reference(field[t], faces, 7), atol=1e-5)
+    uniform = np.broadcast_to(np.array([0.01, -0.02, 0.03], np.float32), (len(verts), 3))
+    np.testing.assert_allclose(s(uniform), uniform, atol=1e-8)
+    assert np.array_equal(SurfaceSmoothing(faces, len(verts), 0)(field), field)
+
+
+def test_restricted_to_the_active_vertices_and_their_rings_is_exact():
+    """A field that is 0 off the active vertices smooths the same on the active set and its n rings
+    as on the whole mesh; vertices farther away are not even computed."""
+    verts, faces = grid()
+    active = np.linalg.norm(verts[:, :2] - 0.2, axis=1) < 0.06
+    field = np.where(active[:, None], np.float32(0.01), np.float32(0.0)) * np.ones((len(verts), 3), np.float32)
+    part = SurfaceSmoothing(faces, len(verts), 5, active)
+    whole = SurfaceSmoothing(faces, len(verts), 5)
+    np.testing.assert_allclose(part(field), whole(field), atol=1e-9)
+    assert len(part.rows) < len(verts)
+
+
+def test_a_step_in_the_field_stops_tearing_the_skin():
+    """A pad's outline as a step of 2 cm in the displacement across one 2 cm edge tears the edges along
+    it (gradient 1); spread over 2.3 cm it no longer does, and the pad keeps most of its displacement."""
+    verts, faces = grid()
+    q = SkinQuality(verts, faces)
+    pad = (verts[:, 0] > 0.15) & (verts[:, 0] < 0.25)
+    d = np.zeros_like(verts, dtype=np.float32)
+    d[pad, 2] = 0.02
+    moved = (verts + d)[None].astype(np.float32)
+    assert q.jiggle(verts[None], moved)["gradient_max"][0] >= 0.99
+    steps = steps_for_reach(verts, faces, 0.023)
+    spread = verts + SurfaceSmoothing(faces, len(verts), steps)(d)
+    j = q.jiggle(verts[None], spread[None].astype(np.float32))
+    assert j["torn_edges"][0] == 0 and j["gradient_max"][0] < 0.6
+    assert spread[pad, 2].max() > 0.8 * 0.02
+
+
+def test_steps_follow_the_reach_not_the_mesh_resolution():
+    coarse, cf = grid(21)
+    fine, ff = grid(41)                     # edges half as long: four times the steps for one reach
+    assert steps_for_reach(coarse, cf, 0.05) * 4 == pytest.approx(steps_for_reach(fine, ff, 0.05), rel=0.1)
+    assert steps_for_reach(fine, ff, 0.0) == 0
+    with pytest.raises(InputError):
+        SurfaceSmoothing(ff, len(fine), -1)
