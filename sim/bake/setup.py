@@ -376,6 +376,7 @@ def _muscle_params(rig, jiggles) -> dict:
         d = jsonable(j)
         d.pop("name", None)
         out[rig.names[m]] = {"kind": rig.kinds[m], "volume_m3": float(volumes[m]),
-                             "mass_kg": float(volumes[m] * j.density), **d}
+                             "mass_kg": float(volumes[m] * j.density), **d,
+                             "max_offset_m": j.reach if math.isfinite(j.reach) else None}
     return out
 

@@ -22,6 +22,12 @@ knobs, all in continuous time so that nothing depends on the frame rate or the s
   friction: a drag on the world velocity, 1/s.
 - Masses: the muscle's rest volume times its density, shared over the sections in proportion to
   their volume and over each section's 8 CVs equally.
+- Reach: how far a CV may swing from its static place, ``J x max_offset`` (metres): tissue does
+  not stretch without end, and a soft goal driven hard (a fat pad of goal weight 0.1 on a landing)
+  would otherwise swing several of its own thicknesses (issue 18 measured glute fat 7.6 cm past a pad
+  1.8 cm thick). The default max_offset is MAX_OFFSET_RADII[kind] x the muscle's mean rest radius: one
+  radius for a muscle (1.5-2 cm on a human's limbs), two for fat; like the jiggle's size, the reach
+  scales with J. The solver holds each particle inside its reach (sim/jiggle/solver.py).
 
 Goal weights default from the template's tendon and belly values: sections (end, bulge, middle,
 bulge, end) get (tendon, mean, belly, mean, tendon); painted weights (one per CV) replace them.
@@ -42,6 +48,8 @@ from rig.base.frozen import frozen_array
 
 CVS = 40
 SECTIONS, RING = 5, 8
+MAX_OFFSET_RADII = {"muscle": 1.0, "fat": 2.0}
+"""A CV's reach at strength 1, in its muscle's mean rest radii, per kind (see the module)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +111,8 @@ class MuscleJiggle:
     springs). spring_damping_ratio : >= 0. friction : >= 0, 1/s.
     goal : (40,) goal weights in [0, 1], one per CV (rig.muscle.model order: section-major, 8 per ring).
     blend : the muscle's static_dyn_blend curve, or None for the global one.
+    max_offset : metres > 0 (inf: none), how far a CV may move from its goal at strength 1; at strength
+        J the reach is J x max_offset (`reach`).
     """
 
     name: str
@@ -115,16 +125,17 @@ class MuscleJiggle:
     spring_damping_ratio: float = 0.0
     friction: float = 0.0
     blend: BlendCurve | None = None
+    max_offset: float = math.inf
 
     def __post_init__(self):
         where = f"muscle {self.name!r}"
         for f in ("frequency_hz", "damping_ratio", "density", "strength", "spring_frequency_hz",
-                  "spring_damping_ratio", "friction"):
+                  "spring_damping_ratio", "friction", "max_offset"):
             try:
                 v = float(getattr(self, f))
             except (TypeError, ValueError):
                 raise InputError(f"{where}: {f} must be a number, got {getattr(self, f)!r}", field=f) from None
-            if not math.isfinite(v):
+            if math.isnan(v) or (not math.isfinite(v) and f != "max_offset"):
                 raise InputError(f"{where}: {f} is NaN or inf", field=f)
             object.__setattr__(self, f, v)
         g = np.asarray(self.goal, dtype=np.float64).reshape(-1)
@@ -141,12 +152,18 @@ class MuscleJiggle:
                   ("strength", 0 <= self.strength <= 1, "in [0, 1]"),
                   ("spring_frequency_hz", self.spring_frequency_hz >= 0, ">= 0 Hz"),
                   ("spring_damping_ratio", self.spring_damping_ratio >= 0, ">= 0"),
-                  ("friction", self.friction >= 0, ">= 0 1/s"))
+                  ("friction", self.friction >= 0, ">= 0 1/s"),
+                  ("max_offset", self.max_offset > 0, "> 0 m"))
         for f, ok, expect in checks:
             if not ok:
                 raise InputError(f"{where}: {f} must be {expect}, got {getattr(self, f):g}", field=f)
         if self.blend is not None and not isinstance(self.blend, BlendCurve):
             object.__setattr__(self, "blend", BlendCurve.parse(self.blend, f"{where}.blend"))
+
+    @property
+    def reach(self) -> float:
+        """metres: how far a CV may move from its goal, strength x max_offset (inf: no limit)."""
+        return self.strength * self.max_offset if math.isfinite(self.max_offset) else math.inf
 
     def goal_stiffness(self) -> np.ndarray:
         """(40,) omega_i^2, 1/s^2, per unit mass; inf where the particle is glued (w = 1 or J = 0)."""
@@ -180,11 +197,20 @@ def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
         templates = [default_jiggle(k) for k in rig.kinds]
     if len(templates) != rig.M:
         raise InputError(f"expected {rig.M} jiggle entries (one per muscle), got {len(templates)}", field="jiggle")
-    return [from_template(n, j) for n, j in zip(rig.names, templates)]
+    radius = mean_radii(rig.rest_cvs)
+    return [replace(from_template(n, j), max_offset=MAX_OFFSET_RADII.get(k, MAX_OFFSET_RADII["muscle"]) * r)
+            for n, j, k, r in zip(rig.names, templates, rig.kinds, radius)]
+
+
+def mean_radii(rest_cvs: np.ndarray) -> np.ndarray:
+    """(M,) metres: each muscle's mean distance of its CVs from their section's centre, from rest CVs
+    (40 M, 3)."""
+    X = np.asarray(rest_cvs, dtype=np.float64).reshape(-1, SECTIONS, RING, 3)
+    return np.linalg.norm(X - X.mean(axis=2, keepdims=True), axis=3).mean(axis=(1, 2))
 
 
 OVERRIDES = ("frequency", "damping", "strength", "goal", "goal_tendon", "goal_belly", "density",
-             "spring_frequency", "spring_damping", "friction", "blend")
+             "spring_frequency", "spring_damping", "friction", "blend", "max_offset")
 ATTRIBUTES = {"frequency": "frequency_hz", "damping": "damping_ratio", "spring_frequency": "spring_frequency_hz",
          "spring_damping": "spring_damping_ratio"}
 

@@ -85,10 +85,25 @@ def offsets(
         u_out[i] = v[i] - goal_vel(pa, pb, va, vb, H, s)
 
 
+@wp.func
+def within_reach(y: wp.vec3, u: wp.vec3, reach: float):
+    """(y, u) held inside the particle's reach: an offset beyond it is projected onto the sphere of
+    radius reach and loses its outward offset velocity (an inelastic stop; sim/jiggle/particles.py)."""
+    n = wp.length(y)
+    if n <= reach:
+        return y, u
+    d = y / n
+    out = wp.dot(u, d)
+    if out > 0.0:
+        u = u - out * d
+    return d * reach, u
+
+
 @wp.kernel
 def kick_drift(
     # model
-    inv_mass: wp.array(dtype=float), drag: wp.array(dtype=float), flow: wp.array2d(dtype=float),
+    inv_mass: wp.array(dtype=float), drag: wp.array(dtype=float), reach: wp.array(dtype=float),
+    flow: wp.array2d(dtype=float),
     adj_offsets: wp.array(dtype=wp.int32), adj_index: wp.array(dtype=wp.int32),
     adj_k: wp.array(dtype=float), adj_c: wp.array(dtype=float), gravity: wp.vec3,
     # goals
@@ -100,8 +115,8 @@ def kick_drift(
     x_out: wp.array(dtype=wp.vec3), y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3),
 ):
     """Kick of the springs over h_kick at s0 (h/2 opening a step; the previous step's closing half kick
-    plus this one's opening half between two steps), then the exact goal flow over h: x_out and the
-    offsets at s0 + h (u_out before any closing kick)."""
+    plus this one's opening half between two steps), then the exact goal flow over h, held within each
+    particle's reach: x_out and the offsets at s0 + h (u_out before any closing kick)."""
     t = wp.tid()
     for i in range(t * BLOCK, wp.min(t * BLOCK + BLOCK, y.shape[0])):
         pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
@@ -118,6 +133,7 @@ def kick_drift(
         b2 = (-0.5 * mu) * g_jerk
         y1 = flow[i, 0] * y0 + flow[i, 1] * u0 + flow[i, 4] * b0 + flow[i, 5] * b1 + flow[i, 6] * b2
         u1 = flow[i, 2] * y0 + flow[i, 3] * u0 + flow[i, 7] * b0 + flow[i, 8] * b1 + flow[i, 9] * b2
+        y1, u1 = within_reach(y1, u1, reach[i])
         s1 = s0 + h
         x_out[i] = pa + s1 * (va + s1 * (c2 + s1 * c3)) + y1
         y_out[i] = y1

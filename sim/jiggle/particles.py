@@ -21,6 +21,10 @@ Forces (per particle i, offset y_i = x_i - g_i from the goal g_i, u_i = y_i'):
   model linear, and conserves momentum (equal and opposite forces);
 - gravity m_i g (when on).
 
+Reach: each particle stays within `reach` (metres; inf: anywhere) of its goal; the solver projects an
+offset that would leave it back onto the sphere and drops the offset velocity's outward part (an
+inelastic stop, sim/jiggle/solver.py). sim/jiggle/params.py says how far tissue may go.
+
 Springs of a muscle (built by :meth:`ParticleBuilder.add_muscles`): each CV to its two nearest
 neighbours at rest (the thesis), plus the structural ones the two nearest alone miss: around every
 ring (each CV to the next in its section: keeps a section round) and along the muscle (CV r of
@@ -65,6 +69,7 @@ class ParticleModel:
     """The frozen particle model (NumPy arrays read-only; `wp_*` their float32/int32 device copies).
 
     mass : (N,) kg. goal_k : (N,) 1/s^2 (inf: glued). goal_c : (N,) 1/s. drag : (N,) 1/s.
+    reach : (N,) metres (inf: no limit), how far a particle may move from its goal.
     glued : (N,) bool. rest : (N, 3) metres, positions at bind.
     springs : (E, 2) int64 particle pairs i < j. spring_k : (E,) N/m. spring_c : (E,) N s/m.
     adj_offsets : (N + 1,) CSR rows of each particle's springs; adj_index : (2E,) the other particle;
@@ -78,6 +83,7 @@ class ParticleModel:
     goal_k: np.ndarray
     goal_c: np.ndarray
     drag: np.ndarray
+    reach: np.ndarray
     glued: np.ndarray
     rest: np.ndarray
     springs: np.ndarray
@@ -93,6 +99,7 @@ class ParticleModel:
     device: str
     wp_inv_mass: wp.array
     wp_drag: wp.array
+    wp_reach: wp.array
     wp_adj_offsets: wp.array
     wp_adj_index: wp.array
     wp_adj_k: wp.array
@@ -156,7 +163,7 @@ class ParticleBuilder:
     """Collects particles, springs and groups, then :meth:`finalize` freezes them."""
 
     def __init__(self):
-        self._mass, self._k, self._c, self._drag, self._rest = [], [], [], [], []
+        self._mass, self._k, self._c, self._drag, self._rest, self._reach = [], [], [], [], [], []
         self._springs, self._sk, self._sc = [], [], []
         self._groups, self._group_start = [], []
 
@@ -173,11 +180,12 @@ class ParticleBuilder:
         return f"muscle {self._groups[-1]!r}" if self._groups else "particle"
 
     def add_particle(self, position, mass: float, goal_stiffness: float = math.inf, goal_damping: float = 0.0,
-                     drag: float = 0.0) -> int:
+                     drag: float = 0.0, reach: float = math.inf) -> int:
         """Add a particle; returns its index.
 
         position : (3,) metres at rest. mass : kg > 0. goal_stiffness : k = omega^2 >= 0, 1/s^2 per unit
         mass (inf: glued to its goal). goal_damping : c >= 0, 1/s per unit mass. drag : mu >= 0, 1/s.
+        reach : metres > 0 (inf: no limit), how far it may move from its goal.
         """
         where = f"{self._where()}, particle {self.num_particles}"
         p = np.asarray(position, dtype=np.float64).reshape(-1)
@@ -186,14 +194,16 @@ class ParticleBuilder:
         for f, v, ok, expect in (("mass", mass, mass > 0, "> 0 kg"),
                                  ("goal_stiffness", goal_stiffness, goal_stiffness >= 0, ">= 0 1/s^2"),
                                  ("goal_damping", goal_damping, goal_damping >= 0, ">= 0 1/s"),
-                                 ("drag", drag, drag >= 0, ">= 0 1/s")):
-            if not ok or (math.isnan(v)) or (f != "goal_stiffness" and not math.isfinite(v)):
+                                 ("drag", drag, drag >= 0, ">= 0 1/s"),
+                                 ("reach", reach, reach > 0, "> 0 m")):
+            if not ok or (math.isnan(v)) or (f not in ("goal_stiffness", "reach") and not math.isfinite(v)):
                 raise InputError(f"{where}: {f} must be {expect}, got {v!r}", field=f)
         self._rest.append(p)
         self._mass.append(float(mass))
         self._k.append(float(goal_stiffness))
         self._c.append(float(goal_damping))
         self._drag.append(float(drag))
+        self._reach.append(float(reach))
         return self.num_particles - 1
 
     def add_spring(self, i: int, j: int, stiffness: float, damping: float = 0.0) -> None:
@@ -229,7 +239,7 @@ class ParticleBuilder:
                 c = np.where(np.isfinite(k), 2.0 * mj.damping_ratio * np.sqrt(k), 0.0)
             base = self.num_particles
             for p, m_, k_, c_ in zip(cvs.reshape(CVS, 3), mass, k, c):
-                self.add_particle(p, m_, k_, c_, mj.friction)
+                self.add_particle(p, m_, k_, c_, mj.friction, mj.reach if mj.reach > 0 else math.inf)
             if mj.spring_frequency_hz > 0:
                 w = 2.0 * math.pi * mj.spring_frequency_hz
                 for i, j in muscle_springs(cvs.reshape(CVS, 3)):
@@ -261,7 +271,8 @@ class ParticleBuilder:
 
         return ParticleModel(
             mass=frozen_array(mass), goal_k=frozen_array(k), goal_c=frozen_array(np.array(self._c)),
-            drag=frozen_array(np.array(self._drag)), glued=frozen_array(glued, bool),
+            drag=frozen_array(np.array(self._drag)), reach=frozen_array(np.array(self._reach)),
+            glued=frozen_array(glued, bool),
             rest=frozen_array(np.array(self._rest).reshape(n, 3)), springs=frozen_array(springs, np.int64),
             spring_k=frozen_array(sk), spring_c=frozen_array(sc), adj_offsets=frozen_array(offsets, np.int64),
             adj_index=frozen_array(ends[:, 1], np.int64), adj_k=frozen_array(adj_k), adj_c=frozen_array(adj_c),
@@ -269,6 +280,8 @@ class ParticleBuilder:
             device=str(device),
             wp_inv_mass=dev(inv_mass.astype(np.float32), wp.float32),
             wp_drag=dev(np.array(self._drag, dtype=np.float32), wp.float32),
+            # inf reaches as the largest float32: no offset ever reaches it
+            wp_reach=dev(np.minimum(np.array(self._reach), np.finfo(np.float32).max).astype(np.float32), wp.float32),
             wp_adj_offsets=dev(offsets.astype(np.int32), wp.int32),
             wp_adj_index=dev(ends[:, 1].astype(np.int32), wp.int32),
             wp_adj_k=dev(adj_k.astype(np.float32), wp.float32),

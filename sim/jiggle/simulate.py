@@ -28,7 +28,7 @@ from rig.base.errors import InputError
 from sim.jiggle.goal_track import GoalTrack, build_track
 from sim.jiggle.params import JiggleSettings
 from sim.jiggle.particles import GRAVITY, ParticleModel
-from sim.jiggle.solver import ParticleSolver
+from sim.jiggle.solver import ParticleSolver, within_reach_numpy
 
 TIME_EPS = 1e-9
 
@@ -119,12 +119,13 @@ def start_motion(track: GoalTrack, t0: float, window: float = START_WINDOW) -> t
 
 def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: float) -> None:
     """Put the particles on their goals at time t as a run starts (and restarts after a cut): at the
-    quasi-static offset of the goals' fitted acceleration (and gravity), with their fitted velocity
-    (start_motion); glued particles exactly on their goals, moving with them."""
+    quasi-static offset of the goals' fitted acceleration (and gravity), within their reach, with their
+    fitted velocity (start_motion); glued particles exactly on their goals, moving with them."""
     solver.glue(state, control, t)
     x, v = state.numpy()
     vel, acc = start_motion(control.track, t)
-    state.assign(x + equilibrium(model, acc), np.where(model.glued[:, None], v, vel))
+    y, _ = within_reach_numpy(model.reach, equilibrium(model, acc), np.zeros((model.num_particles, 3)))
+    state.assign(x + y, np.where(model.glued[:, None], v, vel))
 
 
 def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps: int = 4,

@@ -5,7 +5,9 @@ A step of length h from time t (it must lie inside one knot interval of the goal
 1. half kick of the neighbour springs (on the offsets) at t;
 2. exact flow of every particle's goal spring, damping, friction, gravity and the goal's own motion
    over h (sim/jiggle/goal_flow.py): exact for any h, so the goal springs are never the reason to take
-   small steps, however stiff (goal weights near 1) or however long the frame;
+   small steps, however stiff (goal weights near 1) or however long the frame; then each offset is
+   held within its particle's reach (an inelastic stop: projected onto the sphere, the outward offset
+   velocity dropped);
 3. half kick of the springs at t + h.
 
 This is the splitting of the impulse (r-RESPA) family with an exact inner flow: symmetric and, for
@@ -110,7 +112,8 @@ class ParticleSolver:
         for k, ((seg, s0, H), h) in enumerate(zip(steps, dts)):
             _, flow = self.flow(h)
             # offsets (Y[0], U) at s0 -> (Y[1], U_pre) at s0 + h; U is free again after this launch
-            self._run(kernels.kick_drift, [m.wp_inv_mass, m.wp_drag, flow, m.wp_adj_offsets, m.wp_adj_index,
+            self._run(kernels.kick_drift, [m.wp_inv_mass, m.wp_drag, m.wp_reach, flow, m.wp_adj_offsets,
+                                           m.wp_adj_index,
                                            m.wp_adj_k, m.wp_adj_c, self._gravity, control.pos, control.vel_start,
                                            control.vel_end, seg, float(H), float(s0), float(h), float(h_kick),
                                            Y[0], U, state_out.x, Y[1], U_pre])
@@ -177,6 +180,21 @@ def kick_numpy(model: ParticleModel, y: np.ndarray, u: np.ndarray, h: float) -> 
     return (u * (1.0 - d) + h * inv_m[:, None] * f) / (1.0 + d)
 
 
+def within_reach_numpy(reach: np.ndarray, y: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The kernels' within_reach: offsets y (N, 3) beyond reach (N,) projected onto it, their outward
+    offset velocity u dropped."""
+    n = np.linalg.norm(y, axis=1)
+    over = n > reach
+    if not over.any():
+        return y, u
+    d = y[over] / n[over, None]
+    out = np.maximum(np.sum(u[over] * d, axis=1), 0.0)
+    y, u = y.copy(), u.copy()
+    y[over] = d * reach[over, None]
+    u[over] -= out[:, None] * d
+    return y, u
+
+
 def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray, v: np.ndarray,
                     grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The NumPy reference of ParticleSolver.integrate in float64 (merged kicks between steps):
@@ -200,7 +218,7 @@ def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray,
         b0 = model.gravity_vector - gacc - mu * gv
         b1 = -gjerk - mu * gacc
         b2 = -0.5 * mu * gjerk
-        y, u = flow_numpy(flow(h), y, u, b0, b1, b2)
+        y, u = within_reach_numpy(model.reach, *flow_numpy(flow(h), y, u, b0, b1, b2))
         h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
     j, s0, _ = steps[-1]
     g1, gv1, _, _ = goal(j, s0 + dts[-1])
