@@ -108,6 +108,11 @@ class MuscleSkin:
 
         self.character, self.rig, self.shells = character, rig, tuple(shells)
         self.skinning, self.method, self.device = skinning, method, wp.get_device(device)
+        self.jiggle_mask = None
+        """(V,) float32 in [0, 1] or None: how much of the jiggle each vertex shows (skin_frames)."""
+        self.jiggle_spread = None
+        """SurfaceSmoothing of the jiggle (skin_frames), or None: the deformers' displacement is spread
+        instead, inside pose / pose_batch (shell, influence)."""
         self.frames = MuscleFrames.build(rig, character.bind_world, star=star)
         self.table = shell_table(shells, star=self.frames.star if star else None,
                                  star_index=self.frames.star_index if star else None)
@@ -118,6 +123,11 @@ class MuscleSkin:
             self.pair_weight = np.zeros(0, np.float32)
             self.deformer = RBFSkin(character, rig, segmentation=segmentation, roles=roles,
                                     options=rbf or RBFSkinOptions(), device=device)
+            self.jiggle_mask = self.deformer.jiggle_mask
+            # no deformer displacement to spread here: the skin's jiggle is spread instead (skin_frames)
+            size = float(np.ptp(character.vertices, axis=0).max()) if V else 0.0
+            self.jiggle_spread = SurfaceSmoothing(character.faces, V, steps_for_reach(
+                character.vertices, character.faces, spread * size))
             return
         offsets, muscle = cull_pairs(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
                                      star=self.table.star, star_index=self.table.star_index)
@@ -327,12 +337,23 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     frames : (T,) the frame numbers, for warnings naming a muscle skipped at a frame. Batched over
     the frames in one launch per set (MuscleSkin.pose_batch, equal to posing frame by frame) when the
     frames are consecutive and the skin can; frame by frame otherwise.
+    With several sets the first is the static one: where the skin has a `jiggle_mask` or a
+    `jiggle_spread` (the RBF skin), every other set's difference from it (its jiggle) is scaled by the
+    mask (zones without muscles show none) and spread over the surface.
     """
     frames = np.asarray(frames, dtype=np.int64).reshape(-1)
     if hasattr(skin, "pose_batch") and (len(frames) < 2 or np.all(np.diff(frames) == 1)):
         first = int(frames[0]) if len(frames) else 0
-        return list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first,
-                                    with_smooth=with_smooth))
-    out = [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=int(frames[k])) for k in range(len(world))])
-           for cvs in cvs_sets]
-    return out + ([np.stack([skin.lbs(w) for w in world])] if with_smooth else [])
+        out = list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first,
+                                   with_smooth=with_smooth))
+    else:
+        out = [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=int(frames[k])) for k in range(len(world))])
+               for cvs in cvs_sets]
+        out += [np.stack([skin.lbs(w) for w in world])] if with_smooth else []
+    mask, spread = getattr(skin, "jiggle_mask", None), getattr(skin, "jiggle_spread", None)
+    for s in range(1, len(cvs_sets)):
+        if mask is not None or spread is not None:
+            d = out[s] - out[0]
+            d = d if mask is None else np.asarray(mask, np.float32)[:, None] * d
+            out[s] = out[0] + (d if spread is None else spread(d))
+    return out

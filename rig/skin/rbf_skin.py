@@ -9,6 +9,12 @@
                muscle anchors on the loft of the current CVs (static, jiggling or blended)
                --> skin = W @ features, one sparse product (a Warp launch, rig.anatomy.rbf.RBFSkinner)
 
+The jiggle stays where muscles are: `jiggle_mask` (V,) is 1 in the zones that hold a muscle's feature
+points and 0 in the others (head, hands, feet), blended across zone boundaries, and the pipeline's
+skin stage scales the skin's jiggle (final - static) by it (rig.skin.muscle_skin.skin_frames). Without
+it the head, whose zone borrows the torso's feature points near the neck, nodded with the pectorals'
+jiggle (issue 18: 30-40 mm).
+
 No smooth skinning runs underneath: the feature points carry the bones and the muscles, the RBF
 interpolates the rest ("the skin follows the underlying components closely at selected locations
 ... but can smoothly interpolate to avoid most of the artifacts that can occur when the surface
@@ -72,6 +78,12 @@ class RBFSkin:
                                       self.zones, rbf, feature_vertex=vertex)
         self.skinner = RBFSkinner(self.weights, device=device)
         self.character, self.rig, self.options = character, rig, options
+        # zones that hold a muscle's features show the jiggle, the others (head, hands, feet) do not,
+        # blended across the zone boundaries like the interpolants themselves
+        from rig.anatomy.features import MUSCLE
+        holds = np.zeros(self.zones.num_zones)
+        holds[self.zones.vertex_zone[vertex[np.asarray(fs.anchors.kind) == MUSCLE]]] = 1.0
+        self.jiggle_mask = np.clip(np.asarray(self.zones.blend @ holds).ravel(), 0.0, 1.0).astype(np.float32)
         self.num_cvs = 0 if rig is None else len(rig.rest_cvs)
 
     @property

@@ -91,6 +91,31 @@ def test_muscles_carry_the_skin(skin):
     assert push[r < 0.1].mean() > 5 * push[r > 0.4].mean()
 
 
+def test_the_head_keeps_still_while_the_torso_jiggles(skin):
+    """The pipeline's skin stage (skin_frames) on a jiggling belly and pectorals: the torso's skin shows
+    the jiggle, the head's none (its zone holds no muscle: jiggle_mask 0), with no step at the neck
+    (the mask blends across the zone boundary) and no edge torn by the jiggle."""
+    from rig.skin.muscle_skin import skin_frames
+    from rig.skin.quality import SkinQuality
+    c, mus, sk = skin
+    rig = mus.rig
+    world = c.bind_world[None]
+    st = rig.static(world)
+    cvs = st.cvs.copy()
+    for name in ("belly_fat", "left_pectoral", "right_pectoral"):
+        m = rig.names.index(name)
+        cvs[:, 40 * m:40 * m + 40] += [0.0, -0.03, 0.02]
+    static, final = skin_frames(sk, world, (st.cvs, cvs), st.curve, np.arange(1))
+    move = np.linalg.norm(final[0] - static[0], axis=1)
+    zones = sk.deformer.zones
+    head = zones.vertex_zone == list(zones.names).index("head")
+    mask = sk.jiggle_mask
+    assert mask[head].max() < 1.0 and (mask[head] == 0).mean() > 0.5 and mask[~head].max() == 1.0
+    assert move[head & (mask == 0)].max() < 1e-4 and move[~head].max() > 0.01        # < 0.1 mm: the spread
+    assert np.percentile(move[head], 99) < 1e-3
+    assert SkinQuality(c.vertices, c.faces).jiggle(static, final)["torn_edges"][0] == 0
+
+
 def test_batch_equals_single_frames(skin):
     c, mus, sk = skin
     world = np.stack([_turn(c, c.bind_world, "Skeleton_arm_joint_L__3_", [0, 0, 1.0], a) for a in (0, 30, 60)])
