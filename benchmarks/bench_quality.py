@@ -74,8 +74,8 @@ def bake_one(clip: str, character: str | None, skinning: str, tmp: str) -> dict:
     from sim.bake.baker import bake
     from sim.bake.setup import BakeRequest, prepare
     out = tempfile.mkdtemp(dir=tmp)
-    req = BakeRequest(clip=str(ASSETS / "mocap" / clip), character=None if character is None else str(ASSETS / character),
-                      formats=("npz",), skinning=skinning)
+    req = BakeRequest(clip=str(ASSETS / "mocap" / clip), formats=("npz",), skinning=skinning,
+                      character=None if character is None else str(ASSETS / character))
     bake(prepare(req), out)
     return measure(out)
 

@@ -32,11 +32,12 @@ Robustness, each a reading of the paper stated here once:
   M-matrix, so the heat stays in [0, 1] (maximum principle) and rows sum to 1.
 
 Two steps after the solve keep the skin from creasing (issue 18: with them the generated body's
-plain LBS folds ~17 edges past 90 degrees at worst on the CMU dance clip 05_02, without them ~205):
-- `smooth_heat`: steps of uniform Laplacian smoothing of every joint's heat over the mesh's edges,
-  as many as reach SMOOTH_REACH of the skeleton's size (a random walk of n steps of size `step` spreads
-  over about e sqrt(n step), e the mean edge length; ~18 steps, 4.5 cm, on the generated body). Visibility makes neighbouring vertices see different bones where spine, clavicle
-  and hip bones crowd, so the heat can jump between neighbours; LBS turns such a jump into a crease.
+plain LBS folds 29 edges past 90 degrees at worst on the CMU dance clip 05_02, without them 205):
+- `smooth_heat`: steps of uniform Laplacian smoothing of every joint's heat over the mesh's edges, as
+  many as reach SMOOTH_REACH of the skeleton's size (n steps of size `step` spread a value over about
+  e sqrt(n step), e the mean edge length: ~34 steps, 4.5 cm, on the generated body), per connected
+  component. Visibility makes neighbouring vertices see different bones where spine, clavicle and hip
+  bones crowd, so the heat can jump between neighbours; LBS turns such a jump into a crease.
   Averaging keeps each row's sum (1) and the values in [0, 1].
 - `_top_k` prunes continuously: each of the k largest weights loses the (k + 1)-th largest before
   renormalising, so a joint's weight reaches 0 exactly where it leaves a vertex's top k. Plain

@@ -27,7 +27,8 @@ def smooth_step(points: wp.array2d(dtype=wp.vec3), offsets: wp.array(dtype=wp.in
 
 @wp.func
 def vertex_frame(points: wp.array2d(dtype=wp.vec3), t: int, v: int, faces: wp.array(dtype=wp.vec3i),
-                 face_offsets: wp.array(dtype=wp.int32), face_of: wp.array(dtype=wp.int32), tangent_to: int) -> wp.mat33:
+                 face_offsets: wp.array(dtype=wp.int32), face_of: wp.array(dtype=wp.int32),
+                 tangent_to: int) -> wp.mat33:
     """Columns (t, b, n) of vertex v's frame at frame t of the smoothed points; the zero matrix when the
     normal or the tangent vanishes (the caller then leaves the vertex as it was)."""
     n = wp.vec3(0.0, 0.0, 0.0)

@@ -43,12 +43,13 @@ from rig.character.character import Character
 from rig.muscle.loft_attach import bind_influence
 from rig.muscle.model import MuscleRig
 from rig.muscle.shell_params import ShellParams, default_shell
+from rig.skin.delta_mush import DeltaMush
 from rig.skin.influence import InfluenceDeformer
 from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
 from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
-from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, steps_for_reach
 from rig.skin.skinning import character_skinner
+from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, steps_for_reach
 
 SKINNING = ("shell", "influence", "rbf")
 """How the muscles move the skin: the shell deformers (Pratscher et al.), influence objects (the
@@ -75,6 +76,8 @@ class MuscleSkin:
         to 0 across that margin (rig.skin.shell.shells.pair_envelope), so the culling line leaves no step.
     star : give each deformer its muscle's star-shaped offsets (Pratscher et al. 4.3.2).
     device : Warp device.
+    mush : Delta Mush smoothing steps on the smooth skin (rig.skin.delta_mush; on the RBF skin for
+        "rbf"): 0 (default) off; a clean-up for skins whose weights crease under LBS.
     spread : how far the skin spreads what the muscles do to it (shell and influence: their
         displacement from the smooth skin, static and jiggling alike, rig.skin.surface_smoothing), a
         fraction of the character's largest extent (default JIGGLE_REACH; 0: not at all).
@@ -83,7 +86,7 @@ class MuscleSkin:
     def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
                  skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
                  margin: float = 0.5, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
-                 roles=None, spread: float = JIGGLE_REACH):
+                 roles=None, spread: float = JIGGLE_REACH, mush: int = 0):
         if skinning not in SKINNING:
             raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
         if method not in ("lbs", "dqs"):
@@ -117,6 +120,11 @@ class MuscleSkin:
         self.table = shell_table(shells, star=self.frames.star if star else None,
                                  star_index=self.frames.star_index if star else None)
         self.skinner = character_skinner(character, device)
+        if isinstance(mush, bool) or int(mush) != mush or mush < 0:
+            raise InputError(f"expected a whole number >= 0, got {mush!r}", field="mush")
+        self.mush = (DeltaMush(character.vertices, character.faces, iterations=int(mush), device=device)
+                     if mush else None)
+        """rig.skin.delta_mush.DeltaMush over the smooth skin (or the RBF skin), or None."""
         if skinning == "rbf":  # the feature points carry the muscles: no (vertex, muscle) pairs to cull
             from rig.skin.rbf_skin import RBFSkin, RBFSkinOptions
             self.pair_offsets, self.pair_muscle = np.zeros(V + 1, np.int64), np.zeros(0, np.int64)
@@ -196,8 +204,18 @@ class MuscleSkin:
 
     # ------------------------------------------------------------------ per frame
     def lbs(self, world: np.ndarray) -> np.ndarray:
-        """Smooth skinning alone, (V, 3) float32 metres, for joint world transforms (J, 4, 4)."""
-        return self.skinner.skin(self.character.skin_matrices(world), self.method)
+        """Smooth skinning alone (mushed, with `mush`), (V, 3) float32 metres, for joint world
+        transforms (J, 4, 4)."""
+        out = self.skinner.skin(self.character.skin_matrices(world), self.method)
+        return out if self.mush is None else self.mush.apply(out)
+
+    def _smooth_points(self, points):
+        """The smooth skin on the device, (V,) or (T, V) vec3, through the Delta Mush when there is one."""
+        if self.mush is None:
+            return points
+        if points.ndim == 1:
+            return self.mush.launch(points.reshape((1, points.shape[0]))).reshape((points.shape[0],))
+        return self.mush.launch(points)
 
     def pose(self, world: np.ndarray, cvs: np.ndarray | None = None, curve: np.ndarray | None = None,
              frame: int | None = None) -> np.ndarray:
@@ -212,12 +230,13 @@ class MuscleSkin:
         world = np.asarray(world, dtype=np.float64)
         if self.skinning == "rbf":  # the features ride the CVs; the action curve is not needed
             cvs = self.rig.static(world).cvs if cvs is None else cvs
-            return self.deformer.pose(world, self._finite_cvs(cvs, world, frame))
+            out = self.deformer.pose(world, self._finite_cvs(cvs, world, frame))
+            return out if self.mush is None else self.mush.apply(out)
         if cvs is None or curve is None:
             static = self.rig.static(world)
             cvs = static.cvs if cvs is None else cvs
             curve = static.curve if curve is None else curve
-        points = self.skinner.launch(self.character.skin_matrices(world), self.method)
+        points = self._smooth_points(self.skinner.launch(self.character.skin_matrices(world), self.method))
         if self.skinning == "shell":
             fr, skipped = self.frames.frame(world, cvs, curve, frame=frame or 0)
             for s in skipped:
@@ -238,7 +257,8 @@ class MuscleSkin:
         """Smooth skinning alone of T frames, (T, V, 3) float32 metres, for joint world transforms
         (T, J, 4, 4): `lbs` frame by frame, in one upload and one launch."""
         world = self._check_world_batch(world)
-        return self.skinner.skin_batch(self.character.skin_matrices(world), self.method)
+        out = self.skinner.skin_batch(self.character.skin_matrices(world), self.method)
+        return out if self.mush is None else self.mush.apply(out)
 
     def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0,
                    with_smooth: bool = False) -> list[np.ndarray]:
@@ -273,8 +293,9 @@ class MuscleSkin:
             curves = [static.curve if k is None else k for k in curves]
         if self.skinning == "rbf":
             out = self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
-            return list(out) + ([self.lbs_batch(world)] if with_smooth else [])
-        points = self.skinner.launch_batch(self.character.skin_matrices(world), self.method)  # (T, V)
+            out = [o if self.mush is None else self.mush.apply(o) for o in out]
+            return out + ([self.lbs_batch(world)] if with_smooth else [])
+        points = self._smooth_points(self.skinner.launch_batch(self.character.skin_matrices(world), self.method))
         base = points.numpy()
         smooth = [base.copy()] if with_smooth else []
         if self.skinning == "shell":

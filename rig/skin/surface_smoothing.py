@@ -26,10 +26,10 @@ import scipy.sparse as sp
 
 from rig.base.errors import InputError
 
-JIGGLE_REACH = 0.013
-"""The jiggle's spread over the skin, as a fraction of the character's height (2.3 cm on a 1.8 m
-body): enough to take every tear out of the generated body's jiggle on the shared clips, little enough
-to keep its size (the largest skin displacement drops ~15%; benchmarks/bench_quality.py)."""
+JIGGLE_REACH = 0.016
+"""How far the skin spreads the muscles' displacement, as a fraction of the character's size (2.9 cm
+on a 1.8 m body): enough to take the tears out of the generated body's jiggle on the shared clips,
+little enough to keep most of its size (benchmarks/bench_quality.py)."""
 STEP = 0.5
 MAX_STEPS = 60
 

@@ -138,6 +138,8 @@ def bake_options(p: argparse.ArgumentParser, out: str) -> None:
     g.add_argument("--skinning", choices=["shell", "influence", "rbf"], help="how the muscles move the skin: shell, influence or rbf "
                    "(default: shell)")
     g.add_argument("--method", choices=["lbs", "dqs"], help="smooth skinning underneath (default: lbs)")
+    g.add_argument("--mush", type=count("--mush", zero=True), metavar="N", help="Delta Mush clean-up of the "
+                   "smooth skin, N smoothing steps (default: the scene's, else 0: off)")
     g.add_argument("--influences", type=count("--influences"), metavar="K", help="skin weights kept per vertex "
                    "(default: 4)")
     g.add_argument("--resolution", type=count("--resolution"), metavar="N",
@@ -158,11 +160,13 @@ def joint_map_option(g) -> None:
 
 
 def muscle_skin_options(g) -> None:
-    """--skinning, --method: how the muscles move the skin, over which smooth skinning."""
+    """--skinning, --method, --mush: how the muscles move the skin, over which smooth skinning."""
     g.add_argument("--skinning", choices=["shell", "influence", "rbf"], default="shell",
                    help="how the muscles move the skin: shell deformers, influence objects or anatomy-driven RBF "
                    "(default: shell)")
     g.add_argument("--method", choices=["lbs", "dqs"], default="lbs", help="smooth skinning underneath (default: lbs)")
+    g.add_argument("--mush", type=count("--mush", zero=True), default=0, metavar="N", help="Delta Mush clean-up of "
+                   "the smooth skin, N smoothing steps (default: 0, off)")
 
 
 def influences_option(g) -> None:

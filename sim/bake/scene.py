@@ -23,6 +23,7 @@ Layout (paths relative to the scene file)::
     influences = 4                # skin weights kept per vertex
     skinning = "shell"            # how muscles move the skin: "shell", "influence" or "rbf"
     method = "lbs"                # smooth skinning underneath: "lbs" or "dqs"
+    mush = 0                      # Delta Mush steps on the smooth skin (0: off; rig/skin/delta_mush.py)
     [skeleton]
     drive = "kinematic"           # or "physics"
     [output]
@@ -69,7 +70,7 @@ from sim.jiggle.params import OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggl
 
 _JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump")
 _BODY = ("resolution", "belly", "chest", "glutes", "upper_arms")
-_CHARACTER = {"file", "skin", "unit", "template", "influences", "skinning", "method", *_BODY}
+_CHARACTER = {"file", "skin", "unit", "template", "influences", "skinning", "method", "mush", *_BODY}
 _KNOWN = {"name": None, "builtin": None,
           "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
           "character": _CHARACTER, "skeleton": {"drive"}, "output": {"fps", "focus", "formats", "chunk"},
@@ -102,6 +103,9 @@ class CharacterSpec:
     influences: int | None = None
     skinning: str | None = None
     method: str | None = None
+    mush: int | None = None
+
+
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
 
@@ -299,8 +303,8 @@ def _character(table: dict, p: str, here: str, lines: "_Lines") -> CharacterSpec
                 raise InputError(f"expected a unit (m, cm, mm, in, ft) or metres per unit, found {v!r}", p, at(k),
                                  field=where)
             kw[k] = str(v)
-        elif k in ("skin", "influences", "resolution"):
-            least = 0 if k == "skin" else 1
+        elif k in ("skin", "influences", "resolution", "mush"):
+            least = 0 if k in ("skin", "mush") else 1
             if isinstance(v, bool) or not isinstance(v, int) or v < least:
                 raise InputError(f"expected a whole number >= {least}, found {v!r}", p, at(k), field=where)
             (body if k == "resolution" else kw)[k] = v

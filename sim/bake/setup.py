@@ -47,7 +47,8 @@ class BakeRequest:
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
-    method ("lbs"/"dqs"), joint_map, clip_map, character_map, skin, unit: as `jiggle simulate`.
+    method ("lbs"/"dqs"), joint_map, clip_map, character_map, skin, unit: as `jiggle simulate`; mush:
+    Delta Mush steps on the smooth skin (0: off).
     """
 
     scene: str | None = None
@@ -79,6 +80,7 @@ class BakeRequest:
     character_map: str | None = None
     skin: int | None = None
     unit: str | None = None
+    mush: int | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,8 +218,9 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
-    skinning, method = pick("skinning", "shell"), pick("method", "lbs")
-    skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file)
+    skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
+    skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file,
+                                       mush=mush)
     log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
         f"pairs ({time.perf_counter() - t:.1f} s)")
     timings["fit_s"] = time.perf_counter() - t
@@ -249,7 +252,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "vertices": character.num_vertices,
         "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
-        "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4)},
+        "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush},
         "settings": jsonable(settings),
         "muscles": _muscle_params(mus.rig, jiggles),
         "chunk": _chunk(req, scene),
@@ -271,8 +274,8 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
     from sim.jiggle.params import default_jiggles
     arm = simple_arm()
     pick = _picker(req, scene.character)
-    skinning, method = pick("skinning", "shell"), pick("method", "lbs")
-    skin = MuscleSkin(arm.character, arm.rig, skinning=skinning, method=method)
+    skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
+    skin = MuscleSkin(arm.character, arm.rig, skinning=skinning, method=method, mush=mush)
     jiggles = scene.apply_jiggle(default_jiggles(arm.rig))
     fps = float(req.fps or scene.fps or BAKE_FPS)
     times = output_times(FLEX_DURATION, fps, req.start, req.end, req.frames)
@@ -285,7 +288,8 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
         "clip": {"file": None, "name": scene.builtin, "duration_s": FLEX_DURATION},
         "character": {"builtin": scene.builtin}, "template": None, "vertices": arm.character.num_vertices,
         "drive": "kinematic", "fps": fps, "frames": len(times), "start_s": float(times[0]),
-        "end_s": float(times[-1]), "skinning": {"deformer": skinning, "method": method, "influences": None},
+        "end_s": float(times[-1]), "skinning": {"deformer": skinning, "method": method, "influences": None,
+                                                  "mush": mush},
         "settings": jsonable(settings), "muscles": _muscle_params(arm.rig, jiggles), "chunk": _chunk(req, scene),
     }
     return BakeSetup(name=scene.name, skin=skin, jiggles=tuple(jiggles), settings=settings, times=times, fps=fps,

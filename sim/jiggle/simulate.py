@@ -10,10 +10,11 @@ Two named stage functions, called alike by the bake's chunk loop (sim/bake/baker
 solver's spring limit; the exact goal flow makes the result independent of those choices up to the
 splitting error of the springs (benchmarks/bench_jiggle.py measures it).
 
-Starting: with ``preroll`` 0 the particles start on their goals, moving with them, at the offset
-where the springs balance the goals' acceleration at the first frame (and gravity, with it): the
-quasi-static offset a driven spring settles to, so a clip cut mid-motion shows no jolt; with preroll P > 0 they start at the bind
-pose, at rest, P seconds early, and the goals blend to the first frame over P/2 and hold for P/2.
+Starting: with ``preroll`` 0 the particles start moving with their goals at the offset where the
+springs balance the goals' acceleration at the first frame (and gravity, with it), within their reach:
+the quasi-static offset a driven spring settles to, so a clip cut mid-motion shows no jolt
+(:func:`restart`); with preroll P > 0 they start at the bind pose, at rest, P seconds early, and the
+goals blend to the first frame over P/2 and hold for P/2.
 Going on from a given state (a chunked bake) repeats the steps an unbroken run would take.
 Cuts: through a cut interval the particles are glued to the (linearly moving) goals, and on its far
 side they restart as a run starts there (:func:`restart`).

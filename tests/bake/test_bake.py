@@ -161,6 +161,16 @@ def test_preroll_and_gravity_reach_the_bake(capsys, tmp_path, arm_bake):
     assert e.value.code == 2 and "--preroll must be zero or more" in capsys.readouterr().err
 
 
+def test_mush_cleans_the_smooth_skin_in_the_bake(capsys, tmp_path, arm_bake):
+    """--mush N runs Delta Mush on the smooth skin under the shells: a parameter of the bake, the skin
+    changes where the elbow bends, and the rest pose is still the artist's."""
+    bake_arm(capsys, tmp_path, "--mush", "5", "--formats", "npz", "--frames", "40")
+    d, plain = read_npz(tmp_path / "bake.npz"), read_npz(arm_bake / "bake.npz")
+    assert json.loads(d.params)["skinning"]["mush"] == 5 and json.loads(plain.params)["skinning"]["mush"] == 0
+    assert np.abs(d.skin_static[0] - plain.skin_static[0]).max() < 1e-5           # bent 0 deg: the rest
+    assert np.abs(d.skin_lbs[-1] - plain.skin_lbs[39]).max() > 1e-3               # the bent elbow mushed
+
+
 def test_jiggle_zero_stays_static(capsys, tmp_path):
     bake_arm(capsys, tmp_path, "--jiggle", "0", "--formats", "npz", "--frames", "40")
     d = read_npz(tmp_path / "bake.npz")

@@ -142,7 +142,8 @@ def test_bad_parameters_are_named(arm):
 
 def test_culling_keeps_only_vertices_near_the_muscle(arm, arm_skins):
     """Pairs are the vertices within (1 + d)(1 + margin) of the rest ellipsoid: the forearm's far
-    end and the shoulder cap's back are out; everything the deformer moves at 90 deg is in."""
+    end and the shoulder cap's back are out; everything the deformer moves at 90 deg is in, or in
+    the rings the skin spreads it to (MuscleSkin.spread), and nothing farther moves."""
     skin = arm_skins["shell"]
     v = arm.character.vertices
     kept = np.zeros(len(v), bool)
@@ -151,7 +152,11 @@ def test_culling_keeps_only_vertices_near_the_muscle(arm, arm_skins):
     assert not kept[v[:, 2] < -0.45].any()
     w = arm.world(90.0)
     moved = np.linalg.norm(skin.pose(w) - skin.lbs(w), axis=1) > 0
-    assert not (moved & ~kept).any()
+    spread = np.zeros(len(v), bool)
+    spread[skin.spread.rows] = True
+    assert not (moved & ~spread).any() and (kept & ~spread).sum() == 0
+    bare = MuscleSkin(arm.character, arm.rig, spread=0.0)
+    assert not ((np.linalg.norm(bare.pose(w) - bare.lbs(w), axis=1) > 0) & ~kept).any()
 
 
 # ---------------------------------------------------------------------------------- CesiumMan

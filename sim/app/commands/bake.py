@@ -28,7 +28,7 @@ def bake_request(args):
         formats=formats, chunk=args.chunk, body=MappingProxyType(body), influences=args.influences,
         skinning=args.skinning, method=args.method, joint_map=getattr(args, "joint_map", None),
         clip_map=getattr(args, "clip_map", None), character_map=getattr(args, "character_map", None),
-        skin=getattr(args, "skin", None), unit=getattr(args, "unit", None))
+        skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None))
 
 
 def run_bake(request, out_dir: str, resume: bool = False) -> dict:

@@ -57,7 +57,7 @@ def run(args) -> int:
     from sim.app.deform_outputs import write_deform_outputs
     character, rig, world, pose = deform_pose(args)
     if isinstance(rig, Musculature):
-        skin = MuscleSkin.from_musculature(rig, skinning=args.skinning, method=args.method,
+        skin = MuscleSkin.from_musculature(rig, skinning=args.skinning, method=args.method, mush=args.mush,
                                            weights=args.weights, character_path=args.character)
         views = ("front", "side")
     else:
@@ -65,7 +65,7 @@ def run(args) -> int:
         if args.weights is not None:
             from rig.skin.shell.weights import load_weights
             weights = load_weights(args.weights, rig.names, character.num_vertices)
-        skin = MuscleSkin(character, rig, skinning=args.skinning, method=args.method, weights=weights)
+        skin = MuscleSkin(character, rig, skinning=args.skinning, method=args.method, mush=args.mush, weights=weights)
         views = ("side", "back")    # the arm's muscle faces +Y: its profile from the side, its face from +Y
     out = write_deform_outputs(skin, world, args.out, pose=pose, render=not args.no_render, views=views)
     f = out["facts"]

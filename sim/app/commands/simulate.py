@@ -67,7 +67,7 @@ def simulate_job(args) -> SimulateJob:
         return SimulateJob(
             name="simple arm", rig=arm.rig, jiggles=default_jiggles(arm.rig), world_at=arm.world_at,
             duration=FLEX_DURATION, fps=None, scene=None,
-            skin=lambda: MuscleSkin(arm.character, arm.rig, skinning=args.skinning, method=args.method),
+            skin=lambda: MuscleSkin(arm.character, arm.rig, skinning=args.skinning, method=args.method, mush=args.mush),
             source={"scene": "simple arm (built in)",
                     "motion": f"elbow 0 -> {FLEX_PEAK:g} deg in {FLEX_RISE:g} s, hold, back"})
     from rig.muscle.fit import FitOptions, fit_musculature
@@ -86,7 +86,7 @@ def simulate_job(args) -> SimulateJob:
         name=scene.name if scene is not None else clip.name, rig=mus.rig, jiggles=jiggles,
         world_at=lambda t: transforms(*clip.world(*clip.sample(t))), duration=clip.duration,
         fps=scene.fps if scene is not None else None, scene=scene,
-        skin=lambda: MuscleSkin.from_musculature(mus, skinning=args.skinning, method=args.method,
+        skin=lambda: MuscleSkin.from_musculature(mus, skinning=args.skinning, method=args.method, mush=args.mush,
                                                  character_path=args.character),
         source={"scene": scene.path if scene is not None else None, "clip": clip.source or args.clip,
                 "character": args.character or "generated body", "template": args.template or "human"})
