@@ -85,7 +85,7 @@ class MuscleSkin:
 
     def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
                  skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
-                 margin: float = 0.5, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
+                 margin: float = 0.25, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
                  roles=None, spread: float = JIGGLE_REACH, mush: int = 0):
         if skinning not in SKINNING:
             raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
@@ -159,14 +159,26 @@ class MuscleSkin:
                                        np.diff(offsets) > 0)
 
     def _spread(self, smooth: np.ndarray, skins: list) -> list:
-        """Skins (T, V, 3) each smooth + spread(skin - smooth), for the smooth skin (T, V, 3) beneath:
-        one smoothing for all of them (their frames side by side)."""
-        if self.spread.steps == 0 or not skins:
-            return skins
-        d = np.concatenate([np.asarray(k, np.float32) - smooth for k in skins])
-        d = self.spread(d)
-        T = len(smooth)
-        return [smooth + d[i * T:(i + 1) * T] for i in range(len(skins))]
+        """Skins (T, V, 3) each smooth + spread(skin - smooth), for the smooth skin (T, V, 3) beneath,
+        new arrays: one smoothing of the rows it reaches for all of them (their frames side by side)."""
+        if self.spread.steps == 0 or not skins or len(self.spread.rows) == 0:
+            return [np.array(k, dtype=np.float32) for k in skins]
+        rows = self.spread.rows
+        S, (T, V) = len(skins), smooth.shape[:2]
+        R = len(rows)
+        base = np.take(smooth, rows, axis=1)                                       # (T, R, 3)
+        x = np.empty((R, S, T, 3), np.float32)                                     # rows first, frames side by side
+        for s, k in enumerate(skins):
+            x[:, s] = (np.take(k, rows, axis=1) - base).transpose(1, 0, 2)
+        x = self.spread.smooth_rows(x.reshape(R, S * T * 3), copy=False).reshape(R, S, T, 3)
+        vec = np.dtype((np.void, 12))          # a vertex's xyz as one item: a scatter 3x faster than [:, rows]
+        out = []
+        for s, k in enumerate(skins):
+            k = np.array(k, dtype=np.float32)
+            moved = base + x[:, s].transpose(1, 0, 2)                               # (T, R, 3), a new array
+            k.view(vec).reshape(T, V)[:, rows] = moved.view(vec).reshape(T, R)
+            out.append(k)
+        return out
 
     @classmethod
     def from_musculature(cls, mus, *, weights=None, character_path=None, **kw) -> "MuscleSkin":

@@ -6,10 +6,11 @@
           --MuscleRig.static (rig.muscle)--> static CVs
           --goals, simulate (sim.jiggle.simulate)--> dynamic CVs
           --blend (sim.jiggle.blend)--> final CVs
-          --skin_frames (rig.skin.muscle_skin: LBS + shell deformers)--> skin_static, skin_final (and
-            skin_lbs, the smooth skin underneath, which compare's skin quality reads against)
+          --skin_frames (rig.skin.muscle_skin: LBS + shell deformers)--> skin_static, skin_final
         -> OUT/.partial/chunk_NNNNN.npz (atomic), with the particles' state at the chunk's last frame
       all chunks -> OUT/bake.npz, bake.usdc|usda, bake.pc2 (atomic), bake.json; .partial removed
+      (bake.npz also holds skin_lbs, the smooth skin alone that compare's skin quality reads against,
+      skinned again at assembly: one launch per chunk, no chunk file grows with it)
 
 Resuming: a chunk goes on from the particle state stored with the one before it, over the same step
 grid and the same goal knots (the knots of a chunk reach MARGIN knots past its ends, so the knot
@@ -114,15 +115,14 @@ class Baker:
                 dyn = dyn[1:] if c > 0 else dyn
             cvs = blend(st, dyn, self.blend[f0:f1])
         with self._timed("skin_s"):
-            skin_static, skin_final, skin_lbs = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1),
-                                                            with_smooth=True)
-        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final), ("skin_lbs", skin_lbs)):
+            skin_static, skin_final = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1))
+        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
             bad = ~np.isfinite(skin)
             if bad.any():                       # never into a cache: stop while the chunks so far are kept
                 k, v = np.argwhere(bad)[0][:2]
                 raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; nothing "
                                  f"of this chunk was written", field=name)
-        out = {"frames": np.array([f0, f1]), "skin_static": skin_static, "skin_final": skin_final, "skin_lbs": skin_lbs,
+        out = {"frames": np.array([f0, f1]), "skin_static": skin_static, "skin_final": skin_final,
                "joint_world": joints, "cvs_static": st.astype(np.float32), "cvs_dynamic": cvs.astype(np.float32)}
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
@@ -297,7 +297,7 @@ def assemble(setup: BakeSetup, out_dir: str) -> dict:
     def cat(key):
         return np.concatenate([p[key] for p in parts])
     rig = setup.rig
-    data = BakeData(skin_static=cat("skin_static"), skin_final=cat("skin_final"), skin_lbs=cat("skin_lbs"),
+    data = BakeData(skin_static=cat("skin_static"), skin_final=cat("skin_final"), skin_lbs=smooth_skin(setup),
                     skin_rest=setup.character.vertices,
                     faces=setup.character.faces, fps=setup.fps, times=setup.times,
                     joint_names=setup.joint_names, joint_world=cat("joint_world"), muscle_names=tuple(rig.names),
@@ -314,6 +314,19 @@ def assemble(setup: BakeSetup, out_dir: str) -> dict:
         elif fmt == "pc2":
             write_pc2(data.skin_final, path, setup.fps, start_time=float(setup.times[0]))
     return files
+
+
+def smooth_skin(setup: BakeSetup) -> np.ndarray | None:
+    """(T, V, 3) float32 metres: the smooth skin alone (LBS / DQS) at the output times, chunk by chunk;
+    None when the skin has no smooth skinning to give."""
+    skin = setup.skin
+    if not hasattr(skin, "lbs_batch"):
+        return None
+    parts = []
+    for c in range(num_chunks(setup)):
+        f0, f1 = chunk_frames(setup, c)
+        parts.append(skin.lbs_batch(np.asarray(setup.world_at(setup.times[f0:f1]), dtype=np.float64)))
+    return np.concatenate(parts)
 
 
 def _summary(setup: BakeSetup, out_dir: str, files: dict, baker: Baker, loop_s: float, write_s: float,
