@@ -49,7 +49,7 @@ from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
 from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
 from rig.skin.skinning import character_skinner
-from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, steps_for_reach
+from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, pool, steps_for_reach
 
 SKINNING = ("shell", "influence", "rbf")
 """How the muscles move the skin: the shell deformers (Pratscher et al.), influence objects (the
@@ -160,25 +160,24 @@ class MuscleSkin:
 
     def _spread(self, smooth: np.ndarray, skins: list) -> list:
         """Skins (T, V, 3) each smooth + spread(skin - smooth), for the smooth skin (T, V, 3) beneath,
-        new arrays: one smoothing of the rows it reaches for all of them (their frames side by side)."""
+        new arrays: the rows the spread reaches gathered, smoothed with the frames side by side as
+        columns and scattered back; one set per worker thread (NumPy and SciPy run without the GIL)."""
         if self.spread.steps == 0 or not skins or len(self.spread.rows) == 0:
             return [np.array(k, dtype=np.float32) for k in skins]
         rows = self.spread.rows
-        S, (T, V) = len(skins), smooth.shape[:2]
+        T, V = smooth.shape[:2]
         R = len(rows)
         base = np.take(smooth, rows, axis=1)                                       # (T, R, 3)
-        x = np.empty((R, S, T, 3), np.float32)                                     # rows first, frames side by side
-        for s, k in enumerate(skins):
-            x[:, s] = (np.take(k, rows, axis=1) - base).transpose(1, 0, 2)
-        x = self.spread.smooth_rows(x.reshape(R, S * T * 3), copy=False).reshape(R, S, T, 3)
         vec = np.dtype((np.void, 12))          # a vertex's xyz as one item: a scatter 3x faster than [:, rows]
-        out = []
-        for s, k in enumerate(skins):
-            k = np.array(k, dtype=np.float32)
-            moved = base + x[:, s].transpose(1, 0, 2)                               # (T, R, 3), a new array
-            k.view(vec).reshape(T, V)[:, rows] = moved.view(vec).reshape(T, R)
-            out.append(k)
-        return out
+
+        def one(k):
+            d = np.ascontiguousarray((np.take(k, rows, axis=1) - base).transpose(1, 0, 2)).reshape(R, 3 * T)
+            d = self.spread.smooth_rows(d, copy=False, threads=False).reshape(R, T, 3)
+            out = np.array(k, dtype=np.float32)
+            moved = base + d.transpose(1, 0, 2)                                     # (T, R, 3), a new array
+            out.view(vec).reshape(T, V)[:, rows] = moved.view(vec).reshape(T, R)
+            return out
+        return list(pool().map(one, skins)) if len(skins) > 1 else [one(skins[0])]
 
     @classmethod
     def from_musculature(cls, mus, *, weights=None, character_path=None, **kw) -> "MuscleSkin":

@@ -44,6 +44,18 @@ BLOCK = 48
 """Columns (16 frames x xyz) smoothed together: ~1 MB per 20k rows, kept in the cache over the steps."""
 
 
+_POOL = None
+
+
+def pool():
+    """Two worker threads shared by every smoothing (made on first use)."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="jiggle-smooth")
+    return _POOL
+
+
 def mesh_neighbours(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
     """(V, V) 0/1 adjacency of the mesh's edges, symmetric."""
     faces = np.asarray(faces, dtype=np.int64)
@@ -109,17 +121,25 @@ class SurfaceSmoothing:
         out[:, self.rows] = x.reshape(len(self.rows), T, 3).transpose(1, 0, 2)
         return out.reshape(f.shape)
 
-    def smooth_rows(self, x: np.ndarray, copy: bool = True) -> np.ndarray:
+    def smooth_rows(self, x: np.ndarray, copy: bool = True, threads: bool = True) -> np.ndarray:
         """The steps on the computed rows alone: x (R, C) float32, R = len(rows), any C columns (e.g.
         frames x xyz side by side) -> (R, C) float32, a new array (copy False: x itself when it is a
-        C-contiguous float32 array, smoothed in place)."""
+        C-contiguous float32 array, smoothed in place). threads: share the column blocks between two
+        threads."""
         x = np.array(x, dtype=np.float32, order="C", copy=True if copy else None)
         if x.shape[0] != len(self.rows):
             raise InputError(f"expected {len(self.rows)} rows, got {x.shape[0]}", field="x")
-        # a few frames' columns at a time stay in the cache through all the steps
-        for a in range(0, x.shape[1], BLOCK):
+        def block(a: int) -> None:
             y = np.ascontiguousarray(x[:, a:a + BLOCK])
             for _ in range(self.steps):
                 y = self.matrix @ y
             x[:, a:a + BLOCK] = y
+        # a few frames' columns at a time stay in the cache through all the steps; the blocks are
+        # independent, so two threads share them (SciPy's product runs without the GIL, ~1.3x here)
+        starts = range(0, x.shape[1], BLOCK)
+        if threads and len(starts) > 1:
+            list(pool().map(block, starts))
+        else:
+            for a in starts:
+                block(a)
         return x
