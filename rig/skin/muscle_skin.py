@@ -47,7 +47,7 @@ from rig.skin.delta_mush import DeltaMush
 from rig.skin.influence import InfluenceDeformer
 from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
-from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
+from rig.skin.shell.shells import LIMIT_REACH, beta, cull_pairs, pair_envelope, shell_table
 from rig.skin.skinning import character_skinner
 from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, pool, steps_for_reach
 
@@ -151,7 +151,12 @@ class MuscleSkin:
         else:
             self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
             binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
-            self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device)
+            # as the shells: a pair moves its vertex by at most LIMIT_REACH of the muscle's drop-off
+            # distance (d x its mean radius here), so no pull folds the skin where it fades
+            X = np.asarray(rig.rest_cvs, np.float64).reshape(M, 5, 8, 3)
+            radius = np.linalg.norm(X - X.mean(axis=2, keepdims=True), axis=3).mean(axis=(1, 2))
+            self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device,
+                                              reach=np.maximum(self.table.drop_off * radius, 1e-9))
         # the muscles' displacement of the skin, spread over its surface (rig/skin/surface_smoothing.py)
         v = character.vertices
         size = float(np.ptp(v, axis=0).max()) if len(v) else 0.0

@@ -237,6 +237,28 @@ def test_kernel_matches_numpy(seed):
     np.testing.assert_array_equal(out.numpy()[empty], skin[empty].astype(np.float32))
 
 
+def test_reach_limits_each_pair_like_the_shells():
+    """With a reach per muscle the kernel equals the NumPy reference with the shells' limit, and no
+    pair moves its vertex farther than its weight x the reach."""
+    rest, off, mus, wgt, cvs = random_setup(21)
+    b = bind_influence(rest, off, mus, cvs)
+    rng = np.random.default_rng(4)
+    ref = cvs
+    cur = cvs + np.repeat(rng.normal(scale=0.05, size=(3, 3)), 40, axis=0)     # each muscle slides ~5 cm
+    reach = np.array([0.01, 0.02, 0.5])
+    expected = influence_numpy(rest, b, off, mus, wgt, cur, ref, reach=reach)
+    free = influence_numpy(rest, b, off, mus, wgt, cur, ref)
+    dev = InfluenceDeformer(b, off, mus, wgt, num_muscles=3, reach=reach)
+    np.testing.assert_allclose(dev.deform(rest, cur, ref), expected, atol=TOL)
+    vertex = np.repeat(np.arange(len(rest)), np.diff(off))
+    bound = np.zeros(len(rest))
+    np.add.at(bound, vertex, wgt * reach[mus])
+    assert np.all(np.linalg.norm(expected - rest, axis=1) <= bound + 1e-9)
+    assert np.abs(expected - free).max() > 0.005                                  # the limit does bind
+    with pytest.raises(InputError, match="reaches"):
+        InfluenceDeformer(b, off, mus, wgt, num_muscles=3, reach=[0.1, -1.0, 0.1])
+
+
 def test_displacement_is_continuous_in_the_cvs():
     """D(cvs + e d) - D(cvs) = e J d + O(e^2): the change is linear in a small CV step (ratio 2 between
     steps 2e and e to ~e) and bounded by a modest multiple of the step."""

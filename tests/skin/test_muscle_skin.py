@@ -45,8 +45,9 @@ def test_bending_the_elbow_bulges_the_middle_of_the_upper_arm(arm, arm_skins, mo
     """Thesis simple example: at 90 deg of flexion the biceps, 30% shorter with its volume kept, is
     ~19% thicker; the skin over the middle of the upper bone moves outward along its normal by
     ~1.4 mm (shells, held below half the drop-off distance so no shell folds the skin where it ends:
-    rig/skin/shell/shells.py) / ~3.9 mm (influence objects) compared with LBS, more at 90 deg than
-    at 45."""
+    rig/skin/shell/shells.py) / ~1.9 mm (influence objects, held below the drop-off distance: the
+    biceps' pull also slides the skin along the arm, and the limit scales the whole pull) compared
+    with LBS, more at 90 deg than at 45."""
     sel = mid_front(arm)
     n = arm.character.normals[sel]       # the upper arm is rigid under LBS here: rest normals hold
     out = {}
@@ -55,8 +56,8 @@ def test_bending_the_elbow_bulges_the_middle_of_the_upper_arm(arm, arm_skins, mo
         skin = arm_skins[mode]
         move = skin.pose(w) - skin.lbs(w)
         out[angle] = float(np.mean(np.sum(move[sel] * n, axis=1)))
-    assert out[90.0] > (1.0e-3 if mode == "shell" else 2.0e-3)
-    assert out[90.0] > (1.3 if mode == "shell" else 1.5) * out[45.0] > 0.0    # the shells' limit saturates
+    assert out[90.0] > (1.0e-3 if mode == "shell" else 1.5e-3)
+    assert out[90.0] > 1.3 * out[45.0] > 0.0                  # more at 90 than at 45 (the limits saturate)
     print(f"\n{mode}: mid upper arm pushed out by {out[45.0] * 1e3:.2f} mm at 45 deg, {out[90.0] * 1e3:.2f} mm at 90")
 
 
