@@ -47,7 +47,7 @@ from rig.skin.delta_mush import DeltaMush
 from rig.skin.influence import InfluenceDeformer
 from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
-from rig.skin.shell.shells import LIMIT_REACH, beta, cull_pairs, pair_envelope, shell_table
+from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
 from rig.skin.skinning import character_skinner
 from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, pool, steps_for_reach
 

@@ -1,5 +1,6 @@
 """Skin quality (rig/skin/quality.py): the Warp measures against a float64 NumPy reference, and each
 measure against a case where the answer is known (a fold, a tear, a stretch)."""
+import meshes
 import numpy as np
 import pytest
 
@@ -8,15 +9,7 @@ from rig.skin.quality import JIGGLE_MEASURES, SKIN_MEASURES, SkinQuality, mesh_e
 
 
 def grid(n=6, size=1.0):
-    """An n x n vertex grid in the xy plane (metres) and its 2 (n-1)^2 triangles, all facing +z."""
-    x, y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
-    verts = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
-    faces = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
-            faces += [(a, b, c), (a, c, d)]
-    return verts, np.array(faces)
+    return meshes.grid(n, size)
 
 
 def reference(rest, faces, skins, static=None):

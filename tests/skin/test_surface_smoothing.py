@@ -1,4 +1,5 @@
 """The skin's spreading of the muscles' displacement (rig/skin/surface_smoothing.py)."""
+import meshes
 import numpy as np
 import pytest
 
@@ -8,14 +9,7 @@ from rig.skin.surface_smoothing import SurfaceSmoothing, mesh_neighbours, steps_
 
 
 def grid(n=21, size=0.4):
-    x, y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
-    verts = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
-    faces = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
-            faces += [(a, b, c), (a, c, d)]
-    return verts, np.array(faces)
+    return meshes.grid(n, size)
 
 
 def reference(field, faces, steps, step=0.5):
