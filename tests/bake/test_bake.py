@@ -171,6 +171,19 @@ def test_mush_cleans_the_smooth_skin_in_the_bake(capsys, tmp_path, arm_bake):
     assert np.abs(d.skin_lbs[-1] - plain.skin_lbs[39]).max() > 1e-3               # the bent elbow mushed
 
 
+def test_compare_prints_the_skin_quality_verdict(capsys, tmp_path):
+    """`jiggle compare` on a bake says in one line whether the skin keeps its quality targets."""
+    bake_arm(capsys, tmp_path, "--formats", "npz", "--frames", "30")
+    code, out, _ = run(capsys, "compare", str(tmp_path), "--no-render")
+    assert code == 0
+    line = next(x for x in out.splitlines() if x.startswith("skin quality:"))
+    for target in ("final_folded_edges", "folds_added_over_lbs", "torn_edges", "gradient_p999"):
+        assert target in line
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    verdicts = [("ok" if t["pass"] else "FAIL") for t in metrics["skin_quality"]["targets"].values()]
+    assert line.count(" ok") + line.count(" FAIL") == len(verdicts)
+
+
 def test_jiggle_zero_stays_static(capsys, tmp_path):
     bake_arm(capsys, tmp_path, "--jiggle", "0", "--formats", "npz", "--frames", "40")
     d = read_npz(tmp_path / "bake.npz")

@@ -19,6 +19,10 @@ def compare_bake(out_dir: str, render: bool = True, video: bool = True) -> dict:
     skin = m.get("skin", {})
     peak = skin.get("max_mm", skin.get("max_displacement_mm"))
     print(f"compared static and dynamic in {out_dir}" + (f": skin moved up to {peak:.1f} mm" if peak is not None else ""))
+    targets = (m.get("skin_quality") or {}).get("targets")
+    if targets:
+        from sim.app.skin_quality import fmt_targets
+        print(f"skin quality: {fmt_targets(targets)}")
     for k, f in res["files"].items():
         print(f"  {k:13s} {f}")
     return res
@@ -29,9 +33,11 @@ def add_parser(sub) -> None:
     p = sub.add_parser("compare", help="compare static and dynamic deformation of a bake",
                        description="Read OUT_DIR/bake.npz and write, into OUT_DIR: metrics.json (per-vertex "
                                    "maximum and RMS displacement of the final skin from the static one, per-muscle "
-                                   "jiggle amplitude, energy and dominant frequency), plots (amplitude, energy, "
-                                   "spectrum, displacement), renders (static | dynamic at the frame of peak jiggle "
-                                   "with a displacement heat map, a video of the clip) and report.html, one "
+                                   "jiggle amplitude, energy and dominant frequency, the skin's quality per frame: "
+                                   "folded edges of the LBS, static and final skins, edges torn by the jiggle), "
+                                   "plots (amplitude, energy, spectrum, displacement, quality), renders (static | "
+                                   "dynamic at the frame of peak jiggle with a displacement heat map, the worst "
+                                   "frames for skin quality close up, a video of the clip) and report.html, one "
                                    "self-contained page showing them all.")
     p.add_argument("out_dir", metavar="OUT_DIR", help="a folder baked by `jiggle bake --out OUT_DIR`")
     p.add_argument("--no-render", action="store_true", help="skip the renders and the video")
