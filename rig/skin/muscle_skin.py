@@ -27,8 +27,8 @@ deformer; nothing loops in Python over muscles, pairs or vertices.
 Per chunk of T frames (`pose_batch`, `lbs_batch`: the bake), for S sets of muscle states (e.g. the
 static and the blended CVs): one LBS/DQS launch for the T frames, shared by the sets, the frames of
 all sets and frames in a few NumPy operations (the bones' part once), one upload and one shell launch
-for all sets and frames, then one sparse smoothing for all of them. Influence objects still launch once
-per frame and set.
+for all sets and frames, then the sparse spread of each set (two threads). Influence objects still
+launch once per frame and set.
 """
 from __future__ import annotations
 
@@ -151,8 +151,8 @@ class MuscleSkin:
         else:
             self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
             binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
-            # as the shells: a pair moves its vertex by at most LIMIT_REACH of the muscle's drop-off
-            # distance (d x its mean radius here), so no pull folds the skin where it fades
+            # like the shells' limit: a pair moves its vertex by at most the muscle's drop-off distance
+            # (d x its mean rest radius), so no large pull folds the skin where it fades
             X = np.asarray(rig.rest_cvs, np.float64).reshape(M, 5, 8, 3)
             radius = np.linalg.norm(X - X.mean(axis=2, keepdims=True), axis=3).mean(axis=(1, 2))
             self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device,
@@ -276,8 +276,7 @@ class MuscleSkin:
         out = self.skinner.skin_batch(self.character.skin_matrices(world), self.method)
         return out if self.mush is None else self.mush.apply(out)
 
-    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0,
-                   with_smooth: bool = False) -> list[np.ndarray]:
+    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0) -> list[np.ndarray]:
         """Deformed skins of T frames for S sets of muscle states: S arrays (T, V, 3) float32 metres.
 
         world : (T, J, 4, 4) rigid joint world transforms, metres, the character's joint order.
@@ -285,8 +284,6 @@ class MuscleSkin:
             None: the static CVs for `world`.
         curves : S arrays (T, M, 5, 3) of action-curve CVs, metres; None: the static ones.
         first_frame : index of world[0], for the warnings naming a muscle skipped at a frame.
-        with_smooth : append the smooth skin underneath (`lbs_batch`, no muscles) as an S + 1-th array,
-            reusing the launch the deformers start from (one more launch for "rbf", which has none).
 
         Set s at frame t equals ``pose(world[t], cvs_sets[s][t], curves[s][t], frame=first_frame + t)``
         to float32 rounding. The smooth skin is computed once for all sets (one launch for the T
@@ -302,18 +299,16 @@ class MuscleSkin:
                              field="curves")
         T, V = len(world), self.character.num_vertices
         if T == 0:
-            return [np.zeros((0, V, 3), np.float32) for _ in range(S + with_smooth)]
+            return [np.zeros((0, V, 3), np.float32) for _ in range(S)]
         if any(c is None for c in cvs_sets) or any(k is None for k in curves):
             static = self.rig.static(world)
             cvs_sets = [static.cvs if c is None else c for c in cvs_sets]
             curves = [static.curve if k is None else k for k in curves]
         if self.skinning == "rbf":
             out = self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
-            out = [o if self.mush is None else self.mush.apply(o) for o in out]
-            return out + ([self.lbs_batch(world)] if with_smooth else [])
+            return [o if self.mush is None else self.mush.apply(o) for o in out]
         points = self._smooth_points(self.skinner.launch_batch(self.character.skin_matrices(world), self.method))
         base = points.numpy()
-        smooth = [base.copy()] if with_smooth else []
         if self.skinning == "shell":
             arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame)
             for sk in skipped:
@@ -321,7 +316,7 @@ class MuscleSkin:
                     warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
                                   stacklevel=2)
             out = self.deformer.launch_batch(points, ShellBatch(*arrays)).numpy()        # (S, T, V, 3)
-            return self._spread(base, [out[s] for s in range(S)]) + smooth
+            return self._spread(base, [out[s] for s in range(S)])
         # influence objects: one launch per frame and set over the shared smooth skin
         ref = self.frames.carried_rest_cvs(world)                                          # (T, N, 3)
         out = [np.empty((T, V, 3), np.float32) for _ in range(S)]
@@ -336,7 +331,7 @@ class MuscleSkin:
                     self._warn(np.nonzero(bad[t])[0], first_frame + t, "its CVs hold NaN or inf")
                     c = np.where(np.repeat(bad[t], self.rig.CVS_PER_MUSCLE)[:, None], ref[t], c)
                 out[s][t] = self.deformer.launch(points[t], c, ref[t]).numpy()
-        return self._spread(base, out) + smooth
+        return self._spread(base, out)
 
     def _finite_cvs(self, cvs, world: np.ndarray, first_frame: int | None) -> np.ndarray:
         """CVs (N, 3) or (T, N, 3) with every muscle holding NaN or inf put back on its rest shape carried
@@ -365,11 +360,9 @@ class MuscleSkin:
                       JiggleWarning, stacklevel=3)
 
 
-def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray,
-                with_smooth: bool = False) -> list[np.ndarray]:
+def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray) -> list[np.ndarray]:
     """The pipeline's skin stage: skins (T, V, 3) float32 metres, one per CV set (T, N, 3), over joint
-    world transforms (T, J, 4, 4) and action curves (T, M, 5, 3); with_smooth: and the smooth skin
-    underneath (LBS or DQS, no muscles) as one more array last.
+    world transforms (T, J, 4, 4) and action curves (T, M, 5, 3).
 
     frames : (T,) the frame numbers, for warnings naming a muscle skipped at a frame. Batched over
     the frames in one launch per set (MuscleSkin.pose_batch, equal to posing frame by frame) when the
@@ -381,12 +374,10 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     frames = np.asarray(frames, dtype=np.int64).reshape(-1)
     if hasattr(skin, "pose_batch") and (len(frames) < 2 or np.all(np.diff(frames) == 1)):
         first = int(frames[0]) if len(frames) else 0
-        out = list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first,
-                                   with_smooth=with_smooth))
+        out = list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first))
     else:
         out = [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=int(frames[k])) for k in range(len(world))])
                for cvs in cvs_sets]
-        out += [np.stack([skin.lbs(w) for w in world])] if with_smooth else []
     mask, spread = getattr(skin, "jiggle_mask", None), getattr(skin, "jiggle_spread", None)
     for s in range(1, len(cvs_sets)):
         if mask is not None or spread is not None:
