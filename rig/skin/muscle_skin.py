@@ -163,10 +163,11 @@ class MuscleSkin:
         self.spread = SurfaceSmoothing(character.faces, V, steps_for_reach(v, character.faces, spread * size),
                                        np.diff(offsets) > 0)
 
-    def _spread(self, smooth: np.ndarray, skins: list) -> list:
+    def _spread(self, smooth: np.ndarray, skins: list, threads: bool = True) -> list:
         """Skins (T, V, 3) each smooth + spread(skin - smooth), for the smooth skin (T, V, 3) beneath,
         new arrays: the rows the spread reaches gathered, smoothed with the frames side by side as
-        columns and scattered back; one set per worker thread (NumPy and SciPy run without the GIL)."""
+        columns and scattered back; one set per worker thread (NumPy and SciPy run without the GIL),
+        or one after the other without `threads`."""
         if self.spread.steps == 0 or not skins or len(self.spread.rows) == 0:
             return [np.array(k, dtype=np.float32) for k in skins]
         rows = self.spread.rows
@@ -182,7 +183,7 @@ class MuscleSkin:
             moved = base + d.transpose(1, 0, 2)                                     # (T, R, 3), a new array
             out.view(vec).reshape(T, V)[:, rows] = moved.view(vec).reshape(T, R)
             return out
-        return list(pool().map(one, skins)) if len(skins) > 1 else [one(skins[0])]
+        return list(pool().map(one, skins)) if threads and len(skins) > 1 else [one(k) for k in skins]
 
     @classmethod
     def from_musculature(cls, mus, *, weights=None, character_path=None, **kw) -> "MuscleSkin":
@@ -276,8 +277,10 @@ class MuscleSkin:
         out = self.skinner.skin_batch(self.character.skin_matrices(world), self.method)
         return out if self.mush is None else self.mush.apply(out)
 
-    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0) -> list[np.ndarray]:
-        """Deformed skins of T frames for S sets of muscle states: S arrays (T, V, 3) float32 metres.
+    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0, defer: bool = False):
+        """Deformed skins of T frames for S sets of muscle states: S arrays (T, V, 3) float32 metres
+        (defer: a function returning them that finishes the skins' spread; the device work is done and
+        every array it needs copied, so it may run in another thread while the caller goes on).
 
         world : (T, J, 4, 4) rigid joint world transforms, metres, the character's joint order.
         cvs_sets : S arrays (T, N, 3) of section CVs, metres (e.g. the static and the blended CVs);
@@ -299,16 +302,20 @@ class MuscleSkin:
                              field="curves")
         T, V = len(world), self.character.num_vertices
         if T == 0:
-            return [np.zeros((0, V, 3), np.float32) for _ in range(S)]
+            empty = [np.zeros((0, V, 3), np.float32) for _ in range(S)]
+            return (lambda: empty) if defer else empty
         if any(c is None for c in cvs_sets) or any(k is None for k in curves):
             static = self.rig.static(world)
             cvs_sets = [static.cvs if c is None else c for c in cvs_sets]
             curves = [static.curve if k is None else k for k in curves]
         if self.skinning == "rbf":
             out = self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
-            return [o if self.mush is None else self.mush.apply(o) for o in out]
+            out = [o if self.mush is None else self.mush.apply(o) for o in out]
+            return (lambda: out) if defer else out
         points = self._smooth_points(self.skinner.launch_batch(self.character.skin_matrices(world), self.method))
         base = points.numpy()
+        if defer:                              # the device buffers are reused by the next call
+            base = base.copy()
         if self.skinning == "shell":
             arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame)
             for sk in skipped:
@@ -316,7 +323,8 @@ class MuscleSkin:
                     warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
                                   stacklevel=2)
             out = self.deformer.launch_batch(points, ShellBatch(*arrays)).numpy()        # (S, T, V, 3)
-            return self._spread(base, [out[s] for s in range(S)])
+            sets = [out[s].copy() if defer else out[s] for s in range(S)]
+            return (lambda: self._spread(base, sets, threads=False)) if defer else self._spread(base, sets)
         # influence objects: one launch per frame and set over the shared smooth skin
         ref = self.frames.carried_rest_cvs(world)                                          # (T, N, 3)
         out = [np.empty((T, V, 3), np.float32) for _ in range(S)]
@@ -331,7 +339,7 @@ class MuscleSkin:
                     self._warn(np.nonzero(bad[t])[0], first_frame + t, "its CVs hold NaN or inf")
                     c = np.where(np.repeat(bad[t], self.rig.CVS_PER_MUSCLE)[:, None], ref[t], c)
                 out[s][t] = self.deformer.launch(points[t], c, ref[t]).numpy()
-        return self._spread(base, out)
+        return (lambda: self._spread(base, out, threads=False)) if defer else self._spread(base, out)
 
     def _finite_cvs(self, cvs, world: np.ndarray, first_frame: int | None) -> np.ndarray:
         """CVs (N, 3) or (T, N, 3) with every muscle holding NaN or inf put back on its rest shape carried
@@ -360,7 +368,7 @@ class MuscleSkin:
                       JiggleWarning, stacklevel=3)
 
 
-def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray) -> list[np.ndarray]:
+def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray, defer: bool = False):
     """The pipeline's skin stage: skins (T, V, 3) float32 metres, one per CV set (T, N, 3), over joint
     world transforms (T, J, 4, 4) and action curves (T, M, 5, 3).
 
@@ -370,18 +378,27 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     With several sets the first is the static one: where the skin has a `jiggle_mask` or a
     `jiggle_spread` (the RBF skin), every other set's difference from it (its jiggle) is scaled by the
     mask (zones without muscles show none) and spread over the surface.
+    defer : return a function that finishes the skins instead (the surface spread, no device work:
+    the bake runs it in a worker thread while the next chunk is simulated; sim/bake/baker.py).
     """
     frames = np.asarray(frames, dtype=np.int64).reshape(-1)
+    n = len(cvs_sets)
     if hasattr(skin, "pose_batch") and (len(frames) < 2 or np.all(np.diff(frames) == 1)):
         first = int(frames[0]) if len(frames) else 0
-        out = list(skin.pose_batch(world, list(cvs_sets), [curve] * len(cvs_sets), first_frame=first))
+        done = skin.pose_batch(world, list(cvs_sets), [curve] * n, first_frame=first, defer=defer)
+        pending = done if defer else (lambda: done)
     else:
         out = [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=int(frames[k])) for k in range(len(world))])
                for cvs in cvs_sets]
-    mask, spread = getattr(skin, "jiggle_mask", None), getattr(skin, "jiggle_spread", None)
-    for s in range(1, len(cvs_sets)):
-        if mask is not None or spread is not None:
-            d = out[s] - out[0]
-            d = d if mask is None else np.asarray(mask, np.float32)[:, None] * d
-            out[s] = out[0] + (d if spread is None else spread(d))
-    return out
+        pending = lambda: out  # noqa: E731
+
+    def finish() -> list[np.ndarray]:
+        out = list(pending())
+        mask, spread = getattr(skin, "jiggle_mask", None), getattr(skin, "jiggle_spread", None)
+        for s in range(1, n):
+            if mask is not None or spread is not None:
+                d = out[s] - out[0]
+                d = d if mask is None else np.asarray(mask, np.float32)[:, None] * d
+                out[s] = out[0] + (d if spread is None else spread(d))
+        return out
+    return finish if defer else finish()

@@ -31,6 +31,7 @@ import json
 import os
 import shutil
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 import numpy as np
@@ -75,8 +76,8 @@ class Baker:
     """Bakes the chunks of one BakeSetup in order; holds the particle model and solver (built once)
     and the time spent per stage (seconds)."""
 
-    def __init__(self, setup: BakeSetup):
-        self.setup = setup
+    def __init__(self, setup: BakeSetup, defer: bool = False):
+        self.setup, self.defer = setup, defer
         s = setup
         self.blend = blend_weights(s.jiggles, s.settings, s.times)
         self.model = self.solver = None
@@ -115,18 +116,29 @@ class Baker:
                 dyn = dyn[1:] if c > 0 else dyn
             cvs = blend(st, dyn, self.blend[f0:f1])
         with self._timed("skin_s"):
-            skin_static, skin_final = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1))
-        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
-            bad = ~np.isfinite(skin)
-            if bad.any():                       # never into a cache: stop while the chunks so far are kept
-                k, v = np.argwhere(bad)[0][:2]
-                raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; nothing "
-                                 f"of this chunk was written", field=name)
-        out = {"frames": np.array([f0, f1]), "skin_static": skin_static, "skin_final": skin_final,
-               "joint_world": joints, "cvs_static": st.astype(np.float32), "cvs_dynamic": cvs.astype(np.float32)}
+            pending = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1), defer=True)
+        out = {"frames": np.array([f0, f1]), "joint_world": joints, "cvs_static": st.astype(np.float32),
+               "cvs_dynamic": cvs.astype(np.float32)}
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
-        return out
+
+        def finish() -> dict:
+            """The chunk's skins finished (the surface spread) and checked: the arrays to save."""
+            t = time.perf_counter()
+            skin_static, skin_final = pending()
+            self.timings["skin_s"] += time.perf_counter() - t
+            for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
+                bad = ~np.isfinite(skin)
+                if bad.any():                   # never into a cache: stop while the chunks so far are kept
+                    k, v = np.argwhere(bad)[0][:2]
+                    raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; "
+                                     "nothing of this chunk was written", field=name)
+            arrays = {k: v for k, v in out.items() if k != "finish"}
+            return {**arrays, "skin_static": skin_static, "skin_final": skin_final}
+        if self.defer:
+            out["finish"] = finish
+            return out
+        return finish()
 
     @contextlib.contextmanager
     def _timed(self, stage: str):
@@ -233,10 +245,12 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         _write_json(manifest_path, manifest)
     if progress is not None and done:
         progress(chunk_frames(setup, done - 1)[1])
-    baker = Baker(setup)
-    for c in range(done, n):
-        arrays = baker.chunk(c, state)
-        state = (arrays["state_x"], arrays["state_v"]) if "state_x" in arrays else None
+    baker = Baker(setup, defer=True)
+
+    def finish_and_save(c: int, arrays: dict) -> None:
+        """In the worker thread: finish chunk c's skins, write its file, report it."""
+        if "finish" in arrays:
+            arrays = arrays["finish"]()
         t = time.perf_counter()
         _save_chunk(chunk_path(out_dir, c), arrays)
         baker.timings["write_s"] += time.perf_counter() - t
@@ -245,6 +259,26 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         if progress is not None:
             f0, f1 = chunk_frames(setup, c)
             progress(f1 - f0)
+
+    # chunk c's skins are finished and written in a worker thread while chunk c + 1 is driven, shaped
+    # and simulated here: the two cores share the work, the arithmetic (and so every cache) is the same
+    worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jiggle-bake")
+    pending = None
+    try:
+        for c in range(done, n):
+            arrays = baker.chunk(c, state)
+            state = (arrays["state_x"], arrays["state_v"]) if "state_x" in arrays else None
+            if pending is not None:
+                pending.result()                # chunk c - 1 written (or its error raised here)
+            pending = worker.submit(finish_and_save, c, arrays)
+        if pending is not None:
+            done_chunk, pending = pending, None
+            done_chunk.result()
+    finally:
+        if pending is not None:                 # interrupted: let the chunk in the worker land first
+            with contextlib.suppress(Exception):
+                pending.result()
+        worker.shutdown(wait=True)
     loop_s = time.perf_counter() - t_start
     t = time.perf_counter()
     files = assemble(setup, out_dir)

@@ -284,11 +284,15 @@ def test_a_nan_skin_stops_the_bake_before_any_cache(capsys, tmp_path, monkeypatc
     from sim.bake import baker as bake_mod
     real = bake_mod.skin_frames
 
-    def poisoned(skin, world, cvs_sets, curve, frames, **kw):
-        out = real(skin, world, cvs_sets, curve, frames, **kw)
-        if frames[0] == 32:
-            out[1][5, 7] = np.nan
-        return out
+    def poisoned(skin, world, cvs_sets, curve, frames, defer=False):
+        pending = real(skin, world, cvs_sets, curve, frames, defer=True)
+
+        def finish():
+            out = pending()
+            if frames[0] == 32:
+                out[1][5, 7] = np.nan
+            return out
+        return finish if defer else finish()
     monkeypatch.setattr(bake_mod, "skin_frames", poisoned)
     code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "16", "--formats", "npz")
     assert code == 2 and "skin_final" in err and "frame 37" in err and "vertex 7" in err
