@@ -345,10 +345,42 @@ def joint_map_for(given, joint_names, option, owner):
                      f"write one (see rig/motion/retarget.py) and pass it with {option}", field=option)
 
 
+def same_skeleton(clip: Clip, character: CharacterSkeleton) -> np.ndarray | None:
+    """(J,) index into the clip's joints of each of the character's joints when the clip moves the
+    character's own skeleton (every joint there by name, with the same parent), else None."""
+    index = {n: i for i, n in enumerate(clip.joint_names)}
+    if not all(n in index for n in character.joint_names):
+        return None
+    idx = np.array([index[n] for n in character.joint_names], np.int64)
+    for j, p in enumerate(character.parents):
+        cp = clip.parents[idx[j]]
+        if (p < 0) != (cp < 0) or (p >= 0 and clip.joint_names[cp] != character.joint_names[p]):
+            return None
+    return idx
+
+
+def identity(clip: Clip, idx: np.ndarray, parents: np.ndarray) -> Clip:
+    """The clip on the character's own skeleton: its joints `idx` (J,) in the character's order with
+    the character's `parents`; nothing moves (no retargeting)."""
+    from dataclasses import replace
+    return replace(clip, joint_names=[clip.joint_names[i] for i in idx], parents=parents,
+                   offsets=clip.offsets[idx], rest_rotations=clip.rest_rotations[idx],
+                   rotations=clip.rotations[:, idx], translations=clip.translations[:, idx],
+                   end_parents=np.zeros(0, np.int32), end_offsets=np.zeros((0, 3)),
+                   meta={**clip.meta, "retarget": "identity (the character's own skeleton)"})
+
+
 def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print):
-    """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given or the built-in presets)."""
+    """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given or the built-in presets).
+    A clip of the character's own skeleton (the same joints by name and parent, e.g. the character's
+    own animation, or another file exported from its rig) needs no map: it is taken as it is."""
     from rig.motion.gltf_skeleton import read_gltf_skeleton
     character = read_gltf_skeleton(character_file, skin)
+    if clip_map is None and character_map is None:
+        idx = same_skeleton(clip, character)
+        if idx is not None:
+            log(f"{clip.name!r} moves the skeleton of {os.path.basename(character_file)}: no retargeting")
+            return identity(clip, idx, character.parents)
     cmap = joint_map_for(clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
     chmap = joint_map_for(character_map, character.joint_names, "--character-map", character_file)
     out = retarget(clip, cmap, character, chmap)

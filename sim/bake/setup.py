@@ -175,7 +175,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
     timings = {}
     t = time.perf_counter()
     scene = load_scene(req.scene) if req.scene is not None else None
-    if scene is None and req.clip is None:
+    own = req.character is not None and str(req.character).lower().endswith((".glb", ".gltf"))
+    if scene is None and req.clip is None and not own:      # a glTF character alone bakes its own animation
         from sim.bake.scene import default_scene
         scene = load_scene(default_scene())
     if scene is not None and scene.builtin is not None:
@@ -309,7 +310,12 @@ def _picker(req: BakeRequest, spec):
 
 
 def _clip(req: BakeRequest, scene):
-    """(clip, its file) from --clip over the scene's [motion]."""
+    """(clip, its file) from --clip over the scene's [motion]; without either, a skinned glTF
+    character's own animation (--animation, else its first)."""
+    character = req.character or (scene.character.file if scene is not None and scene.character else None)
+    if req.clip is None and (scene is None or scene.clip is None) and character is not None \
+            and str(character).lower().endswith((".glb", ".gltf")):
+        req = replace(req, clip=character)
     if req.clip is not None:
         from rig.motion.mocap import load_clip
         if not os.path.isfile(req.clip):

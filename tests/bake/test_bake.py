@@ -184,6 +184,29 @@ def test_compare_prints_the_skin_quality_verdict(capsys, tmp_path):
     assert line.count(" ok") + line.count(" FAIL") == len(verdicts)
 
 
+def test_a_gltf_character_alone_bakes_its_own_animation(capsys, tmp_path):
+    """`jiggle bake --character X.glb` without a clip bakes the character's own animation, with no joint
+    map: the smooth skin in the cache is the glTF posed by its own animation (LBS with its joints'
+    world transforms), to float32 rounding."""
+    from conftest import asset
+
+    from rig.character.load import load_character
+    from rig.motion.clip import transforms
+    from rig.motion.mocap import load_clip
+    from rig.skin.skinning import pose_character
+    path = str(asset("characters/CesiumMan.glb"))
+    code, out, err = run(capsys, "bake", "--character", path, "--out", str(tmp_path), "--formats", "npz",
+                         "--frames", "20")
+    assert code == 0, err
+    assert "no retargeting" in err
+    d = read_npz(tmp_path / "bake.npz")
+    assert json.loads(d.params)["clip"]["file"].endswith("CesiumMan.glb")
+    c, clip = load_character(path), load_clip(path)
+    world = transforms(*clip.world(*clip.sample(d.times)))[:, [clip.joint_names.index(n) for n in c.joint_names]]
+    for k in (0, 10, 19):
+        assert np.abs(d.skin_lbs[k] - pose_character(c, world[k])).max() < 1e-5
+
+
 def test_jiggle_zero_stays_static(capsys, tmp_path):
     bake_arm(capsys, tmp_path, "--jiggle", "0", "--formats", "npz", "--frames", "40")
     d = read_npz(tmp_path / "bake.npz")

@@ -125,6 +125,23 @@ def test_character_onto_itself_reproduces_its_own_motion():
     np.testing.assert_allclose(kp[:, 0, :2] - kp[0, 0, :2], wp[:, 0, :2] - wp[0, 0, :2], atol=1e-6)
 
 
+def test_the_characters_own_skeleton_needs_no_map():
+    """A clip of the character's own skeleton (here its own animation) is taken as it is, with no map
+    and no retargeting: the same joints, the same local motion; a clip of another skeleton
+    still goes through the maps."""
+    from rig.motion.retarget import retarget_onto, same_skeleton
+    path = asset("characters/CesiumMan.glb")
+    walk = read_gltf_animation(path)
+    said = []
+    out = retarget_onto(walk, path, log=said.append)
+    assert "no retargeting" in said[0] and out.meta["retarget"].startswith("identity")
+    assert out.joint_names == read_gltf_skeleton(path).joint_names
+    np.testing.assert_allclose(out.rotations, walk.rotations, atol=1e-12)       # renormalised: last bits
+    np.testing.assert_array_equal(out.translations, walk.translations)
+    run = read_bvh(asset("mocap/cmu_bvh/02_03.bvh"))
+    assert same_skeleton(run, read_gltf_skeleton(path)) is None
+
+
 def test_turning_the_clip_turns_the_character(run):
     clip, character, cmap, kmap, out = run
     yaw = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.radians(90.0))
