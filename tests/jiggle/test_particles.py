@@ -229,19 +229,24 @@ def test_step_kernel_matches_the_numpy_reference():
     assert np.abs(v - v_ref).max() < 2e-4 * max(1.0, np.abs(v_ref).max())
 
 
+def integrate_both(model, track, grid, on_step=None):
+    """The kernels' and the NumPy reference's integration over `grid` from the track's start, moving
+    with the goals: ((x, v) of the kernels, (x, v) of the reference), (N, 3) each."""
+    solver = ParticleSolver(model)
+    x0, v0 = track.sample(float(grid[0]))[:2]
+    a, b = model.state(), model.state()
+    a.assign(x0, v0)
+    solver.integrate(a, b, track.to_device(), grid, on_step=on_step)
+    return b.numpy(), integrate_numpy(model, lambda h: solver.flow(h)[0], track, x0, v0, grid)
+
+
 def test_integrate_kernels_match_the_numpy_reference_across_knots():
     model, rest, rng = random_model(seed=6)
     t = np.linspace(0, 0.5, 7)
     goals = rest[None] + rng.normal(0, 0.02, (7,) + rest.shape)
     track = build_track(t, goals)
-    solver = ParticleSolver(model)
-    x0, v0 = track.sample(0.0)[:2]
     grid = np.unique(np.concatenate([np.linspace(0, 0.5, 41), t]))
-    a, b = model.state(), model.state()
-    a.assign(x0, v0)
-    solver.integrate(a, b, track.to_device(), grid)
-    x_ref, v_ref = integrate_numpy(model, lambda h: solver.flow(h)[0], track, x0, v0, grid)
-    x, v = b.numpy()
+    (x, v), (x_ref, v_ref) = integrate_both(model, track, grid)
     assert np.abs(x - x_ref).max() < 1e-5
     assert np.abs(v - v_ref).max() < 1e-3 * max(1.0, np.abs(v_ref).max())
 
@@ -260,15 +265,9 @@ def test_reach_holds_every_particle_and_matches_the_numpy_reference():
     t = np.linspace(0, 0.6, 7)
     goals = rest[None] + np.cumsum(rng.normal(0, 0.1, (7, 1, 3)), axis=0)
     track = build_track(t, goals)
-    solver = ParticleSolver(model)
-    x0, v0 = track.sample(0.0)[:2]
     grid = np.unique(np.concatenate([np.linspace(0, 0.6, 49), t]))
-    a, b_ = model.state(), model.state()
-    a.assign(x0, v0)
     seen = []
-    solver.integrate(a, b_, track.to_device(), grid, on_step=lambda k, x: seen.append(x.numpy().copy()))
-    x_ref, v_ref = integrate_numpy(model, lambda h: solver.flow(h)[0], track, x0, v0, grid)
-    x, v = b_.numpy()
+    (x, v), (x_ref, v_ref) = integrate_both(model, track, grid, on_step=lambda k, x: seen.append(x.numpy().copy()))
     assert np.abs(x - x_ref).max() < 1e-5
     assert np.abs(v - v_ref).max() < 1e-3 * max(1.0, np.abs(v_ref).max())
     off = np.stack([np.linalg.norm(xs - track.sample(tk)[0], axis=1) for xs, tk in zip(seen, grid[1:])])
