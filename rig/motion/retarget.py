@@ -359,28 +359,43 @@ def same_skeleton(clip: Clip, character: CharacterSkeleton) -> np.ndarray | None
     return idx
 
 
-def identity(clip: Clip, idx: np.ndarray, parents: np.ndarray) -> Clip:
+def identity(clip: Clip, idx: np.ndarray, parents: np.ndarray, scale: float = 1.0) -> Clip:
     """The clip on the character's own skeleton: its joints `idx` (J,) in the character's order with
-    the character's `parents`; nothing moves (no retargeting)."""
+    the character's `parents`, lengths times `scale` (the character's metres per file unit, a clip of
+    its own rig being in the same unit); nothing else moves (no retargeting)."""
     from dataclasses import replace
     return replace(clip, joint_names=[clip.joint_names[i] for i in idx], parents=parents,
-                   offsets=clip.offsets[idx], rest_rotations=clip.rest_rotations[idx],
-                   rotations=clip.rotations[:, idx], translations=clip.translations[:, idx],
+                   offsets=clip.offsets[idx] * scale, rest_rotations=clip.rest_rotations[idx],
+                   rotations=clip.rotations[:, idx], translations=clip.translations[:, idx] * scale,
                    end_parents=np.zeros(0, np.int32), end_offsets=np.zeros((0, 3)),
                    meta={**clip.meta, "retarget": "identity (the character's own skeleton)"})
 
 
-def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print):
+def scaled_skeleton(character: CharacterSkeleton, scale: float) -> CharacterSkeleton:
+    """The skeleton with every length times `scale` (metres per file unit; rotations kept)."""
+    if scale == 1.0:
+        return character
+    from dataclasses import replace
+    bind = np.array(character.bind_world)
+    bind[:, :3, 3] *= scale
+    return replace(character, bind_world=bind, bind_translations=character.bind_translations * scale,
+                   rest_translations=character.rest_translations * scale)
+
+
+def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print, scale=1.0):
     """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given or the built-in presets).
     A clip of the character's own skeleton (the same joints by name and parent, e.g. the character's
-    own animation, or another file exported from its rig) needs no map: it is taken as it is."""
+    own animation, or another file exported from its rig) needs no map: it is taken as it is.
+    scale : metres per unit of the character file (rig.character.character.unit_scale of its --unit),
+        as the character is read with: the skeleton the clip lands on is scaled alike, so the skin and
+        its bones agree."""
     from rig.motion.gltf_skeleton import read_gltf_skeleton
-    character = read_gltf_skeleton(character_file, skin)
+    character = scaled_skeleton(read_gltf_skeleton(character_file, skin), scale)
     if clip_map is None and character_map is None:
         idx = same_skeleton(clip, character)
         if idx is not None:
             log(f"{clip.name!r} moves the skeleton of {os.path.basename(character_file)}: no retargeting")
-            return identity(clip, idx, character.parents)
+            return identity(clip, idx, character.parents, scale)
     cmap = joint_map_for(clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
     chmap = joint_map_for(character_map, character.joint_names, "--character-map", character_file)
     out = retarget(clip, cmap, character, chmap)

@@ -15,8 +15,10 @@ def load_clip(args):
 
 
 def retarget_onto_character(clip, args):
+    from rig.character.character import unit_scale
     from rig.motion.retarget import retarget_onto
-    return retarget_onto(clip, args.character, args.skin, args.clip_map, args.character_map, print)
+    return retarget_onto(clip, args.character, args.skin, args.clip_map, args.character_map, print,
+                         scale=unit_scale(getattr(args, "unit", None), args.character))
 
 
 def body_overrides(args) -> dict:

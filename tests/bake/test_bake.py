@@ -207,6 +207,35 @@ def test_a_gltf_character_alone_bakes_its_own_animation(capsys, tmp_path):
         assert np.abs(d.skin_lbs[k] - pose_character(c, world[k])).max() < 1e-5
 
 
+def test_a_centimetre_character_with_unit_cm_bakes_as_in_metres(capsys, tmp_path):
+    """CesiumMan written in centimetres (every length x 100) and baked with --unit cm lands where the
+    metre original does: the skeleton the clip is retargeted onto is scaled like the skin (before, the
+    skin was read in metres and its bones in centimetres: the posed skin was 130 m off)."""
+    from dataclasses import replace
+
+    from conftest import asset
+
+    from rig.character.gltf_write import write_character
+    from rig.character.load import load_character
+    path = str(asset("characters/CesiumMan.glb"))
+    c = load_character(path)
+    bind_world, bind_matrices = np.array(c.bind_world), np.array(c.bind_matrices)
+    bind_world[:, :3, 3] *= 100.0
+    bind_matrices[:, :3, 3] *= 100.0
+    skeleton = replace(c.skeleton, offsets=c.skeleton.offsets * 100.0, translations=c.skeleton.translations * 100.0)
+    cm = str(tmp_path / "cesium_cm.glb")
+    write_character(replace(c, vertices=c.vertices * 100.0, bind_world=bind_world, bind_matrices=bind_matrices,
+                            skeleton=skeleton), cm)
+    clip = str(asset("mocap/cmu_bvh/02_03.bvh"))
+    for name, extra in (("cm", ["--character", cm, "--unit", "cm"]), ("m", ["--character", path])):
+        code, _, err = run(capsys, "bake", "--clip", clip, *extra, "--out", str(tmp_path / name), "--formats", "npz",
+                           "--frames", "12")
+        assert code == 0, err
+    a, b = read_npz(tmp_path / "cm" / "bake.npz"), read_npz(tmp_path / "m" / "bake.npz")
+    assert np.abs(a.skin_final - b.skin_final).max() < 1e-5
+    assert np.abs(a.skin_lbs - b.skin_lbs).max() < 1e-5
+
+
 def test_jiggle_zero_stays_static(capsys, tmp_path):
     bake_arm(capsys, tmp_path, "--jiggle", "0", "--formats", "npz", "--frames", "40")
     d = read_npz(tmp_path / "bake.npz")
