@@ -56,6 +56,7 @@ from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
 from rig.base.errors import InputError
+from rig.character.mesh_graph import mesh_neighbours
 
 LEAF_FRACTION = 0.5      # a leaf joint's bone continues its parent bone for this share of its length
 WELD_TOLERANCE = 1e-6    # metres: positions closer than this are one vertex for the solve
@@ -458,9 +459,7 @@ def smooth_heat(heat: np.ndarray, faces: np.ndarray, steps: np.ndarray, step: fl
     steps = np.asarray(steps)
     if len(faces) == 0 or not steps.any():
         return heat
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    A = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(P, P)).tocsr()
+    A = mesh_neighbours(faces, P).astype(np.float64)
     deg = np.asarray(A.sum(axis=1)).ravel()
     mean = sp.diags(np.where(deg > 0, 1.0 / np.maximum(deg, 1), 0.0)) @ A
     h = heat

@@ -334,6 +334,11 @@ class MuscleRig:
         P = rig.muscle.loft.POINTS, triangles `surface_faces`."""
         return loft.points(self._muscle_cvs(cvs))
 
+    def mean_radii(self, cvs: np.ndarray) -> np.ndarray:
+        """(M,) metres: each muscle's mean distance of its CVs from their section's centre."""
+        X = self._muscle_cvs(np.asarray(cvs, dtype=np.float64))
+        return np.linalg.norm(X - X.mean(axis=-2, keepdims=True), axis=-1).mean(axis=(-2, -1))
+
     def volumes(self, cvs: np.ndarray) -> np.ndarray:
         """(M,) (or (T, M)) cubic metres enclosed by each muscle's lofted mesh."""
         return loft.volume(self._muscle_cvs(cvs))

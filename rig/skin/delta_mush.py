@@ -24,7 +24,7 @@ import numpy as np
 import warp as wp
 
 from rig.base.errors import InputError
-from rig.skin.quality import mesh_edges
+from rig.character.mesh_graph import mesh_neighbours
 
 DEFAULT_ITERATIONS = 6
 """Smoothing steps of the skin's clean-up pass by default (the bake, deform, play): enough to remove
@@ -60,15 +60,11 @@ class DeltaMush:
             raise InputError(f"expected ({V},) weights in [0, 1]", field="weights")
         self.iterations, self.step, self.num_vertices = int(iterations), float(step), V
         self.device = wp.get_device(device)
-        edges, _ = mesh_edges(faces)
-        a = np.concatenate([edges[:, 0], edges[:, 1]])
-        b = np.concatenate([edges[:, 1], edges[:, 0]])
-        order = np.lexsort((b, a))
-        a, b = a[order], b[order]
-        offsets = np.zeros(V + 1, np.int32)
-        np.add.at(offsets, a + 1, 1)
-        offsets = np.cumsum(offsets).astype(np.int32)
-        tangent_to = np.where(np.diff(offsets) > 0, b[np.minimum(offsets[:-1], len(b) - 1)], -1).astype(np.int32)
+        graph = mesh_neighbours(faces, V)
+        graph.sort_indices()                       # a vertex's tangent goes to its lowest-numbered neighbour
+        offsets, b = graph.indptr.astype(np.int32), graph.indices.astype(np.int32)
+        tangent_to = np.where(np.diff(offsets) > 0, b[np.minimum(offsets[:-1], max(len(b) - 1, 0))], -1)
+        tangent_to = tangent_to.astype(np.int32)
         fv = np.asarray(faces, np.int64).ravel()
         forder = np.argsort(fv, kind="stable")
         face_offsets = np.zeros(V + 1, np.int32)

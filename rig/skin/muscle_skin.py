@@ -133,9 +133,7 @@ class MuscleSkin:
                                     options=rbf or RBFSkinOptions(), device=device)
             self.jiggle_mask = self.deformer.jiggle_mask
             # no deformer displacement to spread here: the skin's jiggle is spread instead (skin_frames)
-            size = float(np.ptp(character.vertices, axis=0).max()) if V else 0.0
-            self.jiggle_spread = SurfaceSmoothing(character.faces, V, steps_for_reach(
-                character.vertices, character.faces, spread * size))
+            self.jiggle_spread = self._surface(spread, None)
             return
         offsets, muscle = cull_pairs(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
                                      star=self.table.star, star_index=self.table.star_index)
@@ -153,15 +151,17 @@ class MuscleSkin:
             binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
             # like the shells' limit: a pair moves its vertex by at most the muscle's drop-off distance
             # (d x its mean rest radius), so no large pull folds the skin where it fades
-            X = np.asarray(rig.rest_cvs, np.float64).reshape(M, 5, 8, 3)
-            radius = np.linalg.norm(X - X.mean(axis=2, keepdims=True), axis=3).mean(axis=(1, 2))
+            reach = self.table.drop_off * rig.mean_radii(rig.rest_cvs)
             self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device,
-                                              reach=np.maximum(self.table.drop_off * radius, 1e-9))
+                                              reach=np.maximum(reach, 1e-9))
         # the muscles' displacement of the skin, spread over its surface (rig/skin/surface_smoothing.py)
-        v = character.vertices
+        self.spread = self._surface(spread, np.diff(offsets) > 0)
+
+    def _surface(self, reach: float, active) -> SurfaceSmoothing:
+        """The skin's surface smoothing over `reach` x its rest size, on the `active` vertices (None: all)."""
+        v, faces = self.character.vertices, self.character.faces
         size = float(np.ptp(v, axis=0).max()) if len(v) else 0.0
-        self.spread = SurfaceSmoothing(character.faces, V, steps_for_reach(v, character.faces, spread * size),
-                                       np.diff(offsets) > 0)
+        return SurfaceSmoothing(faces, len(v), steps_for_reach(v, faces, reach * size), active)
 
     def _spread(self, smooth: np.ndarray, skins: list, threads: bool = True) -> list:
         """Skins (T, V, 3) each smooth + spread(skin - smooth), for the smooth skin (T, V, 3) beneath,

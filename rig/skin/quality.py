@@ -27,6 +27,7 @@ import warp as wp
 
 from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
+from rig.character.mesh_graph import mesh_edges
 
 FOLDED_COS = 0.0
 """An edge folds when its faces' normals are more than 90 degrees apart (cosine below this)."""
@@ -40,29 +41,6 @@ SKIN_MEASURES = ("folded_edges", "sharp_edges", "edge_strain_p99", "edge_strain_
 """Per frame, of one skin (see the module)."""
 JIGGLE_MEASURES = ("gradient_p99", "gradient_p999", "gradient_max", "torn_edges")
 """Per frame, of the jiggle between a static and a final skin (see the module)."""
-
-
-def mesh_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The unique edges of a triangle mesh and their faces.
-
-    faces : (F, 3) int vertex indices.
-    Returns edges (E, 2) int32 (the smaller vertex index first) and edge_faces (E, 2) int32: the first
-    two faces holding the edge, -1 in the second column for a boundary edge (a non-manifold edge with
-    three or more faces is measured between its first two).
-    """
-    faces = np.asarray(faces, dtype=np.int64)
-    F = len(faces)
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    f = np.tile(np.arange(F), 3)
-    key = np.sort(e, axis=1)
-    order = np.lexsort((f, key[:, 1], key[:, 0]))
-    key, f = key[order], f[order]
-    first = np.ones(len(key), bool)
-    first[1:] = np.any(key[1:] != key[:-1], axis=1)
-    start = np.nonzero(first)[0]
-    count = np.diff(np.append(start, len(key)))
-    second = np.where(count > 1, f[np.minimum(start + 1, len(key) - 1)], -1)
-    return key[start].astype(np.int32), np.stack([f[start], second], axis=1).astype(np.int32)
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from rig.base.errors import InputError
+from rig.character.mesh_graph import mesh_neighbours
 
 JIGGLE_REACH = 0.015
 """How far the skin spreads the muscles' displacement, as a fraction of the character's size (2.7 cm
@@ -56,16 +57,6 @@ def pool():
         from concurrent.futures import ThreadPoolExecutor
         _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="jiggle-smooth")
     return _POOL
-
-
-def mesh_neighbours(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
-    """(V, V) 0/1 adjacency of the mesh's edges, symmetric."""
-    faces = np.asarray(faces, dtype=np.int64)
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    ones = np.ones(2 * len(e), np.float32)
-    return sp.coo_matrix((ones, (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
-                         shape=(num_vertices, num_vertices)).tocsr()
 
 
 def steps_for_reach(vertices: np.ndarray, faces: np.ndarray, reach: float, step: float = STEP) -> int:

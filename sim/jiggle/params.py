@@ -197,16 +197,10 @@ def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
         templates = [default_jiggle(k) for k in rig.kinds]
     if len(templates) != rig.M:
         raise InputError(f"expected {rig.M} jiggle entries (one per muscle), got {len(templates)}", field="jiggle")
-    radius = mean_radii(rig.rest_cvs)
+    radius = rig.mean_radii(rig.rest_cvs)
     return [replace(from_template(n, j), max_offset=MAX_OFFSET_RADII.get(k, MAX_OFFSET_RADII["muscle"]) * r)
             for n, j, k, r in zip(rig.names, templates, rig.kinds, radius)]
 
-
-def mean_radii(rest_cvs: np.ndarray) -> np.ndarray:
-    """(M,) metres: each muscle's mean distance of its CVs from their section's centre, from rest CVs
-    (40 M, 3)."""
-    X = np.asarray(rest_cvs, dtype=np.float64).reshape(-1, SECTIONS, RING, 3)
-    return np.linalg.norm(X - X.mean(axis=2, keepdims=True), axis=3).mean(axis=(1, 2))
 
 
 OVERRIDES = ("frequency", "damping", "strength", "goal", "goal_tendon", "goal_belly", "density",

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from rig.base.errors import InputError
+from rig.character.mesh_graph import mesh_edges
 from rig.skin.delta_mush import DeltaMush
-from rig.skin.quality import SkinQuality, mesh_edges
+from rig.skin.quality import SkinQuality
 
 
 def tube(rings=24, around=16, length=0.6, radius=0.05):

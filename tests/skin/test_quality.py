@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from rig.base.errors import InputError
-from rig.skin.quality import JIGGLE_MEASURES, SKIN_MEASURES, SkinQuality, mesh_edges
+from rig.character.mesh_graph import mesh_edges
+from rig.skin.quality import JIGGLE_MEASURES, SKIN_MEASURES, SkinQuality
 
 
 def grid(n=6, size=1.0):

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from rig.base.errors import InputError
+from rig.character.mesh_graph import mesh_neighbours
 from rig.skin.quality import SkinQuality
-from rig.skin.surface_smoothing import SurfaceSmoothing, mesh_neighbours, steps_for_reach
+from rig.skin.surface_smoothing import SurfaceSmoothing, steps_for_reach
 
 
 def grid(n=21, size=0.4):
