@@ -23,8 +23,9 @@ from rig.base.frozen import frozen_array
 from rig.motion.clip import Clip, joint_index, local_from_world
 from rig.motion.gltf_io import polar_rotation
 
-PLAUSIBLE_HEIGHT_M = (0.5, 2.6)
-"""A human-like character outside this height (metres) was probably read in the wrong unit."""
+PLAUSIBLE_HEIGHT_M = (0.05, 10.0)
+"""A character or creature outside this height (metres: a mouse to a giraffe) was probably read in the
+wrong unit."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,27 +149,40 @@ def bind_clip(joint_names, parents, bind_world: np.ndarray, name: str = "", sour
 
 
 def check_height(height: float, path: str | None, unit_option: str = "--unit") -> None:
-    """Warn when a character's height (metres) is implausible for a body, suggesting the unit option."""
+    """Warn when a character's height (metres) is implausible (outside PLAUSIBLE_HEIGHT_M), naming the
+    unit that would make it plausible and how to say so."""
     lo, hi = PLAUSIBLE_HEIGHT_M
     if lo <= height <= hi:
         return
-    hint = ""
-    for unit, s in (("cm", 0.01), ("mm", 0.001), ("in", 0.0254)):
-        if lo <= height * s <= hi:
-            hint = f"; if the file is in {unit}, pass {unit_option} {unit}"
-            break
+    unit = guess_unit(height)
+    hint = f"; the file is probably in {UNIT_NAMES[unit]}: pass {unit_option} {unit}" if unit else \
+        f"; pass {unit_option} with the file's metres per unit"
     where = f"{path}: " if path else ""
-    warnings.warn(f"{where}the body is {height:.4g} m tall, outside the plausible "
-                  f"{lo}-{hi} m{hint}", JiggleWarning, stacklevel=3)
+    warnings.warn(f"{where}the character is {height:.4g} m tall, outside the plausible {lo:g}-{hi:g} m{hint}",
+                  JiggleWarning, stacklevel=3)
 
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+UNIT_NAMES = {"m": "metres", "cm": "centimetres", "mm": "millimetres", "in": "inches", "ft": "feet"}
+AUTO_UNITS = ("cm", "mm")
+"""Units `--unit auto` tries, in order, when a file read as metres has an implausible height: exports
+in centimetres are by far the commonest (Maya, Unreal, FBX-derived glTF), then millimetres (CAD)."""
 
 
-def unit_scale(unit: str | float | None, path: str | None = None) -> float:
-    """Metres per file unit from a name in UNITS or a positive number; None means metres."""
-    if unit is None:
-        return 1.0
+def guess_unit(height: float) -> str | None:
+    """The first unit of AUTO_UNITS (then inches) that makes `height` (file units read as metres)
+    plausible, or None when metres already is or none does."""
+    lo, hi = PLAUSIBLE_HEIGHT_M
+    if not np.isfinite(height) or lo <= height <= hi:
+        return None
+    return next((u for u in AUTO_UNITS + ("in",) if lo <= height * UNITS[u] <= hi), None)
+
+
+def unit_scale(unit: str | float | None, path: str | None = None) -> float | None:
+    """Metres per file unit from a name in UNITS or a positive number; None or "auto" give None: the
+    unit is then found from the height by :func:`resolve_unit`."""
+    if unit is None or unit == "auto":
+        return None
     if isinstance(unit, str) and unit in UNITS:
         return UNITS[unit]
     try:
@@ -176,9 +190,30 @@ def unit_scale(unit: str | float | None, path: str | None = None) -> float:
     except (TypeError, ValueError):
         s = float("nan")
     if not np.isfinite(s) or s <= 0:
-        raise InputError(f"unit must be one of {', '.join(UNITS)} or a positive number of metres per unit, "
+        raise InputError(f"unit must be auto, one of {', '.join(UNITS)} or a positive number of metres per unit, "
                          f"got {unit!r}", path, field="unit")
     return s
+
+
+def resolve_unit(unit: str | float | None, height: float, path: str | None = None,
+                 unit_option: str = "--unit") -> float:
+    """Metres per file unit for a character whose height is `height` file units.
+
+    unit : a unit name or number (that, see :func:`unit_scale`), or None / "auto": metres when the
+        height read as metres is plausible (PLAUSIBLE_HEIGHT_M), else the unit :func:`guess_unit`
+        finds, said in a JiggleWarning with the option that keeps metres; else metres (the height
+        check then warns).
+    """
+    s = unit_scale(unit, path)
+    if s is not None:
+        return s
+    guess = guess_unit(height)
+    if guess is None:
+        return 1.0
+    where = f"{path}: " if path else ""
+    warnings.warn(f"{where}{height:.4g} units tall: read in {UNIT_NAMES[guess]} ({height * UNITS[guess]:.3g} m); "
+                  f"pass {unit_option} m to read it in metres", JiggleWarning, stacklevel=3)
+    return UNITS[guess]
 
 
 def nearest_joint(points: np.ndarray, joint_positions: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from rig.character.character import (
     clean_weights,
     drop_degenerate_faces,
     require_finite_positions,
-    unit_scale,
+    resolve_unit,
 )
 from rig.motion.gltf_io import Z_UP, GltfDocument, trs_matrix, world_chain
 from rig.motion.gltf_skeleton import read_gltf_skeleton
@@ -85,13 +85,13 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
 
     k : influences kept per vertex (top k by weight, renormalised).
     unit : metres per file unit when the file is not in metres as the spec says (see
-        rig.character.character.unit_scale); a height outside 0.5-2.6 m warns.
+        rig.character.character.unit_scale); None or "auto": metres unless the height is implausible
+        and centimetres or millimetres make it plausible (rig.character.character.resolve_unit).
     """
     skel = read_gltf_skeleton(path, skin)
     doc = GltfDocument(path)
     g = doc.gltf
     p = doc.path
-    s = unit_scale(unit, p)
     # skin joint k -> tree index
     tree_of_skin = np.full(len(g.skins[skin].joints), -1, np.int64)
     for t, sj in enumerate(skel.skin_joint):
@@ -184,7 +184,9 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
     if skipped:
         warnings.warn(f"{p}: left out of the character: {', '.join(skipped)}", JiggleWarning, stacklevel=2)
 
-    vertices = np.concatenate(pos) * s
+    vertices = np.concatenate(pos)
+    s = resolve_unit(unit, float(np.ptp(vertices[:, 2])), p)
+    vertices = vertices * s
     width = max(w.shape[1] for w in wgt)
     pad = lambda a, fill: np.pad(a, ((0, 0), (0, width - a.shape[1])), constant_values=fill)  # noqa: E731
     raw_j = np.concatenate([pad(a, 0) for a in jnt])

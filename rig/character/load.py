@@ -36,8 +36,8 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
         pose), an MJCF .xml, a skinned glTF, or a Clip. An unskinned glTF with no skeleton given
         is an error that says so.
     k : influences kept per vertex.
-    unit : metres per file unit ("m", "cm", "mm", "in", "ft" or a number); None: metres. A height
-        outside 0.5-2.6 m warns and suggests a unit.
+    unit : metres per file unit ("m", "cm", "mm", "in", "ft" or a number); None or "auto": metres
+        unless the height says centimetres or millimetres (rig.character.character.resolve_unit).
     up : axis that is up in an OBJ/PLY/STL file, "y", "z" or "auto" (the longer of the y and z
         extents, since a standing body is taller than it is deep); glTF is always Y-up.
     """

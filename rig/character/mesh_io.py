@@ -4,7 +4,7 @@ OBJ/PLY/STL go through `trimesh.load(path, process=False)` so vertex indices sta
 them. Those formats carry no axis convention: `up` says which file axis is up, "auto" takes the
 longer of the y and z extents (a standing body is taller than it is deep; x is not looked at since a
 T-pose's arm span matches its height). glTF is Y-up by its spec; every mesh node is placed by its
-node transforms. Units: metres unless `unit` says otherwise; an implausible height warns.
+node transforms. Units: `unit`, or found from the height (rig.character.character.resolve_unit); an implausible height warns.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig.base.errors import InputError, require_file
-from rig.character.character import check_height, drop_degenerate_faces, require_finite_positions, unit_scale
+from rig.character.character import check_height, drop_degenerate_faces, require_finite_positions, resolve_unit
 from rig.character.gltf_character import _node_world, triangles
 from rig.motion.gltf_io import GltfDocument
 
@@ -51,7 +51,6 @@ def read_mesh(path: str | os.PathLike, unit: str | float | None = None, up: str 
     ext = os.path.splitext(p)[1].lower()
     if up not in ("auto", "y", "z"):
         raise InputError(f"up must be 'auto', 'y' or 'z', got {up!r}", p, field="up")
-    s = unit_scale(unit, p)
     uvs = None
     if ext in (".glb", ".gltf"):
         v, f, uvs = _read_gltf_meshes(p)
@@ -71,6 +70,7 @@ def read_mesh(path: str | os.PathLike, unit: str | float | None = None, up: str 
     if f.min() < 0 or f.max() >= len(v):
         raise InputError(f"a face refers to vertex {int(f.max())} but the file has {len(v)} vertices", p,
                          field="faces")
+    s = resolve_unit(unit, float(np.ptp(v[:, 2])), p)
     v = v * s
     f = drop_degenerate_faces(v, f, p)
     check_height(float(np.ptp(v[:, 2])), p)

@@ -18,13 +18,12 @@ import warnings
 import numpy as np
 
 from rig.base.errors import InputError, JiggleWarning
+from rig.motion.body_plan import check_roles, detect_body_plan, quadruped_roles
 from rig.motion.clip import Clip
 from rig.motion.retarget import ROLES, JointMap, presets
+from rig.motion.skeleton_tree import SkeletonTree
 
 UP = np.array([0.0, 0.0, 1.0])
-SAME_PLACE = 1e-3
-"""Joints closer than this fraction of the skeleton's size sit at the same place (zero-length bones,
-like CMU's LHipJoint at the Hips or LeftFingerBase at the LeftHand)."""
 OTHER_LIMB = 0.6
 """Two tips lie on different limbs when their chains part at least this fraction of the way from the
 first tip to where its limb leaves the trunk (the fingers of one hand part at the wrist, the two
@@ -79,37 +78,49 @@ def auto_roles(clip: Clip) -> dict[str, int]:
 
 
 def resolve_roles(clip: Clip, joint_map: str | os.PathLike | JointMap | None = None) -> dict[str, int]:
-    """{role: joint index} of `clip`'s skeleton.
+    """{role: joint index} of `clip`'s skeleton, checked against its shape
+    (rig.motion.body_plan.check_roles: a map the geometry contradicts is refused, never applied).
 
     joint_map : None: the first built-in preset (rig.motion.retarget.presets()) whose roles all find a
-        joint in the skeleton, else :func:`auto_roles`. A preset name, a TOML path or a JointMap:
-        that map, resolved against the joint names (InputError naming the file and key when a
-        joint is missing or the preset/file does not exist).
+        joint in the skeleton and fit its shape, else the automatic map of its body plan
+        (rig.motion.body_plan): :func:`auto_roles` for a biped, the quadruped roles for a quadruped. A
+        preset name, a TOML path or a JointMap: that map, resolved against the joint names (InputError
+        naming the file and key when a joint is missing or the preset/file does not exist).
     """
     if joint_map is None:
         for name in presets():
             try:
-                return JointMap.load(name).resolve(clip.joint_names)
+                roles = JointMap.load(name).resolve(clip.joint_names)
+                check_roles(clip, roles)
+                return roles
             except InputError:
                 continue
-        return auto_roles(clip)
+        if detect_body_plan(clip).kind == "quadruped":
+            roles = quadruped_roles(clip)
+        else:
+            roles = auto_roles(clip)
+        check_roles(clip, roles)
+        return roles
     jm = joint_map if isinstance(joint_map, JointMap) else JointMap.load(joint_map)
     label = f"of {clip.source or clip.name}" if (clip.source or clip.name) else ""
-    return jm.resolve(clip.joint_names, label)
+    roles = jm.resolve(clip.joint_names, label)
+    check_roles(clip, roles)
+    return roles
 
 
 def facing(positions: np.ndarray, roles: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
     """Front and left (3,) unit horizontal directions of a pose (Z-up).
 
     positions : (J, 3) joint positions, metres.
-    roles : {role: joint index}, with left/right_upper_leg (or, failing those, left/right_upper_arm).
+    roles : {role: joint index}, with left/right_upper_leg (or, failing those, a quadruped's
+        left/right_hind_upper_leg, then left/right_upper_arm or front_upper_leg).
 
-    left = horizontal part of left_upper_leg - right_upper_leg (upper arms when the legs are not
+    left = horizontal part of left_upper_leg - right_upper_leg (the next pair when the legs are not
     mapped or coincide); front = cross(left, up), up = +Z. CesiumMan: left = +X, front = -Y.
     Raises InputError when neither pair is mapped or both pairs coincide horizontally.
     """
     pos = np.asarray(positions, dtype=float)
-    for limb in ("upper_leg", "upper_arm"):
+    for limb in ("upper_leg", "hind_upper_leg", "upper_arm", "front_upper_leg"):
         a, b = roles.get(f"left_{limb}"), roles.get(f"right_{limb}")
         if a is None or b is None:
             continue
@@ -125,97 +136,21 @@ def facing(positions: np.ndarray, roles: dict[str, int]) -> tuple[np.ndarray, np
                      field="roles")
 
 
-class _AutoRoles:
+class _AutoRoles(SkeletonTree):
     """The steps of :func:`auto_roles` on one skeleton (see its docstring)."""
 
     def __init__(self, clip: Clip):
-        self.clip = clip
-        self.where = clip.source or None
-        rot, pos = clip.rest_world()
-        self.pos = pos
-        J = clip.num_joints
-        self.parents = np.asarray(clip.parents)
-        self.kids = [[] for _ in range(J)]
-        for j, p in enumerate(self.parents):
-            if p >= 0:
-                self.kids[p].append(j)
-        self.depth = np.zeros(J, int)
-        for j, p in enumerate(self.parents):
-            self.depth[j] = self.depth[p] + 1 if p >= 0 else 0
-        # the largest tree, when the file holds several
-        tree = np.zeros(J, int)
-        for j, p in enumerate(self.parents):
-            tree[j] = tree[p] if p >= 0 else j
-        main = np.bincount(tree).argmax()
-        self.in_tree = tree == main
-        # points: every joint, then every end site, each with the joint carrying it
-        ends = clip.end_world(rot[None], pos[None])[0] if len(clip.end_parents) else np.zeros((0, 3))
-        self.pts = np.concatenate([pos, ends])
-        self.owner = np.concatenate([np.arange(J), np.asarray(clip.end_parents, int)])
-        self.has_end = np.zeros(J, bool)
-        self.has_end[np.asarray(clip.end_parents, int)] = True
-        self.is_end = np.arange(len(self.owner)) >= J
-        live = self.in_tree[self.owner]
-        self.pts, self.owner, self.is_end = self.pts[live], self.owner[live], self.is_end[live]
-        self.size = float(np.ptp(self.pts, axis=0).max())
-        self.eps = max(SAME_PLACE * self.size, 1e-9)
+        super().__init__(clip)
         self.roles = self._find()
 
-    # ------------------------------------------------------------------ tree helpers
     def _fail(self, what: str) -> InputError:
         return InputError(f"cannot find the {what} from the skeleton's shape (joints: "
                           f"{', '.join(self.clip.joint_names)}); give a joint map", self.where, field="roles")
 
-    def lca(self, a: int, b: int) -> int:
-        while a != b:
-            if self.depth[a] >= self.depth[b]:
-                a = self.parents[a]
-            else:
-                b = self.parents[b]
-        return int(a)
-
-    def path(self, top: int, bottom: int) -> list[int]:
-        """Joints from `top` (excluded) down to `bottom` (included); `top` must be its ancestor."""
-        out = []
-        while bottom != top:
-            out.append(int(bottom))
-            bottom = self.parents[bottom]
-        return out[::-1]
-
-    def under(self, j: int, top: int) -> bool:
-        while j >= 0 and j != top:
-            j = self.parents[j]
-        return j == top
-
-    def groups(self, chain: list[int]) -> list[list[int]]:
-        """Consecutive joints of a chain at the same place merged, in order."""
-        out: list[list[int]] = []
-        for j in chain:
-            if out and np.linalg.norm(self.pos[j] - self.pos[out[-1][-1]]) < self.eps:
-                out[-1].append(j)
-            else:
-                out.append([j])
-        return out
-
     def other_limb(self, first: int, trunk: int) -> np.ndarray:
         """(P,) bool: points whose chain parts from point `first`'s at least OTHER_LIMB of the way
         from it to `trunk` (where its limb leaves the trunk)."""
-        tip = self.pts[first]
-        reach = np.linalg.norm(self.pos[trunk] - tip)
-        owner = self.owner[first]
-        return np.array([np.linalg.norm(self.pos[self.lca(int(o), owner)] - tip) > OTHER_LIMB * reach
-                         for o in self.owner])
-
-    def farthest_below(self, j: int) -> int:
-        """Index into the points of the point in j's subtree (j excluded) farthest from joint j,
-        or -1 when j has none."""
-        best, far = -1, self.eps
-        for i, o in enumerate(self.owner):
-            if (o != j or self.is_end[i]) and self.under(int(o), j):
-                d = np.linalg.norm(self.pts[i] - self.pos[j])
-                if d > far:
-                    best, far = i, d
-        return best
+        return self.parts_from(first, trunk, OTHER_LIMB)
 
     # ------------------------------------------------------------------ the steps
     def _find(self) -> dict[str, int]:
@@ -225,7 +160,7 @@ class _AutoRoles:
         head_tip = int(owner[top])
         # feet: the lowest tips (end sites, childless joints) ending a leg-like chain, which leaves
         # the head's path high up and has hip, knee and ankle (not a root or IK joint on the floor)
-        tip = self.is_end | np.array([not self.kids[o] and not self.has_end[o] for o in owner])
+        tip = self.tips
         for i in np.flatnonzero(tip):
             start = self.lca(int(owner[i]), head_tip)
             chain = self.path(start, int(owner[i]))

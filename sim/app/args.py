@@ -90,8 +90,8 @@ def character_options(p: argparse.ArgumentParser) -> None:
 def mesh_options(g) -> None:
     """How to read a character file: --skin, --unit, --up (play and fit)."""
     g.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of a glTF character (default: 0)")
-    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per unit "
-                   "(default: m)")
+    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: auto, m, cm, mm, in, ft or metres per "
+                   "unit (default: auto: metres unless the height says cm or mm)")
     g.add_argument("--up", choices=["auto", "y", "z"], default="auto",
                    help="up axis of an OBJ/PLY/STL character (default: auto, the longer of y and z)")
 

@@ -14,11 +14,11 @@ def load_clip(args):
                      scale=args.scale, tpose=args.tpose)
 
 
-def retarget_onto_character(clip, args):
-    from rig.character.character import unit_scale
+def retarget_onto_character(clip, args, character):
+    """`clip` on the skeleton of the skinned glTF `args.character`, read as `character` (its unit)."""
     from rig.motion.retarget import retarget_onto
     return retarget_onto(clip, args.character, args.skin, args.clip_map, args.character_map, print,
-                         scale=unit_scale(getattr(args, "unit", None), args.character))
+                         scale=character.meta.get("unit_scale", 1.0))
 
 
 def body_overrides(args) -> dict:

@@ -197,12 +197,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
         raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
                          f"the character {os.path.basename(character_file)} has its own", field="--character")
     if character_file is not None:
-        from rig.character.character import unit_scale
         from rig.motion.retarget import retarget_onto
-        clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
-                             scale=unit_scale(pick("unit", None), character_file))
         character = load_character(character_file, k=pick("influences", 4), unit=pick("unit", None),
                                    skin=pick("skin", 0))
+        clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
+                             scale=character.meta.get("unit_scale", 1.0))
         what = os.path.basename(character_file)
     else:
         body = BodyOptions(**{**(dict(spec.body) if spec is not None else {}), **dict(req.body)})

@@ -181,7 +181,8 @@ def test_body_command_writes_mesh_pictures_and_facts(capsys, tmp_path):
 
 
 def test_play_with_a_mesh_character_warns_and_skins(capsys, tmp_path):
-    """An OBJ standing in the clip's rest pose, in centimetres: automatic weights, a warning on stderr."""
+    """An OBJ standing in the clip's rest pose, in centimetres: read so by --unit auto (the default) with
+    a notice, automatic weights, a warning on stderr; read in metres (--unit m) it misses the skeleton."""
     from rig.character.body import BodyOptions, generate_body
     from rig.motion.keyframes import read_keyframes
     scene = os.path.join(os.path.dirname(__file__), "..", "..", "scenes", "motions", "jumping_jacks.toml")
@@ -190,9 +191,12 @@ def test_play_with_a_mesh_character_warns_and_skins(capsys, tmp_path):
     import trimesh
     obj = tmp_path / "me.obj"
     trimesh.Trimesh(body.vertices * 100, body.faces, process=False).export(obj)
+    code, out, err = run(capsys, "play", scene, "--character", str(obj), "--unit", "m", "--out", str(tmp_path),
+                         "--no-render", "--end", "0.3")
+    assert code == 2 and "does not fit the mesh" in err and "--unit" in err, err
     code, out, err = run(capsys, "play", scene, "--character", str(obj), "--out", str(tmp_path), "--no-render",
                          "--end", "0.3")
-    assert code == 2 and "does not fit the mesh" in err and "--unit" in err, err
+    assert code == 0 and "read in centimetres" in err, err
     code, out, err = run(capsys, "play", scene, "--character", str(obj), "--unit", "cm", "--up", "z",
                          "--out", str(tmp_path), "--no-render", "--end", "0.3")
     assert code == 0, err

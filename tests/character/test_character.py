@@ -131,22 +131,39 @@ def test_auto_weighted_mesh_from_obj(tmp_path):
     assert np.abs(posed[c.vertices[:, 0] > 0.39] - c.vertices[c.vertices[:, 0] > 0.39]).max() > 0.1
 
 
-def test_unit_option_and_height_warning(tmp_path):
-    mesh, clip = _two_bone_tube()
+def test_unit_auto_reads_centimetres_and_says_so(tmp_path):
+    """A 170-unit body: --unit auto (the default) reads it in centimetres with a notice naming the
+    option that keeps metres; --unit m keeps metres and the height check names --unit cm; --unit cm
+    is silent."""
     tall = trimesh.creation.box(extents=[0.4, 0.3, 1.7])
     tall.apply_translation([0, 0, 0.85])
     tall.vertices = tall.vertices * 100
     path = tmp_path / "body.stl"
     tall.export(path)
     from rig.character.mesh_io import read_mesh
-    with pytest.warns(JiggleWarning, match=r"170 m tall.*--unit cm"):
-        read_mesh(path)
+    with pytest.warns(JiggleWarning, match=r"170 units tall: read in centimetres \(1.7 m\); pass --unit m"):
+        auto = read_mesh(path)
+    assert abs(np.ptp(auto.vertices[:, 2]) - 1.7) < 1e-6 and auto.unit_scale == 0.01
+    with pytest.warns(JiggleWarning, match=r"170 m tall, outside the plausible 0.05-10 m; the file is probably in "
+                                           r"centimetres: pass --unit cm"):
+        m = read_mesh(path, unit="m")
+    assert abs(np.ptp(m.vertices[:, 2]) - 170) < 1e-6
     with warnings.catch_warnings():
         warnings.simplefilter("error", JiggleWarning)
         m = read_mesh(path, unit="cm")
     assert abs(np.ptp(m.vertices[:, 2]) - 1.7) < 1e-6 and m.up == "z"
     with pytest.raises(InputError, match="unit"):
         read_mesh(path, unit="furlong")
+
+
+def test_guess_unit():
+    from rig.character.character import guess_unit, resolve_unit
+    assert guess_unit(1.7) is None and guess_unit(0.06) is None and guess_unit(9.0) is None  # plausible: metres
+    assert guess_unit(79.03) == "cm" and guess_unit(170.0) == "cm" and guess_unit(1700.0) == "mm"
+    assert guess_unit(1e7) is None and guess_unit(float("nan")) is None
+    assert resolve_unit("m", 170.0) == 1.0 and resolve_unit(0.5, 3.0) == 0.5
+    with pytest.warns(JiggleWarning, match="millimetres"):
+        assert resolve_unit("auto", 1700.0, "x.glb") == 0.001
 
 
 def test_skeleton_that_misses_the_mesh_is_an_error(tmp_path):

@@ -95,7 +95,7 @@ def add_parser(sub) -> None:
     joint_map_option(g)
     map_options(g)
     g.add_argument("--skin", type=int, metavar="N", help="which skin of a glTF character (default: 0)")
-    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: m, cm, mm, in, ft or metres per "
-                   "unit (default: m)")
+    g.add_argument("--unit", metavar="UNIT", help="the character file's unit: auto, m, cm, mm, in, ft or metres per "
+                   "unit (default: auto: metres unless the height says cm or mm)")
     clip_options(p)
     p.set_defaults(func=run)

@@ -40,7 +40,7 @@ def deform_pose(args):
     if args.clip is None:
         raise InputError("give the pose: --clip FILE (retargeted onto the character) and --time S",
                          field="--clip")
-    clip = retarget_onto_character(load_clip(args), args)
+    clip = retarget_onto_character(load_clip(args), args, character)
     t = 0.0 if args.time is None else args.time
     if not 0.0 <= t <= clip.duration:
         raise InputError(f"expected a time in [0, {clip.duration:.3f}] s of the clip, got {t}", field="--time")

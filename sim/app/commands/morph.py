@@ -102,6 +102,7 @@ def add_parser(sub) -> None:
                    "markers (exact markers; a misplaced marker dents the skin)")
     g = p.add_argument_group("canonical file")
     g.add_argument("--skin", type=int, default=0, metavar="N", help="which skin of the glTF (default: 0)")
-    g.add_argument("--unit", metavar="UNIT", help="the file's unit: m, cm, mm, in, ft or metres per unit (default: m)")
+    g.add_argument("--unit", metavar="UNIT", help="the file's unit: auto, m, cm, mm, in, ft or metres per unit "
+                   "(default: auto: metres unless the height says cm or mm)")
     influences_option(g)
     p.set_defaults(func=run)

@@ -64,8 +64,8 @@ def run(args) -> int:
         from rig.character.gltf_character import gltf_has_skin
         from rig.character.load import load_character
         if args.character.lower().endswith((".glb", ".gltf")) and gltf_has_skin(args.character):
-            clip = retarget_onto_character(clip, args)
             character = load_character(args.character, k=args.influences, unit=args.unit, skin=args.skin)
+            clip = retarget_onto_character(clip, args, character)
         else:
             # a mesh standing in the clip's rest pose: the clip's skeleton skins it
             character = load_character(args.character, skeleton=clip, k=args.influences, unit=args.unit,

@@ -74,8 +74,8 @@ def simulate_job(args) -> SimulateJob:
     clip = scene.clip if scene is not None else load_clip(args)
     if args.character is not None:
         from rig.character.load import load_character
-        clip = retarget_onto_character(clip, args)
         character = load_character(args.character, k=args.influences, unit=args.unit, skin=args.skin)
+        clip = retarget_onto_character(clip, args, character)
     else:
         character = generated_character(clip, args)
     mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.joint_map))

@@ -1,0 +1,356 @@
+"""A skeleton's body plan (biped, quadruped, other) from its rest pose's geometry, the roles of a
+four-legged skeleton, and the geometric checks every role map must pass before it is used.
+
+Detection (:func:`detect_body_plan`), from the joint tree and the rest pose only (no names):
+
+1. Ground limbs: tips (end sites, childless joints) within GROUND of the skeleton's height above its
+   lowest point, grouped by limb: two tips are on different limbs when their chains part at least
+   LIMB_SPLIT of the height away from the lower tip (a heel and a toe part at the ankle, two feet at
+   the pelvis, a front and a hind paw at the spine).
+2. Two ground limbs whose chains meet (the hips) below the skeleton's highest point by a spine
+   steeper than UPRIGHT degrees: a biped. Four ground limbs that pair into two girdles (the pairing
+   whose meeting joints lie nearest their paws, the girdles being distinct joints) joined by a spine
+   flatter than UPRIGHT: a quadruped. Anything else: other (no template fits it; give one).
+3. Quadruped: the head is the highest point off the legs; the girdle nearer the head is the chest
+   (front legs), the other the hips (hind legs); a tail is a chain that reaches back past the hips
+   by at least TAIL_REACH of the spine's length.
+
+Quadruped roles (:data:`QUADRUPED_ROLES`; a role names the joint at the start of its bone, as the
+human ones do): hips (hind girdle), spine (first joint after the hips towards the chest), chest
+(front girdle), neck and head (first and last joint towards the head top), tail (its first joint),
+and per leg ``<side>_<front|hind>_`` + shoulder (front only: a scapula joint above the shoulder),
+upper_leg (shoulder or hip joint), lower_leg (elbow or stifle), foot (carpus or hock), toe (the paw
+joint, when the chain's last joint sits within TOE_HEIGHT of the leg's height above the ground).
+Legs are read from the paw up, so extra joints at the girdle (a pelvis joint per leg) are ignored.
+
+Checks (:func:`check_roles`), on any role map, human or quadruped, preset, file or automatic:
+each ``left_X`` / ``right_X`` pair mirrors across the body's mid-plane (the plane through the hips
+whose normal is the horizontal left-right direction of the paired upper legs) within MIRROR of the
+limb's length, and each limb's roles follow one chain of the tree down from its girdle in order. A
+map that fails is refused with the roles found and the ones missing, never applied.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rig.base.errors import InputError
+from rig.motion.clip import Clip
+from rig.motion.skeleton_tree import SkeletonTree
+
+UP = np.array([0.0, 0.0, 1.0])
+GROUND = 0.1
+"""Tips this share of the skeleton's height above its lowest point stand on the ground."""
+LIMB_SPLIT = 0.3
+"""Ground tips whose chains part at least this share of the height away from them are on different limbs."""
+UPRIGHT = 45.0
+"""Degrees above the horizontal: a steeper spine is upright (biped), a flatter one horizontal (quadruped)."""
+TAIL_REACH = 0.15
+"""A tail reaches back past the hips by at least this share of the hips-to-chest distance."""
+TOE_HEIGHT = 0.12
+"""A leg's last joint within this share of the leg's height above the ground is a toe (paw) joint."""
+MIRROR = 0.25
+"""A left role and its right twin mirrored across the mid-plane lie within this share of the limb's length."""
+
+SIDES = ("left", "right")
+ENDS = ("front", "hind")
+FRONT_LEG = ("shoulder", "upper_leg", "lower_leg", "foot", "toe")
+HIND_LEG = ("upper_leg", "lower_leg", "foot", "toe")
+QUADRUPED_ROLES = ("hips", "spine", "chest", "neck", "head", "tail") + tuple(
+    f"{s}_{e}_{r}" for s in SIDES for e in ENDS for r in (FRONT_LEG if e == "front" else HIND_LEG))
+QUADRUPED_REQUIRED = ("hips", "chest", "head") + tuple(
+    f"{s}_{e}_{r}" for s in SIDES for e in ENDS for r in ("upper_leg", "lower_leg", "foot"))
+PLANS = ("biped", "quadruped", "other")
+TEMPLATE_OF_PLAN = {"biped": "human", "quadruped": "quadruped"}
+
+
+@dataclass(frozen=True)
+class BodyPlan:
+    """What a skeleton is, from its rest pose.
+
+    kind : "biped", "quadruped" or "other".
+    ground_limbs : limbs that reach the ground at rest.
+    spine_deg : the spine's angle above the horizontal, degrees (hips to head top for a biped, hips to
+        chest for a quadruped; NaN when there is no spine).
+    tail : a tail was found (quadrupeds).
+    reason : one sentence saying why, for messages and reports.
+    """
+
+    kind: str
+    ground_limbs: int
+    spine_deg: float
+    tail: bool
+    reason: str
+
+    @property
+    def template(self) -> str | None:
+        """The built-in template for this plan, or None (other)."""
+        return TEMPLATE_OF_PLAN.get(self.kind)
+
+    def to_json(self) -> dict:
+        return {"kind": self.kind, "ground_limbs": self.ground_limbs,
+                "spine_deg": None if not np.isfinite(self.spine_deg) else round(self.spine_deg, 1),
+                "tail": self.tail, "reason": self.reason}
+
+
+def detect_body_plan(clip: Clip) -> BodyPlan:
+    """The body plan of `clip`'s skeleton (its rest pose; see the module docstring)."""
+    return _Plan(clip).plan
+
+
+def quadruped_roles(clip: Clip) -> dict[str, int]:
+    """{role: joint index} (QUADRUPED_ROLES) of a four-legged skeleton; InputError naming what could not
+    be found when the skeleton is not a quadruped."""
+    p = _Plan(clip)
+    if p.plan.kind != "quadruped":
+        raise InputError(f"not a four-legged skeleton: {p.plan.reason}", clip.source or None, field="roles")
+    return p.quadruped_roles()
+
+
+def template_for(clip: Clip, template: str | None) -> tuple[str, BodyPlan]:
+    """(template, plan): `template` unless it is None or "auto", else the built-in one of the detected
+    plan; InputError when the plan has none."""
+    plan = detect_body_plan(clip)
+    if template not in (None, "auto"):
+        return template, plan
+    if plan.template is None:
+        raise InputError(f"no built-in template for this body plan ({plan.reason}); give one with --template "
+                         f"FILE", clip.source or None, field="--template")
+    return plan.template, plan
+
+
+# ------------------------------------------------------------------------------------- checks
+def _pairs(roles: dict[str, int]) -> list[tuple[str, int, int]]:
+    """(role without side, left joint, right joint) of every role mapped on both sides."""
+    return [(r[5:], j, roles["right_" + r[5:]]) for r, j in roles.items()
+            if r.startswith("left_") and "right_" + r[5:] in roles]
+
+
+def check_roles(clip: Clip, roles: dict[str, int], known: tuple[str, ...] | None = None) -> None:
+    """Refuse a role map the skeleton's geometry contradicts (see the module docstring).
+
+    roles : {role: joint index} of `clip`'s skeleton. known : every role the map could hold (for the
+    message's list of missing roles); default the human roles or QUADRUPED_ROLES, by the keys.
+    Raises InputError naming the first failing pair or chain, the roles found and the ones missing.
+    """
+    from rig.motion.retarget import ROLES
+    if not roles:
+        return
+    known = known or (QUADRUPED_ROLES if any(r in QUADRUPED_ROLES and r not in ROLES for r in roles) else ROLES)
+    _, pos = clip.rest_world()
+    names = clip.joint_names
+    problems = []
+    pairs = _pairs(roles)
+    paired = {k for k, _, _ in pairs}
+    tops = [k for k in ("upper_leg", "hind_upper_leg", "front_upper_leg", "upper_arm") if k in paired]
+    if tops:
+        left = np.zeros(3)
+        for k, a, b in pairs:
+            if k in tops:
+                d = pos[a] - pos[b]
+                left += d - (d @ UP) * UP
+        mid = np.mean([0.5 * (pos[a] + pos[b]) for k, a, b in pairs if k in tops], axis=0)
+        if np.linalg.norm(left) < 1e-9:
+            problems.append(f"the left and right {tops[0]} sit at one place")
+        else:
+            left /= np.linalg.norm(left)
+            reflect = np.eye(3) - 2.0 * np.outer(left, left)
+            length = _limb_length(pos, roles)
+            for k, a, b in pairs:
+                mirrored = mid + (pos[b] - mid) @ reflect.T
+                err = float(np.linalg.norm(mirrored - pos[a]))
+                if err > MIRROR * length:
+                    problems.append(f"left_{k} ({names[a]}) and right_{k} ({names[b]}) do not mirror each "
+                                    f"other ({err:.3g} m apart once mirrored; limbs are {length:.3g} m long)")
+    for chain in _chains(roles):
+        present = [r for r in chain if r in roles]
+        for hi, lo in zip(present[:-1], present[1:]):
+            a, b = roles[hi], roles[lo]
+            j = b
+            while j >= 0 and j != a:
+                j = int(clip.parents[j])
+            if j != a or a == b:
+                problems.append(f"{lo} ({names[b]}) is not below {hi} ({names[a]}) in the joint tree")
+    if problems:
+        missing = [r for r in known if r not in roles]
+        raise InputError(f"the role map does not fit the skeleton's shape: {'; '.join(problems[:3])}. Roles found: "
+                         f"{', '.join(f'{r}={names[j]}' for r, j in roles.items())}; missing: "
+                         f"{', '.join(missing) or 'none'}. Give a joint map that fits (or the right --template)",
+                         clip.source or None, field="roles")
+
+
+def _limb_length(pos: np.ndarray, roles: dict[str, int]) -> float:
+    """A limb's length (metres): the longest upper-leg-to-foot (or shoulder-to-hand) span mapped."""
+    spans = [np.linalg.norm(pos[roles[a]] - pos[roles[b]])
+             for s in SIDES for a, b in ((f"{s}_upper_leg", f"{s}_foot"), (f"{s}_hind_upper_leg", f"{s}_hind_foot"),
+                                         (f"{s}_front_upper_leg", f"{s}_front_foot"), (f"{s}_upper_arm", f"{s}_hand"))
+             if a in roles and b in roles]
+    return float(max(spans)) if spans else float(np.ptp(pos, axis=0).max())
+
+
+def _chains(roles: dict[str, int]) -> list[tuple[str, ...]]:
+    out = [("hips", "spine", "chest", "neck", "head")]
+    for s in SIDES:
+        out += [tuple(f"{s}_{r}" for r in ("shoulder", "upper_arm", "lower_arm", "hand")),
+                tuple(f"{s}_{r}" for r in ("upper_leg", "lower_leg", "foot", "toe")),
+                tuple(f"{s}_front_{r}" for r in FRONT_LEG), tuple(f"{s}_hind_{r}" for r in HIND_LEG)]
+    return out
+
+
+# ------------------------------------------------------------------------------------- detection
+class _Plan(SkeletonTree):
+    """Detection on one skeleton (see the module docstring)."""
+
+    def __init__(self, clip: Clip):
+        super().__init__(clip)
+        pts = self.pts
+        self.floor = float(pts[:, 2].min())
+        self.height = float(np.ptp(pts[:, 2]))
+        self.limbs = self._ground_limbs()
+        self.plan = self._classify()
+
+    def _ground_limbs(self) -> list[int]:
+        """Point index of the lowest tip of each limb that reaches the ground."""
+        low = self.tips & (self.pts[:, 2] <= self.floor + GROUND * self.height)
+        limbs: list[int] = []
+        for i in np.flatnonzero(low)[np.argsort(self.pts[low, 2], kind="stable")]:
+            o = int(self.owner[i])
+            if all(np.linalg.norm(self.pos[self.lca(o, int(self.owner[r]))] - self.pts[i]) >= LIMB_SPLIT * self.height
+                   for r in limbs):
+                limbs.append(int(i))
+        return limbs
+
+    def _angle(self, a: np.ndarray, b: np.ndarray) -> float:
+        d = b - a
+        return float(np.degrees(np.arctan2(abs(d[2]), np.linalg.norm(d[:2]))))
+
+    def _classify(self) -> BodyPlan:
+        n = len(self.limbs)
+        own = [int(self.owner[i]) for i in self.limbs]
+        if n == 2:
+            hips = self.lca(*own)
+            off = ~np.array([any(self.under(int(o), self.path(hips, f)[0]) for f in own) for o in self.owner])
+            top = int(np.flatnonzero(off)[np.argmax(self.pts[off, 2])]) if off.any() else -1
+            if top >= 0:
+                ang = self._angle(self.pos[hips], self.pts[top])
+                if ang >= UPRIGHT and self.pts[top, 2] > self.pos[hips, 2]:
+                    self.hips = hips
+                    return BodyPlan("biped", 2, ang, False, f"two legs to the ground and an upright spine "
+                                    f"({ang:.0f} deg above the horizontal)")
+                return BodyPlan("other", 2, ang, False, f"two legs to the ground but a spine {ang:.0f} deg above "
+                                f"the horizontal (a biped's is upright, above {UPRIGHT:g} deg)")
+            return BodyPlan("other", 2, float("nan"), False, "two legs to the ground and nothing above them")
+        if n == 4:
+            best = None
+            for a, b, c, d in ((0, 1, 2, 3), (0, 2, 1, 3), (0, 3, 1, 2)):
+                g1, g2 = self.lca(own[a], own[b]), self.lca(own[c], own[d])
+                if g1 == g2:
+                    continue
+                cost = sum(np.linalg.norm(self.pos[g] - self.pts[self.limbs[i]])
+                           for g, i in ((g1, a), (g1, b), (g2, c), (g2, d)))
+                if best is None or cost < best[0]:
+                    best = (cost, (g1, (a, b)), (g2, (c, d)))
+            if best is None:
+                return BodyPlan("other", 4, float("nan"), False, "four limbs to the ground that all meet at one "
+                                "joint (no front and hind girdle)")
+            (g1, p1), (g2, p2) = best[1], best[2]
+            ang = self._angle(self.pos[g1], self.pos[g2])
+            if ang >= UPRIGHT:
+                return BodyPlan("other", 4, ang, False, f"four limbs to the ground but a spine {ang:.0f} deg above "
+                                f"the horizontal (a quadruped's is flatter than {UPRIGHT:g} deg)")
+            head = self._head_top(own)
+            if head < 0:
+                return BodyPlan("other", 4, ang, False, "four limbs to the ground and no head off them")
+            hp = self.pts[head]
+            near = lambda g: np.linalg.norm((hp - self.pos[g])[:2])  # noqa: E731
+            (chest, front), (hips, hind) = sorted([(g1, p1), (g2, p2)], key=lambda x: near(x[0]))
+            self.girdles = {"chest": chest, "hips": hips}
+            self.legs = {"front": [self.limbs[i] for i in front], "hind": [self.limbs[i] for i in hind]}
+            self.head_pt = head
+            self.tail_pt = self._tail(own + [int(self.owner[head])])
+            return BodyPlan("quadruped", 4, ang, self.tail_pt >= 0,
+                            f"four legs to the ground and a horizontal spine ({ang:.0f} deg)"
+                            + (", a tail" if self.tail_pt >= 0 else ""))
+        return BodyPlan("other", n, float("nan"), False, f"{n} limb{'s' if n != 1 else ''} reach the ground at rest "
+                        f"(a biped has two, a quadruped four)")
+
+    def _off_limbs(self, feet: list[int]) -> np.ndarray:
+        """(P,) bool: points on no ground limb. A limb starts below the deepest joint where its foot's
+        chain meets another foot's (its girdle)."""
+        firsts = set()
+        for a in feet:
+            g = max((self.lca(a, b) for b in feet if b != a), key=lambda j: self.depth[j])
+            firsts.add(self.path(g, a)[0] if g != a else a)
+        return ~np.array([any(self.under(int(o), f) for f in firsts) for o in self.owner])
+
+    def _head_top(self, feet: list[int]) -> int:
+        off = self._off_limbs(feet)
+        return int(np.flatnonzero(off)[np.argmax(self.pts[off, 2])]) if off.any() else -1
+
+    def _tail(self, taken: list[int]) -> int:
+        """Point index of the tail's farthest point, or -1 when no chain reaches back past the hips."""
+        hips, chest = self.girdles["hips"], self.girdles["chest"]
+        axis = self.pos[hips] - self.pos[chest]
+        length = np.linalg.norm(axis[:2])
+        if length < 1e-9:
+            return -1
+        axis = np.array([axis[0], axis[1], 0.0]) / length
+        back = (self.pts - self.pos[hips]) @ axis  # metres behind the hips; the spine and head are ahead
+        cand = self._off_limbs(taken[:4]) & (back > TAIL_REACH * length)
+        return int(np.flatnonzero(cand)[np.argmax(back[cand])]) if cand.any() else -1
+
+    # -------------------------------------------------------------------------------- roles
+    def quadruped_roles(self) -> dict[str, int]:
+        hips, chest = self.girdles["hips"], self.girdles["chest"]
+        head_joint = int(self.owner[self.head_pt])
+        roles: dict[str, int] = {"hips": hips, "chest": chest}
+        if self.under(chest, hips):
+            spine = self.groups(self.path(hips, chest))
+            if len(spine) >= 2:
+                roles["spine"] = spine[0][0]
+        far = self.farthest_below(head_joint)
+        last = int(self.owner[far]) if far >= 0 else head_joint  # the chain goes on to the muzzle's tip
+        neck = self.groups(self.path(chest, last)) if self.under(last, chest) else []
+        if not neck:
+            raise InputError("cannot find the head below the chest (the front girdle) in the joint tree",
+                             self.where, field="roles")
+        marker = not self.kids[last] and not self.has_end[last]  # a childless joint marks the tip, starts no bone
+        roles["head"] = neck[-2][0] if marker and len(neck) >= 2 else neck[-1][0]
+        if roles["head"] != neck[0][0]:
+            roles["neck"] = neck[0][0]
+        if self.tail_pt >= 0:
+            t = int(self.owner[self.tail_pt])
+            base = self.lca(hips, t)
+            chain = self.path(base, t)
+            if chain:
+                roles["tail"] = chain[0]
+        front = self.pos[chest] - self.pos[hips]
+        front = np.array([front[0], front[1], 0.0]) / np.linalg.norm(front[:2])
+        left = np.cross(UP, front)
+        for end, girdle in (("front", chest), ("hind", hips)):
+            legs = [self._leg(girdle, p, end) for p in self.legs[end]]
+            side = [float(np.mean([self.pos[j] for j in r.values()], axis=0) @ left) for r in legs]
+            order = ("left", "right") if side[0] >= side[1] else ("right", "left")
+            for s, r in zip(order, legs):
+                roles.update({f"{s}_{end}_{k}": j for k, j in r.items()})
+        return {r: roles[r] for r in QUADRUPED_ROLES if r in roles}
+
+    def _leg(self, girdle: int, paw: int, end: str) -> dict[str, int]:
+        """Roles of one leg, read from the paw up (see the module docstring)."""
+        chain = self.path(girdle, int(self.owner[paw]))
+        if chain and not self.is_end[paw] and not self.kids[chain[-1]]:
+            chain = chain[:-1]  # a childless tip joint ends the last bone; it starts none
+        g = self.groups(chain)
+        if len(g) < 3:
+            raise InputError(f"a {end} leg has {len(g)} joints below the girdle; a leg needs at least "
+                             f"three (upper, lower leg and foot)", self.where, field="roles")
+        names = ("upper_leg", "lower_leg", "foot")
+        leg_height = self.pos[g[0][0], 2] - self.floor
+        toe = len(g) >= 4 and self.pos[g[-1][0], 2] - self.floor <= TOE_HEIGHT * max(leg_height, 1e-9)
+        if toe:
+            names += ("toe",)
+        out = dict(zip(names, [grp[0] for grp in g[-len(names):]]))
+        if end == "front" and len(g) > len(names):
+            out["shoulder"] = g[-len(names) - 1][0]
+        return out
