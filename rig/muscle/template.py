@@ -9,7 +9,8 @@ shaping parameters and default jiggle parameters. The geometry is made again for
 by fitting and conforming to its skin, so one template serves characters of any shape.
 
 Labels are roles (:data:`rig.motion.retarget.ROLES`: ``hips``, ``spine``, ``chest``, ``left_upper_arm``,
-...), not joint names: a skeleton's role map (``rig.motion.role_map.resolve_roles``, from a joint map
+...; for four-legged templates :data:`rig.motion.body_plan.QUADRUPED_ROLES`: ``left_front_upper_leg``,
+``tail``, ...), not joint names: a skeleton's role map (``rig.motion.role_map.resolve_roles``, from a joint map
 preset, a user's joint map or the automatic one) turns them into joints, so one template serves
 naming schemes as different as CMU's and CesiumMan's. :func:`check_labels` says which labels a
 skeleton lacks.
@@ -68,6 +69,9 @@ Meaning of the fields (the bone frame is the one in the project's muscle contrac
 bone's start to its end, e_front the character's front made perpendicular, e_side = e_along x
 e_front; angles about the bone go from e_front toward e_side, degrees):
 
+- reference (per pair, TOML ``reference``, XML ``<partition reference=...>``) : "front" (default)
+  or "up": the world direction e_front is made from. A quadruped's spine, neck and tail point along
+  its front, so their pairs say "up": e_front is then the back (dorsal) side, e_side = e_along x up.
 - partition : the plane through the bone segment's centre that splits its region into the pair's
   two muscles; its normal is at this angle (0: normal along e_front, a front/back split). The
   ``upper`` muscle takes the side the normal points to, ``lower`` the other; ``single`` muscles
@@ -112,9 +116,14 @@ from defusedxml.ElementTree import DefusedXMLParser
 
 from rig.base.atomic import atomic_path
 from rig.base.errors import InputError, require_file
+from rig.motion.body_plan import QUADRUPED_ROLES
 from rig.motion.retarget import ROLES
 from rig.muscle.shell_params import ShellParams, check_params, default_shell
 
+LABELS = ROLES + tuple(r for r in QUADRUPED_ROLES if r not in ROLES)
+"""Template labels: the human roles (rig.motion.retarget.ROLES) and the quadruped ones
+(rig.motion.body_plan.QUADRUPED_ROLES)."""
+REFERENCES = ("front", "up")
 TYPES = ("upper", "lower", "single")
 KINDS = ("muscle", "fat", "multi_belly")
 POSITION_TYPES = ("relative", "absolute")
@@ -272,12 +281,15 @@ class BoneMusclePair:
     partition_deg : angle of the partition plane's normal about the bone, degrees from e_front
         toward e_side (0: front/back split); used by "upper"/"lower" muscles.
     muscles : the muscles on this bone.
+    reference : the world direction e_front is made from: "front" (the character's front) or "up"
+        (+Z: the back of a horizontal spine, neck or tail, whose bone points along the front).
     """
 
     parent: str
     child: str
     partition_deg: float = 0.0
     muscles: tuple[MuscleTemplate, ...] = ()
+    reference: str = "front"
 
     def __post_init__(self):
         object.__setattr__(self, "partition_deg", float(self.partition_deg))
@@ -373,8 +385,9 @@ class _Checker:
             self.fail(e.message, e.field or fld)
 
     def label(self, value, fld: str) -> None:
-        if value not in ROLES:
-            self.fail(f"unknown joint label {value!r}; template labels are roles: {', '.join(ROLES)}", fld)
+        if value not in LABELS:
+            self.fail(f"unknown joint label {value!r}; template labels are roles: human {', '.join(ROLES)}; "
+                      f"quadruped {', '.join(QUADRUPED_ROLES)}", fld)
 
 
 def validate_template(t: Template, path: str | None = None, lines: dict[str, int] | None = None) -> Template:
@@ -397,6 +410,7 @@ def validate_template(t: Template, path: str | None = None, lines: dict[str, int
         if p.parent == p.child:
             c.fail(f"a bone needs two different joints, got {p.parent!r} twice", f"{pf}.bone")
         c.number(p.partition_deg, f"{pf}.partition", -360, 360, unit=" degrees")
+        c.choice(p.reference, f"{pf}.reference", REFERENCES)
         if not p.muscles:
             c.fail("the pair has no muscles", f"{pf}.muscle")
         halves: dict[tuple[int, str], int] = {}
@@ -484,7 +498,7 @@ def check_labels(template: Template, roles: dict[str, int], joint_names=None) ->
     if not missing:
         return
     known = []
-    for role in sorted(roles, key=lambda r: ROLES.index(r) if r in ROLES else len(ROLES)):
+    for role in sorted(roles, key=lambda r: LABELS.index(r) if r in LABELS else len(LABELS)):
         j = roles[role]
         if joint_names is not None and 0 <= j < len(joint_names):
             known.append(f"{role} ({joint_names[j]})")
@@ -592,9 +606,10 @@ def template_from_toml(text: str, path: str | None = None) -> Template:
     pairs = []
     for i, pt in enumerate(doc["pair"]):
         pf = f"pair[{i}]"
-        keys(pt, pf, ("bone", "partition", "muscle"), required=("bone", "muscle"))
+        keys(pt, pf, ("bone", "partition", "reference", "muscle"), required=("bone", "muscle"))
         parent, child = pair_of(pt["bone"], f"{pf}.bone", string)
         partition = num(pt["partition"], f"{pf}.partition") if "partition" in pt else 0.0
+        reference = string(pt["reference"], f"{pf}.reference") if "reference" in pt else "front"
         if not isinstance(pt["muscle"], list):
             c.fail("expected an array of tables [[pair.muscle]]", f"{pf}.muscle")
         muscles = []
@@ -633,7 +648,7 @@ def template_from_toml(text: str, path: str | None = None) -> Template:
                          for k, v in mt["shell"].items()}
                 kw["shell"] = _shell_of(kw.get("kind", "muscle"), given, c, sf)
             muscles.append(MuscleTemplate(**kw))
-        pairs.append(BoneMusclePair(parent, child, partition, tuple(muscles)))
+        pairs.append(BoneMusclePair(parent, child, partition, tuple(muscles), reference))
     return validate_template(Template(name, tuple(pairs), source=path or ""), path)
 
 
@@ -660,7 +675,8 @@ def template_to_toml(t: Template) -> str:
              f"name = {_toml_str(t.name)}", ""]
     for p in t.pairs:
         lines += ["[[pair]]", f"bone = [{_toml_str(p.parent)}, {_toml_str(p.child)}]",
-                  f"partition = {_num_str(p.partition_deg)}", ""]
+                  f"partition = {_num_str(p.partition_deg)}"]
+        lines += [f"reference = {_toml_str(p.reference)}", ""] if p.reference != "front" else [""]
         for m in p.muscles:
             lines += ["[[pair.muscle]]", f"name = {_toml_str(m.name)}"]
             if m.pair_id is not None:
@@ -885,16 +901,18 @@ def template_from_xml(data: bytes | str, path: str | None = None) -> Template:
         if "bone" not in kids:
             c.fail("<boneMusclePair> needs a <bone>", f"{pf}.bone")
         parent, child = bone(kids["bone"][0], f"{pf}.bone")
-        partition = 0.0
+        partition, reference = 0.0, "front"
         if "partition" in kids:
             e = kids["partition"][0]
             f = at(e, f"{pf}.partition")
-            partition = num(attrs(e, f, ("angle",), required=("angle",))["angle"], f)
+            given = attrs(e, f, ("angle", "reference"), required=("angle",))
+            partition = num(given["angle"], f)
+            reference = given.get("reference", "front")
             children(e, f, ())
         if "muscle" not in kids:
             c.fail("<boneMusclePair> has no <muscle>", f"{pf}.muscle")
         muscles = tuple(muscle(e, f"{pf}.muscle[{j}]") for j, e in enumerate(kids["muscle"]))
-        return BoneMusclePair(parent, child, partition, muscles)
+        return BoneMusclePair(parent, child, partition, muscles, reference)
 
     if root.tag == "boneMusclePair":
         name, pairs = _stem(path), (pair(root, 0),)
@@ -920,7 +938,8 @@ def template_to_xml(t: Template) -> str:
         be = sub(pe, "bone")
         sub(be, "parentJoint").text = p.parent
         sub(be, "childJoint").text = p.child
-        sub(pe, "partition", angle=_num_str(p.partition_deg))
+        sub(pe, "partition", angle=_num_str(p.partition_deg),
+            **({"reference": p.reference} if p.reference != "front" else {}))
         for m in p.muscles:
             attrib = {} if m.pair_id is None else {"pairId": str(m.pair_id)}
             me = sub(pe, "muscle", attrib, type=m.type, kind=m.kind)

@@ -96,10 +96,18 @@ def mesh_options(g) -> None:
                    help="up axis of an OBJ/PLY/STL character (default: auto, the longer of y and z)")
 
 
-def map_options(g) -> None:
-    """Joint maps for retargeting a clip onto a character: --clip-map, --character-map (play and deform)."""
-    g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip (default: the built-in preset that fits, e.g. cmu)")
-    g.add_argument("--character-map", metavar="TOML|PRESET", help="joint map of the character (default: the built-in preset that fits, e.g. cesiumman)")
+def map_options(g, clip: bool = True, alias: bool = True) -> None:
+    """The joint maps, one name in every command: --character-map names the roles of the character's
+    joints, for the muscle template and for retargeting (--joint-map is its old name, kept unless
+    `alias` is False); --clip-map the clip's, for retargeting (when `clip`)."""
+    names = ("--character-map", "--joint-map") if alias else ("--character-map",)
+    g.add_argument(*names, dest="character_map", metavar="TOML|PRESET",
+                   help="joint map of the character: the roles of its joints, for the muscle template and for "
+                   "retargeting (default: the built-in preset that fits, e.g. cesiumman, else found from the "
+                   "skeleton's shape)" + ("; --joint-map is the same option" if alias else ""))
+    if clip:
+        g.add_argument("--clip-map", metavar="TOML|PRESET", help="joint map of the clip, for retargeting (default: "
+                       "the built-in preset that fits, e.g. cmu, else found from the skeleton's shape)")
 
 
 def bake_options(p: argparse.ArgumentParser, out: str) -> None:
@@ -151,12 +159,8 @@ def bake_options(p: argparse.ArgumentParser, out: str) -> None:
 
 def template_option(g) -> None:
     """--template: the muscle template that commands fitting muscles to a character take."""
-    g.add_argument("--template", metavar="T", help="muscle template: built-in name or .toml/.xml (default: human)")
-
-
-def joint_map_option(g) -> None:
-    """--joint-map: the joint map naming a template's roles on the character."""
-    g.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles")
+    g.add_argument("--template", metavar="T", help="muscle template: auto, a built-in name (human, quadruped) or "
+                   ".toml/.xml (default: auto: human or quadruped by the skeleton's body plan)")
 
 
 def muscle_skin_options(g) -> None:

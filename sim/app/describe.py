@@ -25,8 +25,31 @@ def describe_clip(clip: Clip) -> dict:
         "rest_height_m": round(float(np.ptp(pts[:, 2])), 4),
         "root_travel_m": round(float(np.linalg.norm(root[-1, :2] - root[0, :2])), 4),
         "root_height_range_m": [round(float(root[:, 2].min()), 4), round(float(root[:, 2].max()), 4)],
+        "body_plan": body_plan(clip),
         "meta": {k: v for k, v in clip.meta.items() if k not in ("units", "tpose", "format")},
     }
+
+
+def body_plan(clip: Clip) -> dict:
+    """The skeleton's body plan (rig.motion.body_plan) and the template `--template auto` picks for it."""
+    from rig.motion.body_plan import detect_body_plan
+    plan = detect_body_plan(clip)
+    return {**plan.to_json(), "template": plan.template or "none built in (give --template FILE)"}
+
+
+def unit_note(height: float) -> dict:
+    """What `--unit auto` makes of a character `height` file units tall (read as metres)."""
+    from rig.character.character import PLAUSIBLE_HEIGHT_M, UNIT_NAMES, UNITS, guess_unit
+    unit = guess_unit(height)
+    lo, hi = PLAUSIBLE_HEIGHT_M
+    if unit is not None:
+        return {"unit": f"probably {UNIT_NAMES[unit]}: {height:.4g} m is outside the plausible {lo:g}-{hi:g} m, "
+                        f"{height * UNITS[unit]:.4g} m in {UNIT_NAMES[unit]}; --unit auto (the default) reads it so, "
+                        f"--unit {unit} says it, --unit m keeps metres"}
+    if lo <= height <= hi:
+        return {"unit": "metres (the height is plausible)"}
+    return {"unit": f"unknown: {height:.4g} m is outside the plausible {lo:g}-{hi:g} m in any usual unit; "
+                    f"pass --unit with the file's metres per unit"}
 
 
 def describe_mesh(path: str) -> dict:
@@ -67,6 +90,11 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
     elif ext in (".glb", ".gltf"):
         from rig.motion.gltf_skeleton import describe_gltf
         out = {"kind": "character", **describe_gltf(p)}
+        if "height_m" in out:
+            out.update(unit_note(out["height_m"]))
+        if out.get("skins"):
+            from rig.motion.gltf_skeleton import read_gltf_skeleton
+            out["body_plan"] = body_plan(read_gltf_skeleton(p).to_clip())
         if out.get("animations"):
             out["clip"] = describe_clip(load_clip(p, animation=animation))
     elif ext in MESH_EXTENSIONS:

@@ -47,7 +47,8 @@ class BakeRequest:
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
-    method ("lbs"/"dqs"), joint_map, clip_map, character_map, skin, unit: as `jiggle simulate`; mush:
+    method ("lbs"/"dqs"), clip_map, character_map (the character's roles, for the template and for
+    retargeting), skin, unit: as `jiggle simulate`; mush:
     Delta Mush steps on the smooth skin (0: off).
     """
 
@@ -75,7 +76,6 @@ class BakeRequest:
     influences: int | None = None
     skinning: str | None = None
     method: str | None = None
-    joint_map: str | None = None
     clip_map: str | None = None
     character_map: str | None = None
     skin: int | None = None
@@ -216,7 +216,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
     from sim.jiggle.params import default_jiggles
     t = time.perf_counter()
     template = req.template or (spec.template if spec is not None else None) or "human"
-    mus = fit_musculature(character, template, FitOptions(joint_map=req.joint_map))
+    mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
@@ -267,7 +267,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
 
 def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
     """The thesis's simple arm (rig/muscle/simple_arm.py): its cylinder, biceps and fast flex."""
-    for name in ("clip", "character", "template", "drive", "joint_map", "clip_map", "character_map"):
+    for name in ("clip", "character", "template", "drive", "clip_map", "character_map"):
         if getattr(req, name) is not None:
             raise InputError(f"the built-in scene {scene.builtin!r} makes its own character and motion; "
                              f"drop --{name.replace('_', '-')}", field=f"--{name.replace('_', '-')}")

@@ -235,3 +235,16 @@ def test_deform_on_cesiumman_with_a_run_frame(capsys, tmp_path):
 def test_deform_bad_input_is_one_line_and_exit_2(capsys, tmp_path, argv, what):
     code, out, err = run(capsys, *argv, "--out", str(tmp_path))
     assert code == 2 and what in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("command", ["bake", "simulate", "deform", "morph"])
+def test_one_name_for_the_character_map(command):
+    """--character-map names the character's roles in every command (the template's and the
+    retargeting's); --joint-map, its old name, is the same option."""
+    from sim.app.cli import build_parser
+    p = build_parser()
+    extra = ["x.glb"] if command == "morph" else []
+    a = p.parse_args([command, *extra, "--character-map", "m.toml"])
+    b = p.parse_args([command, *extra, "--joint-map", "m.toml"])
+    assert a.character_map == b.character_map == "m.toml"
+    assert not hasattr(a, "joint_map")

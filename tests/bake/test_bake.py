@@ -208,8 +208,9 @@ def test_a_gltf_character_alone_bakes_its_own_animation(capsys, tmp_path):
 
 
 def test_a_centimetre_character_with_unit_cm_bakes_as_in_metres(capsys, tmp_path):
-    """CesiumMan written in centimetres (every length x 100) and baked with --unit cm lands where the
-    metre original does: the skeleton the clip is retargeted onto is scaled like the skin (before, the
+    """CesiumMan written in centimetres (every length x 100) and baked with --unit cm, or with --unit auto
+    (the default, which reads the height of 150 units as centimetres), lands where the metre original
+    does; inspect says the file is probably in centimetres: the skeleton the clip is retargeted onto is scaled like the skin (before, the
     skin was read in metres and its bones in centimetres: the posed skin was 130 m off)."""
     from dataclasses import replace
 
@@ -227,13 +228,20 @@ def test_a_centimetre_character_with_unit_cm_bakes_as_in_metres(capsys, tmp_path
     write_character(replace(c, vertices=c.vertices * 100.0, bind_world=bind_world, bind_matrices=bind_matrices,
                             skeleton=skeleton), cm)
     clip = str(asset("mocap/cmu_bvh/02_03.bvh"))
-    for name, extra in (("cm", ["--character", cm, "--unit", "cm"]), ("m", ["--character", path])):
+    for name, extra in (("cm", ["--character", cm, "--unit", "cm"]), ("m", ["--character", path]),
+                        ("auto", ["--character", cm])):
         code, _, err = run(capsys, "bake", "--clip", clip, *extra, "--out", str(tmp_path / name), "--formats", "npz",
                            "--frames", "12")
         assert code == 0, err
-    a, b = read_npz(tmp_path / "cm" / "bake.npz"), read_npz(tmp_path / "m" / "bake.npz")
-    assert np.abs(a.skin_final - b.skin_final).max() < 1e-5
-    assert np.abs(a.skin_lbs - b.skin_lbs).max() < 1e-5
+        # --unit auto (the default) finds the centimetres from the height and says so
+        assert ("read in centimetres" in err) == (name == "auto"), err
+    b = read_npz(tmp_path / "m" / "bake.npz")
+    for name in ("cm", "auto"):
+        a = read_npz(tmp_path / name / "bake.npz")
+        assert np.abs(a.skin_final - b.skin_final).max() < 1e-5
+        assert np.abs(a.skin_lbs - b.skin_lbs).max() < 1e-5
+    code, out, err = run(capsys, "inspect", cm)
+    assert code == 0 and "height_m: 150.6" in out and "unit: probably centimetres" in out and "--unit cm" in out, out
 
 
 def test_jiggle_zero_stays_static(capsys, tmp_path):

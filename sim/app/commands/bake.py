@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import sys
 
-from sim.app.args import bake_options, clip_options, joint_map_option, map_options, template_option
+from sim.app.args import bake_options, clip_options, map_options, template_option
 from sim.app.loading import body_overrides
 
 
@@ -26,8 +26,8 @@ def bake_request(args):
         jiggle=args.jiggle, gravity=getattr(args, "gravity", None), preroll=getattr(args, "preroll", None),
         start=args.start, end=args.end, frames=args.frames, drive=args.drive,
         formats=formats, chunk=args.chunk, body=MappingProxyType(body), influences=args.influences,
-        skinning=args.skinning, method=args.method, joint_map=getattr(args, "joint_map", None),
-        clip_map=getattr(args, "clip_map", None), character_map=getattr(args, "character_map", None),
+        skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),
+        character_map=getattr(args, "character_map", None),
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None))
 
 
@@ -92,7 +92,6 @@ def add_parser(sub) -> None:
     template_option(p)
     bake_options(p, "out/bake")
     g = p.add_argument_group("character")
-    joint_map_option(g)
     map_options(g)
     g.add_argument("--skin", type=int, metavar="N", help="which skin of a glTF character (default: 0)")
     g.add_argument("--unit", metavar="UNIT", help="the character file's unit: auto, m, cm, mm, in, ft or metres per "

@@ -9,7 +9,6 @@ from rig.base.errors import InputError
 from sim.app.args import (
     clip_options,
     influences_option,
-    joint_map_option,
     map_options,
     mesh_options,
     muscle_skin_options,
@@ -46,7 +45,7 @@ def deform_pose(args):
         raise InputError(f"expected a time in [0, {clip.duration:.3f}] s of the clip, got {t}", field="--time")
     rot, tra = clip.sample(np.array([t]))
     world = transforms(*clip.world(rot, tra))[0]
-    mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.joint_map))
+    mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.character_map))
     pose = {"character": os.path.basename(args.character), "clip": os.path.basename(args.clip), "time_s": t}
     return character, mus, world, pose
 
@@ -93,7 +92,6 @@ def add_parser(sub) -> None:
     p.add_argument("--weights", metavar="NPZ", help="painted per-vertex muscle weights (default: "
                    "<character>.shell_weights.npz beside the character when present, else 1)")
     template_option(p)
-    joint_map_option(p)
     map_options(p)
     influences_option(p)
     p.add_argument("--out", default="out/deform", help="output folder (default: out/deform)")

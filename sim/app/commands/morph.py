@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 
 from rig.base.errors import InputError
-from sim.app.args import influences_option, non_negative, positive
+from sim.app.args import influences_option, map_options, non_negative, positive
 
 
 def run(args) -> int:
@@ -30,7 +30,7 @@ def run(args) -> int:
     features = FeatureOptions(spacing=args.spacing, insert=not args.snap_only)
     options = MorphOptions(template=args.template or "human", kernel=args.kernel, scale=args.rbf_scale,
                            band=args.band, marker_features=args.marker_features, features=features,
-                           joint_map=args.joint_map)
+                           joint_map=args.character_map)
     canon = prepare_canonical(character, options, source=args.canonical)
     if args.write_markers is not None:
         write_markers(args.write_markers, canon.markers.names, canon.markers.positions, source=args.canonical)
@@ -85,8 +85,7 @@ def add_parser(sub) -> None:
                    "(default: out/morph/target.glb)")
     p.add_argument("--no-render", action="store_true", help="skip the picture")
     p.add_argument("--template", metavar="T", help="muscle template of the canonical (default: human)")
-    p.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the canonical's roles "
-                   "(default: a built-in preset that fits, else found from the skeleton)")
+    map_options(p, clip=False)
     g = p.add_argument_group("skin interpolation")
     g.add_argument("--kernel", choices=["soliton", "gaussian", "multiquadric", "inverse_multiquadric"],
                    default="soliton", help="radial basis function (default: soliton e^(-r/s))")

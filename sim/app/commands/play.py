@@ -76,7 +76,7 @@ def run(args) -> int:
         raise InputError("--mjcf poses the user's model, whose bodies do not skin a character; add "
                          "--no-character", field="--mjcf")
     play_clip(clip, args.out, args.drive, args.poses, not args.no_render, fps=args.fps, mjcf=args.mjcf,
-          joint_map=args.joint_map, character=character, skinning=args.skinning)
+          joint_map=args.mjcf_map, character=character, skinning=args.skinning)
     return 0
 
 
@@ -101,13 +101,14 @@ def add_parser(sub) -> None:
     g.add_argument("--character", metavar="FILE", help="the character to skin: a skinned glTF/GLB (the clip is "
                    "retargeted onto its skeleton), or an OBJ/PLY/STL/unskinned glTF mesh standing in the clip's "
                    "rest pose (automatic weights). Default: a body generated around the clip's skeleton")
-    map_options(g)
+    map_options(g, alias=False)
     mesh_options(g)
     character_options(p)
     g = p.add_argument_group("your own MuJoCo model")
     g.add_argument("--mjcf", metavar="XML", help="drive this MJCF instead of the model built from the clip "
                    "(e.g. dm_control's humanoid_CMU.xml with a CMU AMC clip)")
-    g.add_argument("--joint-map", metavar="TOML", help="clip joint -> MJCF body names, a [joints] table "
-                   "(default: clip joints drive the bodies of the same name)")
+    g.add_argument("--mjcf-map", "--joint-map", dest="mjcf_map", metavar="TOML", help="clip joint -> MJCF body "
+                   "names, a [joints] table (default: clip joints drive the bodies of the same name; --joint-map is "
+                   "the old name)")
     clip_options(p)
     p.set_defaults(func=run)

@@ -11,7 +11,6 @@ from sim.app.args import (
     character_options,
     clip_options,
     count,
-    joint_map_option,
     map_options,
     mesh_options,
     muscle_skin_options,
@@ -78,7 +77,7 @@ def simulate_job(args) -> SimulateJob:
         clip = retarget_onto_character(clip, args, character)
     else:
         character = generated_character(clip, args)
-    mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.joint_map))
+    mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.character_map))
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
@@ -203,7 +202,6 @@ def add_parser(sub) -> None:
                    "the most)")
     muscle_skin_options(g)
     g = p.add_argument_group("character")
-    joint_map_option(g)
     map_options(g)
     mesh_options(g)
     character_options(p)
