@@ -327,24 +327,6 @@ def foot_clearance(clip: Clip, character: CharacterSkeleton, character_map: Join
     return out
 
 
-def joint_map_for(given, joint_names, option, owner):
-    """The JointMap `given` (a TOML path or preset name, checked against joint_names), else the first
-    built-in preset that fits; InputError naming `option` when none does."""
-    if given is not None:
-        jm = JointMap.load(given)
-        jm.resolve(joint_names, owner)
-        return jm
-    for name in presets():
-        jm = JointMap.load(name)
-        try:
-            jm.resolve(joint_names, owner)
-            return jm
-        except InputError:
-            continue
-    raise InputError(f"no built-in joint map ({', '.join(presets())}) fits the skeleton of {owner}; "
-                     f"write one (see rig/motion/retarget.py) and pass it with {option}", field=option)
-
-
 def same_skeleton(clip: Clip, character: CharacterSkeleton) -> np.ndarray | None:
     """(J,) index into the clip's joints of each of the character's joints when the clip moves the
     character's own skeleton (every joint there by name, with the same parent), else None."""
@@ -380,24 +362,3 @@ def scaled_skeleton(character: CharacterSkeleton, scale: float) -> CharacterSkel
     bind[:, :3, 3] *= scale
     return replace(character, bind_world=bind, bind_translations=character.bind_translations * scale,
                    rest_translations=character.rest_translations * scale)
-
-
-def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print, scale=1.0):
-    """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given or the built-in presets).
-    A clip of the character's own skeleton (the same joints by name and parent, e.g. the character's
-    own animation, or another file exported from its rig) needs no map: it is taken as it is.
-    scale : metres per unit of the character file (rig.character.character.unit_scale of its --unit),
-        as the character is read with: the skeleton the clip lands on is scaled alike, so the skin and
-        its bones agree."""
-    from rig.motion.gltf_skeleton import read_gltf_skeleton
-    character = scaled_skeleton(read_gltf_skeleton(character_file, skin), scale)
-    if clip_map is None and character_map is None:
-        idx = same_skeleton(clip, character)
-        if idx is not None:
-            log(f"{clip.name!r} moves the skeleton of {os.path.basename(character_file)}: no retargeting")
-            return identity(clip, idx, character.parents, scale)
-    cmap = joint_map_for(clip_map, clip.joint_names, "--clip-map", clip.source or clip.name)
-    chmap = joint_map_for(character_map, character.joint_names, "--character-map", character_file)
-    out = retarget(clip, cmap, character, chmap)
-    log(f"retargeted {clip.name!r} ({cmap.name} map) onto {os.path.basename(character_file)} ({chmap.name} map)")
-    return out

@@ -16,7 +16,7 @@ def load_clip(args):
 
 def retarget_onto_character(clip, args, character):
     """`clip` on the skeleton of the skinned glTF `args.character`, read as `character` (its unit)."""
-    from rig.motion.retarget import retarget_onto
+    from rig.motion.retarget_onto import retarget_onto
     return retarget_onto(clip, args.character, args.skin, args.clip_map, args.character_map, print,
                          scale=character.meta.get("unit_scale", 1.0))
 

@@ -197,7 +197,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
         raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
                          f"the character {os.path.basename(character_file)} has its own", field="--character")
     if character_file is not None:
-        from rig.motion.retarget import retarget_onto
+        from rig.motion.retarget_onto import retarget_onto
         character = load_character(character_file, k=pick("influences", 4), unit=pick("unit", None),
                                    skin=pick("skin", 0))
         clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log,

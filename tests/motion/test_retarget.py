@@ -129,7 +129,8 @@ def test_the_characters_own_skeleton_needs_no_map():
     """A clip of the character's own skeleton (here its own animation) is taken as it is, with no map
     and no retargeting: the same joints, the same local motion; a clip of another skeleton
     still goes through the maps."""
-    from rig.motion.retarget import retarget_onto, same_skeleton
+    from rig.motion.retarget import same_skeleton
+    from rig.motion.retarget_onto import retarget_onto
     path = asset("characters/CesiumMan.glb")
     walk = read_gltf_animation(path)
     said = []
@@ -140,6 +141,25 @@ def test_the_characters_own_skeleton_needs_no_map():
     np.testing.assert_array_equal(out.translations, walk.translations)
     run = read_bvh(asset("mocap/cmu_bvh/02_03.bvh"))
     assert same_skeleton(run, read_gltf_skeleton(path)) is None
+
+
+def test_a_skeleton_no_preset_fits_is_mapped_by_its_shape():
+    """RiggedFigure's joint names match no preset: its roles are found from its shape and the CMU run
+    lands on it with the feet on its floor and the thighs following the clip's."""
+    from rig.motion.retarget_onto import joint_map_for, retarget_onto
+    path = str(asset("characters/RiggedFigure.glb"))
+    character = read_gltf_skeleton(path)
+    said = []
+    jm = joint_map_for(None, character.to_clip(), "--character-map", path)
+    assert jm.name == "found from the shape" and {"hips", "left_upper_leg", "right_foot"} <= set(jm.roles)
+    run = read_bvh(asset("mocap/cmu_bvh/02_03.bvh"))
+    out = retarget_onto(run, path, log=said.append)
+    assert "found from the shape" in said[0]
+    _, pos = out.world()
+    feet = [character.joint_names.index(jm.roles[f"{s}_foot"][0]) for s in ("left", "right")]
+    low = pos[:, feet, 2].min(axis=1)  # the lower ankle per frame
+    rest = character.bind_positions[feet, 2].min()
+    assert np.abs(low - rest).min() < 0.02 and low.max() < rest + 0.3 * np.ptp(character.bind_positions[:, 2])
 
 
 def test_turning_the_clip_turns_the_character(run):
