@@ -123,10 +123,14 @@ def test_play_retargeted_onto_a_character(capsys, tmp_path):
     assert data["joint_world"].shape == (61, 19, 4, 4)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["character"]["weights"] == "file" and summary["character"]["vertices"] == 3273
-    # no preset fits RiggedFigure: say which option to use, exit 2
+    # no preset fits RiggedFigure: its roles are found from its shape
+    code, out, err = run(capsys, "play", clip, "--character", str(asset("characters/RiggedFigure.glb")),
+                         "--out", str(tmp_path), "--no-render", "--end", "0.2")
+    assert code == 0 and "found from the shape map" in out, err
+    # a map file that does not exist names the option
     code, _, err = run(capsys, "play", clip, "--character", str(asset("characters/RiggedFigure.glb")),
-                       "--out", str(tmp_path), "--no-render")
-    assert code == 2 and "--character-map" in err
+                       "--character-map", str(tmp_path / "none.toml"), "--out", str(tmp_path), "--no-render")
+    assert code == 2 and "none.toml" in err, err
 
 
 def test_play_drives_a_user_mjcf(capsys, tmp_path):
