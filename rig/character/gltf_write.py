@@ -22,6 +22,16 @@ Readings, each the inverse of the reader's (rig.motion.gltf_io, rig.motion.gltf_
   influences padded with weight 0 and joint 0; rows renormalised to sum 1 in float32.
 - Precision: vertex data and inverse bind matrices are float32 as the spec requires (about 1e-7 m
   on a human-sized body); node transforms are float64 JSON numbers, exact.
+- Animations (optional, ``animations={name: Clip}``): one glTF animation per clip, each joint node
+  getting a rotation channel and, where its translation moves or differs from the bind pose's, a
+  translation channel; LINEAR samplers with one key per clip frame at ``frame / fps`` seconds (float32,
+  as the spec requires). The clip must be on the character's own skeleton (the same joint names,
+  parents and order). Key values are the node-local transforms that make each joint's world
+  transform the clip's (``Clip.world``), with the same axis change on the roots as the nodes, so that
+  skinning the file's nodes at a key's time gives `Character.pose` of the clip's frame; reading the
+  animation back (rig.motion.gltf_anim) gives the clip's world transforms to float32 precision.
+  Rotation keys are kept on one hemisphere from key to key, so the reader's shortest-arc slerp
+  follows the clip.
 - Material: copied from `source` (the glTF the character came from) when its skinned mesh has a
   material with a base colour texture: the material's core fields, its textures (texture
   coordinate set 0 only, since only TEXCOORD_0 is written), samplers and image bytes, embedded.
@@ -60,7 +70,7 @@ _MATERIAL_TEXTURES = ("normalTexture", "occlusionTexture", "emissiveTexture")
 
 
 def write_character(character, path: str | os.PathLike, *, source: str | os.PathLike | None = None,
-                    name: str | None = None, extras: dict | None = None) -> str:
+                    name: str | None = None, extras: dict | None = None, animations: dict | None = None) -> str:
     """Write `character` (rig.character.character.Character, Z-up metres) as a skinned glTF 2.0 file.
 
     Parameters
@@ -74,6 +84,9 @@ def write_character(character, path: str | os.PathLike, *, source: str | os.Path
     extras : JSON-serialisable provenance stored as ``asset.extras`` (e.g.
         {"jiggle": {"morphed_from": "CesiumMan.glb"}}); default {"jiggle": {"from": <source file
         name>}} when the character has a source.
+    animations : {name: rig.motion.clip.Clip} written as named glTF animations (module docstring);
+        each clip must have the character's joint names and parents in the same order (InputError
+        naming the animation otherwise).
 
     Returns the path written. InputError for an unknown extension, a missing folder, NaN or infinite
     values (naming the field), or indices out of range.
@@ -100,7 +113,8 @@ def write_character(character, path: str | os.PathLike, *, source: str | os.Path
         except (TypeError, ValueError) as e:
             raise InputError(f"extras must be JSON-serialisable with finite numbers ({e})", p, field="extras") \
                 from None
-    doc, blob = _document(character, arrays, material, name, extras)
+    anims = {str(k): _animation_arrays(character, clip, p, str(k)) for k, clip in (animations or {}).items()}
+    doc, blob = _document(character, arrays, material, name, extras, anims)
     with atomic_path(p) as tmp:
         if ext == ".glb":
             data = _glb(doc, blob)
@@ -223,7 +237,35 @@ class _Buffer:
         return b"".join(self.parts)
 
 
-def _document(c, a: dict, material: dict | None, name: str, extras: dict | None) -> tuple[dict, bytes]:
+def _animation_arrays(c, clip, path: str, name: str) -> dict:
+    """Key times (T,) float32 seconds, node rotations (T, J, 4) x,y,z,w and translations (T, J, 3)
+    (glTF Y-up on the roots) of `clip` on character `c`, and which joints need a translation channel."""
+    from rig.motion.clip import Clip
+    if not isinstance(clip, Clip):
+        raise InputError(f"animation {name!r} must be a Clip, got {type(clip).__name__}", path, field="animations")
+    if tuple(clip.joint_names) != tuple(c.joint_names) or not np.array_equal(clip.parents, c.parents):
+        raise InputError(f"animation {name!r} is not on the character's skeleton: its joints must be the "
+                         f"character's {c.num_joints} joints ({', '.join(c.joint_names[:4])}, ...) with the same "
+                         f"parents in the same order; retarget it onto the character first", path,
+                         field="animations")
+    if not np.all(np.isfinite(clip.rotations)) or not np.all(np.isfinite(clip.translations)):
+        raise InputError(f"animation {name!r} holds NaN or infinite values", path, field="animations")
+    world_r, world_p = clip.world()
+    T, J = world_r.shape[:2]
+    rot = np.empty((T, J, 4))
+    tra = np.empty((T, J, 3))
+    for t in range(T):
+        rot[t], tra[t] = local_from_world(clip.parents, world_r[t], world_p[t])
+    roots = np.asarray(c.parents) < 0
+    rot[:, roots] = quat.mul(quat.conj(Y_TO_Z_UP), rot[:, roots])
+    tra[:, roots] = tra[:, roots] @ _Y_UP[:3, :3].T
+    rot = quat.make_continuous(quat.normalize(rot), axis=0)
+    return {"times": (np.arange(T) / clip.fps).astype(np.float32), "rotations": quat.to_xyzw(rot),
+            "translations": tra}
+
+
+def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
+              animations: dict | None = None) -> tuple[dict, bytes]:
     buf = _Buffer()
     accessors: list[dict] = []
 
@@ -232,8 +274,8 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None)
         acc = {"bufferView": buf.view(arr.astype(arr.dtype.newbyteorder("<")).tobytes(), target),
                "componentType": ctype, "count": int(len(arr)), "type": kind}
         if bounds:
-            acc["min"] = arr.min(0).tolist()
-            acc["max"] = arr.max(0).tolist()
+            acc["min"] = np.atleast_1d(arr.min(0)).tolist()   # a list even for SCALAR accessors
+            acc["max"] = np.atleast_1d(arr.max(0)).tolist()
         accessors.append(acc)
         return len(accessors) - 1
 
@@ -290,13 +332,27 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None)
                                                    "material": 0}]}],
         "materials": [mat],
         "skins": [skin],
-        "accessors": accessors,
-        "bufferViews": buf.views,
-        "buffers": [{"byteLength": buf.size}],
     })
+    anims = []
+    for aname, an in (animations or {}).items():
+        samplers, channels = [], []
+        times = accessor(an["times"], _FLOAT, "SCALAR", None, bounds=True)
+        for j in range(J):
+            for kind, values in (("rotation", an["rotations"][:, j]), ("translation", an["translations"][:, j])):
+                # a translation that stays at the node's own (the bind pose's) needs no channel
+                if kind == "translation" and np.abs(values - a["translations"][j]).max() <= 1e-9:
+                    continue
+                data = values.astype(np.float32)
+                samplers.append({"input": times, "output": accessor(data, _FLOAT, "VEC4" if kind == "rotation"
+                                                                    else "VEC3", None), "interpolation": "LINEAR"})
+                channels.append({"sampler": len(samplers) - 1, "target": {"node": j, "path": kind}})
+        anims.append({"name": aname, "channels": channels, "samplers": samplers})
+    if anims:
+        doc["animations"] = anims
+    doc.update({"accessors": accessors, "bufferViews": buf.views, "buffers": [{"byteLength": buf.size}]})
     # keep the usual top-level order for a human reader
     order = ["asset", "scene", "scenes", "nodes", "meshes", "materials", "textures", "images", "samplers", "skins",
-             "accessors", "bufferViews", "buffers"]
+             "animations", "accessors", "bufferViews", "buffers"]
     return {k: doc[k] for k in order if k in doc}, buf.bytes()
 
 
@@ -314,7 +370,8 @@ def _verify(path: str, doc: dict) -> None:
     import pygltflib
     g = pygltflib.GLTF2().load(path)
     ok = (g is not None and len(g.nodes) == len(doc["nodes"]) and len(g.accessors) == len(doc["accessors"])
-          and len(g.skins) == 1 and g.buffers[0].byteLength == doc["buffers"][0]["byteLength"])
+          and len(g.skins) == 1 and g.buffers[0].byteLength == doc["buffers"][0]["byteLength"]
+          and len(g.animations or []) == len(doc.get("animations", [])))
     if ok and path.lower().endswith(".glb"):
         ok = len(g.binary_blob() or b"") >= doc["buffers"][0]["byteLength"]
     if not ok:

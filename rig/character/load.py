@@ -3,7 +3,8 @@ body generated around a skeleton.
 
 :func:`load_character` reads a skinned .glb/.gltf (rig/character/gltf_character.py) or an unskinned
 mesh (rig/character/mesh_io.py) that gets bone-heat weights (:func:`auto_weighted`) from a skeleton
-file (:func:`load_skeleton`); :func:`body_character` wraps rig/character/body.py's generated body.
+file (:func:`load_skeleton`); :func:`body_character` wraps the generated body: rig/character/body.py's
+for a biped (or any skeleton), rig/character/quadruped_body.py's for a four-legged one.
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from rig.character.character import Character, drop_degenerate_faces, end_sites,
 from rig.character.gltf_character import gltf_has_skin, read_gltf_character
 from rig.character.mesh_io import MESH_EXTENSIONS, read_mesh
 from rig.character.normals import vertex_normals
+from rig.character.quadruped_body import generate_quadruped_body, is_quadruped
 from rig.motion.clip import Clip, transforms
 from rig.motion.gltf_skeleton import read_gltf_skeleton
 from rig.motion.keyframes import read_keyframes
@@ -107,11 +109,12 @@ def auto_weighted(vertices: np.ndarray, faces: np.ndarray, clip: Clip, k: int = 
 
 
 def body_character(clip: Clip, options=None, k: int = 4) -> Character:
-    """A body generated around `clip`'s skeleton (rig.character.body) with automatic weights, bound in the pose
-    it was built in (`Body.bind`: the rest pose, hanging arms swung out); its fat volumes and how it
-    was made are in meta["body"]."""
+    """A body generated around `clip`'s skeleton (rig.character.body; rig.character.quadruped_body when the
+    skeleton is four-legged, rig.motion.body_plan) with automatic weights, bound in the pose it was built
+    in (`Body.bind`: the rest pose, a biped's hanging arms swung out); its fat volumes and how it was made
+    are in meta["body"]."""
     options = options or BodyOptions()
-    body = generate_body(clip, options)
+    body = generate_quadruped_body(clip, options) if is_quadruped(clip) else generate_body(clip, options)
     return auto_weighted(body.vertices, body.faces, body.bind, k=k, name=f"{clip.name} body" if clip.name else "body",
                          meta={"generated": True, "body": body, "body_options": options})
 

@@ -55,19 +55,25 @@ def test_scene_bakes_reduced(path, tmp_path):
 
 @pytest.mark.parametrize("path", MOTIONS, ids=lambda p: p.stem)
 def test_built_in_motion_is_smooth_loops_and_stays_above_the_floor(path):
+    """Every built-in motion stays above the floor and is smooth; a looping one (the jumping jacks)
+    closes its cycle; the gaits that travel (the quadruped's) are keyed cycle after cycle."""
     clip = read_keyframes(path)
     rot, pos = clip.world()
     ends = clip.end_world(rot, pos)
     lowest = np.concatenate([pos, ends], axis=1)[..., 2].min(axis=1)
     assert lowest.min() > -0.01  # toes may touch, not sink: 1 cm
-    # loops: the last frame is the first pose, and velocity is continuous across the seam
-    np.testing.assert_allclose(pos[-1], pos[0], atol=1e-9)
-    # C2 across the seam: its second difference is no larger than those inside the cycle
-    seam = np.abs(pos[1] - 2 * pos[0] + pos[-2]).max()
     inside = np.abs(pos[2:] - 2 * pos[1:-1] + pos[:-2]).max()
-    assert seam <= inside + 1e-9
-    # energetic: the hands travel (what jiggle needs to show)
-    assert np.ptp(pos[..., 2], axis=0).max() > 0.8
+    if clip.meta["loop"]:
+        # loops: the last frame is the first pose, and velocity is continuous across the seam
+        np.testing.assert_allclose(pos[-1], pos[0], atol=1e-9)
+        # C2 across the seam: its second difference is no larger than those inside the cycle
+        seam = np.abs(pos[1] - 2 * pos[0] + pos[-2]).max()
+        assert seam <= inside + 1e-9
+    else:
+        # smooth: no joint jumps; a trotting dog's paws swing at up to ~40 m/s^2, 100 is a jump
+        assert inside * clip.fps ** 2 < 100.0
+    # energetic: the hands (paws) travel, which is what jiggle needs to show
+    assert np.ptp(pos[..., 2], axis=0).max() > (0.8 if clip.meta["loop"] else 0.05)
 
 
 def test_keyframe_errors_name_the_field(tmp_path):
