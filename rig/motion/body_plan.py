@@ -17,7 +17,8 @@ Detection (:func:`detect_body_plan`), from the joint tree and the rest pose only
 
 Quadruped roles (:data:`QUADRUPED_ROLES`; a role names the joint at the start of its bone, as the
 human ones do): hips (hind girdle), spine (first joint after the hips towards the chest), chest
-(front girdle), neck and head (first and last joint towards the head top), tail (its first joint),
+(front girdle), neck and head (first and last joint towards the head top: a childless head joint, as
+glTF has them, is the head), tail (its first joint),
 and per leg ``<side>_<front|hind>_`` + shoulder (front only: a scapula joint above the shoulder),
 upper_leg (shoulder or hip joint), lower_leg (elbow or stifle), foot (carpus or hock), toe (the paw
 joint, when the chain's last joint sits within TOE_HEIGHT of the leg's height above the ground).
@@ -315,8 +316,7 @@ class _Plan(SkeletonTree):
         if not neck:
             raise InputError("cannot find the head below the chest (the front girdle) in the joint tree",
                              self.where, field="roles")
-        marker = not self.kids[last] and not self.has_end[last]  # a childless joint marks the tip, starts no bone
-        roles["head"] = neck[-2][0] if marker and len(neck) >= 2 else neck[-1][0]
+        roles["head"] = neck[-1][0]
         if roles["head"] != neck[0][0]:
             roles["neck"] = neck[0][0]
         if self.tail_pt >= 0:
@@ -338,10 +338,7 @@ class _Plan(SkeletonTree):
 
     def _leg(self, girdle: int, paw: int, end: str) -> dict[str, int]:
         """Roles of one leg, read from the paw up (see the module docstring)."""
-        chain = self.path(girdle, int(self.owner[paw]))
-        if chain and not self.is_end[paw] and not self.kids[chain[-1]]:
-            chain = chain[:-1]  # a childless tip joint ends the last bone; it starts none
-        g = self.groups(chain)
+        g = self.groups(self.path(girdle, int(self.owner[paw])))
         if len(g) < 3:
             raise InputError(f"a {end} leg has {len(g)} joints below the girdle; a leg needs at least "
                              f"three (upper, lower leg and foot)", self.where, field="roles")

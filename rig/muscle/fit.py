@@ -42,6 +42,8 @@ from rig.character.character import Character
 from rig.muscle.conform import ConformReport, conform
 from rig.muscle.ellipsoid import Ellipsoid, fit_ellipsoid, surface_moments
 
+UP = np.array([0.0, 0.0, 1.0])
+
 
 @dataclass(frozen=True)
 class FitOptions:
@@ -137,7 +139,7 @@ class Musculature:
     to (the character's, subdivided when coarse; FittedMuscle.region indexes its faces), muscles (tuple
     of FittedMuscle), rig (rig.muscle.model.MuscleRig,
     same order), skipped ((name, reason), ...) template muscles that could not be fitted, timings
-    {stage: seconds}.
+    {stage: seconds}, plan (rig.motion.body_plan.BodyPlan) the skeleton's body plan.
     """
 
     character: Character
@@ -150,6 +152,7 @@ class Musculature:
     rig: object
     skipped: tuple = ()
     timings: dict = field(default_factory=dict)
+    plan: object = None
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -187,14 +190,16 @@ class _Bone:
         return self.start + self.length * (xyz @ self.frame)
 
 
-def bone_frame(start: np.ndarray, end: np.ndarray, front: np.ndarray) -> np.ndarray:
-    """(3, 3) rows e_along, e_front, e_side of a bone at bind: e_front is the character's front made
-    perpendicular to the bone (world +Z when the bone points along the front), e_side = e_along x e_front."""
+def bone_frame(start: np.ndarray, end: np.ndarray, front: np.ndarray, fallback: np.ndarray | None = None
+               ) -> np.ndarray:
+    """(3, 3) rows e_along, e_front, e_side of a bone at bind: e_front is `front` (the character's front,
+    or up for a template pair whose reference is "up") made perpendicular to the bone, or `fallback`
+    (default world +Z) when the bone points along it; e_side = e_along x e_front."""
     along = end - start
     along = along / np.linalg.norm(along)
     f = front - (front @ along) * along
     if np.linalg.norm(f) < 0.2:
-        z = np.array([0.0, 0.0, 1.0])
+        z = np.array([0.0, 0.0, 1.0]) if fallback is None else np.asarray(fallback, float)
         f = z - (z @ along) * along
     f = f / np.linalg.norm(f)
     return np.stack([along, f, np.cross(along, f)])
@@ -220,9 +225,10 @@ def _collapsed_into(parents: np.ndarray, pos: np.ndarray, j: int) -> int:
     return j
 
 
-def fit_musculature(character: Character, template="human", options: FitOptions = FitOptions(), *,
+def fit_musculature(character: Character, template="auto", options: FitOptions = FitOptions(), *,
                     roles: dict | None = None, front: np.ndarray | None = None) -> Musculature:
-    """Fit `template` (a Template, a built-in name or a path) to `character`.
+    """Fit `template` (a Template, a built-in name or a path; "auto" or None: the built-in one of the
+    skeleton's body plan, rig.motion.body_plan.template_for) to `character`.
 
     roles : {role: joint index}; default: rig.motion.role_map.resolve_roles(character.skeleton, options.joint_map).
     front : (3,) the character's front; default: from the legs (rig.motion.role_map.facing).
@@ -233,6 +239,7 @@ def fit_musculature(character: Character, template="human", options: FitOptions 
     """
     import trimesh
 
+    from rig.motion.body_plan import detect_body_plan, template_for
     from rig.motion.role_map import facing, resolve_roles
     from rig.muscle.model import MuscleSpec, build_muscle_rig
     from rig.muscle.segmentation import segment_skin
@@ -240,9 +247,13 @@ def fit_musculature(character: Character, template="human", options: FitOptions 
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    plan = detect_body_plan(character.skeleton)
+    if not isinstance(template, Template) and template in (None, "auto"):
+        template, plan = template_for(character.skeleton, template)
     tpl = template if isinstance(template, Template) else load_template(template)
     roles = resolve_roles(character.skeleton, options.joint_map) if roles is None else dict(roles)
-    check_labels(tpl, roles, character.joint_names)
+    tpl = _without_optional(tpl, roles)
+    check_labels(tpl, roles, character.joint_names, plan)
     pos = character.bind_positions
     front = facing(pos, roles)[0] if front is None else np.asarray(front, float) / np.linalg.norm(front)
     seg = segment_skin(character, iterations=options.iterations, lam=options.lam, exclude=options.exclude,
@@ -283,7 +294,8 @@ def fit_musculature(character: Character, template="human", options: FitOptions 
         starts = chain[:-1] + [_collapsed_into(character.parents, pos, j) for j in chain[:-1]]
         on_chain = np.isin(segs.parent, starts) & np.isin(segs.child, chain[1:])
         bone = _Bone(label=label, parent=p_joint, child=c_joint, start=start, end=end,
-                     frame=bone_frame(start, end, front),
+                     frame=bone_frame(start, end, UP, front) if pair.reference == "up" else
+                     bone_frame(start, end, front),
                      faces=np.nonzero(np.isin(face_region, np.nonzero(on_chain)[0]))[0])
         for m in pair.muscles:
             plane = _plane(bone, pair, m)
@@ -315,7 +327,26 @@ def fit_musculature(character: Character, template="human", options: FitOptions 
     timings["muscle model"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     return Musculature(character=character, template=tpl, roles=roles, segmentation=seg, front=front,
-                       skin=(V, F, region), muscles=tuple(fitted), rig=rig, skipped=tuple(skipped), timings=timings)
+                       skin=(V, F, region), muscles=tuple(fitted), rig=rig, skipped=tuple(skipped), timings=timings,
+                       plan=plan)
+
+
+def _without_optional(tpl, roles: dict):
+    """`tpl` without the pairs that need a role the skeleton does not have when that role is optional
+    (rig.muscle.template.OPTIONAL_ROLES: a collar bone, a toe, a tail), each left out with a JiggleWarning."""
+    from dataclasses import replace
+
+    from rig.muscle.template import OPTIONAL_ROLES
+    keep = []
+    for pair in tpl.pairs:
+        labels = {pair.parent, pair.child} | {a for m in pair.muscles for a in pair.riding(m)}
+        gone = sorted(r for r in labels if r not in roles and r in OPTIONAL_ROLES)
+        if gone:
+            warnings.warn(f"muscles {', '.join(m.name for m in pair.muscles)} left out: the skeleton has no "
+                          f"{' or '.join(gone)}", JiggleWarning, stacklevel=3)
+        else:
+            keep.append(pair)
+    return replace(tpl, pairs=tuple(keep)) if len(keep) < len(tpl.pairs) else tpl
 
 
 def _dense_skin(vertices: np.ndarray, faces: np.ndarray, seg, min_vertices: int

@@ -116,13 +116,16 @@ from defusedxml.ElementTree import DefusedXMLParser
 
 from rig.base.atomic import atomic_path
 from rig.base.errors import InputError, require_file
-from rig.motion.body_plan import QUADRUPED_ROLES
-from rig.motion.retarget import ROLES
+from rig.motion.body_plan import QUADRUPED_REQUIRED, QUADRUPED_ROLES
+from rig.motion.retarget import REQUIRED, ROLES
 from rig.muscle.shell_params import ShellParams, check_params, default_shell
 
 LABELS = ROLES + tuple(r for r in QUADRUPED_ROLES if r not in ROLES)
 """Template labels: the human roles (rig.motion.retarget.ROLES) and the quadruped ones
 (rig.motion.body_plan.QUADRUPED_ROLES)."""
+OPTIONAL_ROLES = tuple(r for r in LABELS if r not in REQUIRED and r not in QUADRUPED_REQUIRED)
+"""Roles a skeleton may lack (a collar bone, a toe, a tail, a neck joint): a template pair that needs
+one the skeleton does not have is left out with a notice (rig.muscle.fit), not refused."""
 REFERENCES = ("front", "up")
 TYPES = ("upper", "lower", "single")
 KINDS = ("muscle", "fat", "multi_belly")
@@ -486,11 +489,12 @@ def validate_template(t: Template, path: str | None = None, lines: dict[str, int
     return t
 
 
-def check_labels(template: Template, roles: dict[str, int], joint_names=None) -> None:
+def check_labels(template: Template, roles: dict[str, int], joint_names=None, plan=None) -> None:
     """Raise InputError when `template` uses a label the skeleton's role map `roles` ({role: joint
     index}, from ``rig.motion.role_map.resolve_roles``) lacks. The message lists the missing labels with the
     first field naming each, and the known labels (the roles found, with their joints when
-    `joint_names` is given)."""
+    `joint_names` is given); with the skeleton's `plan` (rig.motion.body_plan.BodyPlan) it names the
+    template that fits it when this one is for another body plan."""
     missing: dict[str, str] = {}
     for fld, label in _label_uses(template):
         if label not in roles:
@@ -506,9 +510,12 @@ def check_labels(template: Template, roles: dict[str, int], joint_names=None) ->
             known.append(role)
     what = ", ".join(f"{label!r} (at {fld})" for label, fld in missing.items())
     first = next(iter(missing.values()))
+    hint = "give a joint map that names the missing roles"
+    if plan is not None and plan.template is not None and plan.template != template.name:
+        hint = (f"the skeleton is a {plan.kind} ({plan.reason}): its template is {plan.template!r}, which "
+                f"--template auto (the default) picks; or " + hint)
     raise InputError(f"the skeleton's role map has no joint for template label(s) {what}; known labels: "
-                     f"{', '.join(known) or 'none'} (give a joint map that names the missing roles)",
-                     template.source or None, field=first)
+                     f"{', '.join(known) or 'none'} ({hint})", template.source or None, field=first)
 
 
 # ----------------------------------------------------------------------------------- shared reading

@@ -17,7 +17,7 @@ Layout (paths relative to the scene file)::
     file = "${JIGGLE_ASSETS}/characters/CesiumMan.glb"   # a skinned glTF/GLB (the clip is retargeted)
     skin = 0                      # which skin of the glTF
     unit = "m"                    # the file's unit
-    template = "human"            # muscle template: built-in name or .toml/.xml (relative to the scene)
+    template = "auto"             # muscle template: auto (by body plan), a built-in name or .toml/.xml (relative)
     resolution = 20000            # generated body: vertex count; belly, chest, glutes, upper_arms:
     belly = 0.04                  #   metres of fat (rig.character.body.BodyOptions)
     influences = 4                # skin weights kept per vertex

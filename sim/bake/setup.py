@@ -215,8 +215,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
     from rig.skin.muscle_skin import MuscleSkin
     from sim.jiggle.params import default_jiggles
     t = time.perf_counter()
-    template = req.template or (spec.template if spec is not None else None) or "human"
+    template = req.template or (spec.template if spec is not None else None) or "auto"
     mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
+    if template == "auto":
+        template = mus.template.name
+    log(f"body plan: {mus.plan.kind} ({mus.plan.reason})")
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
@@ -252,6 +255,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
                       if character_file else {"generated": jsonable(body)}),
         "template": template if not os.path.isfile(str(template)) else
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
+        "body_plan": mus.plan.to_json(),
         "vertices": character.num_vertices,
         "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
         "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush},

@@ -77,6 +77,15 @@ def test_skeleton_reads_as_a_quadruped_with_its_named_roles(request, name):
     assert abs(ends[:, 2].min()) < 0.015                             # toe tips at the floor
 
 
+def test_the_skeleton_read_back_from_gltf_keeps_its_roles(built):
+    """glTF has no end sites: the head and the paws are childless joints, and still play their roles."""
+    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    clip = read_gltf_skeleton(built[1]).to_clip()
+    assert detect_body_plan(clip).kind == "quadruped" and len(clip.end_parents) == 0
+    roles = quadruped_roles(clip)
+    assert {r: clip.joint_names[j] for r, j in roles.items()} == {r: r for r in roles} and len(roles) == 24
+
+
 @pytest.mark.parametrize("gait", [WALK, TROT], ids=["walk", "trot"])
 def test_gait_moves_forward_and_plants_each_paw(request, gait):
     clip = request.getfixturevalue(gait.name.split("_")[1])

@@ -368,14 +368,22 @@ def test_unknown_labels_are_refused_with_the_known_ones(fits, tmp_path):
     msg = str(e.value)
     assert "tail.toml" in msg and "'left_tail'" in msg and "pair[0].bone" in msg
     assert "hips" in msg and "left_upper_arm" in msg           # the labels a template may use
-    # a role the template may use but this skeleton's role map lacks (CesiumMan has no clavicles)
+    # an optional role this skeleton lacks (CesiumMan has no clavicles): the pair is left out with a
+    # notice; a required one it lacks (a quadruped's leg on a human) is refused with the known labels
     shoulder = tmp_path / "shoulder.toml"
-    shoulder.write_text('[[pair]]\nbone = ["left_shoulder", "left_upper_arm"]\n[[pair.muscle]]\nname = "trap"\n')
+    shoulder.write_text('[[pair]]\nbone = ["left_shoulder", "left_upper_arm"]\n[[pair.muscle]]\nname = "trap"\n'
+                        '[[pair]]\nbone = ["left_upper_arm", "left_lower_arm"]\n[[pair.muscle]]\nname = "arm"\n')
+    with pytest.warns(JiggleWarning, match="muscles trap left out: the skeleton has no left_shoulder"):
+        mus = fit_musculature(c, shoulder)
+    assert mus.names == ("arm",)
+    leg = tmp_path / "leg.toml"
+    leg.write_text('[[pair]]\nbone = ["left_hind_upper_leg", "left_hind_lower_leg"]\n[[pair.muscle]]\nname = "q"\n')
     with pytest.raises(InputError) as e:
-        fit_musculature(c, shoulder)
+        fit_musculature(c, leg)
     msg = str(e.value)
-    assert "'left_shoulder'" in msg and "known labels:" in msg
+    assert "'left_hind_upper_leg'" in msg and "known labels:" in msg
     assert "hips (Skeleton_torso_joint_1)" in msg and "left_upper_arm (" in msg
+    assert "the skeleton is a biped" in msg and "'human'" in msg
 
 
 def test_parameters_out_of_range_are_refused():

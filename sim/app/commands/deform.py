@@ -45,7 +45,7 @@ def deform_pose(args):
         raise InputError(f"expected a time in [0, {clip.duration:.3f}] s of the clip, got {t}", field="--time")
     rot, tra = clip.sample(np.array([t]))
     world = transforms(*clip.world(rot, tra))[0]
-    mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.character_map))
+    mus = fit_musculature(character, args.template or "auto", FitOptions(joint_map=args.character_map))
     pose = {"character": os.path.basename(args.character), "clip": os.path.basename(args.clip), "time_s": t}
     return character, mus, world, pose
 

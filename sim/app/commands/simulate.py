@@ -77,7 +77,7 @@ def simulate_job(args) -> SimulateJob:
         clip = retarget_onto_character(clip, args, character)
     else:
         character = generated_character(clip, args)
-    mus = fit_musculature(character, args.template or "human", FitOptions(joint_map=args.character_map))
+    mus = fit_musculature(character, args.template or "auto", FitOptions(joint_map=args.character_map))
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
@@ -88,7 +88,7 @@ def simulate_job(args) -> SimulateJob:
         skin=lambda: MuscleSkin.from_musculature(mus, skinning=args.skinning, method=args.method, mush=args.mush,
                                                  character_path=args.character),
         source={"scene": scene.path if scene is not None else None, "clip": clip.source or args.clip,
-                "character": args.character or "generated body", "template": args.template or "human"})
+                "character": args.character or "generated body", "template": mus.template.name})
 
 
 def simulate_times(args, duration: float, fps: float):
