@@ -131,12 +131,13 @@ def test_unknown_muscle_in_scene_names_it_and_lists_the_rig(capsys, tmp_path):
 
 @pytest.mark.parametrize("argv, what", [
     (["--clip", "MISSING"], "missing.bvh: clip file not found"),
-    (["--character", "x.glb"], "--character: a CHARACTER needs a motion"),
+    (["--character", "x.obj"], "--character: a CHARACTER needs a motion"),
+    (["--character", "MISSING.glb"], "missing.bvh.glb"),
     (["--template", "human"], "--template"),
     (["--end", "9"], "--start/--end"),
 ])
 def test_bad_sources_exit_2(capsys, tmp_path, argv, what):
-    argv = [str(tmp_path / "missing.bvh") if a == "MISSING" else a for a in argv]
+    argv = [str(tmp_path / "missing.bvh") + a[7:] if a.startswith("MISSING") else a for a in argv]
     code, out, err = run(capsys, "simulate", *argv, "--no-render", "--out", str(tmp_path))
     assert code == 2 and what in err and "Traceback" not in err, err
 

@@ -54,10 +54,12 @@ def simulate_job(args) -> SimulateJob:
             raise InputError("give a SCENE or --clip, not both (the scene names its motion)", field="--clip")
         from sim.bake.scene import load_scene
         scene = load_scene(args.scene)
-    if scene is None and args.clip is None:
-        if args.character is not None:
+    if scene is None and args.clip is None and args.character is not None:
+        if not args.character.lower().endswith((".glb", ".gltf")):
             raise InputError("a CHARACTER needs a motion: --clip FILE (retargeted onto it) or a SCENE",
                              field="--character")
+        args.clip = args.character  # a glTF character alone plays its own animation (--animation)
+    if scene is None and args.clip is None:
         if args.template is not None:
             raise InputError("--template fits muscles to a character; the built-in simple arm has its own biceps",
                              field="--template")
