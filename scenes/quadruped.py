@@ -2,9 +2,9 @@
 ``scenes/motions/quadruped_walk.toml`` and ``quadruped_trot.toml``, a body generated around it with
 automatic weights, written to one .glb with both motions as glTF animations.
 
-:func:`write_gait_toml` writes the two motion files (``python -m scenes.quadruped [out.glb]`` writes
-them again, and the character when given a path); :func:`make_quadruped_gltf` builds the character
-from them and writes the .glb.
+:func:`write_gait_toml` writes the two motion files (``python -m scenes.quadruped --motions`` writes
+them again); :func:`make_quadruped_gltf` builds the character from them and writes the .glb
+(``python -m scenes.quadruped OUT.glb``).
 
 The gaits are keyed by inverse kinematics: each paw follows a stance/swing path (planted on the floor
 while in stance, lifted in a smooth arc while it swings forward) and the leg's joint angles are solved
@@ -255,10 +255,14 @@ def write_gait_toml(folder: str | os.PathLike = MOTIONS) -> list[Path]:
 
 
 if __name__ == "__main__":
-    # python -m scenes.quadruped [out.glb]: write the motion files again, and the character when asked
+    # python -m scenes.quadruped OUT.glb: the test dog with its walk and trot;
+    # python -m scenes.quadruped --motions: write the two motion files again from the gaits above
     import sys
-    for p in write_gait_toml():
-        print(p)
-    if len(sys.argv) > 1:
+    if sys.argv[1:] == ["--motions"]:
+        for p in write_gait_toml():
+            print(p)
+    elif len(sys.argv) == 2 and sys.argv[1].lower().endswith((".glb", ".gltf")):
         make_quadruped_gltf(sys.argv[1])
         print(sys.argv[1])
+    else:
+        sys.exit("usage: python -m scenes.quadruped OUT.glb | --motions")

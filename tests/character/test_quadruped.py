@@ -59,7 +59,7 @@ def winding_number(v: np.ndarray, f: np.ndarray, p: np.ndarray, chunk: int = 32)
 def test_motion_files_are_what_the_generator_writes(tmp_path):
     from scenes.quadruped import write_gait_toml
     for p in write_gait_toml(tmp_path):
-        assert p.read_text() == (MOTIONS / p.name).read_text(), f"{p.name}: run python -m scenes.quadruped"
+        assert p.read_text() == (MOTIONS / p.name).read_text(), f"{p.name}: run python -m scenes.quadruped --motions"
 
 
 @pytest.mark.parametrize("name", ["walk", "trot"])
