@@ -337,7 +337,8 @@ def assemble(setup: BakeSetup, out_dir: str) -> dict:
                     joint_names=setup.joint_names, joint_world=cat("joint_world"), muscle_names=tuple(rig.names),
                     muscle_cvs_static=cat("cvs_static"), muscle_cvs_dynamic=cat("cvs_dynamic"),
                     muscle_cv_offsets=rig.cv_offsets, muscle_faces=rig.surface_faces,
-                    params=json.dumps(setup.params, sort_keys=True, allow_nan=False))
+                    params=json.dumps(setup.params, sort_keys=True, allow_nan=False),
+                    **skin_parts(setup.character))
     files = cache_paths(out_dir, setup.formats)
     for fmt, path in files.items():
         if fmt == "npz":
@@ -348,6 +349,17 @@ def assemble(setup: BakeSetup, out_dir: str) -> dict:
         elif fmt == "pc2":
             write_pc2(data.skin_final, path, setup.fps, start_time=float(setup.times[0]))
     return files
+
+
+def skin_parts(character) -> dict:
+    """BakeData's part_names and part_offsets from the meshes a character was merged from
+    (Character.meta["parts"]: [(name, first vertex, vertex count), ...] in vertex order), or {}."""
+    parts = character.meta.get("parts")
+    if not parts:
+        return {}
+    names = tuple(str(p[0]) for p in parts)
+    offsets = np.array([int(p[1]) for p in parts] + [int(parts[-1][1]) + int(parts[-1][2])], np.int64)
+    return {"part_names": names, "part_offsets": offsets}
 
 
 def smooth_skin(setup: BakeSetup) -> np.ndarray | None:

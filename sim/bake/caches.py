@@ -21,6 +21,9 @@ skin_lbs               (T, V, 3) float32           the smooth skin underneath (L
                                                    metres; optional (bakes before it lack it)
 skin_rest              (V, 3) float32              the character's rest (bind) skin; metres; optional
 faces                  (F, 3) int32                skin triangles (indices into V)
+part_names             (P,) str                    the meshes the skin was merged from (a glTF's
+                                                   skinned meshes); optional
+part_offsets           (P + 1,) int64              part p owns vertices offsets[p]:offsets[p+1]; optional
 fps                    () float64                  output frames per second
 times                  (T,) float64                seconds from the clip's start, increasing
 joint_names            (J,) str                    the clip's own joint names
@@ -75,6 +78,8 @@ class BakeData:
     muscle_cv_offsets : (M + 1,) int64, muscle m owns CV rows offsets[m]:offsets[m + 1].
     muscle_faces : (F_m, 3) int32, one muscle's loft triangles (MuscleRig.surface_faces).
     params : the full parameter set as JSON text.
+    part_names, part_offsets : the meshes the skin was merged from, (P,) names and (P + 1,) int64
+        vertex offsets (part p owns vertices offsets[p]:offsets[p + 1], 0 to V), or None.
     """
 
     skin_static: np.ndarray
@@ -92,6 +97,8 @@ class BakeData:
     params: str
     skin_lbs: np.ndarray | None = None
     skin_rest: np.ndarray | None = None
+    part_names: tuple | None = None
+    part_offsets: np.ndarray | None = None
 
     def __post_init__(self):
         def put(name, value):
@@ -119,6 +126,15 @@ class BakeData:
             require_finite("skin_rest", self.skin_rest[None], "vertex")
         faces = array("faces", np.int32, 2)
         self._indices("faces", faces, V)
+        if (self.part_names is None) != (self.part_offsets is None):
+            raise InputError("part_names and part_offsets come together", field="part_names")
+        if self.part_names is not None:
+            put("part_names", self._names("part_names"))
+            po = array("part_offsets", np.int64, 1)
+            self._shape("part_offsets", po, (len(self.part_names) + 1,))
+            if po[0] != 0 or po[-1] != V or np.any(np.diff(po) < 0):
+                raise InputError(f"must run from 0 to {V} (the vertices) without decreasing, got {po.tolist()}",
+                                 field="part_offsets")
         try:
             fps = float(self.fps)
         except (TypeError, ValueError):
@@ -199,7 +215,7 @@ def require_finite(name: str, a: np.ndarray | None, item: str | None) -> None:
 
 # ---------------------------------------------------------------------------------------- npz
 _NPZ_KEYS = tuple(f.name for f in fields(BakeData))
-_OPTIONAL_KEYS = ("skin_lbs", "skin_rest")
+_OPTIONAL_KEYS = ("skin_lbs", "skin_rest", "part_names", "part_offsets")
 
 
 def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) -> None:
@@ -210,7 +226,7 @@ def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) ->
         value = getattr(data, name)
         if value is None:
             continue
-        if name in ("joint_names", "muscle_names"):
+        if name in ("joint_names", "muscle_names", "part_names"):
             value = np.array(value, dtype=str).reshape(-1)
         elif name in ("fps", "params"):
             value = np.array(value)
@@ -242,7 +258,9 @@ def read_npz(path: str | os.PathLike) -> BakeData:
     values = {k: stored[k] for k in _NPZ_KEYS if k in stored}
     values["fps"] = values["fps"].item() if values["fps"].shape == () else values["fps"]
     values["params"] = str(values["params"]) if values["params"].shape == () else values["params"]
-    for k in ("joint_names", "muscle_names"):
+    for k in ("joint_names", "muscle_names", "part_names"):
+        if k not in values:
+            continue
         if values[k].dtype.kind != "U":
             raise InputError(f"expected strings, got dtype {values[k].dtype}", path, field=k)
         values[k] = tuple(values[k].tolist())
@@ -330,7 +348,9 @@ def write_usd(data: BakeData, path: str | os.PathLike, muscle_points=None,
     The stage: metersPerUnit 1, upAxis Z, timeCodesPerSecond = framesPerSecond = data.fps, time
     code k = frame k (startTimeCode 0, endTimeCode T - 1; data.times[k] is that frame's time in
     the clip). Default prim /jiggle holds /jiggle/skin_static and /jiggle/skin_final, meshes
-    (subdivisionScheme none) with time-sampled points, area-weighted vertex normals and extent;
+    (subdivisionScheme none) with time-sampled points, area-weighted vertex normals and extent, and,
+    when the skin was merged from several meshes (data.part_names), one face GeomSubset per part
+    (family "part", named as the part, its name also in the subset's jiggle:name);
     with muscle_points, /jiggle/muscles/<name> meshes (triangles data.muscle_faces) likewise.
     The root layer's customLayerData holds jiggle:format and jiggle:params (the JSON text).
 
@@ -365,7 +385,9 @@ def write_usd(data: BakeData, path: str | os.PathLike, muscle_points=None,
     stage.SetDefaultPrim(root.GetPrim())
     stage.GetRootLayer().customLayerData = {"jiggle:format": FORMAT, "jiggle:params": data.params}
     for name in ("skin_static", "skin_final"):
-        _define_mesh(stage, f"/jiggle/{name}", getattr(data, name), data.faces)
+        mesh = _define_mesh(stage, f"/jiggle/{name}", getattr(data, name), data.faces)
+        if data.part_names is not None:
+            _part_subsets(mesh, data)
     if muscles is not None:
         UsdGeom.Scope.Define(stage, "/jiggle/muscles")
         used = set()
@@ -380,6 +402,24 @@ def write_usd(data: BakeData, path: str | os.PathLike, muscle_points=None,
                                            custom=True).Set(name)
     with _writing(path) as tmp:
         _export(stage.GetRootLayer(), tmp, fmt)
+
+
+def _part_subsets(mesh, data: BakeData) -> None:
+    """One face GeomSubset per part of the skin (family "part"): a face belongs to the part of its
+    first vertex (the reader never joins two meshes in one face)."""
+    from pxr import Sdf, Tf, UsdGeom, Vt
+    part = np.searchsorted(data.part_offsets, data.faces[:, 0], side="right") - 1
+    used = set()
+    for p, name in enumerate(data.part_names):
+        ident, k = Tf.MakeValidIdentifier(name), 1
+        base = ident
+        while ident in used:
+            ident, k = f"{base}_{k}", k + 1
+        used.add(ident)
+        faces = np.flatnonzero(part == p).astype(np.int32)
+        subset = UsdGeom.Subset.CreateGeomSubset(mesh, ident, UsdGeom.Tokens.face, Vt.IntArray.FromNumpy(faces),
+                                                 "part", UsdGeom.Tokens.partition)
+        subset.GetPrim().CreateAttribute("jiggle:name", Sdf.ValueTypeNames.String, custom=True).Set(name)
 
 
 def _usd_format(path: str, usda: bool | None) -> str:

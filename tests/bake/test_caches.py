@@ -237,3 +237,31 @@ def test_interrupted_overwrite_keeps_the_old_file(tmp_path, monkeypatch):
         write_pc2(old + 1, path, FPS)
     assert e.value.path == str(path)
     assert path.read_bytes() == before and leftovers(tmp_path) == ["skin.pc2"]
+
+
+def test_skin_parts_round_trip_and_name_usd_subsets(tmp_path):
+    """A skin merged from two meshes keeps their names: npz part_names/part_offsets, and one face
+    GeomSubset per part on both USD skin meshes (a face goes with its first vertex's part)."""
+    from pxr import Usd, UsdGeom
+    data = BakeData(**make_data(part_names=("Body mesh", "eyes"), part_offsets=[0, 1, 4]))
+    write_npz(data, tmp_path / "bake.npz")
+    back = read_npz(tmp_path / "bake.npz")
+    assert back.part_names == ("Body mesh", "eyes") and back.part_offsets.tolist() == [0, 1, 4]
+    write_usd(data, tmp_path / "bake.usda")
+    stage = Usd.Stage.Open(str(tmp_path / "bake.usda"))
+    for name in ("skin_static", "skin_final"):
+        subsets = UsdGeom.Subset.GetGeomSubsets(UsdGeom.Imageable(stage.GetPrimAtPath(f"/jiggle/{name}")),
+                                                UsdGeom.Tokens.face, "part")
+        got = {s.GetPrim().GetAttribute("jiggle:name").Get(): sorted(s.GetIndicesAttr().Get()) for s in subsets}
+        assert got == {"Body mesh": [0, 1, 2], "eyes": [3]}
+    # parts must cover the vertices in order, names and offsets together
+    for bad, field in ((dict(part_names=("a", "b"), part_offsets=[0, 2, 3]), "part_offsets"),
+                       (dict(part_names=("a", "b"), part_offsets=[0, 3, 2, 4]), "part_offsets"),
+                       (dict(part_names=("a",)), "part_names")):
+        with pytest.raises(InputError) as e:
+            BakeData(**make_data(**bad))
+        assert e.value.field == field
+    # a bake without parts writes neither key
+    write_npz(BakeData(**make_data()), tmp_path / "plain.npz")
+    with np.load(tmp_path / "plain.npz") as npz:
+        assert "part_names" not in npz.files
