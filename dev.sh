@@ -5,6 +5,9 @@
 #   ./dev.sh install                      install only
 # Installs, when missing: the system GL libraries for headless rendering (as root, or via sudo -n),
 # a virtual environment in .venv with jiggle and its test extras. Re-installs when pyproject.toml changes.
+# Also, when Python 3.11 is present and JIGGLE_BLENDER is not 0: Blender as a Python module (the extra
+# "blender" of pyproject.toml, for tests/character/test_blender.py) in its own environment .venv/blender,
+# because the bpy wheels pin numpy < 2; and the X11 client libraries bpy loads.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -12,6 +15,10 @@ say() { printf 'dev.sh: %s\n' "$*" >&2; }
 die() { say "$*"; exit 2; }
 
 SYSTEM_PKGS=(libegl1 libgl1-mesa-dri libopengl0)
+BLENDER_PKGS=(libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libsm6 libxxf86vm1 libgl1)
+
+want_blender() { [ "${JIGGLE_BLENDER:-1}" != 0 ] && command -v python3.11 >/dev/null 2>&1; }
+want_blender && SYSTEM_PKGS+=("${BLENDER_PKGS[@]}")
 
 pick_python() {
   for py in "${PYTHON:-}" python3.11 python3.12 python3.13 python3; do
@@ -67,6 +74,22 @@ install() {
     .venv/bin/python -m pip install -q --upgrade pip
     .venv/bin/python -m pip install -q -e '.[test]'
     echo "$hash" > "$stamp"
+  fi
+  want_blender && blender_env || true
+}
+
+# Blender (bpy) in .venv/blender: the requirement of the extra "blender", read from pyproject.toml.
+blender_env() {
+  local req stamp=.venv/blender/.jiggle-bpy
+  req=$(.venv/bin/python -c 'import tomllib; print(*tomllib.load(open("pyproject.toml", "rb"))["project"]["optional-dependencies"]["blender"], sep="\n")')
+  [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$req" ] && return 0
+  say "installing Blender as a Python module into .venv/blender (~375 MB; JIGGLE_BLENDER=0 skips it)"
+  [ -x .venv/blender/bin/python ] || python3.11 -m venv .venv/blender
+  local reqs; mapfile -t reqs <<< "$req"
+  if .venv/blender/bin/python -m pip install -q "${reqs[@]}"; then
+    echo "$req" > "$stamp"
+  else
+    say "bpy did not install; tests/character/test_blender.py will be skipped"
   fi
 }
 

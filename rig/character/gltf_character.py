@@ -6,8 +6,16 @@ the file has them. Mesh nodes that hang rigidly under a joint of the skin (a pro
 skin bound to that joint with weight 1. Other meshes are left out with a notice.
 
 Readings (see rig.motion.gltf_io for axes, joints and rigid frames):
-- Rest skin: each skinned primitive's POSITION placed by the skeleton's mesh placement
-  (`CharacterSkeleton.mesh_world`): Z-up metres, the bind pose.
+- Rest skin: each skinned primitive's POSITION placed by the skeleton's skin placement
+  (`CharacterSkeleton.mesh_world`, M; rig.motion.gltf_skeleton says how it is found): Z-up metres,
+  the bind pose. The skinned mesh node's own transform is ignored, as the spec says; the scale of an
+  armature above the skeleton (0.01 in a centimetre export) is folded in, so the skin comes out in
+  metres. Bind matrices are `CharacterSkeleton.bind_matrices`, so `Character.pose` with the joints'
+  rigid world transforms is the spec's skinning (sum_k w_k * G_k @ IBM_k @ v, turned Z-up).
+- Parts: ``meta["parts"]`` lists every merged primitive as ``[name, first vertex, vertex count]``
+  (JSON-able, in vertex order): the name is the node's (unique, rig.motion.gltf_io), with
+  ``.<primitive index>`` added when its mesh has several primitives. ``meta["unit_scale"]`` is the
+  extra unit applied on top (1 for a file in metres, as the spec says).
 - Weights: JOINTS_n / WEIGHTS_n sets 0, 1, ... concatenated, checked, then the top k kept and
   renormalised (see rig.character.character.clean_weights for what is an error and what a warning).
 - Triangles: modes 4 (triangles), 5 (strip) and 6 (fan); points and lines are skipped with a notice.
@@ -65,6 +73,23 @@ def _node_world(doc: GltfDocument, i: int) -> np.ndarray:
     return Z_UP @ world_chain(chain, loc)
 
 
+def _rigid_place(doc: GltfDocument, skel, t: int, i: int) -> np.ndarray:
+    """Rest placement of mesh node `i` hanging under tree joint `t`: the joint's bind matrix times its
+    scale c and the node transforms from the joint down to `i`, so that posing the joint rigidly moves
+    it as the spec's node hierarchy does (exact also when the bind pose is not the rest pose)."""
+    chain = []
+    k = i
+    while k != int(skel.nodes[t]):
+        chain.append(k)
+        k = int(doc.node_parent[k])
+    loc = {}
+    for k in chain:
+        tt, r, sc, m = doc.node_trs(k)
+        loc[k] = m if m is not None else trs_matrix(tt, r, sc)
+    c = np.diag([skel.joint_scale[t]] * 3 + [1.0])
+    return skel.bind_matrices[t] @ c @ world_chain(chain[::-1], loc)
+
+
 def _influence_sets(attrs) -> list[tuple[int, int]]:
     """(JOINTS_n, WEIGHTS_n) accessor pairs of a primitive, n = 0, 1, ..."""
     out, n = [], 0
@@ -99,7 +124,7 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
             tree_of_skin[sj] = t
     node_to_tree = {int(n): t for t, n in enumerate(skel.nodes)}
 
-    pos, nrm, uv, faces, jnt, wgt = [], [], [], [], [], []
+    pos, nrm, uv, faces, jnt, wgt, parts = [], [], [], [], [], [], []
     has_normals, has_uvs, offset = True, True, 0
     skipped = []
     used_meshes = set()
@@ -117,7 +142,7 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
             if nd.skin is not None or rigid_joint is None:
                 skipped.append(g.meshes[nd.mesh].name or f"mesh{nd.mesh}")
                 continue
-            place = _node_world(doc, ni)
+            place = _rigid_place(doc, skel, rigid_joint, ni)
         for pi, prim in enumerate(g.meshes[nd.mesh].primitives):
             what = f"meshes[{nd.mesh}].primitives[{pi}]"
             mode = 4 if prim.mode is None else prim.mode
@@ -148,6 +173,8 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
             else:
                 has_uvs = False
             faces.append(triangles(mode, idx) + offset)
+            several = len(g.meshes[nd.mesh].primitives) > 1
+            parts.append([doc.node_names[ni] + (f".{pi}" if several else ""), int(offset), int(nv)])
             if rigid_joint is not None:
                 jnt.append(np.full((nv, 1), rigid_joint))
                 wgt.append(np.ones((nv, 1)))
@@ -194,9 +221,7 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
     faces = drop_degenerate_faces(vertices, np.concatenate(faces), p)
     bind_world = skel.bind_world.copy()
     bind_world[:, :3, 3] *= s
-    bind_m = np.stack([skel.mesh_world @ np.linalg.inv(m) for m in skel.inverse_bind_matrices])
-    for t in np.nonzero(skel.skin_joint < 0)[0]:
-        bind_m[t] = skel.bind_world[t]
+    bind_m = np.array(skel.bind_matrices)
     bind_m[:, :3, 3] *= s
     joints, weights = clean_weights(raw_j, raw_w, skel.num_joints, vertices, bind_world[:, :3, 3], k, p,
                                     "JOINTS/WEIGHTS")
@@ -214,7 +239,7 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
         vertices=vertices, faces=faces, normals=normals, uvs=np.concatenate(uv) if has_uvs and uv else None,
         joint_names=skel.joint_names, parents=skel.parents, bind_world=bind_world, bind_matrices=bind_m,
         joints=joints, weights=weights, skeleton=_scaled_clip(skel.to_clip(), s), name=skel.name, source=p,
-        meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin)})
+        meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin), "parts": parts})
     check_height(character.height, p)
     return character
 

@@ -10,6 +10,15 @@ into a rigid clip are those of :mod:`rig.motion.gltf_skeleton`, whose docstring 
   the spec says: LINEAR (lerp; slerp on the shortest arc for rotations), STEP (the key at or before
   t), CUBICSPLINE (cubic Hermite with the in/out tangents multiplied by the key interval, rotations
   normalised afterwards). Before the first key a channel holds its first value, after the last its last.
+- Channels on nodes that are neither joints of the skin nor above them (a prop, a camera, another
+  character, the skinned mesh node, whose transform the spec ignores) do not move the skeleton: they
+  are ignored with a JiggleWarning naming them.
+- Scale, for a clip that poses a skin (`skin` given): every joint and node above the skeleton must
+  scale uniformly and positively at every frame (rig.motion.gltf_io), else InputError naming the node
+  and channel; an animated uniform scale moves the joints exactly but cannot scale the skin around a
+  rigid joint, which a JiggleWarning says. With ``skin=None`` (mocap only) any scale is read.
+- Key times must be finite, start at or after 0 and increase strictly (glTF 2.0 spec); anything else
+  is an InputError naming the sampler's input accessor.
 - Time: the clip starts at the earliest key of the animation (``meta["start_time"]`` keeps it: clip
   time t is animation time t + start_time) and ends at or just before the latest key.
 - Frame rate: `fps` if given. Otherwise, when the distinct key times of all channels together are
@@ -21,13 +30,22 @@ into a rigid clip are those of :mod:`rig.motion.gltf_skeleton`, whose docstring 
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 
-from rig.base.errors import InputError
+from rig.base.errors import InputError, JiggleWarning
 from rig.motion import quat
 from rig.motion.clip import Clip
-from rig.motion.gltf_io import Z_UP, GltfDocument, joint_tree, rigid_locals, trs_matrix
+from rig.motion.gltf_io import (
+    Z_UP,
+    GltfDocument,
+    check_uniform_scale,
+    joint_tree,
+    rigid_locals,
+    scale_problem,
+    trs_matrix,
+)
 
 _WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
 _INTERP = ("LINEAR", "STEP", "CUBICSPLINE")
@@ -130,8 +148,17 @@ def _channels(doc: GltfDocument, ai: int) -> list[tuple[int, str, str, np.ndarra
         if times.shape[1] != 1 or times.shape[0] == 0:
             raise InputError("key times must be a non-empty SCALAR accessor", doc.path, field=f"{sw}.input")
         times = times[:, 0]
-        if not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0):
-            raise InputError("key times must be finite and increasing", doc.path, field=f"{sw}.input")
+        acc = f"{sw}.input (accessors[{smp.input}])"
+        if not np.all(np.isfinite(times)):
+            k = int(np.nonzero(~np.isfinite(times))[0][0])
+            raise InputError(f"key time {k} is {times[k]}; key times must be finite seconds", doc.path, field=acc)
+        if times[0] < 0:
+            raise InputError(f"the first key time is {times[0]:g} s; glTF key times start at or after 0",
+                             doc.path, field=acc)
+        if np.any(np.diff(times) <= 0):
+            k = int(np.nonzero(np.diff(times) <= 0)[0][0])
+            raise InputError(f"key times must increase strictly (glTF 2.0 spec), but key {k + 1} is at "
+                             f"{times[k + 1]:g} s after key {k} at {times[k]:g} s", doc.path, field=acc)
         vals = doc.accessor(smp.output, f"{sw}.output")
         w = _WIDTH[tgt.path]
         per_key = 3 if interp == "CUBICSPLINE" else 1
@@ -163,6 +190,35 @@ def _frame_rate(channels) -> tuple[float, str]:
                 fps = float(round(fps))
             return fps, "key rate (evenly spaced keys)"
     return DEFAULT_FPS, f"default {DEFAULT_FPS:g} fps (keys not evenly spaced at >= {MIN_KEY_FPS:g} fps)"
+
+
+def _check_scales(doc: GltfDocument, ai: int, aname: str, nodes, trs: dict, times: np.ndarray) -> None:
+    """For a clip that poses a skin: InputError when a joint or a node above the skeleton scales
+    non-uniformly or negatively at some frame; JiggleWarning when an animation changes a uniform
+    scale (rigid joints cannot follow it: the skin keeps its rest scale around that joint)."""
+    chan = {(c.target.node, c.target.path): ci for ci, c in enumerate(doc.gltf.animations[ai].channels)
+            if c.target is not None}
+    changed = []
+    for nd in sorted(nodes):
+        d = trs[nd]
+        if d["matrix"] is not None or (nd, "scale") not in chan:
+            check_uniform_scale(doc, nd)
+            continue
+        sc = d["scale"]
+        bad = scale_problem(sc[:, None, :] * np.eye(3))
+        if bad is not None:
+            k = bad[1]
+            check_uniform_scale(doc, nd, sc[k:k + 1], when=f" at {times[k]:g} s",
+                                field=f'animations[{ai}].channels[{chan[nd, "scale"]}] (node {nd} '
+                                      f'"{doc.node_names[nd]}", animation {aname!r})')
+        rest = doc.node_trs(nd)[2]
+        if np.abs(sc - rest).max() > 1e-4 * max(float(np.abs(rest).max()), 1e-12):
+            changed.append(f"{doc.node_names[nd]!r} ({sc.min():.4g}..{sc.max():.4g})")
+    if changed:
+        warnings.warn(f"{doc.path}: animation {aname!r} scales {', '.join(changed[:6])}"
+                      f"{' and more' if len(changed) > 6 else ''}: jiggle's joints are rigid, so joint positions "
+                      f"follow the scale but the skin around those joints keeps its rest size", JiggleWarning,
+                      stacklevel=3)
 
 
 def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = None, fps: float | None = None,
@@ -223,11 +279,20 @@ def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = N
         t, r, s, m = doc.node_trs(nd)
         trs[nd] = {"translation": np.broadcast_to(t, (T, 3)).copy(), "rotation": np.broadcast_to(r, (T, 4)).copy(),
                    "scale": np.broadcast_to(s, (T, 3)).copy(), "matrix": m}
-    animated = set()
+    animated, outside = set(), {}
     for nd, path_, interp, kt, kv in channels:
         if nd in trs:
             trs[nd][path_] = sample_keys(kt, kv, interp, times, rotation=path_ == "rotation")
             animated.add(nd)
+        else:
+            outside.setdefault(doc.node_names[nd], []).append(path_)
+    if outside:
+        listed = ", ".join(f"{n!r} ({'/'.join(p)})" for n, p in list(outside.items())[:8])
+        more = f" and {len(outside) - 8} more" if len(outside) > 8 else ""
+        warnings.warn(f"{doc.path}: animation {aname!r} also drives {len(outside)} node(s) that are not joints of "
+                      f"skin {skin} nor above them, ignored: {listed}{more}", JiggleWarning, stacklevel=2)
+    if skin is not None and g.skins:
+        _check_scales(doc, ai, aname, needed, trs, times)
 
     def local(nd):
         d = trs[nd]

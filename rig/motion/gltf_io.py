@@ -15,10 +15,16 @@ Readings where glTF leaves a choice, stated once here:
   full glTF matrices (exact for any scale); its world *rotation* is the product of the node rotations
   from the root down (a ``matrix`` node contributes the rotation of its polar decomposition). A
   child's local translation is its world offset from the parent expressed in the parent's rigid
-  frame, so scale is folded into the children's translations. Under uniform scale both are exact;
-  under non-uniform scale joint positions stay exact but the shear the scale puts on a bone's frame
-  is dropped (the frame is the unscaled rotation), and bone lengths that change with the scale show
-  up as animated translations.
+  frame, so scale is folded into the children's translations. Under uniform positive scale this is
+  exact: the joint's full glTF world matrix is its rigid transform times a uniform scale c, which a
+  character folds into its bind matrices and rest skin (rig.motion.gltf_skeleton), so a centimetre
+  export whose armature node scales by 0.01 comes out in metres.
+- Scale a skeleton may carry: uniform and positive, on the joints and on every node above them
+  (:func:`check_uniform_scale`, relative tolerance ``SCALE_RTOL`` for float32 noise). Non-uniform,
+  negative (mirroring) or zero scale cannot be a rigid joint times a uniform scale, so skinning with
+  it would differ from the spec; readers of skins refuse it naming the node. A clip read without a
+  skin (``skin=None``, mocap only) keeps joint positions exact under any scale and drops the shear
+  from the bone frames.
 """
 from __future__ import annotations
 
@@ -268,6 +274,58 @@ class GltfDocument:
         g = self.gltf
         return (f"{len(g.scenes)} scene(s), {len(g.nodes)} node(s), {len(g.meshes)} mesh(es), "
                 f"{len(g.skins)} skin(s), {len(g.animations)} animation(s)")
+
+
+SCALE_RTOL = 1e-5
+"""Relative spread of a node's three scale factors still read as uniform (float32 exports write
+0.99999994 or 1.0000001 for 1)."""
+
+
+def scale_problem(linear: np.ndarray) -> tuple[str, int] | None:
+    """Why linear maps (..., 3, 3) are not all a rotation times a uniform positive scale, or None.
+    Returns (kind, index of the first offending map); kind is "zero", "negative" or "non-uniform"."""
+    lin = np.asarray(linear, dtype=float).reshape(-1, 3, 3)
+    det = np.linalg.det(lin)
+    cols = np.linalg.norm(lin, axis=-2)  # column lengths: the scale factors of T @ R @ S
+    for k in range(len(lin)):
+        c = np.cbrt(abs(det[k]))
+        if not c > 1e-12 * max(float(cols[k].max()), 1e-300):
+            return "zero", k
+        if det[k] < 0:
+            return "negative", k
+        if np.abs(lin[k].T @ lin[k] / (c * c) - np.eye(3)).max() > 2 * SCALE_RTOL:
+            return "non-uniform", k
+    return None
+
+
+def check_uniform_scale(doc: "GltfDocument", i: int, scales: np.ndarray | None = None,
+                        field: str | None = None, when: str = "") -> None:
+    """InputError naming node `i` unless its scale is uniform and positive.
+
+    scales : (T, 3) sampled scale factors of a TRS node (default its own `scale`); a `matrix` node is
+        checked on its linear part.
+    field : where to point (default ``nodes[i] "name"``); when : added to the message (e.g. a time).
+    """
+    nd = doc.gltf.nodes[i]
+    if nd.matrix is not None and scales is None:
+        lin = np.asarray(nd.matrix, dtype=float).reshape(4, 4).T[:3, :3][None]
+        what, shown = "matrix", np.linalg.norm(lin[0], axis=0) * np.sign(np.linalg.det(lin[0]) or 1.0)
+    else:
+        s = np.atleast_2d(np.ones(3) if scales is None and nd.scale is None else
+                          np.asarray(nd.scale if scales is None else scales, dtype=float))
+        lin, what, shown = s[:, None, :] * np.eye(3), "scale", None
+    bad = scale_problem(lin)
+    if bad is None:
+        return
+    kind, k = bad
+    if shown is None:
+        shown = s[k]
+    text = ", ".join(f"{v:.6g}" for v in shown)
+    label = "column lengths" if what == "matrix" else "scale"
+    raise InputError(f"{kind} {label} [{text}]{when} is not supported: joints and the nodes above a skeleton "
+                     f"must scale uniformly and positively to be posed as rigid joints (a mirror or a stretch "
+                     f"is not); apply the scale in the exporting tool (Blender: Object > Apply > Scale)",
+                     doc.path, field=field or f'nodes[{i}] "{doc.node_names[i]}"')
 
 
 def polar_rotation(m: np.ndarray) -> np.ndarray:

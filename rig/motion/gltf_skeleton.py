@@ -3,10 +3,29 @@
 The file is read with :mod:`rig.motion.gltf_io`, whose docstring states the readings of axes, joints
 and rigid frames. One more, for the bind pose:
 
-- Bind pose: the inverse of each joint's inverse bind matrix is its transform in the space of the
-  skinned mesh's vertices; the mesh sits in the world at the world transform of the first node that
-  uses the skin (identity if no node does), so bind world = that transform @ inverse(IBM). Nodes
-  added to close the tree (not in the skin) take their rest world transform as bind.
+- Skinning, as the spec says: a vertex v of the skinned mesh goes to
+  ``sum_k w_k * G_k(t) @ IBM_k @ v`` with G_k the joint's global transform through every node above
+  it (joints or not: an armature's scale and rotation count) and IBM_k its inverse bind matrix; the
+  transform of the skinned mesh's own node is ignored (spec 3.7.3.3).
+- Rigid joints: every joint and every node above it must scale uniformly and positively
+  (rig.motion.gltf_io.check_uniform_scale), so ``Z_UP @ G_k = W_k @ c_k`` with W_k rigid (the joint's
+  world, metres) and c_k the joint's accumulated uniform scale (0.01 under a centimetre armature).
+- Placement of the skin (`mesh_world`, M): the mesh space of the vertices is put in the world where
+  the skin stands when the skeleton is at its rest pose (node TRS): M = Z_UP @ G_r(rest) @ IBM_r for
+  the first skin joint r in tree order (the root joint). For a file bound in its rest pose (as
+  exporters write) every joint gives the same M, and the placement of the mesh node does not matter.
+  When that M is not a rotation times a uniform scale (inverse bind matrices that scale or shear
+  against the nodes, as jiggle writes for such a character), the world transform of the first node
+  using the skin is taken instead; so it is when the two agree within 1e-6 (the same placement,
+  without the rounding of the float32 inverse bind matrix). A joint scale within SCALE_RTOL of 1
+  (float32 noise) counts as 1.
+- Bind matrices: ``B_k = M @ inverse(IBM_k) / c_k`` (the 3x3 part divided by c_k), so that
+  ``W_k(t) @ inverse(B_k) @ (M @ v) = Z_UP @ G_k(t) @ IBM_k @ v``: posing the rest skin ``M @ v`` with
+  rigid joint transforms is the spec's skinning. The joints' bind world transforms are the rigid
+  parts of B_k (exact when the file is consistent, as every exporter writes it). Nodes added to close
+  the tree (not in the skin) take their rest world transform as bind.
+- Scale must not be animated: c_k is read in the rest pose (rig.motion.gltf_anim warns when an
+  animation changes it).
 """
 from __future__ import annotations
 
@@ -19,7 +38,18 @@ from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
 from rig.motion import quat
 from rig.motion.clip import Clip, joint_index, local_from_world
-from rig.motion.gltf_io import Z_UP, GltfDocument, joint_tree, polar_rotation, rigid_locals, trs_matrix, world_chain
+from rig.motion.gltf_io import (
+    SCALE_RTOL,
+    Z_UP,
+    GltfDocument,
+    check_uniform_scale,
+    joint_tree,
+    polar_rotation,
+    rigid_locals,
+    scale_problem,
+    trs_matrix,
+    world_chain,
+)
 
 
 # ---------------------------------------------------------------------------------- the skeleton
@@ -42,7 +72,11 @@ class CharacterSkeleton:
     rest_translations : (J, 3) float64 metres, local translation from the node TRS (scale folded in).
     inverse_bind_matrices : (J, 4, 4) float64, as stored in the file (glTF Y-up mesh space; identity for
         added nodes), kept for skinning.
-    mesh_world : (4, 4) float64, Z-up world transform of the skinned mesh's vertex space.
+    mesh_world : (4, 4) float64, M: Z-up placement of the skin's vertex space (module docstring); the
+        rest skin is ``M @ POSITION``, metres.
+    bind_matrices : (J, 4, 4) float64, B_k = M @ inverse(IBM_k) / c_k (module docstring): the transform
+        from each joint's space to the rest skin, metres; `bind_world` for added nodes.
+    joint_scale : (J,) float64, c_k: each joint's accumulated uniform scale in the rest pose.
     name, source : file stem and path.
     meta : the skin's index and name.
     """
@@ -58,6 +92,8 @@ class CharacterSkeleton:
     rest_translations: np.ndarray
     inverse_bind_matrices: np.ndarray
     mesh_world: np.ndarray
+    bind_matrices: np.ndarray
+    joint_scale: np.ndarray
     name: str = ""
     source: str = ""
     meta: dict = field(default_factory=dict)
@@ -69,7 +105,7 @@ class CharacterSkeleton:
         for k in ("nodes", "skin_joint"):
             set_(k, frozen_array(getattr(self, k), np.int64))
         for k in ("bind_world", "bind_rotations", "bind_translations", "rest_rotations", "rest_translations",
-                  "inverse_bind_matrices", "mesh_world"):
+                  "inverse_bind_matrices", "mesh_world", "bind_matrices", "joint_scale"):
             set_(k, frozen_array(getattr(self, k)))
 
     @property
@@ -135,6 +171,10 @@ def read_gltf_skeleton(path: str | os.PathLike, skin: int = 0) -> CharacterSkele
     else:
         ibm_skin = np.broadcast_to(np.eye(4), (len(sk.joints), 4, 4))  # spec: identity when absent
 
+    # Rigid joints: uniform positive scale on every joint and every node above the tree.
+    for n in dict.fromkeys(order + [a for j, n in enumerate(order) if parents[j] < 0 for a in doc.ancestors(n)]):
+        check_uniform_scale(doc, n)
+
     # Rest pose from the node TRS.
     trs = [doc.node_trs(n) for n in order]
     local_m = np.stack([m if m is not None else trs_matrix(t, r, s) for t, r, s, m in trs])[None]
@@ -145,31 +185,44 @@ def read_gltf_skeleton(path: str | os.PathLike, skin: int = 0) -> CharacterSkele
         above[0, j] = Z_UP @ world_chain(chain, {i: _local_matrix(doc, i) for i in chain}) \
             if parents[j] < 0 else np.eye(4)
     rest_rot, rest_tra, rest_world = rigid_locals(parents, above, local_m, local_r)
+    rest_world = rest_world[0]
+    scale = np.cbrt(np.linalg.det(rest_world[:, :3, :3]))  # c_k > 0 (checked above)
 
     # Bind pose from the inverse bind matrices.
-    mesh_world = _mesh_world(doc, skin)
     ibm = np.stack([ibm_skin[k] if k >= 0 else np.eye(4) for k in skin_joint])
-    bind_full = np.empty((J, 4, 4))
+    inv_ibm = np.empty((J, 4, 4))
     for j in range(J):
         if skin_joint[j] >= 0:
             try:
-                bind_full[j] = mesh_world @ np.linalg.inv(ibm[j])
+                inv_ibm[j] = np.linalg.inv(ibm[j])
             except np.linalg.LinAlgError:
                 raise InputError(f"inverse bind matrix of joint {doc.node_names[order[j]]!r} is singular",
                                  doc.path, field=f"skins[{skin}].inverseBindMatrices") from None
-        else:
-            bind_full[j] = rest_world[0, j]
+    root = int(np.nonzero(skin_joint >= 0)[0][0])
+    mesh_world = rest_world[root] @ ibm[root]
+    user_world = _mesh_world(doc, skin)
+    size = max(float(np.abs(mesh_world[:3, :3]).max()), 1e-12)
+    if scale_problem(mesh_world[:3, :3]) is not None or np.abs(user_world - mesh_world).max() <= 1e-6 * size:
+        mesh_world = user_world  # the fallback, or the same placement without the float32 IBM's rounding
+    scale = np.where(np.abs(scale - 1.0) <= SCALE_RTOL, 1.0, scale)  # float32 noise (0.99999994) is 1
+    unscale = np.ones((J, 4))
+    unscale[:, :3] = 1.0 / scale[:, None]
+    bind_full = np.empty((J, 4, 4))
+    for j in range(J):
+        bind_full[j] = (mesh_world @ inv_ibm[j] if skin_joint[j] >= 0 else rest_world[j]) * unscale[j]
     bind_r = polar_rotation(bind_full[:, :3, :3])
     bind_world = np.zeros((J, 4, 4))
     bind_world[:, :3, :3] = quat.to_matrix(bind_r)
     bind_world[:, :3, 3] = bind_full[:, :3, 3]
     bind_world[:, 3, 3] = 1.0
+    bind_m = np.where((skin_joint >= 0)[:, None, None], bind_full, bind_world)
     b_rot, b_tra = local_from_world(parents, bind_r, bind_full[:, :3, 3])
     return CharacterSkeleton(
         joint_names=[doc.node_names[n] for n in order], parents=parents, nodes=order, skin_joint=skin_joint,
         bind_world=bind_world, bind_rotations=b_rot, bind_translations=b_tra,
         rest_rotations=rest_rot[0], rest_translations=rest_tra[0], inverse_bind_matrices=ibm,
-        mesh_world=mesh_world, name=os.path.splitext(os.path.basename(doc.path))[0], source=doc.path,
+        mesh_world=mesh_world, bind_matrices=bind_m, joint_scale=scale,
+        name=os.path.splitext(os.path.basename(doc.path))[0], source=doc.path,
         meta={"skin": int(skin), "skin_name": sk.name or ""})
 
 

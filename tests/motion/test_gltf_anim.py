@@ -15,7 +15,7 @@ import pygltflib
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError
+from rig.base.errors import InputError, JiggleWarning
 from rig.motion import quat
 from rig.motion.gltf_anim import read_gltf_animation
 from rig.motion.gltf_skeleton import describe_gltf, read_gltf_skeleton
@@ -360,7 +360,9 @@ def test_glb_header_is_checked(tmp_path):
 def test_scaled_chain_positions_are_exact(tmp_path, seed, uniform):
     """Random 5-node chain with scale on every node, two LINEAR keys: at the key times the clip's
     joint positions equal the product of the glTF matrices, for uniform and non-uniform scale; the
-    joint rotations equal the normalised matrix frames when the scale is uniform."""
+    joint rotations equal the normalised matrix frames when the scale is uniform. For a skin, an
+    animated uniform scale is read with a warning (rigid joints cannot scale the skin) and a
+    non-uniform one is refused naming the channel; without a skin (mocap) it is read."""
     rng = np.random.default_rng(seed)
     n, keys = 5, 2
     trs = []
@@ -393,8 +395,18 @@ def test_scaled_chain_positions_are_exact(tmp_path, seed, uniform):
     g.set_binary_blob(blob)
     p = tmp_path / "chain.glb"
     g.save_binary(str(p))
-    clip = read_gltf_animation(p, fps=2.0)  # frames at the two keys
-    assert clip.joint_names == tuple(f"j{i}" for i in range(1, n)) and clip.num_frames == 2
+    if uniform:
+        with pytest.warns(JiggleWarning, match=r"scales 'j0' .*joints are rigid"):
+            clip = read_gltf_animation(p, fps=2.0)  # frames at the two keys
+        assert clip.joint_names == tuple(f"j{i}" for i in range(1, n)) and clip.num_frames == 2
+        first = 1
+    else:
+        with pytest.raises(InputError, match=r"non-uniform scale \[.*\] at 0 s is not supported") as e:
+            read_gltf_animation(p, fps=2.0)
+        assert e.value.field.startswith('animations[0].channels[2] (node 0 "j0"')
+        clip = read_gltf_animation(p, fps=2.0, skin=None)
+        assert clip.joint_names == tuple(f"j{i}" for i in range(n))
+        first = 0
     wr, wp = clip.world()
     for k in range(keys):
         m = np.eye(4)
@@ -404,9 +416,10 @@ def test_scaled_chain_positions_are_exact(tmp_path, seed, uniform):
             local[:3, :3] = _rot_xyzw(tq) @ np.diag(np.float32(sc[k]))
             local[:3, 3] = np.float32(t[k])
             m = m @ local
-            if i == 0:
+            if i < first:
                 continue  # j0 is above the skin's joints: folded into the root
-            np.testing.assert_allclose(wp[k, i - 1], Y_UP_TO_Z_UP @ m[:3, 3], atol=1e-9)
+            np.testing.assert_allclose(wp[k, i - first], Y_UP_TO_Z_UP @ m[:3, 3], atol=1e-9)
             if uniform:
                 lin = Y_UP_TO_Z_UP @ m[:3, :3]
-                np.testing.assert_allclose(quat.to_matrix(wr[k, i - 1]), lin / np.linalg.norm(lin[:, 0]), atol=1e-9)
+                np.testing.assert_allclose(quat.to_matrix(wr[k, i - first]), lin / np.linalg.norm(lin[:, 0]),
+                                           atol=1e-9)
