@@ -201,6 +201,7 @@ def test_a_gltf_character_alone_bakes_its_own_animation(capsys, tmp_path):
     assert "no retargeting" in err
     d = read_npz(tmp_path / "bake.npz")
     assert json.loads(d.params)["clip"]["file"].endswith("CesiumMan.glb")
+    assert d.part_names == ("Cesium_Man",) and d.part_offsets.tolist() == [0, 3273]  # the glTF's mesh, named
     c, clip = load_character(path), load_clip(path)
     world = transforms(*clip.world(*clip.sample(d.times)))[:, [clip.joint_names.index(n) for n in c.joint_names]]
     for k in (0, 10, 19):
