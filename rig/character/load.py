@@ -22,6 +22,7 @@ from rig.character.gltf_character import gltf_has_skin, read_gltf_character
 from rig.character.mesh_io import MESH_EXTENSIONS, read_mesh
 from rig.character.normals import vertex_normals
 from rig.character.quadruped_body import generate_quadruped_body, is_quadruped
+from rig.character.quadruped_body import heat_bones as quadruped_heat_bones
 from rig.motion.clip import Clip, transforms
 from rig.motion.gltf_skeleton import read_gltf_skeleton
 from rig.motion.keyframes import read_keyframes
@@ -91,9 +92,16 @@ def rest_pose(clip: Clip) -> Clip:
 
 
 def auto_weighted(vertices: np.ndarray, faces: np.ndarray, clip: Clip, k: int = 4, name: str = "",
-                  source: str = "", uvs: np.ndarray | None = None, meta: dict | None = None) -> Character:
+                  source: str = "", uvs: np.ndarray | None = None, meta: dict | None = None,
+                  heat_bones: tuple | None = None) -> Character:
     """A Character from a mesh (V, 3) / (F, 3) standing in the rest pose of `clip`'s skeleton (same
-    space: Z-up metres), with automatic weights by bone heat diffusion (rig.character.bone_heat)."""
+    space: Z-up metres), with automatic weights by bone heat diffusion (rig.character.bone_heat).
+
+    heat_bones : None, or extra heat sources (parents (K,) int, starts (K, 3), ends (K, 3) metres):
+        bones that belong to joint parents[i], each a segment from that joint to starts[i] and one on
+        to ends[i] (a quadruped's keel, rig.character.quadruped_body.heat_bones). They are given to
+        bone heat as joints it may not weight (``bone_mask``), so their heat goes to their parents.
+    """
     path = source or None
     v = np.asarray(vertices, dtype=np.float64)
     require_finite_positions(v, path)
@@ -101,7 +109,15 @@ def auto_weighted(vertices: np.ndarray, faces: np.ndarray, clip: Clip, k: int = 
     bind = transforms(*clip.rest_world())
     check_overlap(v, bind[:, :3, 3], path)
     rot, pos = clip.rest_world()
-    joints, weights, report = bone_heat_weights(v, f, pos, clip.parents, k=k, end_positions=end_sites(clip))
+    parents, ends, mask = clip.parents, end_sites(clip), None
+    if heat_bones is not None:
+        hp, hs, he = (np.asarray(x) for x in heat_bones)
+        J = clip.num_joints
+        pos, parents = np.concatenate([pos, hs]), np.concatenate([parents, hp]).astype(int)
+        ends, mask = np.concatenate([ends, he]), np.arange(len(pos)) < J
+    joints, weights, report = bone_heat_weights(v, f, pos, parents, k=k, end_positions=ends, bone_mask=mask)
+    if heat_bones is not None:     # a row with fewer than k joints pads with zero weights on any index
+        joints = np.where(joints < clip.num_joints, joints, 0).astype(joints.dtype)
     return Character(vertices=v, faces=f, normals=vertex_normals(v, f), uvs=uvs, joint_names=clip.joint_names,
                      parents=clip.parents, bind_world=bind, bind_matrices=bind, joints=joints, weights=weights,
                      skeleton=rest_pose(clip), name=name or clip.name, source=source,
@@ -114,9 +130,11 @@ def body_character(clip: Clip, options=None, k: int = 4) -> Character:
     in (`Body.bind`: the rest pose, a biped's hanging arms swung out); its fat volumes and how it was made
     are in meta["body"]."""
     options = options or BodyOptions()
-    body = generate_quadruped_body(clip, options) if is_quadruped(clip) else generate_body(clip, options)
+    quadruped = is_quadruped(clip)
+    body = generate_quadruped_body(clip, options) if quadruped else generate_body(clip, options)
     return auto_weighted(body.vertices, body.faces, body.bind, k=k, name=f"{clip.name} body" if clip.name else "body",
-                         meta={"generated": True, "body": body, "body_options": options})
+                         meta={"generated": True, "body": body, "body_options": options},
+                         heat_bones=quadruped_heat_bones(body.bind, options) if quadruped else None)
 
 
 def check_overlap(vertices: np.ndarray, joint_positions: np.ndarray, path: str | None) -> None:

@@ -29,6 +29,12 @@ As in body.py, every distal part (forearm, pastern, gaskin, metatarsus, paw, tai
 kept apart from the pieces it shares no joint with (``body._keep_apart``), so an elbow that comes
 near the chest cannot close a handle, and only the largest component is kept: the surface is one
 closed, outward-wound genus-0 mesh.
+
+Weights. Bone heat alone gives the underside of the deep chest to the nearest bones, the two front
+legs' (it hangs between the elbows, far below the spine), and LBS then blends their opposite swings
+into a crease. :func:`heat_bones` gives bone heat the trunk's own bones: a keel KEEL * L above the
+barrel's underside, from below the spine joint to below the chest and on to the sternum between the
+shoulder joints, owned by the spine joints (``load.body_character`` passes it to ``auto_weighted``).
 """
 from __future__ import annotations
 
@@ -75,6 +81,8 @@ TRUNK = np.array([
     [1.25, 0.12, 0.15],     # breast, in front of the shoulder joints
 ])
 BACK = 0.07
+# bone heat: the trunk's keel runs this share of L above the barrel's underside (heat_bones)
+KEEL = 0.1
 # the rib cage, an ellipsoid below the front of the trunk that makes the chest deep: centre (share of
 # L along the spine), semi-axes (front-back, half-width, half-depth) as shares of L
 RIBS = (0.8, (0.40, 0.19, 0.27))
@@ -225,12 +233,26 @@ class _Trunk:
     ts: np.ndarray
     semi: np.ndarray
     places: frozenset
+    ribs: np.ndarray = None      # the rib cage's centre, its front-back and vertical semi-axes (metres)
+    ribs_length: float = 0.0
+    ribs_depth: float = 0.0
 
     def centre(self, t: float) -> np.ndarray:
         return self.a + t * (self.b - self.a)
 
     def section(self, t: float) -> tuple[float, float]:
         return float(np.interp(t, self.ts, self.semi[:, 0])), float(np.interp(t, self.ts, self.semi[:, 1]))
+
+    def underside(self, point: np.ndarray) -> float:
+        """z (metres) of the trunk's underside (the loft's or the rib cage's, the lower) below a point."""
+        t = self.at(point)
+        bottom = self.centre(t)[2] - self.section(t)[1]
+        front = self.b - self.a
+        front[2] = 0.0
+        s = (point - self.ribs) @ _unit(front) / self.ribs_length
+        if abs(s) < 1.0:
+            bottom = min(bottom, self.ribs[2] - self.ribs_depth * np.sqrt(1.0 - s * s))
+        return float(bottom)
 
     def at(self, point: np.ndarray) -> float:
         """Parameter (0..1) of the trunk section through a point."""
@@ -271,7 +293,31 @@ def _trunk(q: _Quad, o: BodyOptions, slots) -> tuple[list, _Trunk]:
     c[2] = np.interp(h_r, along, sp[:, 2]) + BACK * L - rd * L * th
     ribs = _ellipsoid(c, np.stack([q.front, q.left, UP]), (rl * L, rw * L * th, rd * L * th), 0.25 * L * o.blend,
                       places, fixed=True)
-    return [piece, ribs], _Trunk(a, b, ts, semi, places)
+    return [piece, ribs], _Trunk(a, b, ts, semi, places, c, rl * L, rd * L * th)
+
+
+def heat_bones(clip: Clip, options: BodyOptions = BodyOptions()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The trunk's own bones for bone heat: a keel along the underside of the barrel, KEEL * L above it.
+
+    Returns parents (K,) int (the spine joint each hangs from), starts (K, 3) and ends (K, 3) metres,
+    in the rest pose of `clip`; see ``load.auto_weighted(heat_bones=...)``.
+    """
+    rest = replace(clip, rotations=clip.rest_rotations[None], translations=clip.offsets[None])
+    q = _read(rest)
+    _, tr = _trunk(q, options, _Slots(SimpleNamespace(node=np.arange(len(q.pos)))))
+    lift = KEEL * q.L * options.thickness
+
+    def keel(p):
+        c = np.array(p, float)
+        mid = tr.centre(tr.at(c))
+        c = c - ((c - mid) @ q.left) * q.left
+        c[2] = tr.underside(c) + lift
+        return c
+
+    fronts = [ch[1] for name, ch in q.legs.items() if name.endswith("front")]
+    sternum = keel(q.pos[fronts].mean(axis=0))
+    points = [keel(q.pos[j]) for j in q.spine[1:]] + [sternum]
+    return np.array(q.spine[1:]), np.array(points[:-1]), np.array(points[1:])
 
 
 def _pieces(q: _Quad, o: BodyOptions, slots) -> tuple[list, _Trunk]:
