@@ -21,7 +21,10 @@ muscles of a pair never cross it.
 
 Rays that miss the skin, hit it farther than `reach` times the ellipsoid's radius in that direction
 (a thin muscle's inward rays would otherwise cross the body to the far side), or hit skin outside
-the muscle's own bone region (a deltoid's rays reaching the neck), keep the ellipsoid's vertex.
+the muscle's own bone region (a deltoid's rays reaching the neck), keep the ellipsoid's vertex. Last,
+no vertex may lie past the first skin along its ray (whichever bone's skin that is): one that does is
+moved back onto it, so a muscle lies inside the body even where the body is thinner than the
+ellipsoid of its region.
 """
 from __future__ import annotations
 
@@ -86,6 +89,7 @@ def conform(ellipsoid: Ellipsoid, points: np.ndarray, skin_mesh, *, nu: float = 
     dist = np.full(len(p), np.inf)
     tri = np.full(len(p), -1, dtype=np.int64)
     dist[ok], tri[ok] = first_hits(skin_mesh, foot[ok], direction[ok])
+    skin_at = dist.copy()  # the first skin along each ray, whichever bone's: the muscle stays inside it
     if allowed is not None:
         dist[(tri < 0) | ~np.asarray(allowed, bool)[np.maximum(tri, 0)]] = np.inf
     # the ellipsoid's own extent along each ray, to judge how far a hit may be
@@ -118,4 +122,11 @@ def conform(ellipsoid: Ellipsoid, points: np.ndarray, skin_mesh, *, nu: float = 
         for _ in range(smoothing):
             move = 0.5 * move + 0.5 * (adj @ move)
     out = p + move
+    # no vertex beyond the skin: a ray that kept the ellipsoid's vertex (its hit was on another bone's
+    # skin, past the reach, or across the partition plane) may start out past the skin where the body is
+    # thinner than the region's ellipsoid (a dog's upper foreleg inside its chest); pull it back onto the
+    # first skin along its ray
+    along = np.einsum("ij,ij->i", out - foot, direction)
+    over = ok & np.isfinite(skin_at) & (along > skin_at)
+    out[over] -= (along[over] - skin_at[over])[:, None] * direction[over]
     return out, ConformReport(hits=int(hit.sum()), misses=int(len(p) - hit.sum()))

@@ -41,6 +41,7 @@ from rig.base.frozen import frozen_array
 from rig.character.character import Character
 from rig.muscle.conform import ConformReport, conform
 from rig.muscle.ellipsoid import Ellipsoid, fit_ellipsoid, surface_moments
+from rig.muscle.fit_quality import assess, local_radius, thresholds
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -58,6 +59,8 @@ class FitOptions:
     reach : skin hits farther than this many ellipsoid radii along a conforming ray are ignored.
     smoothing : passes smoothing each conformed muscle's displacement over its mesh (rig.muscle.conform).
     min_vertices : a coarser skin is subdivided (same surface) for fitting, see `_dense_skin`.
+    strict : raise InputError when a muscle is refused by the fit quality check (rig.muscle.fit_quality)
+        instead of dropping it with a JiggleWarning.
     """
 
     iterations: int = 25
@@ -70,6 +73,7 @@ class FitOptions:
     reach: float = 3.0
     smoothing: int = 8
     min_vertices: int = 8000
+    strict: bool = False
 
     def __post_init__(self):
         if not (isinstance(self.iterations, int) and 0 <= self.iterations <= 1000):
@@ -98,6 +102,8 @@ class FittedMuscle:
     plane : (point (3,), normal (3,)) of the pair's partition plane on this muscle's side, or None.
     report : the conforming rays' hits and misses.
     spec : the template entry it came from.
+    radius : metres, the local body radius about its template bone (rig.muscle.fit_quality.local_radius
+        of its region), the scale its fit errors are judged against.
     """
 
     name: str
@@ -115,6 +121,7 @@ class FittedMuscle:
     plane: tuple | None
     report: ConformReport
     spec: object
+    radius: float
 
     def __post_init__(self):
         for k in ("vertices", "points"):
@@ -138,8 +145,10 @@ class Musculature:
     front (3,) the character's front, skin (vertices (V', 3), faces (F', 3), region (V',)) the skin fitted
     to (the character's, subdivided when coarse; FittedMuscle.region indexes its faces), muscles (tuple
     of FittedMuscle), rig (rig.muscle.model.MuscleRig,
-    same order), skipped ((name, reason), ...) template muscles that could not be fitted, timings
-    {stage: seconds}, plan (rig.motion.body_plan.BodyPlan) the skeleton's body plan.
+    same order), skipped ((name, reason), ...) template muscles that could not be fitted or were refused,
+    timings {stage: seconds}, plan (rig.motion.body_plan.BodyPlan) the skeleton's body plan,
+    quality (tuple of rig.muscle.fit_quality.MuscleQuality, same order as muscles) how well each fits,
+    refused (tuple of MuscleQuality) the muscles the quality check dropped from the rig (also in skipped).
     """
 
     character: Character
@@ -153,6 +162,8 @@ class Musculature:
     skipped: tuple = ()
     timings: dict = field(default_factory=dict)
     plan: object = None
+    quality: tuple = ()
+    refused: tuple = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -163,6 +174,11 @@ class Musculature:
             if m.name == name:
                 return m
         raise KeyError(f"no muscle named {name!r}; muscles: {', '.join(self.names)}")
+
+    @property
+    def warned(self) -> tuple:
+        """MuscleQuality of the muscles kept with a warning (worse than ok, not refused)."""
+        return tuple(q for q in self.quality if q.status != "ok")
 
 
 @dataclass(frozen=True)
@@ -236,6 +252,12 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     Template muscles whose region is empty or too small are skipped with a JiggleWarning (listed in
     `Musculature.skipped`); a template label the character's skeleton cannot map raises InputError
     listing the labels it knows.
+
+    Every fitted muscle is then judged (rig.muscle.fit_quality: loft error as a share of the local body
+    radius, share of the loft inside the skin; `Musculature.quality`): a poor fit is kept with a
+    JiggleWarning naming the muscle and why; a refused one (mostly outside the body, or a loft error
+    over RMS_REFUSE) is dropped from the rig and listed in `skipped` and `refused`, or raises
+    InputError when `options.strict`. Dropping a muscle leaves the others' loft fits as they were.
     """
     import trimesh
 
@@ -317,18 +339,97 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
         raise InputError("no muscle of the template could be fitted to this character", character.source or None)
 
     t2 = time.perf_counter()
-    specs = [MuscleSpec(name=f.name, kind=f.kind, group=f.group, bone=f.bone,
-                        bones=f.joints, points=f.points, ends=f.ellipsoid.ends, up=f.ellipsoid.axes[1],
-                        surface=f.vertices, rim_scale=f.spec.rim_scale, bulge_scale=f.spec.bulge_scale,
-                        main_scale=f.spec.main_scale, bulge_position=f.spec.bulge_position, tone=f.spec.tone,
-                        middle_offset=np.zeros(3))
-             for f in fitted]
-    rig = build_muscle_rig(specs, character.bind_world, volume=options.volume)
+
+    def build(muscles):
+        specs = [MuscleSpec(name=f.name, kind=f.kind, group=f.group, bone=f.bone,
+                            bones=f.joints, points=f.points, ends=f.ellipsoid.ends, up=f.ellipsoid.axes[1],
+                            surface=f.vertices, rim_scale=f.spec.rim_scale, bulge_scale=f.spec.bulge_scale,
+                            main_scale=f.spec.main_scale, bulge_position=f.spec.bulge_position, tone=f.spec.tone,
+                            middle_offset=np.zeros(3))
+                 for f in muscles]
+        return build_muscle_rig(specs, character.bind_world, volume=options.volume)
+
+    rig = build(fitted)
     timings["muscle model"] = time.perf_counter() - t2
+
+    t3 = time.perf_counter()
+    quality = assess([f.name for f in fitted], rig.surface(rig.rest_cvs), rig.fit_rms, rig.fit_max,
+                     [f.radius for f in fitted], skin)
+    refused = [q for q in quality if q.status == "refused"]
+    if refused and options.strict:
+        raise InputError("the fit refuses " + "; ".join(f"muscle {q.name!r}: {', '.join(q.reasons)}" for q in refused)
+                         + f" (thresholds: {thresholds()})", character.source or None, field="fit quality")
+    for q in quality:
+        if q.status == "warn":
+            warnings.warn(f"muscle {q.name!r} fits poorly: {'; '.join(q.reasons)}", JiggleWarning, stacklevel=2)
+        elif q.status == "refused":
+            skip(q.name, "refused by the fit quality check: " + "; ".join(q.reasons))
+    if refused:
+        keep = [i for i, q in enumerate(quality) if q.status != "refused"]
+        if not keep:
+            raise InputError("no muscle of the template fits this character: "
+                             + "; ".join(f"{q.name}: {', '.join(q.reasons)}" for q in refused), character.source or None)
+        # each muscle's loft is fitted on its own, so the kept ones are rebuilt unchanged
+        fitted, quality = [fitted[i] for i in keep], [quality[i] for i in keep]
+        rig = build(fitted)
+    timings["quality"] = time.perf_counter() - t3
     timings["total"] = time.perf_counter() - t0
     return Musculature(character=character, template=tpl, roles=roles, segmentation=seg, front=front,
                        skin=(V, F, region), muscles=tuple(fitted), rig=rig, skipped=tuple(skipped), timings=timings,
-                       plan=plan)
+                       plan=plan, quality=tuple(quality), refused=tuple(refused))
+
+
+AXIS_SAMPLES = 21  # points along a fitted ellipsoid's major axis tested against the skin
+AXIS_BISECTIONS = 10  # steps locating where the axis leaves the skin (1/1000 of a sample step)
+
+
+def _axis_inside(e: Ellipsoid, skin, bone: _Bone) -> Ellipsoid:
+    """`e` with its major axis inside the skin: the axis of a patch's ellipsoid runs straight along the
+    patch, and where the body curves under it (a dog's upper foreleg along its barrel) its ends leave
+    the body, and the conformed muscle with them. A centre outside the skin moves toward the bone
+    until it is inside; then the axis is cut to the run of samples inside around the centre (the other
+    radii no longer than the major one). An ellipsoid whose axis is inside is returned as it is."""
+    from rig.muscle.fit_quality import inside_skin
+    t = np.linspace(-1.0, 1.0, AXIS_SAMPLES)
+    mid = AXIS_SAMPLES // 2
+    centre = np.array(e.centre)
+    inside = inside_skin(skin, centre + (t * e.radii[0])[:, None] * e.axes[0])
+    if inside.all():
+        return e
+    if not inside[mid]:
+        seg = bone.end - bone.start
+        u = np.clip((centre - bone.start) @ seg / max(seg @ seg, 1e-18), 0.0, 1.0)
+        target = bone.start + u * seg
+        for k in range(1, 11):
+            moved = centre + 0.1 * k * (target - centre)
+            inside = inside_skin(skin, moved + (t * e.radii[0])[:, None] * e.axes[0])
+            if inside[mid]:
+                centre = moved
+                break
+        else:
+            return e  # no inside to be found: the quality check names the muscle
+    lo, hi = mid, mid
+    while lo > 0 and inside[lo - 1]:
+        lo -= 1
+    while hi < AXIS_SAMPLES - 1 and inside[hi + 1]:
+        hi += 1
+
+    def crossing(a: float, b: float) -> float:
+        """Where the axis leaves the skin between t = a (inside) and b (outside), by bisection (so that
+        mirrored muscles are cut alike, not at the nearest sample)."""
+        for _ in range(AXIS_BISECTIONS):
+            m = 0.5 * (a + b)
+            if inside_skin(skin, (centre + m * e.radii[0] * e.axes[0])[None])[0]:
+                a = m
+            else:
+                b = m
+        return a
+
+    t0 = crossing(t[lo], t[lo - 1]) if lo > 0 else -1.0
+    t1 = crossing(t[hi], t[hi + 1]) if hi < AXIS_SAMPLES - 1 else 1.0
+    r0 = max(0.5 * (t1 - t0), 1.0 / (AXIS_SAMPLES - 1)) * e.radii[0]
+    centre = centre + 0.5 * (t0 + t1) * e.radii[0] * e.axes[0]
+    return Ellipsoid(centre=centre, axes=e.axes, radii=np.minimum(e.radii, r0))
 
 
 def _without_optional(tpl, roles: dict):
@@ -433,6 +534,7 @@ def _fit_one(name, m, pair, bone: _Bone, faces, plane, V, F, normals, skin, role
     outward = n / np.linalg.norm(n) if np.linalg.norm(n) > 0.3 * area2 else (plane[1] if plane else None)
     thickness = max(m.thickness_min, m.depth if m.kind == "fat" else 0.0)
     e = fit_ellipsoid(V, F[faces], along=bone.frame[0], outward=outward, thickness_min=thickness)
+    e = _axis_inside(e, skin, bone)
     pts, tri = e.mesh(options.subdivisions)
     allowed = np.zeros(len(F), bool)
     allowed[bone.faces] = True
@@ -453,4 +555,4 @@ def _fit_one(name, m, pair, bone: _Bone, faces, plane, V, F, normals, skin, role
     return FittedMuscle(name=name, kind="fat" if m.kind == "fat" else "muscle", group=group, side=m.type,
                         bone=bone.parent, bone_label=bone.label, ellipsoid=e, vertices=conformed, faces=tri,
                         joints=joints, points=points, region=faces, plane=plane, report=report,
-                        spec=m)
+                        spec=m, radius=local_radius(V, F[faces], bone.start, bone.end))

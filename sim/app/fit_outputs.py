@@ -2,8 +2,13 @@
 
 muscles.toml  per muscle: kind, bone, attachments (joint names and bind points), ellipsoid, fit error,
               volume, default jiggle parameters and the 5 x 8 rest section CVs (metres, Z-up)
+muscles.json  counts, timings, skipped muscles, and the fit quality (rig.muscle.fit_quality): its
+              thresholds, a summary and per muscle the verdict, local radius, loft error as a share of
+              it and the share inside the skin; refused muscles listed with their measures
 fit.png       segmentation (skin coloured by region), then the translucent skin over the lofted
-              muscles (one colour each, fat in yellow) and their tendons, from the front, side and back
+              muscles (one colour each, fat in yellow) and their tendons, from the front, side and back;
+              a muscle that fits poorly is solid red, a refused one (not in the rig) a red wireframe,
+              each labelled with its name, and listed with the reasons in the top left
 """
 from __future__ import annotations
 
@@ -18,13 +23,45 @@ from sim.app.mesh_render import SKIN, VIEWS, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
+POOR = (0.95, 0.05, 0.05)  # a muscle kept with a poor fit (rig.muscle.fit_quality "warn"), solid red
+REFUSED = (0.8, 0.0, 0.0)  # a muscle the quality check refused (not in the rig), a red wireframe
+
+
+def quality_summary(mus: Musculature) -> dict:
+    """JSON-ready fit quality: thresholds, counts, the worst loft error and inside share and their muscles."""
+    from rig.muscle.fit_quality import thresholds
+    q = list(mus.quality) + list(mus.refused)
+    out = {"thresholds": thresholds(), "ok": sum(x.status == "ok" for x in q),
+           "warned": [x.name for x in q if x.status == "warn"], "refused": [x.name for x in mus.refused]}
+    if q:
+        worst, least = max(q, key=lambda x: x.rms_share), min(q, key=lambda x: x.inside)
+        out.update(worst_loft_rms_share=round(worst.rms_share, 4), worst_loft_rms_muscle=worst.name,
+                   least_inside_share=round(least.inside, 4), least_inside_muscle=least.name)
+    return out
+
+
+def quality_line(mus: Musculature) -> str:
+    """One line summing up the fit quality, naming the worst muscles, e.g. for `jiggle fit`."""
+    s = quality_summary(mus)
+    if "worst_loft_rms_share" not in s:
+        return "fit quality: no muscles"
+    line = (f"fit quality: {s['ok']} ok, {len(s['warned'])} warned, {len(s['refused'])} refused; worst rms loft "
+            f"error {s['worst_loft_rms_share']:.1%} of the local radius ({s['worst_loft_rms_muscle']}; ok <= "
+            f"{s['thresholds']['rms_ok']:.0%}), least inside the skin {s['least_inside_share']:.1%} "
+            f"({s['least_inside_muscle']}; ok >= {s['thresholds']['inside_ok']:.0%})")
+    for q in list(mus.warned) + list(mus.refused):
+        line += f"\n  {q.status:7s} {q.name}: {'; '.join(q.reasons)}"
+    return line
+
 
 def musculature_facts(mus: Musculature) -> dict:
-    """JSON-ready summary: counts, timings, per-muscle volume and fit error."""
+    """JSON-ready summary: counts, timings, per-muscle volume, fit error and fit quality."""
     rig = mus.rig
     names = mus.character.joint_names
+    quality = mus.quality or (None,) * len(mus.muscles)
     return {
         "character": mus.character.name, "template": mus.template.name,
+        "body_plan": mus.plan.to_json() if mus.plan is not None else None,
         "muscles": len(mus.muscles), "fat": sum(m.kind == "fat" for m in mus.muscles),
         "skipped": [{"name": n, "reason": r} for n, r in mus.skipped],
         "segments": len(mus.segmentation.segments.labels),
@@ -35,8 +72,10 @@ def musculature_facts(mus: Musculature) -> dict:
                         "volume_cm3": round(float(rig.rest_volume[i]) * 1e6, 2),
                         "fit_rms_mm": round(float(rig.fit_rms[i]) * 1e3, 3),
                         "fit_max_mm": round(float(rig.fit_max[i]) * 1e3, 3),
-                        "rays_missed": m.report.misses}
-                       for i, m in enumerate(mus.muscles)],
+                        "rays_missed": m.report.misses, **(q.facts() if q is not None else {})}
+                       for i, (m, q) in enumerate(zip(mus.muscles, quality))],
+        "quality": quality_summary(mus),
+        "refused": [{"name": q.name, **q.facts()} for q in mus.refused],
     }
 
 
@@ -115,11 +154,20 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] = (180
     rig = mus.rig
     surf = rig.surface(rig.rest_cvs)
     sf = np.asarray(rig.surface_faces, np.int64)
-    cmap = matplotlib.colormaps["tab20"]
-    meshes = []
-    for i, m in enumerate(mus.muscles):
-        colour = (0.95, 0.8, 0.2) if m.kind == "fat" else cmap(i % 20)[:3]
+    # tab20 without its reds and oranges, kept for the muscles that fit poorly or were refused
+    palette = [c[:3] for k, c in enumerate(matplotlib.colormaps["tab20"].colors) if k not in (2, 3, 6, 7)]
+    quality = mus.quality or (None,) * len(mus.muscles)
+    meshes, flagged = [], []
+    for i, (m, q) in enumerate(zip(mus.muscles, quality)):
+        colour = (0.95, 0.8, 0.2) if m.kind == "fat" else palette[i % len(palette)]
+        if q is not None and q.status != "ok":
+            colour = POOR
+            flagged.append((q, "poor fit"))
         meshes.append((pv.PolyData(surf[i], np.hstack([np.full((len(sf), 1), 3), sf]).ravel()), colour))
+    for q in mus.refused:  # not in the rig: drawn from the loft the quality check saw
+        meshes.append((pv.PolyData(np.asarray(q.surface), np.hstack([np.full((len(sf), 1), 3), sf]).ravel()),
+                       REFUSED))
+        flagged.append((q, "refused"))
     scale = float(np.ptp(v, axis=0).max())
     pts = np.concatenate([t.reshape(-1, 3) for m in mus.muscles for t in m.tendons])
     lines = np.hstack([[3, 3 * k, 3 * k + 1, 3 * k + 2] for k in range(len(pts) // 3)])
@@ -135,14 +183,25 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] = (180
                         show_scalar_bar=False, smooth_shading=True)
         else:
             for mesh, colour in meshes:
-                pl.add_mesh(mesh, color=colour, smooth_shading=True, specular=0.3)
+                # a refused muscle is not in the rig: drawn as a wireframe
+                pl.add_mesh(mesh, color=colour, smooth_shading=True, specular=0.3,
+                            style="wireframe" if colour is REFUSED else "surface")
             pl.add_mesh(tendons, color=(0.92, 0.92, 0.85))
             pl.add_mesh(skin.copy(deep=False), color=SKIN, opacity=0.22, smooth_shading=True)
+            if flagged:
+                label = pl.add_point_labels(np.array([np.asarray(q.surface).mean(axis=0) for q, _ in flagged]),
+                                            [f"{q.name}: {why}" for q, why in flagged], font_size=10,
+                                            text_color="black",
+                                            point_color=POOR, point_size=6, shape_opacity=0.4,
+                                            always_visible=True)
+                label.GetMapper().SetPlaceAllLabels(True)  # VTK otherwise drops labels it finds crowded
         frame_camera(pl, v, np.asarray(VIEWS[view], float), np.array([0.0, 0.0, 1.0]), size[0] / len(panels) / size[1])
         pl.add_text(title, position="lower_left", font_size=10, color="black")
         if i == 0:
-            pl.add_text(f"{ch.name or 'character'}: {len(mus.muscles)} muscles", position="upper_left",
-                        font_size=11, color="black")
+            # one text block: the title, then the flagged muscles with their measures
+            pl.add_text("\n".join([f"{ch.name or 'character'}: {len(mus.muscles)} muscles"]
+                                  + [f"{why}: {q.name} ({q.brief})" for q, why in flagged]),
+                        position="upper_left", font_size=11 if not flagged else 9, color="black")
     with atomic_path(path) as tmp:
         pl.screenshot(tmp)
     pl.close()

@@ -93,7 +93,12 @@ def triangle_areas(vertices, faces) -> np.ndarray:
 def test_default_template_fits_completely(fits, name):
     c, mus, warned = fits(name)
     rig = mus.rig
-    assert mus.skipped == () and warned == []
+    assert mus.skipped == ()
+    # RiggedFigure's blocky shoulders: its deltoids poke out of the skin a little (rig.muscle.fit_quality
+    # warns by name: 93-95% inside); the others fit cleanly (tests/muscle/test_fit_quality.py)
+    poor = {"left_deltoid", "right_deltoid"} if name == "RiggedFigure" else set()
+    assert {q.name for q in mus.warned} == poor and len(warned) == len(poor)
+    assert all("fits poorly" in w and "inside the skin" in w for w in warned)
     assert len(mus.muscles) == 28 and rig.M == 28 and rig.names == mus.names
     assert {f"abdomen_{k}" for k in (1, 2, 3)} <= set(mus.names) and "abdomen" not in mus.names
     cvs = rig.rest_cvs.reshape(28, 40, 3)
@@ -132,10 +137,13 @@ def test_conformed_muscles_stay_under_the_generated_skin(fits):
     assert inside[worst] > 0.95
 
 
-@pytest.mark.parametrize("name,tol", [("CesiumMan", 0.025), ("RiggedFigure", 0.005), ("generated", 0.005)])
+@pytest.mark.parametrize("name,tol", [("CesiumMan", 0.025), ("RiggedFigure", 0.006), ("generated", 0.005)])
 def test_left_and_right_muscles_mirror_each_other(fits, name, tol):
     # CesiumMan's skin is symmetric about x = 0 to 1e-6 m but its skeleton is off by 5 mm in x (left
-    # and right joints differ by 1 cm when mirrored), and its trunk triangles are large: a looser bound
+    # and right joints differ by 1 cm when mirrored), and its trunk triangles are large: a looser bound.
+    # RiggedFigure's deltoid regions differ a little between its sides (their fitted axes by 8 degrees),
+    # and where the axis leaves its blocky shoulder it is cut (rig.muscle.fit._axis_inside), which
+    # makes it 5.4 mm and 13% in volume apart
     c, mus, _ = fits(name)
     pairs = [(n, "right_" + n[5:]) for n in mus.names if n.startswith("left_")]
     assert len(pairs) == 12
@@ -146,7 +154,7 @@ def test_left_and_right_muscles_mirror_each_other(fits, name, tol):
     assert lb[0] > 0.1 and abs(lb[0] + rb[0]) < 0.015      # the character's left is +x
     if name != "CesiumMan":
         v = dict(zip(mus.names, mus.rig.rest_volume))
-        assert max(abs(v[a] / v[b] - 1.0) for a, b in pairs) < 0.1
+        assert max(abs(v[a] / v[b] - 1.0) for a, b in pairs) < (0.15 if name == "RiggedFigure" else 0.1)
 
 
 # ------------------------------------------------------------------------------- pairs and attachments
@@ -188,7 +196,8 @@ def test_partition_plane_holds_even_with_a_long_reach():
                                                         if any(m.type != "single" for m in p.muscles)))
     mus, warned = fit_quietly(c, pairs_only, FitOptions(reach=10.0))
     halves = [m for m in mus.muscles if m.plane is not None]
-    assert len(halves) == 12 and not warned
+    # only the fit quality's notices of RiggedFigure's deltoids poking out of its blocky shoulders
+    assert len(halves) == 12 and all("deltoid" in w and "fits poorly" in w for w in warned)
     for m in halves:
         point, normal = m.plane
         assert ((m.vertices - point) @ normal).min() > -5e-4, f"{m.name} crosses its partition plane"
@@ -453,6 +462,7 @@ def test_cli_fit_writes_musculature_facts_and_picture(capsys, tmp_path, fits):
     code, out, err = run(capsys, "fit", cesium, "--out", out_toml, "--png", png)
     assert code == 0, err
     assert "fitted 28 muscles (5 fat)" in out and "jiggle: warning" not in err
+    assert "fit quality: 28 ok, 0 warned, 0 refused" in out
     doc = tomllib.loads(out_toml.read_text())
     muscles = doc["muscle"]
     _, mus, _ = fits("CesiumMan")
@@ -468,6 +478,7 @@ def test_cli_fit_writes_musculature_facts_and_picture(capsys, tmp_path, fits):
     facts = json.loads((tmp_path / "fit" / "muscles.json").read_text())
     assert facts["muscles"] == 28 and facts["fat"] == 5 and facts["skipped"] == []
     assert [m["name"] for m in facts["per_muscle"]] == list(mus.names)
+    assert facts["quality"]["ok"] == 28 and all(m["status"] == "ok" for m in facts["per_muscle"])
     # the render smoke test: without working GL, VTK crashes or draws nothing
     import imageio.v3 as iio
     img = iio.imread(png)

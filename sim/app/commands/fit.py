@@ -1,11 +1,12 @@
 """`jiggle fit [CHARACTER]`: fit a template's muscles and fat to a character from the outside in and
-write the musculature, its facts and a picture.
+write the musculature, its facts and a picture, and print how well each muscle fits (rig.muscle.fit_quality:
+a summary line, then one line per muscle kept with a warning or refused).
 """
 from __future__ import annotations
 
 import os
 
-from sim.app.args import character_options, count, mesh_options, unit_interval
+from sim.app.args import character_options, count, map_options, mesh_options, template_option, unit_interval
 from sim.app.loading import default_scene, generated_character
 
 SKELETON_SUFFIXES = (".bvh", ".asf", ".amc", ".toml", ".xml")
@@ -28,19 +29,21 @@ def run(args) -> int:
     import numpy as np
 
     from rig.muscle.fit import FitOptions, fit_musculature
-    from sim.app.fit_outputs import write_fit_outputs
+    from sim.app.fit_outputs import quality_line, write_fit_outputs
     character = fit_character(args.character, args)
     options = FitOptions(iterations=args.iterations, lam=args.smoothing, volume=args.volume,
-                         joint_map=args.joint_map, exclude=tuple(args.exclude or ()))
-    mus = fit_musculature(character, args.template or "human", options)
+                         joint_map=args.character_map, exclude=tuple(args.exclude or ()), strict=args.strict)
+    mus = fit_musculature(character, args.template or "auto", options)
     png = None if args.no_render else (args.png or os.path.join(os.path.dirname(args.out) or ".", "fit.png"))
     json_path = os.path.splitext(args.out)[0] + ".json"
     files = write_fit_outputs(mus, args.out, png, json_path)
     rig = mus.rig
+    print(f"body plan: {mus.plan.kind} ({mus.plan.reason})")
     print(f"fitted {len(mus.muscles)} muscles ({sum(m.kind == 'fat' for m in mus.muscles)} fat) from template "
           f"{mus.template.name!r} to {character.name or 'the character'} ({character.num_vertices} vertices) in "
           f"{mus.timings['total']:.2f} s; loft fit error rms {1e3 * float(np.sqrt(np.mean(rig.fit_rms ** 2))):.2f} mm, "
           f"worst {1e3 * float(rig.fit_max.max()):.2f} mm")
+    print(quality_line(mus))
     for k, f in files.items():
         print(f"  {k:9s} {f}")
     return 0
@@ -56,18 +59,20 @@ def add_parser(sub) -> None:
     p.add_argument("character", nargs="?", metavar="CHARACTER",
                    help="a skinned glTF/GLB, a mesh (OBJ/PLY/STL/glTF, with --skeleton), or a skeleton "
                         "(BVH, ASF, AMC, MJCF, keyframed TOML) to generate a body around (default: the demo's body)")
-    p.add_argument("--template", metavar="T", help="template: built-in name or .toml/.xml file (default: human)")
+    template_option(p)
     p.add_argument("--out", default="out/fit/muscles.toml", help="musculature TOML (default: out/fit/muscles.toml)")
     p.add_argument("--png", metavar="FILE", help="picture (default: fit.png beside --out)")
     p.add_argument("--no-render", action="store_true", help="skip the picture")
-    p.add_argument("--joint-map", metavar="TOML|PRESET", help="joint map naming the template's roles (default: "
-                   "a built-in preset that fits, else found from the skeleton)")
+    map_options(p, clip=False)
     p.add_argument("--iterations", type=count("--iterations", zero=True), default=25,
                    help="normal smoothing iterations for the segmentation (default: 25)")
     p.add_argument("--smoothing", type=unit_interval("--smoothing"), default=1.0, metavar="LAMBDA",
                    help="normal smoothing lambda in [0, 1] (default: 1)")
     p.add_argument("--exclude", action="append", metavar="JOINT", help="leave a joint's bones out of the "
                    "segmentation (repeatable)")
+    p.add_argument("--strict", action="store_true", help="fail when a muscle is refused by the fit quality "
+                   "check (mostly outside the skin, or a loft error over 50%% of the local radius) instead of "
+                   "leaving it out with a warning")
     p.add_argument("--volume", choices=["exact", "sqrt", "thesis", "none"], default="exact",
                    help="how muscles keep their volume when they stretch (default: exact)")
     p.add_argument("--skeleton", metavar="FILE", help="the skeleton of a mesh character (clip, ASF, MJCF)")
