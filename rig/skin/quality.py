@@ -8,10 +8,13 @@ For a triangle mesh with a fixed topology (a character's skin) over T frames:
   read against the rest mesh's own (``rest_sharp``, ``rest_folded``);
 - edge strain: |length / rest length - 1|, its 99th percentile and maximum;
 - face area ratio: area / rest area, its minimum (a collapsed face) and maximum;
-- the jiggle displacement gradient of an edge (a, b): |d_a - d_b| / |s_a - s_b| with s the static
-  skin and d = final - static, i.e. how much the jiggle alone stretches or squeezes the edge relative
-  to its own length; above 1 the jiggle tears it (``torn_edges``); its 99th and 99.9th percentiles
-  and maximum per frame.
+- the jiggle displacement gradient of an edge (a, b): |d_a - d_b| / max(|s_a - s_b|, GRADIENT_FLOOR
+  x rest length) with s the static skin and d = final - static, i.e. how much the jiggle alone
+  stretches or squeezes the edge relative to its own length; above 1 the jiggle tears it
+  (``torn_edges``); its 99th and 99.9th percentiles and maximum per frame. The floor keeps an edge
+  that the skinning squashed to nothing (LBS collapsing an elbow's inside: 10 mm to 0.1 mm) from
+  counting a tenth of a millimetre of jiggle as a tear; that collapse is the skinning's, and the fold
+  measures see it.
 
 `SkinQuality` is built once per mesh (edges, their faces, rest lengths and areas) and measures many
 frames in one Warp launch per measure (rig/skin/quality_kernels.py); the reductions run in NumPy.
@@ -40,6 +43,8 @@ SKIN_MEASURES = ("folded_edges", "sharp_edges", "edge_strain_p99", "edge_strain_
                  "area_ratio_max")
 """Per frame, of one skin (see the module)."""
 JIGGLE_MEASURES = ("gradient_p99", "gradient_p999", "gradient_max", "torn_edges")
+GRADIENT_FLOOR = 0.1
+"""An edge's length in the gradient is at least this share of its rest length (see the module)."""
 """Per frame, of the jiggle between a static and a final skin (see the module)."""
 
 
@@ -164,8 +169,8 @@ class SkinQuality:
             raise InputError(f"static and final skins differ in shape: {s.shape} and {f.shape}", field="final")
         out = wp.empty((s.shape[0], self.mesh.num_edges), dtype=wp.float32, device=self.device)
         if s.shape[0]:
-            wp.launch(k.jiggle_gradient, dim=out.shape, device=self.device, inputs=[s, f, self._edges],
-                      outputs=[out])
+            wp.launch(k.jiggle_gradient, dim=out.shape, device=self.device,
+                      inputs=[s, f, self._edges, self._rest_length, GRADIENT_FLOOR], outputs=[out])
         return out.numpy()
 
     def jiggle(self, static: np.ndarray, final: np.ndarray) -> dict[str, np.ndarray]:

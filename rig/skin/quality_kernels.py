@@ -47,17 +47,18 @@ def edge_measures(points: wp.array2d(dtype=wp.vec3), normals: wp.array2d(dtype=w
 
 @wp.kernel
 def jiggle_gradient(still: wp.array2d(dtype=wp.vec3), moved: wp.array2d(dtype=wp.vec3),
-                    edges: wp.array(dtype=wp.vec2i), out: wp.array2d(dtype=wp.float32)):
-    """still, moved (T, V) metres (the static and the final skin); edges (E,) -> out (T, E):
-    |d_a - d_b| / |s_a - s_b| with s = still and d = moved - still, how much the jiggle alone stretches
-    or squeezes the edge relative to its own length (> 1: by more than its length; 0 where the static
-    edge has no length). (`static` is a C++ keyword, hence the names.)"""
+                    edges: wp.array(dtype=wp.vec2i), rest_length: wp.array(dtype=wp.float32), floor: float,
+                    out: wp.array2d(dtype=wp.float32)):
+    """still, moved (T, V) metres (the static and the final skin); edges (E,), rest_length (E,) metres
+    -> out (T, E): |d_a - d_b| / max(|s_a - s_b|, floor rest_length) with s = still and d = moved - still,
+    how much the jiggle alone stretches or squeezes the edge relative to its own length (> 1: by more
+    than its length). (`static` is a C++ keyword, hence the names.)"""
     t, e = wp.tid()
     ab = edges[e]
     sa = still[t, ab[0]]
     sb = still[t, ab[1]]
     d = (moved[t, ab[0]] - sa) - (moved[t, ab[1]] - sb)
-    length = wp.length(sb - sa)
+    length = wp.max(wp.length(sb - sa), floor * rest_length[e])
     if length > 0.0:
         out[t, e] = wp.length(d) / length
     else:

@@ -6,7 +6,7 @@ import pytest
 
 from rig.base.errors import InputError
 from rig.character.mesh_graph import mesh_edges
-from rig.skin.quality import JIGGLE_MEASURES, SKIN_MEASURES, SkinQuality
+from rig.skin.quality import GRADIENT_FLOOR, JIGGLE_MEASURES, SKIN_MEASURES, SkinQuality
 
 
 def grid(n=6, size=1.0):
@@ -40,7 +40,9 @@ def reference(rest, faces, skins, static=None):
         if static is not None:
             s = static[t].astype(np.float64)
             d = p - s
-            g = np.array([np.linalg.norm(d[a] - d[b]) / np.linalg.norm(s[a] - s[b]) for a, b in edges])
+            g = np.array([np.linalg.norm(d[a] - d[b]) / max(np.linalg.norm(s[a] - s[b]),
+                                                            GRADIENT_FLOOR * np.linalg.norm(rest[a] - rest[b]))
+                          for a, b in edges])
             out["gradient_p99"].append(np.percentile(g, 99))
             out["gradient_p999"].append(np.percentile(g, 99.9))
             out["gradient_max"].append(g.max())
@@ -102,6 +104,17 @@ def test_a_fold_a_tear_and_a_stretch_are_counted_where_they_are():
     j = q.jiggle(rest[None], moved[None])
     around = int(np.sum(np.any(q.mesh.edges == v, axis=1)))
     assert j["torn_edges"][0] == around == 6 and j["gradient_max"][0] == pytest.approx(2.0, rel=1e-5)
+    # an edge the skinning squashed to 1% of its rest length is measured against the floor, a tenth of
+    # its rest length: a jiggle of a twentieth of that length is not a tear; one of twice the floor is
+    squashed = rest.copy()
+    a, b = q.mesh.edges[0]
+    squashed[b] = squashed[a] + 0.01 * (rest[b] - rest[a])
+    rest_len = np.linalg.norm(rest[b] - rest[a])
+    for push, torn in ((0.05 * rest_len, False), (2.0 * GRADIENT_FLOOR * rest_len, True)):
+        moved = squashed.copy()
+        moved[b, 2] += push
+        g = q.gradient(squashed[None], moved[None])[0, 0]
+        assert g == pytest.approx(push / (GRADIENT_FLOOR * rest_len), rel=1e-4) and (g > 1) == torn
     # a uniform stretch by 1.5 reads as strain 0.5 everywhere and area 2.25
     m = q.skin(1.5 * rest[None])
     assert m["edge_strain_p99"][0] == pytest.approx(0.5, rel=1e-5)
