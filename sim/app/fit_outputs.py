@@ -141,9 +141,11 @@ def write_fit_outputs(mus: Musculature, toml_path: str | None, png_path: str | N
     return out
 
 
-def render_musculature(mus: Musculature, path: str, size: tuple[int, int] = (1800, 800),
-                       views=("front", "side", "back")) -> str:
-    """PNG: the segmentation, then the skin (translucent) over coloured muscles and tendons per view."""
+def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None = None, views=None) -> str:
+    """PNG: the segmentation, then the skin (translucent) over coloured muscles and tendons per view.
+    An upright body is drawn in a row, from the front, side and back (1800 x 800); a long one (a
+    quadruped) in a 2 x 2 grid, the segmentation and the muscles from its side, then from above and
+    from its right (1800 x 1100)."""
     import matplotlib
     import pyvista as pv
 
@@ -173,10 +175,14 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] = (180
     lines = np.hstack([[3, 3 * k, 3 * k + 1, 3 * k + 2] for k in range(len(pts) // 3)])
     tendons = pv.PolyData(pts, lines=lines).tube(radius=0.0025 * scale)
 
-    panels = [("segmentation", "front")] + [(view, view) for view in views]
-    pl = pv.Plotter(off_screen=True, shape=(1, len(panels)), window_size=list(size), border=False)
+    long = mus.plan is not None and mus.plan.kind == "quadruped"
+    views = views or (("side", "top", "right") if long else ("front", "side", "back"))
+    size = size or ((1800, 1100) if long else (1800, 800))
+    panels = [("segmentation", views[0] if long else "front")] + [(view, view) for view in views]
+    rows, cols = (2, (len(panels) + 1) // 2) if long else (1, len(panels))
+    pl = pv.Plotter(off_screen=True, shape=(rows, cols), window_size=list(size), border=False)
     for i, (title, view) in enumerate(panels):
-        pl.subplot(0, i)
+        pl.subplot(i // cols, i % cols)
         pl.set_background("white")
         if title == "segmentation":
             pl.add_mesh(skin.copy(deep=False), scalars="region", cmap="tab20", clim=(-0.5, 19.5), n_colors=20,
@@ -195,7 +201,9 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] = (180
                                             point_color=POOR, point_size=6, shape_opacity=0.4,
                                             always_visible=True)
                 label.GetMapper().SetPlaceAllLabels(True)  # VTK otherwise drops labels it finds crowded
-        frame_camera(pl, v, np.asarray(VIEWS[view], float), np.array([0.0, 0.0, 1.0]), size[0] / len(panels) / size[1])
+        # from above: the character's right side up, so its head points the way it does from its side
+        up = np.cross(mus.front, [0.0, 0.0, 1.0]) if view == "top" else np.array([0.0, 0.0, 1.0])
+        frame_camera(pl, v, np.asarray(VIEWS[view], float), up, (size[0] / cols) / (size[1] / rows))
         pl.add_text(title, position="lower_left", font_size=10, color="black")
         if i == 0:
             # one text block: the title, then the flagged muscles with their measures
