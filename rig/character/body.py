@@ -51,6 +51,7 @@ for the jiggle that later issues simulate on them.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -155,15 +156,23 @@ def generate_body(clip: Clip, options: BodyOptions = BodyOptions()) -> Body:
     voxel size for the requested vertex count, the field on the grid, the contour, cleanup (largest
     component, outward faces), smoothing (Taubin, then a projection back onto the implicit surface).
     """
-    import time
     t0 = time.perf_counter()
     clip = bind_pose(clip, options.arm_angle)
     pieces, sk = layout(clip, options)
     timings = {"layout": time.perf_counter() - t0}
+    pieces, v, f, h = surface(pieces, sk.stature / 45.0, options, timings)
+    timings["total"] = time.perf_counter() - t0
+    return Body(vertices=frozen_array(v), faces=frozen_array(f, np.int32), fat=tuple(_fat_records(pieces)),
+                joint_positions=frozen_array(sk.pos[:sk.J]), front=frozen_array(sk.front),
+                stature=float(sk.stature), voxel=float(h), timings=timings, bind=clip)
 
-    # Coarse trial: marching cubes gives vertices in proportion to area / voxel^2.
+
+def surface(pieces: list, h0: float, options: BodyOptions, timings: dict) -> tuple[list, np.ndarray, np.ndarray, float]:
+    """The closed surface of `pieces`: (pieces at least a voxel thick, vertices (V, 3), faces (F, 3),
+    voxel h metres). A coarse trial at voxel `h0` sets the voxel for options.resolution vertices
+    (marching cubes gives vertices in proportion to area / voxel^2); then contour, keep the largest
+    component facing out, smooth, and put back on the implicit surface. Stage seconds go to `timings`."""
     t = time.perf_counter()
-    h0 = sk.stature / 45.0
     v0, _ = _polygonise(at_least_voxel(pieces, h0), h0)
     h = h0 * np.sqrt(len(v0) / max(int(options.resolution), 100))
     timings["trial"] = time.perf_counter() - t
@@ -188,10 +197,7 @@ def generate_body(clip: Clip, options: BodyOptions = BodyOptions()) -> Body:
     if options.project:
         v = project_to_surface(pieces, v, h)
     timings["smoothing"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t0
-    return Body(vertices=frozen_array(v), faces=frozen_array(f, np.int32), fat=tuple(_fat_records(pieces)),
-                joint_positions=frozen_array(sk.pos[:sk.J]), front=frozen_array(sk.front),
-                stature=float(sk.stature), voxel=float(h), timings=timings, bind=clip)
+    return pieces, v, f, h
 
 
 def bind_pose(clip: Clip, arm_angle: float = 40.0) -> Clip:

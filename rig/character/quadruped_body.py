@@ -55,16 +55,8 @@ from rig.character.body import (
     _fat_records,
     _frame,
     _keep_apart,
-    _polygonise,
     _Slots,
-    at_least_voxel,
-    contour,
-    evaluate_field,
-    grid_around,
-    largest_component,
-    outward,
-    project_to_surface,
-    taubin_smooth,
+    surface,
 )
 from rig.motion.body_plan import detect_body_plan, quadruped_roles
 from rig.motion.clip import Clip
@@ -176,30 +168,7 @@ def generate_quadruped_body(clip: Clip, options: BodyOptions = BodyOptions()) ->
     rest = replace(clip, rotations=clip.rest_rotations[None], translations=clip.offsets[None])
     pieces, q = quadruped_layout(rest, options)
     timings = {"layout": time.perf_counter() - t0}
-
-    t = time.perf_counter()
-    h0 = q.L / 40.0
-    v0, _ = _polygonise(at_least_voxel(pieces, h0), h0)
-    h = h0 * np.sqrt(len(v0) / max(int(options.resolution), 100))
-    timings["trial"] = time.perf_counter() - t
-
-    pieces = at_least_voxel(pieces, h)
-    t = time.perf_counter()
-    grid = grid_around(pieces, h)
-    values = evaluate_field(pieces, grid)
-    timings["field"] = time.perf_counter() - t
-    t = time.perf_counter()
-    v, f = contour(values, grid)
-    timings["contour"] = time.perf_counter() - t
-    t = time.perf_counter()
-    v, f = largest_component(v, f)
-    f = outward(v, f)
-    timings["cleanup"] = time.perf_counter() - t
-    t = time.perf_counter()
-    v = taubin_smooth(v, f, options.smoothing_iterations)
-    if options.project:
-        v = project_to_surface(pieces, v, h)
-    timings["smoothing"] = time.perf_counter() - t
+    pieces, v, f, h = surface(pieces, q.L / 40.0, options, timings)
     timings["total"] = time.perf_counter() - t0
     J = clip.num_joints
     withers = float(q.pos[q.spine, 2].max() + BACK * q.L - q.floor)

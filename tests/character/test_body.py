@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 from conftest import asset
+from meshes import winding_numbers
 from scipy.spatial import cKDTree
 
 from rig.character.body import BodyOptions, generate_body
@@ -51,22 +52,12 @@ def body_of(name: str, **options):
     return _cache[key]
 
 
-def winding_number(v: np.ndarray, f: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """(P,) generalized winding number of points p (P, 3) for the mesh (Van Oosterom-Strackee solid
-    angles of every triangle, summed, over 4 pi)."""
-    a, b, c = (v[f[:, i]][None] - p[:, None] for i in range(3))
-    la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
-    det = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
-    den = (la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc + np.einsum("pfi,pfi->pf", b, c) * la
-           + np.einsum("pfi,pfi->pf", c, a) * lb)
-    return np.arctan2(det, den).sum(axis=1) / (2 * np.pi)
-
 
 def signed_distance(v: np.ndarray, f: np.ndarray, p: np.ndarray) -> np.ndarray:
     """(P,) metres, positive inside: distance to the nearest vertex (within half an edge of the
     distance to the surface), signed by the winding number."""
     d, _ = cKDTree(v).query(p)
-    return np.where(winding_number(v, f, p) > 0.5, d, -d)
+    return np.where(winding_numbers(v, f, p) > 0.5, d, -d)
 
 
 def skeleton_points(clip):

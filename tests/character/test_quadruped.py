@@ -8,6 +8,7 @@ outside), in NumPy.
 import numpy as np
 import pytest
 import trimesh
+from meshes import winding_numbers
 
 from rig.character.body import BodyOptions
 from rig.character.gltf_character import read_gltf_character
@@ -40,19 +41,6 @@ def built(tmp_path_factory):
     character = make_quadruped_gltf(path, resolution=RESOLUTION)
     return character, path
 
-
-def winding_number(v: np.ndarray, f: np.ndarray, p: np.ndarray, chunk: int = 32) -> np.ndarray:
-    """(P,) generalized winding number of points p (P, 3) for the mesh (Van Oosterom-Strackee solid
-    angles of every triangle, summed, over 4 pi)."""
-    out = []
-    for i in range(0, len(p), chunk):
-        a, b, c = (v[f[:, k]][None] - p[i:i + chunk, None] for k in range(3))
-        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
-        det = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
-        den = (la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc + np.einsum("pfi,pfi->pf", b, c) * la
-               + np.einsum("pfi,pfi->pf", c, a) * lb)
-        out.append(np.arctan2(det, den).sum(axis=1) / (2 * np.pi))
-    return np.concatenate(out)
 
 
 # ------------------------------------------------------------------------------- the motion
@@ -147,7 +135,7 @@ def test_body_encloses_the_trunk_and_leg_bones_and_stands_on_its_paws(body, walk
     bones = [(walk.parents[j], j) for j in range(walk.num_joints) if walk.parents[j] >= 0]
     s = np.linspace(0.0, 1.0, 6)[:, None, None]
     pts = (pos[[a for a, _ in bones]][None] * (1 - s) + pos[[b for _, b in bones]][None] * s).reshape(-1, 3)
-    w = winding_number(body.vertices, body.faces, pts)
+    w = winding_numbers(body.vertices, body.faces, pts)
     outside = [names[bones[i % len(bones)][1]] for i in np.nonzero(w < 0.5)[0]]
     assert not outside, f"bone points outside the body: {sorted(set(outside))}"
     # the paws' pads are at the floor (the toe tips are at z = 0.01 m), nothing much below it

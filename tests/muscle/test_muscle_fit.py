@@ -17,6 +17,7 @@ import warnings
 import numpy as np
 import pytest
 from conftest import asset
+from meshes import winding_numbers
 
 from rig.base.errors import InputError, JiggleWarning
 from rig.character.character import Character, bind_clip
@@ -66,21 +67,6 @@ def fits():
         return cache[name]
     return get
 
-
-def winding_numbers(vertices, faces, points, chunk=64) -> np.ndarray:
-    """(P,) generalized winding number of points (P, 3): the signed solid angles of all triangles
-    (Van Oosterom-Strackee) summed over 4 pi; 1 inside a closed outward mesh, 0 outside."""
-    v, f = np.asarray(vertices, float), np.asarray(faces)
-    out = []
-    for i in range(0, len(points), chunk):
-        p = np.asarray(points[i:i + chunk], float)
-        a, b, c = (v[f[:, k]][None] - p[:, None] for k in range(3))
-        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
-        det = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
-        den = (la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc + np.einsum("pfi,pfi->pf", b, c) * la
-               + np.einsum("pfi,pfi->pf", c, a) * lb)
-        out.append(np.arctan2(det, den).sum(axis=1) / (2 * np.pi))
-    return np.concatenate(out)
 
 
 def triangle_areas(vertices, faces) -> np.ndarray:
