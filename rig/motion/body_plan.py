@@ -38,6 +38,7 @@ import numpy as np
 
 from rig.base.errors import InputError
 from rig.motion.clip import Clip
+from rig.motion.retarget import ROLES
 from rig.motion.skeleton_tree import SkeletonTree
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -62,7 +63,6 @@ QUADRUPED_ROLES = ("hips", "spine", "chest", "neck", "head", "tail") + tuple(
     f"{s}_{e}_{r}" for s in SIDES for e in ENDS for r in (FRONT_LEG if e == "front" else HIND_LEG))
 QUADRUPED_REQUIRED = ("hips", "chest", "head") + tuple(
     f"{s}_{e}_{r}" for s in SIDES for e in ENDS for r in ("upper_leg", "lower_leg", "foot"))
-PLANS = ("biped", "quadruped", "other")
 TEMPLATE_OF_PLAN = {"biped": "human", "quadruped": "quadruped"}
 
 
@@ -135,7 +135,6 @@ def check_roles(clip: Clip, roles: dict[str, int], known: tuple[str, ...] | None
     message's list of missing roles); default the human roles or QUADRUPED_ROLES, by the keys.
     Raises InputError naming the first failing pair or chain, the roles found and the ones missing.
     """
-    from rig.motion.retarget import ROLES
     if not roles:
         return
     known = known or (QUADRUPED_ROLES if any(r in QUADRUPED_ROLES and r not in ROLES for r in roles) else ROLES)

@@ -269,9 +269,10 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    plan = detect_body_plan(character.skeleton)
     if not isinstance(template, Template) and template in (None, "auto"):
         template, plan = template_for(character.skeleton, template)
+    else:
+        plan = detect_body_plan(character.skeleton)
     tpl = template if isinstance(template, Template) else load_template(template)
     roles = resolve_roles(character.skeleton, options.joint_map) if roles is None else dict(roles)
     tpl = _without_optional(tpl, roles)
