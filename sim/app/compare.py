@@ -1,7 +1,10 @@
 """`jiggle compare OUT_DIR`: what the jiggle did to a bake, as numbers, plots, pictures and one report.
 
 Reads OUT_DIR/bake.npz (sim.bake.caches) and writes into OUT_DIR, each file atomically (rig.base.atomic), an
-earlier run's outputs replaced:
+earlier run's outputs replaced. Only those are: compare.json records every file a run writes (see
+sim.bake.baker.COMPARE_RECORD), a new run (or bake) removes or overwrites only files so recorded, and a
+name below already taken by a file of the user's is written as NAME.jiggle.EXT instead (the report and
+metrics.json's "files" name what was written):
 
 metrics.json      the numbers below, strict JSON (no NaN: a missing value is null), units in key names
 displacement.npz  per-vertex skin displacement: max_m (V,) and rms_m (V,) float32 metres, over time
@@ -39,6 +42,7 @@ from rig.base.errors import InputError
 from sim.app import skin_quality
 from sim.app.jiggle_outputs import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
 from sim.app.plots import pyplot, save_figure
+from sim.bake.baker import COMPARE_NAMES, COMPARE_RECORD, COMPARE_RECORD_FORMAT, compare_files, remove_listed
 from sim.bake.caches import BakeData, read_npz
 
 FORMAT = "jiggle.compare/1"
@@ -456,9 +460,13 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     timings["analysis_s"] = time.perf_counter() - t0
 
     files = {}
+    own = compare_files(out_dir)
+    as_name = _names(out_dir, own)
+    _write_json(os.path.join(out_dir, as_name[COMPARE_RECORD]),     # before writing: what this run may write
+                {"format": COMPARE_RECORD_FORMAT, "files": sorted(own | set(as_name.values()))})
 
     def out(name):
-        return os.path.join(out_dir, name)
+        return os.path.join(out_dir, as_name[name])
 
     t0 = time.perf_counter()
     with atomic_path(out("displacement.npz")) as tmp, open(tmp, "wb") as fh:
@@ -481,7 +489,8 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     if render and V:
         from sim.app.compare_render import render_outputs
         t0 = time.perf_counter()
-        rendered = render_outputs(data, peak["frame"], an["disp"], out_dir, video=video, progress=progress)
+        rendered = render_outputs(data, peak["frame"], an["disp"], out_dir, video=video, progress=progress,
+                                  name=as_name.__getitem__)
         files.update(rendered["files"])
         video_info = rendered.get("video")
         timings.update(rendered["timings"])
@@ -491,14 +500,6 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         if closeups:
             files["quality_closeups"] = closeups
         timings["quality_render_s"] = time.perf_counter() - t0
-    # pictures of an earlier run beside these numbers would read as this run's
-    for key, names_ in (("peak", ("peak.png",)), ("video", ("clip.mp4", "clip.gif")),
-                        ("quality_closeups", ("quality_closeups.png",))):
-        keep = os.path.basename(files[key]) if key in files else None
-        for name in names_:
-            if name != keep and os.path.exists(out(name)):
-                os.remove(out(name))
-
     files["metrics"] = out("metrics.json")
     files["report"] = out("report.html")
     metrics = {
@@ -536,7 +537,30 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     write_report(files["report"], metrics, files)
     timings["report_s"] = time.perf_counter() - t0
     metrics["timings_s"] = clean(timings)
+    # an earlier run's outputs not written again (pictures beside these numbers would read as this run's)
+    written = {os.path.basename(p) for p in files.values()} | {as_name[COMPARE_RECORD]}
+    remove_listed(out_dir, own - written)
+    _write_json(os.path.join(out_dir, as_name[COMPARE_RECORD]), {"format": COMPARE_RECORD_FORMAT,
+                                                               "files": sorted(written)})
     return {"files": files, "metrics": metrics}
+
+
+def _names(out_dir: str, own: set[str]) -> dict:
+    """{name of the module docstring, and COMPARE_RECORD: the name to write it under}: the name itself
+    when it is free or an earlier compare's (`own`), else NAME.jiggle.EXT, NAME.jiggle2.EXT, ... the
+    first of those free or own, so a file of the user's is never overwritten."""
+    out, taken = {}, set()
+    for name in (*COMPARE_NAMES, COMPARE_RECORD):
+        stem, ext = os.path.splitext(name)
+        for k in range(1, 1000):
+            cand = name if k == 1 else f"{stem}.jiggle{'' if k == 2 else k - 1}{ext}"
+            if cand not in taken and (cand in own or not os.path.lexists(os.path.join(out_dir, cand))):
+                break
+        else:
+            raise InputError(f"no free name for {name}", out_dir)
+        out[name] = cand
+        taken.add(cand)
+    return out
 
 
 def _title(params: dict) -> str:

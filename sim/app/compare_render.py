@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -174,13 +175,14 @@ def write_png(image: np.ndarray, path: str) -> str:
     return path
 
 
-def write_video(images: list, out_dir: str, fps: float) -> tuple[str, str]:
+def write_video(images: list, out_dir: str, fps: float, name: Callable[[str], str] = str) -> tuple[str, str]:
     """Write (H, W, 3) uint8 images as out_dir/clip.mp4 (H.264, yuv420p) at `fps`, or as
-    out_dir/clip.gif when ffmpeg fails; return (path, how: "mp4" or "gif (ffmpeg failed: ...)")."""
+    out_dir/clip.gif when ffmpeg fails; return (path, how: "mp4" or "gif (ffmpeg failed: ...)").
+    name : maps those file names to the ones to write (compare keeps a user's own clip.mp4)."""
     import imageio.v2 as iio2
     import imageio.v3 as iio
 
-    path = os.path.join(out_dir, "clip.mp4")
+    path = os.path.join(out_dir, name("clip.mp4"))
     try:
         with atomic_path(path) as tmp:
             writer = iio2.get_writer(tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264",
@@ -196,15 +198,15 @@ def write_video(images: list, out_dir: str, fps: float) -> tuple[str, str]:
         return path, "mp4"
     except Exception as e:          # no ffmpeg binary, a codec missing, a crash: the GIF still shows it
         reason = f"{type(e).__name__}: {e}".splitlines()[0][:200]
-    path = os.path.join(out_dir, "clip.gif")
+    path = os.path.join(out_dir, name("clip.gif"))
     with atomic_path(path) as tmp:
         iio.imwrite(tmp, np.stack(images), extension=".gif", duration=1000.0 / fps, loop=0)
     return path, f"gif (ffmpeg failed: {reason})"
 
 
 def render_outputs(data, peak_frame: int, disp: np.ndarray, out_dir: str, *, video: bool = True,
-                   progress=None) -> dict:
-    """Write peak.png and (with video) clip.mp4 or clip.gif into out_dir.
+                   progress=None, name: Callable[[str], str] = str) -> dict:
+    """Write peak.png and (with video) clip.mp4 or clip.gif into out_dir (name: as write_video's).
 
     data : sim.bake.caches.BakeData. peak_frame : the frame of peak.png. disp : (T, V) metres, the skin
     displacement per frame (its maximum fixes the colour scale). progress(1) after each frame.
@@ -233,7 +235,7 @@ def render_outputs(data, peak_frame: int, disp: np.ndarray, out_dir: str, *, vid
         image = r.draw(data.skin_static[k], data.skin_final[k], peak_box, direction,
                        f"static   frame {k}, t = {times[k]:.3f} s",
                        f"dynamic   coloured by how far the skin moved, up to {disp[k].max() * 1e3:.2f} mm")
-        files["peak"] = write_png(image, os.path.join(out_dir, "peak.png"))
+        files["peak"] = write_png(image, os.path.join(out_dir, name("peak.png")))
         if progress is not None:
             progress(1)
         timings["peak_s"] = time.perf_counter() - t0
@@ -256,7 +258,7 @@ def render_outputs(data, peak_frame: int, disp: np.ndarray, out_dir: str, *, vid
         duration = float(times[sel[-1]] - times[sel[0]])
         fps = (len(sel) - 1) / duration if len(sel) > 1 and duration > 0 else data.fps
         fps = float(min(max(fps, 1.0), max(data.fps, 1.0)))
-        files["video"], how = write_video(images, out_dir, fps)
+        files["video"], how = write_video(images, out_dir, fps, name)
         timings["video_encode_s"] = time.perf_counter() - t0
         info = {"file": os.path.basename(files["video"]), "format": how, "frames": int(len(sel)),
                 "every": float(T - 1) / max(len(sel) - 1, 1), "fps": fps,

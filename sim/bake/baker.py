@@ -20,7 +20,9 @@ its caches are equal bit for bit (tests/bake/test_bake.py kills a bake to show i
 the parameter set's key; resuming with other parameters is refused, naming what differs.
 
 A folder holds either a finished bake (its caches and bake.json) or an unfinished one (.partial/):
-starting a new bake removes the old caches first, and the caches are written only once every chunk
+starting a new bake removes first the files the old bake and `jiggle compare` recorded writing (bake.json's
+"files", the manifest's "files", compare's record COMPARE_RECORD) and nothing else: a user's own files
+in the folder stay. The caches are written only once every chunk
 is there, each through a temporary file renamed at the end, so no cache that looks complete is ever
 a partial one.
 """
@@ -29,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -192,14 +195,108 @@ def cache_paths(out_dir: str, formats) -> dict:
 COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "energy.png", "spectrum.png",
                  "displacement.png", "quality.png", "peak.png", "quality_closeups.png", "clip.mp4", "clip.gif",
                  "report.html")
-"""What `jiggle compare` writes beside a bake (sim/app/compare.py): stale once the bake is redone."""
+"""The names `jiggle compare` writes beside a bake (sim/app/compare.py) when they are free."""
+COMPARE_RECORD = "compare.json"
+"""`jiggle compare`'s record of the files it wrote into a bake folder: {"format": COMPARE_RECORD_FORMAT,
+"files": [names]} (under compare.jiggle.json, compare.jiggle2.json, ... when the folder holds a
+compare.json of its own). A bake or compare removes or overwrites only files such a record lists."""
+COMPARE_RECORD_FORMAT = "jiggle.compare-files/1"
+COMPARE_FORMAT = "jiggle.compare/1"
+"""metrics.json's format: its "files" are the record of a compare from before COMPARE_RECORD existed."""
+_PARTIAL_FILE = re.compile(r"manifest\.json|chunk_\d{5}\.npz|\..+\.tmp.*")
+
+
+def _read_json(path: str):
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    except (OSError, ValueError):
+        return None
+
+
+def _plain_name(name) -> bool:
+    """A bare file name inside the folder: no folder part, no way out of it."""
+    return (isinstance(name, str) and name not in ("", ".", "..") and os.path.basename(name) == name
+            and "/" not in name and (os.altsep is None or os.altsep not in name))
+
+
+def compare_records(out_dir: str) -> list[str]:
+    """Names of compare's records in out_dir (see COMPARE_RECORD): compare*.json files of that format."""
+    try:
+        entries = sorted(os.listdir(out_dir))
+    except OSError:
+        return []
+    out = []
+    for name in entries:
+        if not (name.startswith("compare") and name.endswith(".json")):
+            continue
+        path = os.path.join(out_dir, name)
+        if os.path.islink(path) or not os.path.isfile(path):
+            continue
+        rec = _read_json(path)
+        if isinstance(rec, dict) and rec.get("format") == COMPARE_RECORD_FORMAT and isinstance(rec.get("files"),
+                                                                                               list):
+            out.append(name)
+    return out
+
+
+def compare_files(out_dir: str) -> set[str]:
+    """Names of the files an earlier `jiggle compare` recorded writing into out_dir (its record, else
+    the metrics.json of a compare from before the record), the record itself included; only bare names."""
+    names = set()
+    for rec_name in compare_records(out_dir):
+        rec = _read_json(os.path.join(out_dir, rec_name))
+        names |= {n for n in rec["files"] if _plain_name(n)} | {rec_name}
+    metrics = _read_json(os.path.join(out_dir, "metrics.json"))
+    if isinstance(metrics, dict) and metrics.get("format") == COMPARE_FORMAT and isinstance(metrics.get("files"),
+                                                                                             dict):
+        names |= {n for n in metrics["files"].values() if _plain_name(n)} | {"metrics.json"}
+    return names
+
+
+def remove_listed(out_dir: str, names) -> None:
+    """Remove the regular files `names` (bare names, see _plain_name) from out_dir. A name with a folder
+    part or leading out of the folder, a symlink (never followed) or anything but a plain file is left."""
+    for name in names:
+        if not _plain_name(name):
+            continue
+        path = os.path.join(out_dir, name)
+        if os.path.islink(path) or not os.path.isfile(path):
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(path)
+
+
+def _bake_files(out_dir: str) -> set[str]:
+    """Names of the files the folder's earlier bake recorded: bake.json's caches and bake.json, and the
+    caches an unfinished bake's manifest meant to write (an older manifest without the list: every
+    cache name)."""
+    names = set()
+    summary = _read_json(os.path.join(out_dir, SUMMARY))
+    if isinstance(summary, dict) and "key" in summary and isinstance(summary.get("files"), dict):
+        names |= {n for n in summary["files"].values() if _plain_name(n)} | {SUMMARY}
+    manifest = _read_json(os.path.join(out_dir, PARTIAL, MANIFEST))
+    if isinstance(manifest, dict) and manifest.get("format") == MANIFEST_FORMAT:
+        listed = manifest.get("files")
+        names |= {n for n in listed if _plain_name(n)} if isinstance(listed, list) else set(CACHE_NAMES.values())
+    return names
+
+
+def _partial_is_ours(partial: str) -> bool:
+    """True when .partial holds nothing but an unfinished bake's files (manifest, chunks, temporaries)."""
+    if os.path.islink(partial):
+        return False
+    try:
+        entries = list(os.scandir(partial))
+    except OSError:
+        return False
+    return all(e.is_file(follow_symlinks=False) and _PARTIAL_FILE.fullmatch(e.name) for e in entries)
 
 
 def _remove_finished(out_dir: str) -> None:
-    """Drop a finished bake's caches, summary and comparison, so the folder never mixes two bakes."""
-    for name in (*CACHE_NAMES.values(), SUMMARY, *COMPARE_NAMES):
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(os.path.join(out_dir, name))
+    """Drop what earlier bakes and compares recorded writing here (their caches, summary, comparison),
+    so the folder never mixes two bakes; every file they did not record is left as it is."""
+    remove_listed(out_dir, _bake_files(out_dir) | compare_files(out_dir))
 
 
 def _diff(a, b, prefix="") -> list[str]:
@@ -232,16 +329,25 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         raise InputError("the output folder is not writable", out_dir, field="--out")
     n = num_chunks(setup)
     manifest = {"format": MANIFEST_FORMAT, "key": setup.key, "frames": len(setup.times), "chunk": setup.chunk,
-                "chunks": n, "params": setup.params}
+                "chunks": n, "params": setup.params,
+                "files": sorted(os.path.basename(p) for p in cache_paths(out_dir, setup.formats).values())}
+    # the manifest lists the caches this bake will write: a new bake removes those of one interrupted
+    # while writing them (and nothing else)
     t_start = time.perf_counter()
     done, state = 0, None
     if resume:
         done, state = _resume(setup, out_dir, manifest_path, log)
+        old = _read_json(manifest_path)
+        if isinstance(old, dict) and old.get("files") != manifest["files"]:     # same key: list the caches
+            _write_json(manifest_path, {**old, "files": sorted(set(old.get("files") or []) | set(manifest["files"]))})
     else:
+        if os.path.lexists(partial) and not _partial_is_ours(partial):
+            raise InputError(f"{PARTIAL} here holds files that are not an unfinished bake's; move it away, or bake "
+                             "into another folder", partial, field="--out")
+        _remove_finished(out_dir)           # reads the old manifest's list: before .partial goes
         if os.path.isdir(partial):
             log(f"removing an unfinished bake in {out_dir} (--resume would have finished it)")
         shutil.rmtree(partial, ignore_errors=True)
-        _remove_finished(out_dir)
         _write_json(manifest_path, manifest)
     if progress is not None and done:
         progress(chunk_frames(setup, done - 1)[1])

@@ -139,9 +139,9 @@ def test_killed_bake_resumes_to_the_same_caches(tmp_path, arm_bake):
 
 
 def test_blend_zero_bakes_the_static_skin_exactly(capsys, tmp_path):
-    (tmp_path / "report.html").write_text("an older bake's report")
+    (tmp_path / "report.html").write_text("the user's own report")
     bake_arm(capsys, tmp_path, "--blend", "0", "--formats", "npz")
-    assert not (tmp_path / "report.html").exists()            # a new bake drops the old comparison
+    assert (tmp_path / "report.html").read_text() == "the user's own report"    # no compare wrote it: kept
     d = read_npz(tmp_path / "bake.npz")
     np.testing.assert_array_equal(d.skin_final, d.skin_static)
     np.testing.assert_array_equal(d.muscle_cvs_dynamic, d.muscle_cvs_static)
@@ -359,3 +359,75 @@ def test_a_nan_skin_stops_the_bake_before_any_cache(capsys, tmp_path, monkeypatc
     assert code == 2 and "skin_final" in err and "frame 37" in err and "vertex 7" in err
     assert not (tmp_path / "bake.npz").exists()
     assert (tmp_path / ".partial" / "chunk_00001.npz").exists()
+
+
+def test_bake_and_compare_replace_only_their_own_files(capsys, tmp_path):
+    """A folder with the user's own report.html, notes and a subfolder: bake, compare, bake again with
+    other formats, compare again. The user's files stay byte for byte; the bake's and compare's old
+    outputs are replaced (compare writes its report beside the user's, under another name) or removed."""
+    mine = {"report.html": b"<p>my own report</p>", "bake_notes.txt": b"notes\n",
+            "metrics.json": b'{"mine": true}', "compare.json": b'{"also": "mine"}',
+            "sub/bake.json": b"{}", "sub/report.html": b"sub"}
+    for name, data in mine.items():
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_bytes(data)
+
+    def user_files_intact():
+        for name, data in mine.items():
+            assert (tmp_path / name).read_bytes() == data, name
+
+    bake_arm(capsys, tmp_path, "--formats", "npz,usda", "--frames", "30")
+    user_files_intact()
+    code, out, err = run(capsys, "compare", str(tmp_path), "--no-render")
+    assert code == 0, err
+    user_files_intact()
+    metrics = json.loads((tmp_path / "metrics.jiggle.json").read_text())
+    assert metrics["files"]["report"] == "report.jiggle.html" and "report.jiggle.html" in out
+    record = json.loads((tmp_path / "compare.jiggle.json").read_text())
+    assert {"metrics.jiggle.json", "report.jiggle.html", "amplitude.png", "compare.jiggle.json"} <= set(record["files"])
+    first_report = (tmp_path / "report.jiggle.html").stat().st_ino
+    code, _, err = run(capsys, "compare", str(tmp_path), "--no-render")      # again: its own files, same names
+    assert code == 0, err
+    user_files_intact()
+    assert sorted(p.name for p in tmp_path.glob("report*")) == ["report.html", "report.jiggle.html"]
+    assert (tmp_path / "report.jiggle.html").stat().st_ino != first_report  # written anew (atomically)
+
+    bake_arm(capsys, tmp_path, "--formats", "npz,pc2", "--frames", "20")
+    user_files_intact()
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted(["bake.json", "bake.npz", "bake.pc2", "bake_notes.txt", "compare.json", "metrics.json",
+                           "report.html", "sub"]), left                     # bake.usda and the comparison gone
+    assert read_npz(tmp_path / "bake.npz").num_frames == 20
+    assert sorted(p.name for p in (tmp_path / "sub").iterdir()) == ["bake.json", "report.html"]
+
+
+def test_a_listed_file_outside_the_folder_or_a_symlink_is_never_removed(capsys, tmp_path):
+    """Records that name files outside the folder (tampered), or a listed name that is now a symlink to
+    a file elsewhere: a new bake removes neither them nor what the link points at."""
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    outside.mkdir()
+    victims = {n: outside / n for n in ("a.txt", "b.txt", "c.txt", "d.txt", "e.txt")}
+    for p in victims.values():
+        p.write_text("keep me")
+    bake_arm(capsys, out, "--formats", "npz", "--frames", "20")
+    summary = json.loads((out / "bake.json").read_text())
+    summary["files"]["usda"] = str(victims["a.txt"])                        # an absolute path
+    summary["files"]["pc2"] = "../outside/b.txt"                             # a way out
+    (out / "bake.json").write_text(json.dumps(summary))
+    (out / "compare.json").write_text(json.dumps({"format": "jiggle.compare-files/1",
+                                                  "files": [str(victims["c.txt"]), "../outside/d.txt",
+                                                            "amplitude.png"]}))
+    (out / "amplitude.png").symlink_to(victims["e.txt"])                    # a listed name, now a symlink
+    bake_arm(capsys, out, "--formats", "npz", "--frames", "20")
+    for p in victims.values():
+        assert p.read_text() == "keep me", p
+    assert (out / "amplitude.png").is_symlink() and not (out / "compare.json").exists()
+
+
+def test_a_foreign_partial_folder_is_not_removed(capsys, tmp_path):
+    (tmp_path / ".partial").mkdir()
+    (tmp_path / ".partial" / "mine.txt").write_text("mine")
+    code, _, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+                       "--formats", "npz", "--frames", "20")
+    assert code == 2 and ".partial" in err
+    assert (tmp_path / ".partial" / "mine.txt").read_text() == "mine"
