@@ -16,6 +16,18 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_USER_ERROR, f"jiggle: error: {message}\n")
 
 
+def output_options(p: argparse.ArgumentParser, top: bool = False) -> None:
+    """--quiet and --verbose: how much a command prints. Every parser takes them, so they may come before or
+    after the subcommand; a subcommand's copy has no default, not to hide the one given before it."""
+    g = p.add_argument_group("output").add_mutually_exclusive_group()
+    default = False if top else argparse.SUPPRESS
+    g.add_argument("-q", "--quiet", action="store_true", default=default,
+                   help="errors only: no progress bars, notices, warnings or list of files written")
+    g.add_argument("-v", "--verbose", action="store_true", default=default,
+                   help="also Warp's start-up and kernel-load lines with their timings, the command's time, and "
+                        "every warning (NumPy's overflow and invalid-value ones too), which are hidden by default")
+
+
 def _real(name, ok, expected):
     """A float argument type whose messages name the option: not a number, or not `expected`."""
     def conv(v):

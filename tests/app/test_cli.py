@@ -252,3 +252,148 @@ def test_one_name_for_the_character_map(command):
     b = p.parse_args([command, *extra, "--joint-map", "m.toml"])
     assert a.character_map == b.character_map == "m.toml"
     assert not hasattr(a, "joint_map")
+
+
+# ------------------------------------------------------------------ python -m jiggle, --quiet, --verbose
+ROOT = Path(__file__).resolve().parents[2]
+ARM = str(ROOT / "scenes" / "simple_arm.toml")
+TINY_ASF = """:version 1.10
+:name tiny
+:units
+  mass 1.0
+  length 1.0
+  angle deg
+:root
+   order TX TY TZ RX RY RZ
+   axis XYZ
+   position 0 0 0
+   orientation 0 0 0
+:bonedata
+  begin
+     id 1
+     name a
+     direction {direction}
+     length 1
+     axis 0 0 0  XYZ
+  end
+:hierarchy
+  begin
+    root a
+  end
+"""
+
+
+def jiggle_module(*argv, **kw):
+    """`python -m jiggle ARGV` in a new process (PYTHONPATH: the checkout, whatever the install maps)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, "-m", "jiggle", *argv], cwd=kw.pop("cwd", ROOT), env=env,
+                          capture_output=True, text=True, timeout=300, **kw)
+
+
+def test_python_m_jiggle_is_the_cli(tmp_path):
+    done = jiggle_module("--help", cwd=tmp_path)
+    assert done.returncode == 0 and "usage: jiggle" in done.stdout and "--quiet" in done.stdout, done.stderr
+    assert "--verbose" in done.stdout and "python -m jiggle" in done.stdout
+    done = jiggle_module("inspect", str(tmp_path / "missing.bvh"))
+    assert done.returncode == 2 and done.stderr.startswith("jiggle: error:") and "missing.bvh" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and done.stdout == ""
+
+
+@pytest.mark.parametrize("before", [True, False])
+def test_quiet_prints_nothing_but_errors(capsys, tmp_path, before):
+    """--quiet (before or after the command): no progress, notices or files listed; the bake is written;
+    an error is still its one line."""
+    argv = ["bake", ARM, "--out", str(tmp_path), "--frames", "8", "--chunk", "4", "--formats", "npz"]
+    code, out, err = run(capsys, *(["--quiet", *argv] if before else [*argv, "-q"]))
+    assert code == 0 and out == "" and err == ""
+    assert (tmp_path / "bake.npz").is_file() and (tmp_path / "bake.json").is_file()
+    code, out, err = run(capsys, "-q", "bake", "--clip", str(tmp_path / "missing.bvh"), "--out", str(tmp_path))
+    assert code == 2 and out == "" and err.startswith("jiggle: error:") and len(err.strip().splitlines()) == 1
+
+
+def test_quiet_and_verbose_are_exclusive(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--quiet", "inspect", "x.bvh", "--verbose"])
+    assert e.value.code == 2 and "--quiet and --verbose" in capsys.readouterr().err
+
+
+def test_a_warning_before_an_error_is_not_printed(capsys, tmp_path):
+    """An ASF whose bone direction overflows: NumPy's overflow warning then the exit-2 line, which alone
+    is printed (with --verbose too)."""
+    asf = tmp_path / "huge.asf"
+    asf.write_text(TINY_ASF.format(direction="1e300 1e300 1e300"))
+    for extra in ([], ["--verbose"]):
+        code, out, err = run(capsys, "inspect", str(asf), *extra)
+        assert code == 2 and err.startswith("jiggle: error:") and len(err.strip().splitlines()) == 1, err
+        assert "RuntimeWarning" not in err and "overflow" not in err
+
+
+def warn_then(monkeypatch, fail: bool):
+    """`jiggle inspect` replaced by a command that issues a JiggleWarning and a NumPy overflow, then
+    fails with an InputError or succeeds."""
+    from rig.base.errors import InputError, JiggleWarning
+    from sim.app.commands import inspect as inspect_cmd
+
+    def fake(args):
+        import warnings
+        warnings.warn("first notice", JiggleWarning, stacklevel=1)
+        with np.errstate(over="warn"):
+            np.float64(1e300) * np.float64(1e300)
+        warnings.warn("second notice", JiggleWarning, stacklevel=1)
+        if fail:
+            raise InputError("cannot read it", args.file)
+        print("report")
+        return 0
+    monkeypatch.setattr(inspect_cmd, "run", fake)
+
+
+def test_jiggle_warnings_before_an_input_error_are_not_printed(capsys, monkeypatch):
+    warn_then(monkeypatch, fail=True)
+    code, out, err = run(capsys, "inspect", "some.bvh")
+    assert code == 2 and err == "jiggle: error: some.bvh: cannot read it\n"
+
+
+def test_warnings_follow_a_success_in_order_numpy_ones_only_with_verbose(capsys, monkeypatch):
+    warn_then(monkeypatch, fail=False)
+    code, out, err = run(capsys, "inspect", "some.bvh")
+    assert code == 0 and out == "report\n"
+    assert err == "jiggle: warning: first notice\njiggle: warning: second notice\n"
+    code, out, err = run(capsys, "inspect", "some.bvh", "--verbose")
+    assert code == 0 and err.index("first notice") < err.index("overflow") < err.index("second notice")
+    assert "jiggle: inspect took" in err
+    code, out, err = run(capsys, "--quiet", "inspect", "some.bvh")
+    assert code == 0 and out == "" and err == ""
+
+
+def test_interrupt_counts_the_frames_kept_on_disk(capsys, tmp_path, monkeypatch):
+    """Ctrl-C in chunk 3 of 16-frame chunks: 48 frames kept (the progress bar, off when stderr is not a
+    terminal, counted 0), said in one line with the --resume command."""
+    from sim.bake import baker as bake_mod
+    real = bake_mod.Baker.chunk
+
+    def chunk(self, c, state):
+        if c == 3:
+            raise KeyboardInterrupt
+        return real(self, c, state)
+    monkeypatch.setattr(bake_mod.Baker, "chunk", chunk)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+                         "--formats", "npz", "--quiet")
+    assert code == 130 and len(err.strip().splitlines()) == 1, err
+    frames = json.loads((tmp_path / ".partial" / "manifest.json").read_text())["frames"]
+    assert err.startswith(f"jiggle: interrupted after 48 of {frames} frames: the 3 finished chunks (of ")
+    assert f"--resume --out {tmp_path}" in err
+
+
+@pytest.mark.slow
+def test_warp_lines_only_with_verbose(tmp_path):
+    """By default a bake's output has no Warp start-up or kernel-load lines; --verbose shows them, with
+    their timings and the command's time."""
+    argv = ["bake", ARM, "--frames", "8", "--chunk", "4", "--formats", "npz"]
+    quiet = jiggle_module(*argv, "--out", str(tmp_path / "a"))
+    assert quiet.returncode == 0, quiet.stderr
+    assert "Warp" not in quiet.stdout + quiet.stderr and "Module " not in quiet.stdout + quiet.stderr
+    loud = jiggle_module("--verbose", *argv, "--out", str(tmp_path / "b"))
+    assert loud.returncode == 0, loud.stderr
+    assert "Warp" not in loud.stdout                 # on stderr, not mixed with the command's output
+    assert "Warp " in loud.stderr and "initialized" in loud.stderr
+    assert "Module " in loud.stderr and " ms" in loud.stderr and "jiggle: bake took" in loud.stderr

@@ -32,7 +32,8 @@ def bake_request(args):
 
 
 def run_bake(request, out_dir: str, resume: bool = False) -> dict:
-    """Prepare and bake with a progress bar; on Ctrl-C say how to resume and re-raise."""
+    """Prepare and bake with a progress bar; on Ctrl-C re-raise KeyboardInterrupt with a message saying what
+    was kept and how to resume (main prints it after "jiggle: interrupted")."""
     from tqdm import tqdm
 
     from sim.bake.baker import bake
@@ -51,10 +52,26 @@ def run_bake(request, out_dir: str, resume: bool = False) -> dict:
                            log=lambda s: bar.write(f"  {s}", file=sys.stderr))
         except KeyboardInterrupt:
             bar.close()
-            print(f"jiggle: interrupted after {bar.n} of {T} frames; the chunks baked so far are kept in "
-                  f"{os.path.join(out_dir, '.partial')}: run the same command with --resume to finish", file=sys.stderr)
-            raise
+            raise KeyboardInterrupt(interrupted_message(setup, out_dir)) from None
     return summary
+
+
+def interrupted_message(setup, out_dir: str) -> str:
+    """What a Ctrl-C kept: the frames of the chunks finished on disk (not the progress bar's count, which
+    stays 0 when stderr is not a terminal), and how to resume."""
+    import shlex
+
+    from sim.bake.baker import PARTIAL, chunk_frames, chunk_path, num_chunks
+    n, T = num_chunks(setup), len(setup.times)
+    kept = 0
+    while kept < n and os.path.isfile(chunk_path(out_dir, kept)):    # chunks are written atomically, in order
+        kept += 1
+    frames = chunk_frames(setup, kept - 1)[1] if kept else 0
+    partial = os.path.join(os.path.abspath(out_dir), PARTIAL)
+    if not os.path.isdir(partial):
+        return f"after 0 of {T} frames, before the bake began; nothing was kept"
+    return (f"after {frames} of {T} frames: the {kept} finished chunks (of {n}) are kept in {partial}; to "
+            f"finish, run the same command with --resume --out {shlex.quote(out_dir)}")
 
 
 def print_bake(summary: dict, out_dir: str) -> None:
