@@ -49,6 +49,73 @@ Z_UP.setflags(write=False)
 
 
 # ---------------------------------------------------------------------------------- the document
+# (JSON path pattern, the array its index points into); "*" is every item of an array or every value of
+# an object. Checked on the raw JSON before anything reads it, so no reader meets a dangling index.
+_REFERENCES = (
+    ("scenes.*.nodes.*", "nodes"), ("scene", "scenes"),
+    ("nodes.*.children.*", "nodes"), ("nodes.*.mesh", "meshes"), ("nodes.*.skin", "skins"),
+    ("nodes.*.camera", "cameras"),
+    ("meshes.*.primitives.*.attributes.*", "accessors"), ("meshes.*.primitives.*.indices", "accessors"),
+    ("meshes.*.primitives.*.material", "materials"), ("meshes.*.primitives.*.targets.*.*", "accessors"),
+    ("skins.*.joints.*", "nodes"), ("skins.*.inverseBindMatrices", "accessors"), ("skins.*.skeleton", "nodes"),
+    ("accessors.*.bufferView", "bufferViews"), ("accessors.*.sparse.indices.bufferView", "bufferViews"),
+    ("accessors.*.sparse.values.bufferView", "bufferViews"), ("bufferViews.*.buffer", "buffers"),
+    ("animations.*.channels.*.target.node", "nodes"),
+    ("materials.*.pbrMetallicRoughness.baseColorTexture.index", "textures"),
+    ("materials.*.pbrMetallicRoughness.metallicRoughnessTexture.index", "textures"),
+    ("materials.*.normalTexture.index", "textures"), ("materials.*.occlusionTexture.index", "textures"),
+    ("materials.*.emissiveTexture.index", "textures"),
+    ("textures.*.sampler", "samplers"), ("textures.*.source", "images"), ("images.*.bufferView", "bufferViews"),
+)
+
+
+def _walk(obj, parts: list[str], path: str):
+    """(JSON path, value) of every value at `parts` below obj ("*": every item or value)."""
+    if not parts:
+        yield path, obj
+        return
+    head, rest = parts[0], parts[1:]
+    if head == "*":
+        items = enumerate(obj) if isinstance(obj, list) else obj.items() if isinstance(obj, dict) else ()
+        for k, v in items:
+            yield from _walk(v, rest, f"{path}[{k}]" if isinstance(obj, list) else f"{path}.{k}")
+    elif isinstance(obj, dict) and head in obj:
+        yield from _walk(obj[head], rest, f"{path}.{head}" if path else head)
+
+
+def check_indices(doc: dict, path: str) -> None:
+    """InputError naming the JSON path of the first index in the glTF JSON `doc` that points past its
+    array (`meshes[0].primitives[0].indices = 999: past the 83 accessors`), or is not a whole number;
+    also an animation channel's sampler and a sampler's input/output accessors."""
+    if not isinstance(doc, dict):
+        return
+    checks = list(_REFERENCES)
+    for a, anim in enumerate(doc.get("animations") or []):
+        if not isinstance(anim, dict):
+            continue
+        samplers = anim.get("samplers") or []
+        for c, ch in enumerate(anim.get("channels") or []):
+            if isinstance(ch, dict) and "sampler" in ch:
+                _check(ch["sampler"], len(samplers), f"animations[{a}].samplers",
+                       f"animations[{a}].channels[{c}].sampler", path)
+    for pattern, target in checks:
+        size = len(doc.get(target) or [])
+        for where, value in _walk(doc, pattern.split("."), ""):
+            _check(value, size, target, where, path)
+    n_acc = len(doc.get("accessors") or [])
+    for a, anim in enumerate(doc.get("animations") or []):
+        for k, smp in enumerate((anim or {}).get("samplers") or [] if isinstance(anim, dict) else []):
+            for key in ("input", "output"):
+                if isinstance(smp, dict) and key in smp:
+                    _check(smp[key], n_acc, "accessors", f"animations[{a}].samplers[{k}].{key}", path)
+
+
+def _check(value, size: int, target: str, where: str, path: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < size:
+        raise InputError(f"{value!r}: past the {size} {target}" if isinstance(value, int) and not isinstance(
+            value, bool) else f"{value!r} is not an index into the {size} {target}", path, field=where)
+
+
 class GltfDocument:
     """A parsed glTF file: the pygltflib model plus its buffers as bytes.
 
@@ -90,6 +157,7 @@ class GltfDocument:
         self._bin = bin_chunk
         self._buffers: dict[int, bytes] = {}
         self._accessors: dict[int, np.ndarray] = {}
+        check_indices(json.loads(json_text), self.path)
         g = self.gltf
         n = len(g.nodes)
         parent = np.full(n, -1, dtype=np.int64)

@@ -285,6 +285,8 @@ def describe_gltf(path: str | os.PathLike) -> dict:
     if g.skins and g.skins[0].joints:
         order, _ = joint_tree(doc, list(g.skins[0].joints))
         names = [doc.node_names[n] for n in order]
+    for i in range(len(g.accessors)):  # every accessor's byte range against its buffer, as a reader would
+        doc.accessor(i, f"accessors[{i}]")
     return {
         "format": "GLB" if doc._bin is not None or str(doc.path).lower().endswith(".glb") else "glTF",
         "vertices": int(verts), "faces": int(faces), "meshes": len(g.meshes), "primitives": prims,

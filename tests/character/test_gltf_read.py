@@ -166,3 +166,47 @@ def test_bad_key_times_name_the_accessor(tmp_path, times, message):
         read_gltf_animation(path)
     assert e.value.path == path
     assert e.value.field.startswith("animations[0].samplers[0].input (accessors[")
+
+
+def _mutated_cesium(tmp_path, name, change):
+    """CesiumMan's GLB with its JSON changed by `change(doc)`, written to tmp_path/name."""
+    import copy
+    import json
+    import struct
+
+    from conftest import asset
+    data = open(asset("characters/CesiumMan.glb"), "rb").read()
+    jlen = struct.unpack("<I", data[12:16])[0]
+    doc = copy.deepcopy(json.loads(data[20:20 + jlen]))
+    rest = data[20 + jlen:]
+    change(doc)
+    j = json.dumps(doc).encode()
+    j += b" " * ((4 - len(j) % 4) % 4)
+    p = tmp_path / name
+    p.write_bytes(struct.pack("<III", 0x46546C67, 2, 20 + len(j) + len(rest)) + struct.pack("<II", len(j), 0x4E4F534A)
+                  + j + rest)
+    return str(p)
+
+
+@pytest.mark.parametrize("case, change, field, says", [
+    ("indices", lambda d: d["meshes"][0]["primitives"][0].__setitem__("indices", 999),
+     "meshes[0].primitives[0].indices", "999: past the 83 accessors"),
+    ("joint", lambda d: d["skins"][0]["joints"].__setitem__(0, 999), "skins[0].joints[0]", "past the 22 nodes"),
+    ("view", lambda d: d["accessors"][0].__setitem__("bufferView", 999), "accessors[0].bufferView",
+     "past the 9 bufferViews"),
+    ("sampler", lambda d: d["animations"][0]["channels"][0].__setitem__("sampler", 99),
+     "animations[0].channels[0].sampler", "past the"),
+    ("count", lambda d: d["accessors"][0].__setitem__("count", d["accessors"][0]["count"] * 1000), "accessors[0]",
+     "reads"),
+    ("float", lambda d: d["nodes"][0].__setitem__("mesh", 0.5), "nodes[0].mesh", "is not an index"),
+])
+def test_every_index_and_byte_range_is_checked_before_use(tmp_path, capsys, case, change, field, says):
+    """A dangling index anywhere in the JSON, or an accessor reading past its buffer, is exit 2 naming the
+    JSON path, from inspect and from bake alike: no IndexError from deep inside a reader."""
+    from sim.app.cli import main
+    path = _mutated_cesium(tmp_path, f"{case}.glb", change)
+    for argv in (["inspect", path], ["bake", "--character", path, "--frames", "2", "--formats", "npz",
+                                     "--out", str(tmp_path / "out")]):
+        code = main(argv)
+        err = capsys.readouterr().err
+        assert code == 2 and "Traceback" not in err and f"{field}: " in err and says in err, err
