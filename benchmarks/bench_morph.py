@@ -75,12 +75,13 @@ def main(path: Path = DEFAULT) -> None:
     if not path.exists():
         print(f"skipped: {path} not found (../shared/assets is absent)")
         return
+    from test_morph import stretched
+
     from rig.anatomy.features import FeatureOptions
     from rig.anatomy.morph import MorphOptions, morph, prepare_canonical
     from rig.character.load import load_character
     from rig.skin.muscle_skin import MuscleSkin
     from rig.skin.rbf_skin import RBFSkinOptions
-    from test_morph import stretched
 
     base = load_character(path)
     t = time.perf_counter()

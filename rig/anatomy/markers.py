@@ -25,8 +25,8 @@ frame as jiggle reads it), unless `unit` says otherwise::
     left_elbow = [0.31, 0.05, 0.96]
 
 Every marker of the canonical's set must be there and no other: a file with an unknown name, a
-missing one, a position that is not three finite numbers, is an InputError naming the file, the
-marker and (for TOML) its line.
+missing one, a position that is not three finite numbers or lies over 1 km from the origin, is an
+InputError naming the file, the marker and (for TOML) its line.
 """
 from __future__ import annotations
 
@@ -197,6 +197,9 @@ def find_markers(vertices, faces, roles: dict, positions: np.ndarray, segments, 
 
 
 # ---------------------------------------------------------------------------------- files
+MAX_DISTANCE = 1000.0   # metres: a marker farther from the origin is refused
+
+
 def _line_of(path: str, name: str) -> int | None:
     """The line of `path` that sets `name`, for messages."""
     with open(path, encoding="utf-8") as fh:
@@ -247,6 +250,10 @@ def read_markers(path: str | os.PathLike, names) -> dict[str, np.ndarray]:
             raise InputError(f"marker {n!r}: expected three finite numbers [x, y, z], got {v!r}", p,
                              line=_line_of(p, n), field=f"markers.{n}")
         out[n] = np.asarray(v, np.float64) * float(scale)
+        if not np.linalg.norm(out[n]) <= MAX_DISTANCE:
+            raise InputError(f"marker {n!r} is {np.linalg.norm(out[n]):.4g} m from the origin; expected at most "
+                             f"{MAX_DISTANCE:g} m (a wrong unit or a broken number?)", p, line=_line_of(p, n),
+                             field=f"markers.{n}")
     return out
 
 

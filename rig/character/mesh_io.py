@@ -8,6 +8,7 @@ node transforms. Units: `unit`, or found from the height (rig.character.characte
 """
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 
@@ -56,7 +57,7 @@ def read_mesh(path: str | os.PathLike, unit: str | float | None = None, up: str 
         v, f, uvs = _read_gltf_meshes(p)
         axis = "y"
     elif ext in MESH_EXTENSIONS:
-        v, f, uvs = _read_trimesh(p)
+        v, f, uvs = read_trimesh(p)
         axis = up if up != "auto" else ("y" if np.ptp(v[:, 1]) > np.ptp(v[:, 2]) else "z") if len(v) else "z"
         if axis == "y":
             v = v @ _Y_UP.T
@@ -78,12 +79,19 @@ def read_mesh(path: str | os.PathLike, unit: str | float | None = None, up: str 
                 source=p, unit_scale=s, up=axis)
 
 
-def _read_trimesh(p: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def read_trimesh(p: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(vertices (V, 3) float64 as in the file, faces (F, 3), uvs (V, 2) float32 or None) of an OBJ, PLY,
+    STL or OFF file through trimesh, its logged tracebacks silenced; InputError for a file it cannot read."""
     import trimesh
+    log = logging.getLogger("trimesh")   # trimesh logs its fallbacks with tracebacks; jiggle reports itself
+    was = log.level
+    log.setLevel(logging.CRITICAL + 1)   # its modules' loggers inherit the level
     try:
         m = trimesh.load(p, process=False, force="mesh")
     except Exception as e:  # trimesh raises many types on malformed files
         raise InputError(f"cannot read the mesh ({type(e).__name__}: {e})", p) from None
+    finally:
+        log.setLevel(was)
     if not isinstance(m, trimesh.Trimesh):
         raise InputError("the file holds no triangle mesh", p)
     uv = getattr(m.visual, "uv", None)

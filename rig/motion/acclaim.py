@@ -8,7 +8,8 @@ Readings where the format is loose, stated once here:
 - Units: ``:units length L`` means a file unit is 1/L inches, so metres per unit = 0.0254 / L (CMU's
   0.45 gives 0.056444 m). ``angle deg|rad`` is the unit of the ASF's angles (``axis``, root
   ``orientation``, rotational ``limits``); the AMC's angles follow its own ``:DEGREES``/``:RADIANS``
-  (degrees when absent). ``mass`` is ignored.
+  (degrees when absent). ``mass`` is ignored. Physical range: a file unit, the root position or a
+  bone length over 1 km (MAX_OFFSET) is refused at its line.
 - A bone's ``axis ax ay az ORDER`` gives the three angles about x, y and z, applied in ``ORDER``
   (first letter first) as rotations of column vectors: ``XYZ`` is C = Rz(az) Ry(ay) Rx(ax).
 - A bone's AMC rotation values are listed in its ``dof`` order, but always compose as
@@ -46,6 +47,7 @@ from rig.motion.bvh import Y_TO_Z_UP
 from rig.motion.clip import Clip
 
 INCH = 0.0254  # metres
+MAX_OFFSET = 1000.0  # metres: a longer root position or bone (or a larger file unit) is refused
 CMU_FPS = 120.0  # CMU captured at 120 frames per second; AMC files do not store a rate
 _DOFS = ("rx", "ry", "rz", "tx", "ty", "tz", "l")
 _AXES = "XYZ"
@@ -272,6 +274,9 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
             if length_unit <= 0:
                 raise InputError(f"length must be > 0 (file units per inch), found {toks[1]}", p, ln,
                                  "units length")
+            if not INCH / length_unit <= MAX_OFFSET:
+                raise InputError(f"length {toks[1]} makes a file unit {INCH / length_unit:.4g} m; expected at most "
+                                 f"{MAX_OFFSET:g} m", p, ln, "units length")
         elif key == "angle":
             angle_unit = toks[1].lower()
             if angle_unit not in ("deg", "rad"):
@@ -295,6 +300,7 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
             axis = _order(toks[1], p, ln, "root axis")
         elif key == "position":
             position = _nums(toks[1:], 3, p, ln, "root position")
+            _check_length(float(np.linalg.norm(position)) * INCH / length_unit, p, ln, "root position")
         elif key == "orientation":
             orientation = _nums(toks[1:], 3, p, ln, "root orientation") * to_rad
         else:
@@ -304,7 +310,7 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
         raise InputError("the :root section has no 'order'", p, section_line["root"], "root order")
     root = AsfRoot(order, axis, frozen_array(position), frozen_array(orientation))
 
-    bones = _parse_bones(sections["bonedata"], p, to_rad)
+    bones = _parse_bones(sections["bonedata"], p, to_rad, INCH / length_unit)
     by_name = {b.name: k for k, b in enumerate(bones)}
     if "root" in by_name:
         raise InputError("a bone is named 'root', the name of the root", p, bones[by_name["root"]].line,
@@ -356,7 +362,15 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
                        bones=tuple(bones[k] for k in order_out), parents=tuple(parents))
 
 
-def _parse_bones(rows: list[tuple[int, list[str]]], p: str, to_rad: float) -> list[AsfBone]:
+def _check_length(metres: float, p: str, ln: int, what: str) -> None:
+    """InputError at line `ln` when a length is beyond MAX_OFFSET metres (or not finite)."""
+    if not metres <= MAX_OFFSET:
+        raise InputError(f"{what} is {metres:.4g} m; expected at most {MAX_OFFSET:g} m (a wrong :units length or a "
+                         f"broken number?)", p, ln, what)
+
+
+def _parse_bones(rows: list[tuple[int, list[str]]], p: str, to_rad: float,
+                 metres_per_unit: float = INCH) -> list[AsfBone]:
     bones: list[AsfBone] = []
     cur: dict | None = None
     pending_limits = 0  # limits still expected on the following lines
@@ -398,6 +412,7 @@ def _parse_bones(rows: list[tuple[int, list[str]]], p: str, to_rad: float) -> li
             v = _nums(toks[1:], 1, p, ln, "length")[0]
             if v < 0:
                 raise InputError(f"a bone length must be >= 0, found {toks[1]}", p, ln, "length")
+            _check_length(float(v) * metres_per_unit, p, ln, "length")
             cur["length"] = v
         elif key == "axis":
             if len(toks) != 5:
@@ -617,6 +632,13 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
             m = _rzryrx(ang[:, rotating])
             c = axes[rotating]
             rotations[:, rotating] = quat.mul(quat.mul(c, m), quat.conj(c))
+        far = ~(np.abs(translations) * asf.metres_per_unit <= MAX_OFFSET).all(axis=2)
+    if far.any():
+        f, j = np.argwhere(far)[0]
+        dist = np.linalg.norm(translations[f, j]) * asf.metres_per_unit
+        raise InputError(f"frame {f + 1} places {names[j]!r} {dist:.4g} m from its parent (the origin for the "
+                         f"root); expected at most {MAX_OFFSET:g} m (a broken number or a wrong :units length?)",
+                         p, frame_lines[f], names[j])
     meta = {"format": "ASF/AMC", "frames_in_file": F, "angles": "degrees" if degrees else "radians",
             "fps": f"{fps:g} (given)" if fps != CMU_FPS else f"{CMU_FPS:g} (CMU default)"}
     return _make_clip(asf, names, parents, offsets, rotations, translations, ends, fps,

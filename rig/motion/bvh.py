@@ -17,6 +17,8 @@ Readings where the format is loose, stated once here:
   ``clip.meta["units"]``. Pass `scale` for anything else.
 - Frame rate: 1 / Frame Time, snapped to a whole number when within 1e-4 of one (files print
   0.0083333 for 120 fps).
+- Physical ranges, refused with the line: a Frame Time <= 0, non-finite or outside [1e-6, 3600] s; an
+  OFFSET (or a position channel value) over 1 km once scaled to metres.
 - T-pose: the CMU conversion prepends a T-pose frame. With ``tpose="auto"`` (default) the first frame
   is dropped when it looks added: all its rotation values are whole degrees, and the mean change
   over rotation channels from it to the second frame is over 2 degrees and over 5 times the 95th
@@ -34,17 +36,19 @@ from rig.motion import quat
 from rig.motion.clip import Clip
 
 CMU_UNIT = 0.056444  # metres per CMU BVH unit (1/0.45 inch)
+MAX_OFFSET = 1000.0  # metres: a longer OFFSET (or position channel) is a broken file or a wrong unit
+MIN_FRAME_TIME, MAX_FRAME_TIME = 1e-6, 3600.0  # seconds: a million fps to one frame an hour
 _ROT = {"xrotation": "X", "yrotation": "Y", "zrotation": "Z"}
 _POS = {"xposition": 0, "yposition": 1, "zposition": 2}
 Y_TO_Z_UP = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2)  # (x,y,z) -> (x,-z,y)
 
 
 class _Joint:
-    __slots__ = ("name", "parent", "offset", "channels", "line")
+    __slots__ = ("name", "parent", "offset", "channels", "line", "offset_line")
 
     def __init__(self, name, parent, line):
         self.name, self.parent, self.line = name, parent, line
-        self.offset = None
+        self.offset, self.offset_line = None, line
         self.channels: list[str] = []
 
 
@@ -58,11 +62,11 @@ def _number(tok: str, path: str, line: int, what: str) -> float:
     return v
 
 
-def _parse_hierarchy(lines: list[str], path: str) -> tuple[list[_Joint], list[tuple[int, np.ndarray]], int]:
-    """Parse HIERARCHY up to MOTION. Returns joints, end sites (joint index, offset) and the
-    0-based index of the MOTION line."""
+def _parse_hierarchy(lines: list[str], path: str) -> tuple[list[_Joint], list[tuple[int, np.ndarray, int]], int]:
+    """Parse HIERARCHY up to MOTION. Returns joints, end sites (joint index, offset, OFFSET line) and
+    the 0-based index of the MOTION line."""
     joints: list[_Joint] = []
-    ends: list[tuple[int, np.ndarray]] = []
+    ends: list[tuple[int, np.ndarray, int]] = []
     stack: list[object] = []  # _Joint index, or ("end", parent, [offset]) for End Sites
     pending = None  # a node opened by ROOT/JOINT/End Site, waiting for "{"
     seen_hierarchy = False
@@ -108,7 +112,7 @@ def _parse_hierarchy(lines: list[str], path: str) -> tuple[list[_Joint], list[tu
         elif key == "END":
             if len(toks) < 2 or toks[1].upper() != "SITE" or not stack or not isinstance(stack[-1], int):
                 raise InputError("expected 'End Site' inside a joint block", path, ln)
-            pending = ("End Site", ["end", stack[-1], None])
+            pending = ("End Site", ["end", stack[-1], None, ln])
         elif key == "OFFSET":
             if not stack:
                 raise InputError("OFFSET outside a joint block", path, ln)
@@ -117,9 +121,9 @@ def _parse_hierarchy(lines: list[str], path: str) -> tuple[list[_Joint], list[tu
             off = np.array([_number(t, path, ln, "OFFSET") for t in toks[1:]])
             top = stack[-1]
             if isinstance(top, int):
-                joints[top].offset = off
+                joints[top].offset, joints[top].offset_line = off, ln
             else:
-                top[2] = off
+                top[2], top[3] = off, ln
         elif key == "CHANNELS":
             top = stack[-1] if stack else None
             if not isinstance(top, int):
@@ -151,7 +155,7 @@ def _parse_hierarchy(lines: list[str], path: str) -> tuple[list[_Joint], list[tu
             else:
                 if top[2] is None:
                     raise InputError("End Site has no OFFSET", path, ln)
-                ends.append((top[1], top[2]))
+                ends.append((top[1], top[2], top[3]))
         elif key == "{":
             raise InputError("'{' without ROOT, JOINT or End Site before it", path, ln)
         else:
@@ -159,8 +163,10 @@ def _parse_hierarchy(lines: list[str], path: str) -> tuple[list[_Joint], list[tu
     raise InputError("file ends before its MOTION block (truncated?)", path, n)
 
 
-def _parse_motion(lines: list[str], start: int, n_channels: int, path: str) -> tuple[np.ndarray, float]:
-    """Parse 'Frames:', 'Frame Time:' and the frame lines. Returns (F, C) values and frame time."""
+def _parse_motion(lines: list[str], start: int, n_channels: int,
+                  path: str) -> tuple[np.ndarray, float, list[int]]:
+    """Parse 'Frames:', 'Frame Time:' and the frame lines. Returns (F, C) values, frame time and the
+    1-based line of each frame."""
     def header(idx: int, label: str) -> tuple[str, int]:
         while idx < len(lines) and not lines[idx].strip():
             idx += 1
@@ -182,6 +188,9 @@ def _parse_motion(lines: list[str], start: int, n_channels: int, path: str) -> t
     dt = _number(val, path, i + 1, "Frame Time")
     if dt <= 0:
         raise InputError(f"Frame Time must be > 0 seconds, found {val}", path, i + 1)
+    if dt < MIN_FRAME_TIME or dt > MAX_FRAME_TIME:
+        raise InputError(f"{val} s is outside the physical range [{MIN_FRAME_TIME:g}, {MAX_FRAME_TIME:g}] "
+                         f"seconds (expected e.g. 0.0083333 for 120 fps)", path, i + 1, "Frame Time")
     body = [(k + 1, ln) for k, ln in enumerate(lines[i + 1:], start=i + 1) if ln.strip()]
     if len(body) < frames:
         last = body[-1][0] if body else i + 1
@@ -200,7 +209,33 @@ def _parse_motion(lines: list[str], start: int, n_channels: int, path: str) -> t
         for ln_no, ln in body:
             for tok in ln.split():
                 _number(tok, path, ln_no, "a channel value")
-    return data, dt
+    return data, dt, [k for k, _ in body]
+
+
+def _check_offsets(joints: list[_Joint], ends, data: np.ndarray, frame_lines: list[int], scale: float,
+                   path: str) -> None:
+    """InputError at the line of the first OFFSET (or frame line of a position channel) longer than
+    MAX_OFFSET metres once scaled."""
+    for j in joints:
+        if not np.linalg.norm(j.offset) * scale <= MAX_OFFSET:
+            raise InputError(f"OFFSET of joint {j.name!r} is {np.linalg.norm(j.offset) * scale:.4g} m long; "
+                             f"expected at most {MAX_OFFSET:g} m (a wrong unit or a broken number?)",
+                             path, j.offset_line, "OFFSET")
+    for _, off, ln in ends:
+        if not np.linalg.norm(off) * scale <= MAX_OFFSET:
+            raise InputError(f"End Site OFFSET is {np.linalg.norm(off) * scale:.4g} m long; expected at most "
+                             f"{MAX_OFFSET:g} m (a wrong unit or a broken number?)", path, ln, "OFFSET")
+    col = 0
+    for j in joints:
+        for c in j.channels:
+            if c in _POS:
+                with np.errstate(over="ignore", invalid="ignore"):
+                    bad = np.flatnonzero(~(np.abs(data[:, col]) * scale <= MAX_OFFSET))
+                if bad.size:
+                    raise InputError(f"{c} of joint {j.name!r} is {data[bad[0], col]:g} units "
+                                     f"({abs(data[bad[0], col]) * scale:.4g} m); expected at most {MAX_OFFSET:g} m",
+                                     path, frame_lines[bad[0]], c)
+            col += 1
 
 
 def _detect_tpose(rot_deg: np.ndarray, dt: float) -> bool:
@@ -249,7 +284,7 @@ def read_bvh(path: str | os.PathLike, scale: float | None = None, up: str = "y",
     lines = text.splitlines()
     joints, ends, motion_at = _parse_hierarchy(lines, p)
     n_channels = sum(len(j.channels) for j in joints)
-    data, dt = _parse_motion(lines, motion_at, n_channels, p)
+    data, dt, frame_lines = _parse_motion(lines, motion_at, n_channels, p)
 
     J, F = len(joints), data.shape[0]
     offsets = np.array([j.offset for j in joints])
@@ -299,6 +334,7 @@ def read_bvh(path: str | os.PathLike, scale: float | None = None, up: str = "y",
     else:
         units = f"{scale} m per unit (given)"
 
+    _check_offsets(joints, ends, data, frame_lines, scale, p)
     end_parents = np.array([e[0] for e in ends], dtype=np.int32)
     end_offsets = np.array([e[1] for e in ends]).reshape(-1, 3)
     if up.lower() == "y":

@@ -83,6 +83,33 @@ def _walk(obj, parts: list[str], path: str):
         yield from _walk(obj[head], rest, f"{path}.{head}" if path else head)
 
 
+# Arrays of objects, and the keys the spec requires of their items ("*" as in _REFERENCES).
+_OBJECTS = (
+    ("scenes.*", ()), ("nodes.*", ()), ("meshes.*", ("primitives",)), ("meshes.*.primitives.*", ("attributes",)),
+    ("skins.*", ("joints",)), ("accessors.*", ("componentType", "count", "type")),
+    ("bufferViews.*", ("buffer", "byteLength")), ("buffers.*", ("byteLength",)),
+    ("animations.*", ("channels", "samplers")), ("animations.*.channels.*", ("sampler", "target")),
+    ("animations.*.channels.*.target", ("path",)), ("animations.*.samplers.*", ("input", "output")),
+    ("materials.*", ()), ("textures.*", ()), ("images.*", ()), ("samplers.*", ()),
+)
+
+
+def check_structure(doc: dict, path: str) -> None:
+    """InputError naming the JSON path of the first item of a glTF array that is not an object, or lacks a
+    key the spec requires (an accessor without componentType, a channel without target, ...)."""
+    for pattern, required in _OBJECTS:
+        parent, last = pattern.rsplit(".", 1)
+        for where, value in _walk(doc, parent.split("."), "") if last == "*" else ():
+            if not isinstance(value, list):
+                raise InputError(f"expected an array, got {type(value).__name__}", path, field=where)
+        for where, value in _walk(doc, pattern.split("."), ""):
+            if not isinstance(value, dict):
+                raise InputError(f"expected an object, got {json.dumps(value)[:40]}", path, field=where)
+            missing = [k for k in required if value.get(k) is None]
+            if missing:
+                raise InputError(f"the required {', '.join(missing)} is missing", path, field=f"{where}.{missing[0]}")
+
+
 def check_indices(doc: dict, path: str) -> None:
     """InputError naming the JSON path of the first index in the glTF JSON `doc` that points past its
     array (`meshes[0].primitives[0].indices = 999: past the 83 accessors`), or is not a whole number;
@@ -157,7 +184,9 @@ class GltfDocument:
         self._bin = bin_chunk
         self._buffers: dict[int, bytes] = {}
         self._accessors: dict[int, np.ndarray] = {}
-        check_indices(json.loads(json_text), self.path)
+        raw = json.loads(json_text)
+        check_structure(raw, self.path)
+        check_indices(raw, self.path)
         g = self.gltf
         n = len(g.nodes)
         parent = np.full(n, -1, dtype=np.int64)
@@ -177,6 +206,8 @@ class GltfDocument:
                 if steps > n:
                     raise InputError(f"node {i} is in a cycle of the node hierarchy", self.path, field="nodes")
         self.node_parent = parent
+        for i in range(n):  # every node's transform is numbers of the right count, before any reader uses it
+            self.node_trs(i)
         names, seen = [], set()
         for i, nd in enumerate(g.nodes):
             s = nd.name or f"node{i}"

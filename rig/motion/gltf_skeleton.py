@@ -164,6 +164,9 @@ def read_gltf_skeleton(path: str | os.PathLike, skin: int = 0) -> CharacterSkele
     skin_joint = np.array([sk.joints.index(n) if n in sk.joints else -1 for n in order])
     if sk.inverseBindMatrices is not None:
         ibm_raw = doc.accessor(sk.inverseBindMatrices, f"skins[{skin}].inverseBindMatrices")
+        if not np.all(np.isfinite(ibm_raw)):
+            raise InputError("inverse bind matrices must be finite numbers", doc.path,
+                             field=f"skins[{skin}].inverseBindMatrices")
         if ibm_raw.shape != (len(sk.joints), 16):
             raise InputError(f"expected {len(sk.joints)} MAT4 inverse bind matrices, found {ibm_raw.shape[0]} "
                              f"of {ibm_raw.shape[1]} values", doc.path, field=f"skins[{skin}].inverseBindMatrices")

@@ -742,6 +742,9 @@ def _parse_xml(data: bytes, path: str | None) -> tuple[ET.Element, dict[int, int
         line = e.position[0] if getattr(e, "position", None) else None
         msg = re.sub(r":\s*line \d+, column \d+$", "", str(e))
         raise InputError(f"not well-formed XML: {msg}", path, line=line) from None
+    except LookupError as e:     # <?xml ... encoding="..."?> naming an encoding Python does not know
+        raise InputError(f"the XML declaration names an unknown encoding ({e}); expected UTF-8", path, line=1,
+                         field="encoding") from None
     except DefusedXmlException as e:
         line = getattr(parser.parser, "CurrentLineNumber", None)
         if isinstance(e, DTDForbidden):

@@ -53,14 +53,10 @@ def unit_note(height: float) -> dict:
 
 
 def describe_mesh(path: str) -> dict:
-    import trimesh
-    try:
-        m = trimesh.load(path, process=False, force="mesh")
-    except Exception as e:  # trimesh raises many types for a malformed file
-        raise InputError(f"cannot read the mesh ({type(e).__name__}: {e})", path) from None
-    v = np.asarray(m.vertices)
+    from rig.character.mesh_io import read_trimesh
+    v, f, _ = read_trimesh(path)
     return {"kind": "character", "format": os.path.splitext(path)[1][1:].upper(), "vertices": int(len(v)),
-            "faces": int(len(m.faces)), "joints": 0, "skins": 0, "animations": [],
+            "faces": int(len(f)), "joints": 0, "skins": 0, "animations": [],
             "bounds_m": v.min(0).round(4).tolist() + v.max(0).round(4).tolist() if len(v) else [],
             "note": "no skin: 'jiggle play CLIP --character FILE' computes automatic weights from the clip's "
                     "skeleton (bone heat); --unit and --up say the file's unit and up axis"}

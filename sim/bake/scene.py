@@ -80,6 +80,14 @@ FORMATS = ("npz", "usdc", "usda", "pc2")
 """Cache formats `jiggle bake` writes (usdc and usda are one USD stage, crate or text)."""
 
 
+MAX_FPS = 10000.0            # output frames per second
+MAX_UNIT = 1000.0            # metres per motion file unit
+MAX_FAT = 1.0                # metres of fat on a generated body (belly, chest, glutes, upper_arms)
+MAX_RESOLUTION = 2_000_000   # vertices of a generated body
+MAX_COUNT = 1_000_000        # skin, influences, mush
+MAX_SUBSTEPS = 1000          # jiggle substeps per frame
+
+
 def default_scene() -> str:
     """Path of the built-in demo scene, scenes/default.toml."""
     from importlib import resources
@@ -222,8 +230,9 @@ def load_scene(path: str | os.PathLike) -> Scene:
         raise InputError(f"expected 'kinematic' or 'physics', found {drive!r}", p, field="skeleton.drive")
     output = doc.get("output", {})
     fps = output.get("fps")
-    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0):
-        raise InputError(f"expected a positive number, found {fps!r}", p, lines.key("output", "fps"), field="output.fps")
+    if fps is not None and not (_real(fps) and 0 < fps <= MAX_FPS):
+        raise InputError(f"expected a positive number (at most {MAX_FPS:g} frames per second), found {fps!r}", p,
+                         lines.key("output", "fps"), field="output.fps")
     focus = output.get("focus", [])
     focus = [focus] if isinstance(focus, str) else focus
     if not isinstance(focus, list) or not all(isinstance(f, str) and f for f in focus):
@@ -271,11 +280,35 @@ def _read_motion(motion: dict, p: str, here: str, lines: "_Lines") -> Clip:
         from rig.motion.mocap import load_clip
         skel = motion.get("skeleton")
         skel = os.path.join(here, expand_path(skel, p, "motion.skeleton", lines.key("motion", "skeleton"))) if skel else None
-        clip = load_clip(mfile, skeleton=skel, animation=motion.get("animation"), scale=motion.get("scale"),
-                         tpose=motion.get("tpose", "auto"))
+        scale = motion.get("scale")
+        if scale is not None and not (_real(scale) and 0 < scale <= MAX_UNIT):
+            raise InputError(f"expected metres per file unit in (0, {MAX_UNIT:g}], found {scale!r}", p,
+                             lines.key("motion", "scale"), field="motion.scale")
+        for k, choices in (("tpose", ("auto", "skip", "keep")),):
+            if k in motion and motion[k] not in choices:
+                raise InputError(f"expected one of {', '.join(choices)}, found {motion[k]!r}", p,
+                                 lines.key("motion", k), field=f"motion.{k}")
+        animation = motion.get("animation")
+        if animation is not None and (isinstance(animation, bool) or not isinstance(animation, (str, int))):
+            raise InputError(f"expected an animation name or index, found {animation!r}", p,
+                             lines.key("motion", "animation"), field="motion.animation")
+        clip = load_clip(mfile, skeleton=skel, animation=animation, scale=scale, tpose=motion.get("tpose", "auto"))
     if "start" in motion or "end" in motion:
-        clip = clip.between(float(motion.get("start", 0.0)), motion.get("end"))
+        for k in ("start", "end"):
+            if k in motion and not (_real(motion[k]) and 0 <= motion[k] < math.inf):
+                raise InputError(f"expected seconds >= 0, found {motion[k]!r}", p, lines.key("motion", k),
+                                 field=f"motion.{k}")
+        try:
+            clip = clip.between(float(motion.get("start", 0.0)), motion.get("end"))
+        except InputError as e:
+            k = "end" if "end" in motion else "start"
+            raise InputError(e.message, p, lines.key("motion", k), field=f"motion.{k}") from None
     return clip
+
+
+def _real(v) -> bool:
+    """A finite int or float, not a bool."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _character(table: dict, p: str, here: str, lines: "_Lines") -> CharacterSpec:
@@ -305,12 +338,14 @@ def _character(table: dict, p: str, here: str, lines: "_Lines") -> CharacterSpec
             kw[k] = str(v)
         elif k in ("skin", "influences", "resolution", "mush"):
             least = 0 if k in ("skin", "mush") else 1
-            if isinstance(v, bool) or not isinstance(v, int) or v < least:
-                raise InputError(f"expected a whole number >= {least}, found {v!r}", p, at(k), field=where)
+            most = MAX_RESOLUTION if k == "resolution" else MAX_COUNT
+            if isinstance(v, bool) or not isinstance(v, int) or not least <= v <= most:
+                raise InputError(f"expected a whole number >= {least} (at most {most:,}), found {v!r}", p, at(k),
+                                 field=where)
             (body if k == "resolution" else kw)[k] = v
         else:                                               # fat volumes, metres
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
-                raise InputError(f"expected metres >= 0, found {v!r}", p, at(k), field=where)
+            if not (_real(v) and 0 <= v <= MAX_FAT):
+                raise InputError(f"expected metres >= 0 (at most {MAX_FAT:g}), found {v!r}", p, at(k), field=where)
             body[k] = float(v)
     if body and "file" in kw:
         raise InputError(f"{', '.join(body)} shape a generated body; a character file has its own shape", p,
@@ -335,8 +370,9 @@ def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
             if not isinstance(v, bool):
                 raise InputError(f"expected true or false, found {v!r}", p, line, field=where)
         elif k == "substeps":
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise InputError(f"expected a whole number >= 1, found {v!r}", p, line, field=where)
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_SUBSTEPS:
+                raise InputError(f"expected a whole number >= 1 (at most {MAX_SUBSTEPS}), found {v!r}", p, line,
+                                 field=where)
         elif isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise InputError(f"expected a number, found {v!r}", p, line, field=where)
         elif k == "preroll" and v < 0:
