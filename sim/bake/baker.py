@@ -42,8 +42,8 @@ import numpy as np
 from rig.base.atomic import atomic_path
 from rig.base.errors import InputError
 from rig.skin.muscle_skin import skin_frames
-from sim.bake.caches import BakeData, write_npz, write_pc2, write_usd
 from sim.bake.setup import BakeSetup
+from sim.bake.writer import BakeWriter
 from sim.jiggle.blend import blend, blend_weights, needs_simulation
 from sim.jiggle.particles import muscle_model
 from sim.jiggle.simulate import TIME_EPS, goals, simulate
@@ -51,7 +51,8 @@ from sim.jiggle.solver import ParticleSolver
 
 PARTIAL = ".partial"
 MANIFEST = "manifest.json"
-MANIFEST_FORMAT = "jiggle.partial/1"
+MANIFEST_FORMAT = "jiggle.partial/2"
+"""/2: chunk files hold the particle state and the caches' progress; the frames are in the caches (sim/bake/writer.py)."""
 SUMMARY = "bake.json"
 MARGIN = 3
 """Goal knots past each end of a chunk (>= 2: a knot velocity needs its two neighbours, a cut test
@@ -84,6 +85,8 @@ class Baker:
         s = setup
         self.blend = blend_weights(s.jiggles, s.settings, s.times)
         self.model = self.solver = None
+        self.smooth = hasattr(s.skin, "lbs_batch")
+        """whether the chunks bring the smooth skin alone (skin_lbs, what compare's skin quality reads against)"""
         self.timings = dict.fromkeys(("drive_s", "static_s", "simulate_s", "skin_s", "write_s"), 0.0)
         if needs_simulation(self.blend):          # blend 0 everywhere: the static CVs, no simulation
             self.model = muscle_model(s.rig, list(s.jiggles), s.settings.device, gravity=s.settings.gravity)
@@ -122,6 +125,9 @@ class Baker:
             pending = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1), defer=True)
         out = {"frames": np.array([f0, f1]), "joint_world": joints, "cvs_static": st.astype(np.float32),
                "cvs_dynamic": cvs.astype(np.float32)}
+        if self.smooth:
+            with self._timed("skin_s"):
+                out["skin_lbs"] = s.skin.lbs_batch(world)
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
 
@@ -334,9 +340,9 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     # the manifest lists the caches this bake will write: a new bake removes those of one interrupted
     # while writing them (and nothing else)
     t_start = time.perf_counter()
-    done, state = 0, None
+    done, state, crcs = 0, None, None
     if resume:
-        done, state = _resume(setup, out_dir, manifest_path, log)
+        done, state, crcs = _resume(setup, out_dir, manifest_path, log)
         old = _read_json(manifest_path)
         if isinstance(old, dict) and old.get("files") != manifest["files"]:     # same key: list the caches
             _write_json(manifest_path, {**old, "files": sorted(set(old.get("files") or []) | set(manifest["files"]))})
@@ -352,18 +358,27 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     if progress is not None and done:
         progress(chunk_frames(setup, done - 1)[1])
     baker = Baker(setup, defer=True)
+    t = time.perf_counter()
+    writer = BakeWriter(setup, partial, None if not done else (crcs, chunk_frames(setup, done - 1)[1]),
+                        smooth=baker.smooth)
+    baker.timings["write_s"] += time.perf_counter() - t
 
     def finish_and_save(c: int, arrays: dict) -> None:
-        """In the worker thread: finish chunk c's skins, write its file, report it."""
+        """In the worker thread: finish chunk c's skins, write its frames into the caches and its marker
+        (the particle state and the caches' progress), report it."""
         if "finish" in arrays:
             arrays = arrays["finish"]()
         t = time.perf_counter()
-        _save_chunk(chunk_path(out_dir, c), arrays)
+        f0, f1 = chunk_frames(setup, c)
+        crcs = writer.append(f0, arrays)
+        marker = {"frames": arrays["frames"], "progress": np.array(json.dumps(crcs))}
+        if "state_x" in arrays:
+            marker["state_x"], marker["state_v"] = arrays["state_x"], arrays["state_v"]
+        _save_chunk(chunk_path(out_dir, c), marker)
         baker.timings["write_s"] += time.perf_counter() - t
         if os.environ.get(PAUSE_ENV):
             time.sleep(float(os.environ[PAUSE_ENV]))
         if progress is not None:
-            f0, f1 = chunk_frames(setup, c)
             progress(f1 - f0)
 
     # chunk c's skins are finished and written in a worker thread while chunk c + 1 is driven, shaped
@@ -380,23 +395,25 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         if pending is not None:
             done_chunk, pending = pending, None
             done_chunk.result()
+        loop_s = time.perf_counter() - t_start
+        t = time.perf_counter()
+        files = writer.finish(out_dir, {f: os.path.basename(p) for f, p in cache_paths(out_dir, setup.formats).items()})
+        write_s = time.perf_counter() - t
     finally:
         if pending is not None:                 # interrupted: let the chunk in the worker land first
             with contextlib.suppress(Exception):
                 pending.result()
         worker.shutdown(wait=True)
-    loop_s = time.perf_counter() - t_start
-    t = time.perf_counter()
-    files = assemble(setup, out_dir)
-    write_s = time.perf_counter() - t
+        writer.close()
     summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
     _write_json(os.path.join(out_dir, SUMMARY), summary)
     shutil.rmtree(partial, ignore_errors=True)
     return summary
 
 
-def _resume(setup: BakeSetup, out_dir: str, manifest_path: str, log) -> tuple[int, tuple | None]:
-    """(chunks already baked, particle state after the last of them) of the unfinished bake."""
+def _resume(setup: BakeSetup, out_dir: str, manifest_path: str, log) -> tuple[int, tuple | None, dict | None]:
+    """(chunks already baked, particle state after the last of them, the caches' progress then) of the
+    unfinished bake."""
     if not os.path.isfile(manifest_path):
         if os.path.isfile(os.path.join(out_dir, SUMMARY)):
             raise InputError("this bake is already finished; nothing to resume (run without --resume to bake "
@@ -413,72 +430,17 @@ def _resume(setup: BakeSetup, out_dir: str, manifest_path: str, log) -> tuple[in
         raise InputError(f"the unfinished bake was started with other parameters ({', '.join(changed[:8])}"
                          f"{', ...' if len(changed) > 8 else ''}); give the same ones to --resume, or run without "
                          f"--resume to start over", out_dir, field="--resume")
-    done, state = 0, None
+    done, state, crcs = 0, None, None
     for c in range(num_chunks(setup)):
         data = _load_chunk(chunk_path(out_dir, c), chunk_frames(setup, c))
-        if data is None:
+        if data is None or "progress" not in data:
             break
         done = c + 1
         state = (data["state_x"], data["state_v"]) if "state_x" in data else None
+        crcs = json.loads(str(data["progress"]))
     log(f"resuming: {done} of {num_chunks(setup)} chunks already baked "
         f"({chunk_frames(setup, done - 1)[1] if done else 0} of {len(setup.times)} frames)")
-    return done, state
-
-
-def assemble(setup: BakeSetup, out_dir: str) -> dict:
-    """Write the caches from the chunks (every chunk must be there); returns {format: path}."""
-    parts = []
-    for c in range(num_chunks(setup)):
-        data = _load_chunk(chunk_path(out_dir, c), chunk_frames(setup, c))
-        if data is None:
-            raise InputError(f"chunk {c} is missing or damaged; run again with --resume", chunk_path(out_dir, c))
-        parts.append(data)
-
-    def cat(key):
-        return np.concatenate([p[key] for p in parts])
-    rig = setup.rig
-    data = BakeData(skin_static=cat("skin_static"), skin_final=cat("skin_final"), skin_lbs=smooth_skin(setup),
-                    skin_rest=setup.character.vertices,
-                    faces=setup.character.faces, fps=setup.fps, times=setup.times,
-                    joint_names=setup.joint_names, joint_world=cat("joint_world"), muscle_names=tuple(rig.names),
-                    muscle_cvs_static=cat("cvs_static"), muscle_cvs_dynamic=cat("cvs_dynamic"),
-                    muscle_cv_offsets=rig.cv_offsets, muscle_faces=rig.surface_faces,
-                    params=json.dumps(setup.params, sort_keys=True, allow_nan=False),
-                    **skin_parts(setup.character))
-    files = cache_paths(out_dir, setup.formats)
-    for fmt, path in files.items():
-        if fmt == "npz":
-            write_npz(data, path, compress=False)
-        elif fmt in ("usdc", "usda"):
-            muscles = rig.surface(data.muscle_cvs_dynamic.astype(np.float64)).astype(np.float32)
-            write_usd(data, path, muscle_points=muscles, usda=fmt == "usda")
-        elif fmt == "pc2":
-            write_pc2(data.skin_final, path, setup.fps, start_time=float(setup.times[0]))
-    return files
-
-
-def skin_parts(character) -> dict:
-    """BakeData's part_names and part_offsets from the meshes a character was merged from
-    (Character.meta["parts"]: [(name, first vertex, vertex count), ...] in vertex order), or {}."""
-    parts = character.meta.get("parts")
-    if not parts:
-        return {}
-    names = tuple(str(p[0]) for p in parts)
-    offsets = np.array([int(p[1]) for p in parts] + [int(parts[-1][1]) + int(parts[-1][2])], np.int64)
-    return {"part_names": names, "part_offsets": offsets}
-
-
-def smooth_skin(setup: BakeSetup) -> np.ndarray | None:
-    """(T, V, 3) float32 metres: the smooth skin alone (LBS / DQS) at the output times, chunk by chunk;
-    None when the skin has no smooth skinning to give."""
-    skin = setup.skin
-    if not hasattr(skin, "lbs_batch"):
-        return None
-    parts = []
-    for c in range(num_chunks(setup)):
-        f0, f1 = chunk_frames(setup, c)
-        parts.append(skin.lbs_batch(np.asarray(setup.world_at(setup.times[f0:f1]), dtype=np.float64)))
-    return np.concatenate(parts)
+    return done, state, crcs
 
 
 def _summary(setup: BakeSetup, out_dir: str, files: dict, baker: Baker, loop_s: float, write_s: float,

@@ -39,10 +39,12 @@ params                 () str                      the full parameter set as JSO
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
 import struct
 import zipfile
+import zlib
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -199,9 +201,10 @@ class BakeData:
         return names
 
 
-def require_finite(name: str, a: np.ndarray | None, item: str | None) -> None:
-    """Raise InputError naming `name`, the frame and the `item` (vertex, joint, CV) of the first
-    non-finite number in `a` (frame-major: axis 0 is the frame, axis 1 the item); None passes."""
+def require_finite(name: str, a: np.ndarray | None, item: str | None, first: int = 0) -> None:
+    """Raise InputError naming `name`, the frame (a's axis 0 counted from `first`) and the `item`
+    (vertex, joint, CV) of the first non-finite number in `a` (frame-major: axis 1 is the item);
+    None passes."""
     if a is None:
         return
     bad = ~np.isfinite(a)
@@ -209,20 +212,58 @@ def require_finite(name: str, a: np.ndarray | None, item: str | None) -> None:
         return
     where = np.argwhere(bad)[0]
     value = a[tuple(where)]
-    at = f"frame {where[0]}" + (f", {item} {where[1]}" if item and len(where) > 1 else "")
+    at = f"frame {first + where[0]}" + (f", {item} {where[1]}" if item and len(where) > 1 else "")
     raise InputError(f"not finite ({value}) at {at}; nothing was written", field=name)
 
 
 # ---------------------------------------------------------------------------------------- npz
-_NPZ_KEYS = tuple(f.name for f in fields(BakeData))
+NPZ_KEYS = tuple(f.name for f in fields(BakeData))
 _OPTIONAL_KEYS = ("skin_lbs", "skin_rest", "part_names", "part_offsets")
+FRAME_KEYS = {"skin_static": "vertex", "skin_final": "vertex", "skin_lbs": "vertex", "joint_world": "joint",
+              "muscle_cvs_static": "CV", "muscle_cvs_dynamic": "CV", "times": None}
+"""The npz keys with one row per frame (what a stream writes block by block), and what their axis 1 counts."""
 
 
-def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) -> None:
-    """Write `data` to `path` as a `.npz` (the keys in the module docstring), atomically; compress
-    False stores the arrays as they are (faster to write and read; skin positions shrink only ~10%)."""
+@dataclass(frozen=True)
+class Stream:
+    """One array of T frames written block by block (a bake's chunks) without ever holding it whole.
+
+    shape : the whole array's shape, (T, ...) frames first.
+    dtype : its dtype.
+    blocks : called once per write; yields consecutive blocks (t, ...) whose t add up to T.
+    item : what axis 1 counts (vertex, joint, CV), for the message naming a non-finite number.
+    """
+
+    shape: tuple
+    dtype: object
+    blocks: object
+    item: str | None = None
+
+    def each(self, name: str):
+        """The blocks as contiguous arrays of the stream's dtype, each checked (shape, finite) before it is
+        given out, so a writer never writes a NaN; InputError naming `name` and the frame otherwise."""
+        n, tail = 0, tuple(self.shape[1:])
+        for block in self.blocks():
+            b = np.ascontiguousarray(block, dtype=self.dtype)
+            if b.shape[1:] != tail or n + len(b) > self.shape[0]:
+                raise InputError(f"a block of shape {b.shape} does not continue {self.shape} at frame {n}", field=name)
+            require_finite(name, b, self.item, first=n)
+            yield b
+            n += len(b)
+        if n != self.shape[0]:
+            raise InputError(f"the blocks hold {n} frames, expected {self.shape[0]}", field=name)
+
+
+def whole(array, item: str | None = None) -> Stream:
+    """A Stream of one block: an array already in memory."""
+    a = np.asarray(array)
+    return Stream(a.shape, a.dtype, lambda: iter((a,)), item)
+
+
+def npz_arrays(data: BakeData) -> dict:
+    """BakeData's npz members (format first, then NPZ_KEYS, optional ones only when set)."""
     arrays = {"format": np.array(FORMAT)}
-    for name in _NPZ_KEYS:
+    for name in NPZ_KEYS:
         value = getattr(data, name)
         if value is None:
             continue
@@ -231,9 +272,34 @@ def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) ->
         elif name in ("fps", "params"):
             value = np.array(value)
         arrays[name] = value
+    return arrays
+
+
+def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) -> None:
+    """Write `data` to `path` as a `.npz` (the keys in the module docstring), atomically; compress
+    False stores the arrays as they are (faster to write and read; skin positions shrink only ~10%)."""
+    write_npz_stream(path, npz_arrays(data), compress=compress)
+
+
+def write_npz_stream(path: str | os.PathLike, members: dict, compress: bool = False) -> None:
+    """Write a `.npz` atomically whose members are arrays or Streams ({name: array | Stream}, in the
+    order given): a Stream's member is written block by block, so memory holds one block, not the
+    array. np.load reads the result as any npz (one `<name>.npy` member each, zip64 where large).
+    A non-finite number in a stream stops the write (InputError naming the member and the frame) and
+    leaves no file."""
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
     with _writing(path) as tmp:
-        with open(tmp, "wb") as fh:  # a file object: savez would append ".npz" to other names
-            (np.savez_compressed if compress else np.savez)(fh, **arrays)
+        with zipfile.ZipFile(tmp, "w", method, allowZip64=True) as zf:
+            for name, value in members.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                    if not isinstance(value, Stream):
+                        np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
+                        continue
+                    header = {"descr": np.lib.format.dtype_to_descr(np.dtype(value.dtype)), "fortran_order": False,
+                              "shape": tuple(int(n) for n in value.shape)}
+                    np.lib.format.write_array_header_1_0(fh, header)
+                    for block in value.each(name):
+                        fh.write(memoryview(block).cast("B"))
 
 
 def read_npz(path: str | os.PathLike) -> BakeData:
@@ -252,10 +318,10 @@ def read_npz(path: str | os.PathLike) -> BakeData:
     fmt = str(stored["format"])
     if fmt != FORMAT:
         raise InputError(f"unsupported format {fmt!r}, expected {FORMAT!r}", path, field="format")
-    missing = [k for k in _NPZ_KEYS if k not in stored and k not in _OPTIONAL_KEYS]
+    missing = [k for k in NPZ_KEYS if k not in stored and k not in _OPTIONAL_KEYS]
     if missing:
         raise InputError(f"missing key (the file lacks {', '.join(missing)})", path, field=missing[0])
-    values = {k: stored[k] for k in _NPZ_KEYS if k in stored}
+    values = {k: stored[k] for k in NPZ_KEYS if k in stored}
     values["fps"] = values["fps"].item() if values["fps"].shape == () else values["fps"]
     values["params"] = str(values["params"]) if values["params"].shape == () else values["params"]
     for k in ("joint_names", "muscle_names", "part_names"):
@@ -296,18 +362,27 @@ def write_pc2(points, path: str | os.PathLike, fps: float, start_time: float = 0
     p = np.asarray(points)
     if p.ndim != 3 or p.shape[2] != 3 or p.shape[0] < 1:
         raise InputError(f"expected shape (T >= 1, V, 3), got {p.shape}", field="points")
-    p = np.ascontiguousarray(p, dtype="<f4")
-    require_finite("points", p, "vertex")
+    write_pc2_stream(whole(p, "vertex"), path, fps, start_time)
+
+
+def write_pc2_stream(points: Stream, path: str | os.PathLike, fps: float, start_time: float = 0.0) -> None:
+    """`write_pc2` of a Stream of (T, V, 3) points: the header first (T is known), then each block's
+    frames as they come; one block in memory at a time."""
+    if len(points.shape) != 3 or points.shape[2] != 3 or points.shape[0] < 1:
+        raise InputError(f"expected shape (T >= 1, V, 3), got {points.shape}", field="points")
     fps, start_time = float(fps), float(start_time)
     if not np.isfinite(fps) or fps <= 0:
         raise InputError(f"must be a finite number > 0, got {fps}", field="fps")
     if not np.isfinite(start_time):
         raise InputError(f"must be finite, got {start_time}", field="start_time")
-    header = _PC2_HEADER.pack(PC2_MAGIC, PC2_VERSION, p.shape[1], start_time * fps, 1.0, p.shape[0])
+    T, V = int(points.shape[0]), int(points.shape[1])
+    stream = Stream(points.shape, "<f4", points.blocks, points.item)
+    header = _PC2_HEADER.pack(PC2_MAGIC, PC2_VERSION, V, start_time * fps, 1.0, T)
     with _writing(path) as tmp:
         with open(tmp, "wb") as fh:
             fh.write(header)
-            _write_frames(fh, p)
+            for block in stream.each("points"):
+                _write_frames(fh, block)
 
 
 def _write_frames(fh, p: np.ndarray) -> None:
@@ -357,10 +432,6 @@ def write_usd(data: BakeData, path: str | os.PathLike, muscle_points=None,
     muscle_points : (T, M, P, 3) float32 metres, each muscle's lofted surface per frame
         (MuscleRig.surface of the dynamic CVs), or None for no muscle meshes.
     """
-    from pxr import Sdf, Tf, Usd, UsdGeom
-
-    path = os.fspath(path)
-    fmt = _usd_format(path, usda)
     T = data.num_frames
     muscles = None
     if muscle_points is not None:
@@ -369,53 +440,146 @@ def write_usd(data: BakeData, path: str | os.PathLike, muscle_points=None,
         if muscles.ndim != 4 or muscles.shape[:2] != (T, M) or muscles.shape[3] != 3:
             raise InputError(f"expected shape ({T}, {M}, P, 3), got {muscles.shape}",
                              field="muscle_points")
-        if data.muscle_faces.size and data.muscle_faces.max() >= muscles.shape[2]:
-            raise InputError(f"muscle_faces index {data.muscle_faces.max()} but only "
-                             f"{muscles.shape[2]} points per muscle", field="muscle_points")
-        require_finite("muscle_points", muscles.reshape(T, -1, 3), "point")
-
-    stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-    stage.SetTimeCodesPerSecond(data.fps)
-    stage.SetFramesPerSecond(data.fps)
-    stage.SetStartTimeCode(0)
-    stage.SetEndTimeCode(T - 1)
-    root = UsdGeom.Xform.Define(stage, "/jiggle")
-    stage.SetDefaultPrim(root.GetPrim())
-    stage.GetRootLayer().customLayerData = {"jiggle:format": FORMAT, "jiggle:params": data.params}
-    for name in ("skin_static", "skin_final"):
-        mesh = _define_mesh(stage, f"/jiggle/{name}", getattr(data, name), data.faces)
-        if data.part_names is not None:
-            _part_subsets(mesh, data)
+    meshes = {"skin_static": whole(data.skin_static, "vertex"), "skin_final": whole(data.skin_final, "vertex")}
     if muscles is not None:
-        UsdGeom.Scope.Define(stage, "/jiggle/muscles")
-        used = set()
-        for m, name in enumerate(data.muscle_names):
-            ident = Tf.MakeValidIdentifier(name)
-            base, k = ident, 1
-            while ident in used:
-                ident, k = f"{base}_{k}", k + 1
-            used.add(ident)
-            mesh = _define_mesh(stage, f"/jiggle/muscles/{ident}", muscles[:, m], data.muscle_faces)
-            mesh.GetPrim().CreateAttribute("jiggle:name", Sdf.ValueTypeNames.String,
-                                           custom=True).Set(name)
+        meshes["muscles"] = whole(muscles, "muscle")
+    write_usd_stream(data, meshes, path, usda=usda)
+
+
+def write_usd_stream(head: BakeData, meshes: dict, path: str | os.PathLike, usda: bool | None = None) -> None:
+    """`write_usd` of streamed frames: `head` gives the stage's faces, names, parts, fps and params (its
+    own frames are not written); `meshes` {"skin_static": Stream (T, V, 3), "skin_final": Stream
+    (T, V, 3), optionally "muscles": Stream (T, M, P, 3)} the frames, block by block (UsdAppender)."""
+    path = os.fspath(path)
+    fmt = _usd_format(path, usda)
+    skin = meshes["skin_static"]
+    T = int(skin.shape[0])
+    muscles = meshes.get("muscles")
+    for name in ("skin_static", "skin_final"):
+        if tuple(meshes[name].shape) != (T, len(head.skin_static[0]), 3):
+            raise InputError(f"expected shape ({T}, {len(head.skin_static[0])}, 3), got {tuple(meshes[name].shape)}",
+                             field=name)
     with _writing(path) as tmp:
-        _export(stage.GetRootLayer(), tmp, fmt)
+        usd = UsdAppender(tmp, head, T, None if muscles is None else tuple(muscles.shape), fmt)
+        streams = {k: v.each("muscle_points" if k == "muscles" else k) for k, v in meshes.items() if v is not None}
+        k0 = 0
+        while k0 < T:
+            block = {k: next(it, None) for k, it in streams.items()}
+            if any(b is None for b in block.values()):
+                raise InputError(f"the meshes' blocks end before frame {T}", field="meshes")
+            usd.append(k0, block)
+            k0 += len(block["skin_static"])
+        for it in streams.values():          # the streams check that no frame is left over
+            for _ in it:
+                pass
+        usd.finish()
+
+
+class UsdAppender:
+    """A bake's USD stage (see write_usd) written block by block into the file `path` (the caller's
+    temporary name; its suffix must be a USD one).
+
+    A crate file (fmt "usdc") is authored through the Sdf layer API (each block's time samples in one
+    change block, `Vt.Vec3fArray.FromNumpy`) and saved after every block: the crate writer appends the
+    new samples and drops them from memory, so memory holds one block whatever the clip's length.
+    A text file ("usda") is exported whole by `finish` (text cannot be appended; it is meant for small
+    clips and for reading).
+
+    head : a BakeData for the stage's faces, parts, names, fps and params (its frames are not written).
+    T : frames in all. muscles : (T, M, P, 3), the shape of the muscle meshes' points, or None for none.
+    """
+
+    def __init__(self, path: str, head: BakeData, T: int, muscles: tuple | None, fmt: str):
+        from pxr import Sdf, Usd, UsdGeom
+
+        self.path, self.fmt, self.T = path, fmt, int(T)
+        M = len(head.muscle_names)
+        if muscles is not None:
+            if len(muscles) != 4 or tuple(muscles[:2]) != (T, M) or muscles[3] != 3:
+                raise InputError(f"expected shape ({T}, {M}, P, 3), got {tuple(muscles)}", field="muscle_points")
+            if head.muscle_faces.size and head.muscle_faces.max() >= muscles[2]:
+                raise InputError(f"muscle_faces index {head.muscle_faces.max()} but only "
+                                 f"{muscles[2]} points per muscle", field="muscle_points")
+        self.layer = layer = Sdf.Layer.CreateNew(path) if fmt == "usdc" else Sdf.Layer.CreateAnonymous(".usda")
+        stage = Usd.Stage.Open(layer)
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+        stage.SetTimeCodesPerSecond(head.fps)
+        stage.SetFramesPerSecond(head.fps)
+        stage.SetStartTimeCode(0)
+        stage.SetEndTimeCode(T - 1)
+        root = UsdGeom.Xform.Define(stage, "/jiggle")
+        stage.SetDefaultPrim(root.GetPrim())
+        layer.customLayerData = {"jiggle:format": FORMAT, "jiggle:params": head.params}
+        self.targets = []                  # (prim path, key of its block, muscle or None)
+        for name in ("skin_static", "skin_final"):
+            mesh = _define_mesh_prim(stage, f"/jiggle/{name}", head.faces)
+            if head.part_names is not None:
+                _part_subsets(mesh, head)
+            self.targets.append((f"/jiggle/{name}", name, None))
+        if muscles is not None:
+            UsdGeom.Scope.Define(stage, "/jiggle/muscles")
+            for m, (name, ident) in enumerate(zip(head.muscle_names, _identifiers(head.muscle_names))):
+                mesh = _define_mesh_prim(stage, f"/jiggle/muscles/{ident}", head.muscle_faces)
+                mesh.GetPrim().CreateAttribute("jiggle:name", Sdf.ValueTypeNames.String, custom=True).Set(name)
+                self.targets.append((f"/jiggle/muscles/{ident}", "muscles", m))
+        del stage                          # from here on samples go straight into the layer
+        self.skin_normals = VertexNormals(head.faces, len(head.skin_static[0]))
+        self.muscle_normals = VertexNormals(head.muscle_faces, muscles[2]) if muscles is not None else None
+        self.done = 0
+
+    def append(self, k0: int, block: dict) -> None:
+        """Frames k0, k0 + 1, ... (they must go on from the frames so far): block {"skin_static": (t, V, 3),
+        "skin_final": (t, V, 3), "muscles": (t, M, P, 3) when the stage has muscles} float32 metres."""
+        from pxr import Sdf
+
+        t = len(block["skin_static"])
+        if k0 != self.done or any(len(b) != t for b in block.values()) or k0 + t > self.T:
+            raise InputError(f"frames {k0}..{k0 + t - 1} do not go on from frame {self.done} (of {self.T}), or the "
+                             "meshes' blocks hold different frames", field="meshes")
+        if self.muscle_normals is not None:    # every muscle's normals in one batch (t * M meshes)
+            mp = np.ascontiguousarray(block["muscles"], dtype=np.float32)
+            mn = self.muscle_normals.batch(mp.reshape((-1,) + mp.shape[2:])).reshape(mp.shape)
+        with Sdf.ChangeBlock():
+            for prim, key, m in self.targets:
+                if m is None:
+                    pts = np.ascontiguousarray(block[key], dtype=np.float32)
+                    _author_samples(self.layer, prim, pts, self.skin_normals.batch(pts), k0)
+                else:
+                    _author_samples(self.layer, prim, mp[:, m], mn[:, m], k0)
+        if self.fmt == "usdc":
+            _save_layer(self.layer)
+        self.done = k0 + t
+
+    def finish(self) -> None:
+        """Check every frame is there and write what is left (the text file)."""
+        if self.done != self.T:
+            raise InputError(f"holds {self.done} of {self.T} frames", self.path, field="meshes")
+        if self.fmt == "usda":
+            _export(self.layer, self.path, self.fmt)
+        self.layer = None
+
+
+def _identifiers(names) -> list[str]:
+    """Valid, distinct USD prim names for `names` (a clash gets _1, _2, ...)."""
+    from pxr import Tf
+    used, out = set(), []
+    for name in names:
+        ident = base = Tf.MakeValidIdentifier(name)
+        k = 1
+        while ident in used:
+            ident, k = f"{base}_{k}", k + 1
+        used.add(ident)
+        out.append(ident)
+    return out
 
 
 def _part_subsets(mesh, data: BakeData) -> None:
     """One face GeomSubset per part of the skin (family "part"): a face belongs to the part of its
     first vertex (the reader never joins two meshes in one face)."""
-    from pxr import Sdf, Tf, UsdGeom, Vt
+    from pxr import Sdf, UsdGeom, Vt
     part = np.searchsorted(data.part_offsets, data.faces[:, 0], side="right") - 1
-    used = set()
-    for p, name in enumerate(data.part_names):
-        ident, k = Tf.MakeValidIdentifier(name), 1
-        base = ident
-        while ident in used:
-            ident, k = f"{base}_{k}", k + 1
-        used.add(ident)
+    for p, (name, ident) in enumerate(zip(data.part_names, _identifiers(data.part_names))):
         faces = np.flatnonzero(part == p).astype(np.int32)
         subset = UsdGeom.Subset.CreateGeomSubset(mesh, ident, UsdGeom.Tokens.face, Vt.IntArray.FromNumpy(faces),
                                                  "part", UsdGeom.Tokens.partition)
@@ -435,9 +599,9 @@ def _usd_format(path: str, usda: bool | None) -> str:
     return fmt
 
 
-def _define_mesh(stage, prim_path: str, points: np.ndarray, faces: np.ndarray):
-    """A UsdGeom.Mesh at prim_path: triangles faces (F, 3), points (T, V, 3) float32 metres
-    sampled at time codes 0..T-1, with vertex normals and extent per sample."""
+def _define_mesh_prim(stage, prim_path: str, faces: np.ndarray):
+    """A UsdGeom.Mesh at prim_path with triangles faces (F, 3) and its points, normals (vertex
+    interpolation) and extent attributes created, to be time-sampled (_author_samples)."""
     from pxr import UsdGeom, Vt
 
     mesh = UsdGeom.Mesh.Define(stage, prim_path)
@@ -446,18 +610,49 @@ def _define_mesh(stage, prim_path: str, points: np.ndarray, faces: np.ndarray):
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
         np.ascontiguousarray(faces, dtype=np.int32).reshape(-1)))
-    normals = VertexNormals(faces, points.shape[1]).batch(np.asarray(points, dtype=np.float32))
-    pts_attr, n_attr, ext_attr = (mesh.CreatePointsAttr(), mesh.CreateNormalsAttr(),
-                                  mesh.CreateExtentAttr())
+    mesh.CreatePointsAttr()
+    mesh.CreateNormalsAttr()
+    mesh.CreateExtentAttr()
     mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    return mesh
+
+
+def _author_samples(layer, prim_path: str, points: np.ndarray, normals: np.ndarray, k0: int) -> None:
+    """Time samples k0, k0 + 1, ... of a mesh's points and vertex normals (t, V, 3) float32 and its
+    extent, written into `layer` at the Sdf level (no stage change processing)."""
+    from pxr import Sdf, Vt
+
     points = np.ascontiguousarray(points, dtype=np.float32)
+    normals = np.ascontiguousarray(normals, dtype=np.float32)
+    pts_path, n_path, ext_path = (Sdf.Path(f"{prim_path}.{a}") for a in ("points", "normals", "extent"))
     extent = np.stack([points.min(axis=1), points.max(axis=1)], axis=1) if points.shape[1] else None
     for k in range(points.shape[0]):
-        pts_attr.Set(Vt.Vec3fArray.FromNumpy(points[k]), k)
-        n_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals[k])), k)
+        layer.SetTimeSample(pts_path, k0 + k, Vt.Vec3fArray.FromNumpy(points[k]))
+        layer.SetTimeSample(n_path, k0 + k, Vt.Vec3fArray.FromNumpy(normals[k]))
         if extent is not None:
-            ext_attr.Set(Vt.Vec3fArray.FromNumpy(extent[k]), k)
+            layer.SetTimeSample(ext_path, k0 + k, Vt.Vec3fArray.FromNumpy(extent[k]))
+
+
+def _define_mesh(stage, prim_path: str, points: np.ndarray, faces: np.ndarray):
+    """A UsdGeom.Mesh at prim_path: triangles faces (F, 3), points (T, V, 3) float32 metres
+    sampled at time codes 0..T-1, with vertex normals and extent per sample."""
+    mesh = _define_mesh_prim(stage, prim_path, faces)
+    points = np.asarray(points, dtype=np.float32)
+    _author_samples(stage.GetEditTarget().GetLayer(), prim_path, points,
+                    VertexNormals(faces, points.shape[1]).batch(points), 0)
     return mesh
+
+
+def _save_layer(layer) -> None:
+    """Save a crate layer to its file (appending what changed); raise OSError on failure."""
+    from pxr import Tf
+
+    try:
+        ok = layer.Save()
+    except Tf.ErrorException as e:
+        raise OSError(f"USD save failed: {e}") from None
+    if not ok:
+        raise OSError("USD save failed")
 
 
 def _export(layer, tmp: str, fmt: str) -> None:
@@ -483,3 +678,126 @@ def _writing(path):
             yield tmp
     except OSError as e:
         raise InputError(f"cannot write the file: {e.strerror or e}", path) from None
+
+
+# --------------------------------------------------------------------------- npz filled in place
+_ZIP_LOCAL = struct.Struct("<IHHHHHIIIHH")
+_ZIP_CENTRAL = struct.Struct("<IHHHHHHIIIHHHHHII")
+_ZIP64_END = struct.Struct("<IQHHIIQQQQ")
+_ZIP64_LOCATOR = struct.Struct("<IIQI")
+_ZIP_END = struct.Struct("<IHHHHIIH")
+_ZIP_VERSION = 45                      # zip64
+_ZIP_TIME, _ZIP_DATE = 0, (2020 - 1980) << 9 | 1 << 5 | 1      # a fixed stamp: the same bake, the same bytes
+
+
+class NpzInPlace:
+    """A `.npz` whose layout is fixed when it is created (every member's shape known) and whose frame
+    members are then filled block by block at their offsets: a bake writes each chunk once, straight
+    into its cache, and can go on after an interruption (`open` an existing file and the CRCs so far).
+
+    members : {name: array (written at once) or (shape, dtype) (a frame member, filled by `write`)}, in
+        order. Every member is stored uncompressed with zip64 sizes, so np.load and any zip tool read it.
+    crcs, frames : None for a new file; else each frame member's CRC-32 and frames written so far
+        (from `progress()` of the run that was interrupted), to go on with the file at `path`.
+    """
+
+    def __init__(self, path: str, members: dict, crcs: dict | None = None, frames: dict | None = None):
+        self.path = path
+        self.entries = []               # (name, header offset, data offset, size, npy header bytes | array bytes)
+        self.frame_shape, self.frame_bytes, self.crc, self.done = {}, {}, {}, {}
+        offset = 0
+        for name, value in members.items():
+            fname = f"{name}.npy".encode()
+            if isinstance(value, tuple):
+                shape, dtype = tuple(int(n) for n in value[0]), np.dtype(value[1])
+                buf = io.BytesIO()
+                np.lib.format.write_array_header_1_0(buf, {"descr": np.lib.format.dtype_to_descr(dtype),
+                                                           "fortran_order": False, "shape": shape})
+                head = buf.getvalue()
+                size = len(head) + int(np.prod(shape)) * dtype.itemsize
+                self.frame_shape[name], self.frame_bytes[name] = (shape, dtype), int(np.prod(shape[1:])) * dtype.itemsize
+                self.crc[name], self.done[name] = zlib.crc32(head), 0
+            else:
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.asanyarray(value), allow_pickle=False)
+                head = buf.getvalue()
+                size = len(head)
+            data = offset + _ZIP_LOCAL.size + len(fname) + 20
+            self.entries.append((name, fname, offset, data, size, head))
+            offset = data + size
+        self.end = offset
+        if crcs is None:
+            with open(path, "wb") as fh:
+                for name, fname, at, data, size, head in self.entries:
+                    fh.seek(at)
+                    fh.write(self._local(fname, zlib.crc32(head) if name not in self.frame_shape else 0, size))
+                    fh.write(head)
+                fh.truncate(self.end)
+        else:
+            if os.path.getsize(path) < self.end:
+                raise InputError("the unfinished cache is shorter than its layout", path)
+            for name in self.frame_shape:
+                self.crc[name], self.done[name] = int(crcs[name]), int(frames[name])
+        self._fh = open(path, "r+b")
+
+    @staticmethod
+    def _local(fname: bytes, crc: int, size: int) -> bytes:
+        return (_ZIP_LOCAL.pack(0x04034B50, _ZIP_VERSION, 0, 0, _ZIP_TIME, _ZIP_DATE, crc, 0xFFFFFFFF, 0xFFFFFFFF,
+                                len(fname), 20) + fname + struct.pack("<HHQQ", 1, 16, size, size))
+
+    def write(self, name: str, first: int, block: np.ndarray) -> None:
+        """Frames first, first + 1, ... of frame member `name` (they must go on from the frames written)."""
+        shape, dtype = self.frame_shape[name]
+        b = np.ascontiguousarray(block, dtype=dtype)
+        if b.shape[1:] != shape[1:] or first != self.done[name] or first + len(b) > shape[0]:
+            raise InputError(f"block {b.shape} at frame {first} does not continue {shape} after frame "
+                             f"{self.done[name]}", self.path, field=name)
+        entry = next(e for e in self.entries if e[0] == name)
+        raw = memoryview(b).cast("B")
+        self._fh.seek(entry[3] + len(entry[5]) + first * self.frame_bytes[name])
+        self._fh.write(raw)
+        self.crc[name] = zlib.crc32(raw, self.crc[name])
+        self.done[name] = first + len(b)
+
+    def progress(self) -> tuple[dict, dict]:
+        """({member: CRC-32 so far}, {member: frames written}), to go on later (see the class)."""
+        self._fh.flush()
+        return dict(self.crc), dict(self.done)
+
+    def read(self, name: str, f0: int, f1: int) -> np.ndarray:
+        """Frames [f0, f1) of frame member `name` as written so far."""
+        shape, dtype = self.frame_shape[name]
+        entry = next(e for e in self.entries if e[0] == name)
+        self._fh.flush()
+        self._fh.seek(entry[3] + len(entry[5]) + f0 * self.frame_bytes[name])
+        raw = self._fh.read((f1 - f0) * self.frame_bytes[name])
+        return np.frombuffer(raw, dtype).reshape((f1 - f0,) + shape[1:])
+
+    def finish(self) -> None:
+        """Check every frame member is full, put the CRCs in, write the central directory; close."""
+        fh = self._fh
+        for name, (shape, _) in self.frame_shape.items():
+            if self.done[name] != shape[0]:
+                raise InputError(f"holds {self.done[name]} of {shape[0]} frames", self.path, field=name)
+        central = io.BytesIO()
+        for name, fname, at, data, size, head in self.entries:
+            crc = self.crc[name] if name in self.frame_shape else zlib.crc32(head)
+            fh.seek(at)
+            fh.write(self._local(fname, crc, size))
+            central.write(_ZIP_CENTRAL.pack(0x02014B50, _ZIP_VERSION | 3 << 8, _ZIP_VERSION, 0, 0, _ZIP_TIME,
+                                            _ZIP_DATE, crc, 0xFFFFFFFF, 0xFFFFFFFF, len(fname), 28, 0, 0, 0,
+                                            0o644 << 16, 0xFFFFFFFF))
+            central.write(fname + struct.pack("<HHQQQ", 1, 24, size, size, at))
+        cd = central.getvalue()
+        n = len(self.entries)
+        fh.seek(self.end)
+        fh.write(cd)
+        fh.write(_ZIP64_END.pack(0x06064B50, 44, _ZIP_VERSION, _ZIP_VERSION, 0, 0, n, n, len(cd), self.end))
+        fh.write(_ZIP64_LOCATOR.pack(0x07064B50, 0, self.end + len(cd), 1))
+        fh.write(_ZIP_END.pack(0x06054B50, 0, 0, min(n, 0xFFFF), min(n, 0xFFFF), 0xFFFFFFFF, 0xFFFFFFFF, 0))
+        fh.truncate()
+        self.close()
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.close()

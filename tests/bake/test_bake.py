@@ -285,27 +285,32 @@ def test_resume_without_an_unfinished_bake(capsys, tmp_path, arm_bake):
 
 
 def test_full_disk_leaves_no_cache_that_looks_complete(capsys, tmp_path, monkeypatch):
-    """ENOSPC while writing the npz: exit 2 naming the file, no bake.npz, the chunks kept to resume."""
+    """ENOSPC while the third chunk goes into the npz: exit 2 naming the file, no bake.npz, the chunks
+    before it kept; --resume then finishes a bake equal to an unbroken one."""
     import errno
 
     from sim.bake import caches
 
-    savez = np.savez
+    write = caches.NpzInPlace.write
 
-    def full(fh, **arrays):                       # the chunks fit, the final cache does not
-        if ".bake." in os.path.basename(getattr(fh, "name", "")):
-            fh.write(b"PK\x03\x04 partial")
+    def full(self, name, first, block):
+        if first >= 32:
             raise OSError(errno.ENOSPC, "No space left on device")
-        savez(fh, **arrays)
-    monkeypatch.setattr(caches.np, "savez", full)
-    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "64", "--formats", "npz")
-    assert code == 2 and "No space left on device" in err and "bake.npz" in err
-    assert not (tmp_path / "bake.npz").exists() and not list(tmp_path.glob(".bake*"))
-    assert not (tmp_path / "bake.json").exists()
+        write(self, name, first, block)
+    monkeypatch.setattr(caches.NpzInPlace, "write", full)
+    argv = ("bake", ARM, "--chunk", "16", "--formats", "npz,pc2")
+    code, out, err = run(capsys, *argv, "--out", str(tmp_path))
+    assert code == 2 and "No space left on device" in err and "--resume" in err
+    assert not (tmp_path / "bake.npz").exists() and not (tmp_path / "bake.pc2").exists()
+    assert not (tmp_path / "bake.json").exists() and not list(tmp_path.glob(".bake*"))
+    assert (tmp_path / ".partial" / "chunk_00001.npz").exists()
     monkeypatch.undo()
-    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--chunk", "64", "--formats", "npz", "--resume")
+    code, out, err = run(capsys, *argv, "--out", str(tmp_path), "--resume")
     assert code == 0, err
-    assert read_npz(tmp_path / "bake.npz").num_frames > 0
+    assert run(capsys, *argv, "--out", str(tmp_path / "whole"))[0] == 0
+    a, b = read_npz(tmp_path / "bake.npz"), read_npz(tmp_path / "whole" / "bake.npz")
+    assert np.array_equal(a.skin_final, b.skin_final) and np.array_equal(a.muscle_cvs_dynamic, b.muscle_cvs_dynamic)
+    assert (tmp_path / "bake.pc2").read_bytes() == (tmp_path / "whole" / "bake.pc2").read_bytes()
 
 
 def test_bad_input_is_one_line_with_exit_code_2(capsys, tmp_path):

@@ -50,7 +50,7 @@ def test_npz_round_trip(tmp_path):
     path = tmp_path / "bake.npz"
     write_npz(data, path)
     back = read_npz(path)
-    for name in caches._NPZ_KEYS:
+    for name in caches.NPZ_KEYS:
         a, b = getattr(data, name), getattr(back, name)
         if isinstance(a, np.ndarray):
             assert a.dtype == b.dtype and np.array_equal(a, b), name
@@ -195,31 +195,75 @@ def test_unwritable_folder_names_the_path(tmp_path):
 
 
 def test_interrupted_writes_leave_no_file(tmp_path, monkeypatch):
+    """Ctrl-C in the middle of a streamed write (after the first block) leaves nothing behind."""
     data = BakeData(**make_data())
 
-    def half_npz(fh, **arrays):
-        fh.write(b"PK\x03\x04 half a zip")
+    def interrupted(a):
+        def blocks():
+            yield a[:1]
+            raise KeyboardInterrupt
+        return caches.Stream(a.shape, a.dtype, blocks, "vertex")
+
+    def half_save(layer):
         raise KeyboardInterrupt
 
-    def half_frames(fh, p):
-        fh.write(p[0].tobytes())
-        raise KeyboardInterrupt
-
-    def half_export(layer, tmp, fmt):
-        with open(tmp, "wb") as fh:
-            fh.write(b"PXR-USDC")
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(caches.np, "savez_compressed", half_npz)
-    monkeypatch.setattr(caches, "_write_frames", half_frames)
-    monkeypatch.setattr(caches, "_export", half_export)
     with pytest.raises(KeyboardInterrupt):
-        write_npz(data, tmp_path / "bake.npz")
+        caches.write_npz_stream(tmp_path / "bake.npz", {**caches.npz_arrays(data),
+                                                        "skin_final": interrupted(data.skin_final)})
     with pytest.raises(KeyboardInterrupt):
-        write_pc2(data.skin_final, tmp_path / "skin.pc2", FPS)
+        caches.write_pc2_stream(interrupted(data.skin_final), tmp_path / "skin.pc2", FPS)
+    with pytest.raises(KeyboardInterrupt):
+        caches.write_usd_stream(data, {"skin_static": interrupted(data.skin_static),
+                                       "skin_final": interrupted(data.skin_final)}, tmp_path / "bake.usdc")
+    monkeypatch.setattr(caches, "_save_layer", half_save)
     with pytest.raises(KeyboardInterrupt):
         write_usd(data, tmp_path / "bake.usdc")
     assert leftovers(tmp_path) == []
+
+
+def test_streamed_caches_equal_whole_ones_and_hold_one_block(tmp_path):
+    """Caches written block by block (2 + 1 + 1 frames) read back equal to those written whole; a
+    NaN in the third block names its frame in the whole clip and leaves no file; a stream that
+    ends short is refused."""
+    from pxr import Usd, UsdGeom
+    data = BakeData(**make_data())
+
+    def in_blocks(a, cuts=(0, 2, 3, 4)):
+        return caches.Stream(a.shape, a.dtype, lambda: (a[i:j] for i, j in zip(cuts[:-1], cuts[1:])), "vertex")
+
+    members = {**caches.npz_arrays(data), **{k: in_blocks(getattr(data, k)) for k in caches.FRAME_KEYS
+                                                 if getattr(data, k) is not None}}
+    caches.write_npz_stream(tmp_path / "s.npz", members)
+    back, ref = read_npz(tmp_path / "s.npz"), data
+    for name in caches.NPZ_KEYS:
+        a, b = getattr(ref, name), getattr(back, name)
+        assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), name
+    caches.write_pc2_stream(in_blocks(data.skin_final), tmp_path / "s.pc2", FPS, 0.5)
+    write_pc2(data.skin_final, tmp_path / "w.pc2", FPS, 0.5)
+    assert (tmp_path / "s.pc2").read_bytes() == (tmp_path / "w.pc2").read_bytes()
+    mp = muscle_points()
+    caches.write_usd_stream(data, {"skin_static": in_blocks(data.skin_static), "skin_final": in_blocks(data.skin_final),
+                                   "muscles": in_blocks(mp)}, tmp_path / "s.usdc")
+    write_usd(data, tmp_path / "w.usdc", muscle_points=mp)
+    a, b = Usd.Stage.Open(str(tmp_path / "s.usdc")), Usd.Stage.Open(str(tmp_path / "w.usdc"))
+    for prim in ("/jiggle/skin_static", "/jiggle/skin_final", "/jiggle/muscles/biceps_l", "/jiggle/muscles/belly_fat"):
+        ma, mb = UsdGeom.Mesh(a.GetPrimAtPath(prim)), UsdGeom.Mesh(b.GetPrimAtPath(prim))
+        for k in range(T):
+            for get in (UsdGeom.Mesh.GetPointsAttr, UsdGeom.Mesh.GetNormalsAttr, UsdGeom.Mesh.GetExtentAttr):
+                assert np.array_equal(np.array(get(ma).Get(k)), np.array(get(mb).Get(k))), (prim, k)
+    assert np.array_equal(np.array(UsdGeom.Mesh(a.GetPrimAtPath("/jiggle/skin_final")).GetPointsAttr().Get(3)),
+                          data.skin_final[3])
+    bad = np.array(data.skin_final)
+    bad[3, 2, 1] = np.nan
+    with pytest.raises(InputError, match="frame 3, vertex 2") as e:
+        caches.write_npz_stream(tmp_path / "bad.npz", {"skin_final": in_blocks(bad)})
+    assert e.value.field == "skin_final"
+    with pytest.raises(InputError, match="frame 3"):
+        caches.write_pc2_stream(in_blocks(bad), tmp_path / "bad.pc2", FPS)
+    short = caches.Stream((T + 1, 4, 3), np.float32, lambda: iter((data.skin_final,)), "vertex")
+    with pytest.raises(InputError, match="4 frames, expected 5"):
+        caches.write_npz_stream(tmp_path / "short.npz", {"skin_final": short})
+    assert not list(tmp_path.glob("bad*")) and not list(tmp_path.glob("short*")) and not list(tmp_path.glob(".*"))
 
 
 def test_interrupted_overwrite_keeps_the_old_file(tmp_path, monkeypatch):

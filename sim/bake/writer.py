@@ -1,0 +1,189 @@
+"""A bake's caches written while it runs: each chunk goes once, straight into every cache.
+
+    chunk c's arrays --BakeWriter.append--> OUT/.partial/.bake.npz.tmp   (caches.NpzInPlace: the layout is
+                                                                          fixed up front, frames land at
+                                                                          their offsets)
+                                          OUT/.partial/.bake.pc2.tmp   (fixed-size frames at their offsets)
+                                          OUT/.partial/.bake.tmp.usdc  (caches.UsdAppender: saved per chunk)
+    all chunks -> BakeWriter.finish: the npz's central directory written, each file renamed into OUT
+
+Memory holds one chunk whatever the clip's length (the USD crate writer drops the samples it saved;
+nothing is concatenated). The npz is always written in .partial, even when the bake was not asked for
+it: it is the store an interrupted bake goes on from. `progress()` (each frame member's CRC so far)
+goes into the chunk's marker file with the particle state; a resumed bake reopens the npz with the
+progress of its last finished chunk, overwrites whatever a killed chunk left after it, and writes the
+USD again from the frames the npz holds (a crate file cannot be cut back). A cache appears under its
+final name only once it is complete (a rename), so none that looks complete is ever partial.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+
+import numpy as np
+
+from rig.base.errors import InputError
+from sim.bake.caches import (
+    _PC2_HEADER,
+    FRAME_KEYS,
+    NPZ_KEYS,
+    PC2_MAGIC,
+    PC2_VERSION,
+    BakeData,
+    NpzInPlace,
+    UsdAppender,
+    _usd_format,
+    npz_arrays,
+    require_finite,
+)
+
+NPZ_TMP, PC2_TMP = ".bake.npz.tmp", ".bake.pc2.tmp"
+USD_TMP = {"usdc": ".bake.tmp.usdc", "usda": ".bake.tmp.usda"}
+CHUNK_KEYS = {"skin_static": "skin_static", "skin_final": "skin_final", "skin_lbs": "skin_lbs",
+              "joint_world": "joint_world", "muscle_cvs_static": "cvs_static", "muscle_cvs_dynamic": "cvs_dynamic"}
+"""The npz's frame members (besides times) and the name of each in a chunk's arrays (sim/bake/baker.py)."""
+
+
+def _cannot_write(path: str, e: OSError) -> InputError:
+    return InputError(f"cannot write: {e.strerror or e}; the bake so far is kept (run again with --resume)", path)
+
+
+class BakeWriter:
+    """The caches of one bake (sim.bake.setup.BakeSetup), filled chunk by chunk (see the module).
+
+    setup : the bake's setup (times, character, rig, formats, params).
+    partial : the unfinished bake's folder (OUT/.partial), where the caches grow.
+    progress : None to start; else the `progress()` stored with the last finished chunk and the number
+        of frames those chunks hold, (dict, frames), to go on.
+    smooth : whether chunks bring the smooth skin ("skin_lbs").
+    """
+
+    def __init__(self, setup, partial: str, progress: tuple[dict, int] | None = None, smooth: bool = True):
+        self.setup, self.partial = setup, partial
+        rig, character = setup.rig, setup.character
+        T, V, J, N = len(setup.times), character.num_vertices, len(setup.joint_names), int(rig.cv_offsets[-1])
+        self.T, self.frames = T, 0
+        shapes = {"skin_static": (T, V, 3), "skin_final": (T, V, 3), "skin_lbs": (T, V, 3), "joint_world": (T, J, 4, 4),
+                  "muscle_cvs_static": (T, N, 3), "muscle_cvs_dynamic": (T, N, 3)}
+        if not smooth:
+            del shapes["skin_lbs"]
+        self.head = BakeData(skin_static=np.zeros((1, V, 3), np.float32), skin_final=np.zeros((1, V, 3), np.float32),
+                             skin_rest=character.vertices, faces=character.faces, fps=setup.fps, times=setup.times[:1],
+                             joint_names=setup.joint_names, joint_world=np.tile(np.eye(4, dtype=np.float32), (1, J, 1, 1)),
+                             muscle_names=tuple(rig.names), muscle_cvs_static=np.zeros((1, N, 3), np.float32),
+                             muscle_cvs_dynamic=np.zeros((1, N, 3), np.float32), muscle_cv_offsets=rig.cv_offsets,
+                             muscle_faces=rig.surface_faces,
+                             params=json.dumps(setup.params, sort_keys=True, allow_nan=False),
+                             **skin_parts(character))
+        whole = npz_arrays(self.head)
+        members = {"format": whole.pop("format")}
+        for name in NPZ_KEYS:
+            if name in shapes:
+                members[name] = (shapes[name], np.float32)
+            elif name == "times":
+                members[name] = np.asarray(setup.times, np.float64)
+            elif name in whole and name not in FRAME_KEYS:
+                members[name] = whole[name]
+        self.keys = [k for k in CHUNK_KEYS if k in shapes]
+        self.paths = {"npz": os.path.join(partial, NPZ_TMP)}
+        crcs = None
+        if progress is not None:
+            crcs, self.frames = progress[0], int(progress[1])
+        try:
+            self.npz = NpzInPlace(self.paths["npz"], members, crcs, {k: self.frames for k in self.keys})
+        except OSError as e:
+            raise _cannot_write(self.paths["npz"], e) from None
+        self.pc2 = None
+        if "pc2" in setup.formats:
+            self.paths["pc2"] = path = os.path.join(partial, PC2_TMP)
+            self._frame_bytes = V * 12
+            try:
+                if progress is None or not os.path.isfile(path):
+                    with open(path, "wb") as fh:
+                        fh.write(_PC2_HEADER.pack(PC2_MAGIC, PC2_VERSION, V, float(setup.times[0]) * setup.fps,
+                                                  1.0, T))
+                self.pc2 = open(path, "r+b")
+            except OSError as e:
+                raise _cannot_write(path, e) from None
+        self.usd = None
+        usd = [f for f in setup.formats if f in USD_TMP]
+        if usd:
+            fmt = _usd_format(USD_TMP[usd[0]], None)
+            self.paths[usd[0]] = path = os.path.join(partial, USD_TMP[usd[0]])
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(path)             # a crate file cannot be cut back: written again from the npz
+            P = rig.surface(rig.rest_cvs).shape[1]
+            self.usd = UsdAppender(path, self.head, T, (T, rig.M, P, 3), fmt)
+            for f0 in range(0, self.frames, setup.chunk):
+                f1 = min(self.frames, f0 + setup.chunk)
+                self._usd(f0, self.npz.read("skin_static", f0, f1), self.npz.read("skin_final", f0, f1),
+                          self.npz.read("muscle_cvs_dynamic", f0, f1))
+
+    def append(self, f0: int, arrays: dict) -> dict:
+        """Write frames f0, f0 + 1, ... (a chunk's arrays, named as CHUNK_KEYS says) into every cache and
+        return the progress to store with the chunk. Every array is checked finite first: a NaN stops
+        the bake naming it and the frame, and nothing of the chunk is written."""
+        if f0 != self.frames:
+            raise InputError(f"chunk at frame {f0} does not go on from frame {self.frames}", self.partial)
+        for key in self.keys:
+            require_finite(key, arrays[CHUNK_KEYS[key]], FRAME_KEYS[key], first=f0)
+        try:
+            for key in self.keys:
+                self.npz.write(key, f0, arrays[CHUNK_KEYS[key]])
+            if self.pc2 is not None:
+                final = np.ascontiguousarray(arrays["skin_final"], dtype="<f4")
+                self.pc2.seek(_PC2_HEADER.size + f0 * self._frame_bytes)
+                self.pc2.write(memoryview(final).cast("B"))
+                self.pc2.flush()
+            if self.usd is not None:
+                self._usd(f0, arrays["skin_static"], arrays["skin_final"], arrays["cvs_dynamic"])
+            crcs, _ = self.npz.progress()
+        except OSError as e:
+            raise _cannot_write(self.partial, e) from None
+        self.frames = f0 + len(arrays["skin_static"])
+        return crcs
+
+    def _usd(self, f0: int, static, final, cvs) -> None:
+        muscles = self.setup.rig.surface(np.asarray(cvs, dtype=np.float64)).astype(np.float32)
+        self.usd.append(f0, {"skin_static": static, "skin_final": final, "muscles": muscles})
+
+    def finish(self, out_dir: str, names: dict) -> dict:
+        """Complete every cache and rename it into out_dir under `names` ({format: file name}); the npz
+        store is removed when npz was not asked for. Returns {format: path}."""
+        out = {}
+        try:
+            self.npz.finish()
+            if self.pc2 is not None:
+                self.pc2.close()
+            if self.usd is not None:
+                self.usd.finish()
+                self.usd = None
+            for fmt, name in names.items():
+                out[fmt] = dst = os.path.join(out_dir, name)
+                os.replace(self.paths[fmt], dst)
+                os.chmod(dst, 0o644)
+        except OSError as e:
+            raise _cannot_write(out_dir, e) from None
+        if "npz" not in names:
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(self.paths["npz"])
+        return out
+
+    def close(self) -> None:
+        """Release the files (an interrupted bake: they stay in .partial to go on from)."""
+        self.npz.close()
+        if self.pc2 is not None:
+            self.pc2.close()
+        self.usd = None
+
+
+def skin_parts(character) -> dict:
+    """BakeData's part_names and part_offsets from the meshes a character was merged from
+    (Character.meta["parts"]: [(name, first vertex, vertex count), ...] in vertex order), or {}."""
+    parts = character.meta.get("parts")
+    if not parts:
+        return {}
+    names = tuple(str(p[0]) for p in parts)
+    offsets = np.array([int(p[1]) for p in parts] + [int(parts[-1][1]) + int(parts[-1][2])], np.int64)
+    return {"part_names": names, "part_offsets": offsets}
