@@ -53,7 +53,8 @@ Volume (per frame; Li = rest arc length, Lc = current)
         sqrt(V_rest / V) (EXACT_ITERATIONS times, the factor clipped to [0.5, 2]). One correction
         holds the lofted volume to ~1e-5 even for a muscle folded 140 deg across the elbow (its
         volume is V2 s^2 plus small odd terms from the bend). At bind the correction is exactly 1,
-        so static(bind_world) reproduces rest_cvs bit for bit.
+        so the NumPy path static(bind_world, device=None) reproduces rest_cvs bit for bit (the Warp
+        kernel, summing in another order, to ~1e-16 m).
     "sqrt": s = sqrt(Li / Lc).   "thesis": s = Li / Lc (thesis 6.3, S = Sc Li / Lc: sections' area
         goes with the square, so the volume drifts by Li / Lc).   "none": s = 1.
     Tone t in [0, 1] (Pratscher et al.) attenuates the change: s = 1 + t (s_rule - 1); t = 0 keeps the
@@ -63,13 +64,17 @@ Volume (per frame; Li = rest arc length, Lc = current)
 Output
     Flat CVs (N, 3), N = 40 M; muscle m owns rows cv_offsets[m]:cv_offsets[m + 1], section-major
     (section k, CV j at 8 k + j). The 5 action-curve CVs per muscle come separately (`curve`); the
-    jiggle simulation moves the section CVs. Nothing in the per-frame path loops in Python over
-    muscles or CVs (only over chunks of STATIC_CHUNK frames). Arrays run components first and
-    muscles last, so every step is one NumPy call over all muscles; 40 muscles take ~0.3 ms a frame
-    with the "exact" rule, ~0.16 ms with the others (benchmarks/bench_muscle_update.py).
+    jiggle simulation moves the section CVs. By default (device "cpu") all frames and muscles of a
+    call are one launch of a Warp kernel, one thread per (frame, muscle), in float64
+    (rig/muscle/static_kernels.py); device=None runs the NumPy reference, which loops in Python only
+    over chunks of STATIC_CHUNK frames: its arrays run components first and muscles last, so every
+    step is one NumPy call over all muscles. The two agree to ~1e-14 m. On chunks of 256 frames of 28
+    muscles the kernel is ~3x faster with the "exact" rule and ~5x with the others
+    (benchmarks/bench_muscle_update.py).
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import ClassVar, NamedTuple
@@ -280,10 +285,12 @@ class MuscleRig:
         return loft.FACES
 
     # ------------------------------------------------------------------ per frame
-    def static(self, world: np.ndarray, *, volume: str | None = None) -> StaticShape:
+    def static(self, world: np.ndarray, *, volume: str | None = None, device: str | None = "cpu") -> StaticShape:
         """Static shape of every muscle for joint world transforms `world` (J, 4, 4) or (T, J, 4, 4)
         (rigid, metres, in the character's joint order). `volume` overrides the rig's volume rule.
-        Returns StaticShape(cvs (N, 3) or (T, N, 3), curve (M, 5, 3) or (T, M, 5, 3))."""
+        `device`: the Warp device ("cpu", "cuda:0") that evaluates all frames in one launch
+        (rig/muscle/static_kernels.py), or None for the NumPy reference; the two agree to ~1e-15 m.
+        Returns StaticShape(cvs (N, 3) or (T, N, 3), curve (M, 5, 3) or (T, M, 5, 3)), float64."""
         rule = self.volume if volume is None else _check_rule(volume)
         world = np.asarray(world, dtype=np.float64)
         single = world.ndim == 3
@@ -294,12 +301,15 @@ class MuscleRig:
             raise InputError("world transforms hold NaN or inf", field="world")
         if single:
             world = world[None]
-        parts = [self._static(world[t0:t0 + STATIC_CHUNK], rule) for t0 in range(0, len(world), STATIC_CHUNK)]
-        if len(parts) == 1:
-            cvs, curve = parts[0]
+        if device is not None:
+            cvs, curve = _static_on_device(self, world, rule, device)
         else:
-            cvs = np.concatenate([c for c, _ in parts]) if parts else np.zeros((0, self.M, 5, 8, 3))
-            curve = np.concatenate([q for _, q in parts]) if parts else np.zeros((0, self.M, 5, 3))
+            parts = [self._static(world[t0:t0 + STATIC_CHUNK], rule) for t0 in range(0, len(world), STATIC_CHUNK)]
+            if len(parts) == 1:
+                cvs, curve = parts[0]
+            else:
+                cvs = np.concatenate([c for c, _ in parts]) if parts else np.zeros((0, self.M, 5, 8, 3))
+                curve = np.concatenate([q for _, q in parts]) if parts else np.zeros((0, self.M, 5, 3))
         cvs = cvs.reshape(len(world), self.M * self.CVS_PER_MUSCLE, 3)
         return StaticShape(cvs[0], curve[0]) if single else StaticShape(cvs, curve)
 
@@ -342,6 +352,53 @@ class MuscleRig:
     def volumes(self, cvs: np.ndarray) -> np.ndarray:
         """(M,) (or (T, M)) cubic metres enclosed by each muscle's lofted mesh."""
         return loft.volume(self._muscle_cvs(cvs))
+
+
+# ---------------------------------------------------------------------------------- on a Warp device
+# the rig's constant arrays per device, uploaded on first use; keyed weakly by the rig (a rig holding
+# device arrays itself could no longer be pickled to a worker process)
+_ON_DEVICE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _device_model(rig: MuscleRig, device) -> dict:
+    """The kernel's model arrays of `rig` on `device` (a wp.Device), uploaded once."""
+    import warp as wp
+    per_rig = _ON_DEVICE.setdefault(rig, {})
+    if device.alias not in per_rig:
+        f64 = lambda a: wp.array(np.ascontiguousarray(a, np.float64), dtype=wp.float64, device=device)  # noqa: E731
+        per_rig[device.alias] = dict(   # in the kernel's parameter order
+            joints=wp.array(np.ascontiguousarray(rig.joints, np.int32), dtype=wp.int32, device=device),
+            local=wp.array(np.ascontiguousarray(rig.local), dtype=wp.vec4d, device=device),
+            tendon=wp.array(np.ascontiguousarray(rig.tendon), dtype=wp.vec2d, device=device),
+            along=wp.array(np.ascontiguousarray(rig.hinge_along), dtype=wp.vec2d, device=device),
+            rest_chord=f64(rig.rest_chord), stations=f64(rig._stations),
+            sections=wp.array(np.ascontiguousarray(rig.sections), dtype=wp.vec2d, device=device),
+            section_scale=f64(rig.section_scale), tone=f64(rig.tone), rest_length=f64(rig.rest_length),
+            rest_volume=f64(rig.rest_volume), curve_from_z=f64(_CURVE_FROM_Z), arc_from_z=f64(_ARC_FROM_Z),
+            arc_w=f64(_ARC_W), row_weights=f64(loft.ROW_WEIGHTS), col_weights=f64(loft.COL_WEIGHTS))
+    return per_rig[device.alias]
+
+
+def _static_on_device(rig: MuscleRig, world: np.ndarray, rule: str, device) -> tuple[np.ndarray, np.ndarray]:
+    """CVs (T, N, 3) and curve (T, M, 5, 3) float64 for checked world transforms (T, J, 4, 4), all
+    frames and muscles in one launch of rig.muscle.static_kernels.static_shape on the Warp `device`."""
+    import warp as wp
+
+    from rig.muscle import static_kernels as kernels
+    T, M = len(world), rig.M
+    if T == 0 or M == 0:
+        return np.zeros((T, M * rig.CVS_PER_MUSCLE, 3)), np.zeros((T, M, 5, 3))
+    device = wp.get_device(device)
+    model = _device_model(rig, device)
+    w = wp.array(np.ascontiguousarray(world), dtype=wp.mat44d, device=device)     # (T, J)
+    cvs = wp.empty((T, M * rig.CVS_PER_MUSCLE), dtype=wp.vec3d, device=device)
+    curve = wp.empty((T, M * 5), dtype=wp.vec3d, device=device)
+    code = {"none": kernels.RULE_NONE, "thesis": kernels.RULE_THESIS, "sqrt": kernels.RULE_SQRT,
+            "exact": kernels.RULE_EXACT}[rule]
+    wp.launch(kernels.static_shape, dim=(T, M), device=device,
+              inputs=[*model.values(), MIN_BELLY, code, EXACT_ITERATIONS, w], outputs=[cvs, curve])
+    # on the CPU .numpy() is a view of the fresh output buffers (kept alive by the views)
+    return cvs.numpy().reshape(T, -1, 3), curve.numpy().reshape(T, M, 5, 3)
 
 
 def _check_rule(volume: str) -> str:
@@ -528,7 +585,7 @@ def build_muscle_rig(specs, bind_world: np.ndarray, volume: str = "exact") -> Mu
         sections[m], fit_rms[m], fit_max[m] = fit_sections(s.surface, centre[m], U[m], S[m])
     fitted = MuscleRig(**fields, rest_cvs=np.zeros((40 * M, 3)), rest_curve=np.zeros((M, 5, 3)),
                        rest_volume=empty, rest_length=empty, fit_rms=empty, fit_max=empty, sections=sections)
-    # the same computation as static(bind_world), so that static reproduces these bit for bit
+    # the same computation as static(bind_world, device=None), so that it reproduces these bit for bit
     offsets = _section_offsets(fitted, pose)
     scale = fitted._scale * np.ones((1, M))
     rest_volume = _loft_volume(pose, offsets, scale)[0]

@@ -273,7 +273,7 @@ def test_volume_is_kept_over_every_frame_of_a_cmu_clip(fits):
     world = transforms(*Skeleton(clip).world())               # every frame of the clip
     assert world.shape == (clip.num_frames, c.num_joints, 4, 4) and clip.num_frames > 100
     rig = mus.rig
-    assert rig.volume == "exact" and np.array_equal(rig.static(c.bind_world).cvs, rig.rest_cvs)
+    assert rig.volume == "exact" and np.abs(rig.static(c.bind_world).cvs - rig.rest_cvs).max() < 1e-12
     drift = {}
     for rule in ("exact", "thesis"):
         shape = rig.static(world) if rule == "exact" else rig.static(world, volume=rule)

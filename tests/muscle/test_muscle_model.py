@@ -254,14 +254,16 @@ def test_a_rig_without_muscles_is_empty():
     assert rig.static(ARM_BIND).cvs.shape == (0, 3) and rig.static(np.stack([ARM_BIND] * 5)).cvs.shape == (5, 0, 3)
 
 
+@pytest.mark.parametrize("device", [None, "cpu"])
 @pytest.mark.parametrize("rule", VOLUME_RULES)
-def test_vectorised_static_equals_the_per_muscle_reference(rule):
+def test_vectorised_static_equals_the_per_muscle_reference(rule, device):
+    """Both the NumPy path (device None) and the Warp kernel (tests/muscle/test_static_kernels.py)."""
     specs = [biceps(), brachio(bulge_position=0.3, tone=0.7, middle_offset=(0.004, 0.01, 0.0)),
              biceps(rim_scale=0.8, main_scale=1.2, bone=1)]
     rig = build_muscle_rig(specs, ARM_BIND, volume=rule)
     for angle in (0, 45, 120):
         ref_cvs, ref_curve = reference_static(specs, ARM_BIND, rig.sections, arm_world(angle), rule)
-        cvs, curve = rig.static(arm_world(angle))
+        cvs, curve = rig.static(arm_world(angle), device=device)
         assert np.abs(cvs - ref_cvs).max() < 1e-12
         assert np.abs(curve - ref_curve).max() < 1e-12
 
