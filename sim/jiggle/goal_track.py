@@ -43,6 +43,11 @@ class GoalTrack:
         j = int(np.searchsorted(self.times, t, side="right")) - 1
         return min(max(j, 0), self.num_knots - 2)
 
+    def intervals(self, t: np.ndarray) -> np.ndarray:
+        """(K,) int64: :meth:`interval` of each time of t (K,) seconds."""
+        j = np.searchsorted(self.times, np.asarray(t, dtype=np.float64), side="right") - 1
+        return np.clip(j, 0, self.num_knots - 2)
+
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Goal position, velocity and acceleration (N, 3) each at time t (inside the track)."""
         j = self.interval(t)
@@ -50,9 +55,10 @@ class GoalTrack:
                        self.times[j + 1] - self.times[j], t - self.times[j])[:3]
 
     def to_device(self, device: str = "cpu") -> "GoalControl":
-        return GoalControl(self, wp.array(self.pos.astype(np.float32), dtype=wp.vec3, device=device),
-                           wp.array(self.vel_start.astype(np.float32), dtype=wp.vec3, device=device),
-                           wp.array(self.vel_end.astype(np.float32), dtype=wp.vec3, device=device))
+        def dev(a: np.ndarray) -> wp.array:
+            # on the CPU the device array is the float32 copy itself (copy=False), not a second copy
+            return wp.array(a.astype(np.float32), dtype=wp.vec3, device=device, copy=False)
+        return GoalControl(self, dev(self.pos), dev(self.vel_start), dev(self.vel_end))
 
 
 @dataclass(frozen=True, eq=False)

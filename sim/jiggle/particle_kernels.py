@@ -1,6 +1,8 @@
 """Warp kernels of one particle step: the offsets from the goals, a half kick of the neighbour springs
 with the exact goal flow, and the closing half kick (sim/jiggle/solver.py launches them; the NumPy reference is
-:func:`sim.jiggle.solver.step_numpy`; the math is in sim/jiggle/goal_flow.py and sim/jiggle/particles.py).
+:func:`sim.jiggle.solver.step_numpy`; the math is in sim/jiggle/goal_flow.py and sim/jiggle/particles.py);
+and :func:`integrate_run`, all of them over a whole cut-free run of steps in one launch, a thread per
+group of particles that no spring leaves, equal to them bit for bit.
 
 All muscles' particles are one flat array; a particle's springs are its CSR row. Goals come from the
 device goal track (sim/jiggle/goal_track.py): knot interval ``seg`` of length ``H``, at ``s`` seconds into
@@ -173,3 +175,144 @@ def glue(
     pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
     x_out[i] = goal_pos(pa, pb, va, vb, H, s)
     v_out[i] = goal_vel(pa, pb, va, vb, H, s)
+
+
+# ------------------------------------------------------------------------------ a whole run, one launch
+# The run's data is packed so that each particle and each of its springs is one load (the CPU pays
+# for every index's address arithmetic, as much as for the float operations themselves).
+flow_row = wp.types.vector(length=10, dtype=float)
+"""A particle's exact-flow coefficients for one step length (sim/jiggle/goal_flow.py: COEFFS)."""
+cubic = wp.types.vector(length=12, dtype=float)
+"""A particle's goal on one knot interval: pa, va, c2, c3 (g(s) = pa + va s + c2 s^2 + c3 s^3)."""
+
+
+@wp.struct
+class Edge:
+    """One end of a spring in a particle's CSR row: the other particle j, stiffness k (N/m), damping c (N s/m)."""
+    j: wp.int32
+    k: float
+    c: float
+
+
+@wp.func
+def edge_kick(i: int, h: float, inv_mass: float, adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge),
+              y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3)):
+    """:func:`spring_kick` with the springs as Edge records and the particle's 1 / mass given."""
+    y_i = y[i]
+    f = wp.vec3(0.0)
+    c = float(0.0)
+    for e in range(adj_offsets[i], adj_offsets[i + 1]):
+        ed = edges[e]
+        f += ed.k * (y[ed.j] - y_i) + ed.c * u[ed.j]
+        c += ed.c
+    d = 0.5 * h * inv_mass * c
+    return (u[i] * (1.0 - d) + (h * inv_mass) * f) / (1.0 + d)
+
+
+@wp.func
+def run_step(
+    lo: int, hi: int,
+    # model: per particle (1 / mass, drag, reach)
+    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row), f: int,
+    adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
+    # goals: the cubics of the step's knot interval
+    cubics: wp.array(dtype=cubic), s0: float, h: float, h_kick: float,
+    # offsets in (at s0)
+    y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3),
+    # out: frame `frame` of frames_out (none when < 0), x_out when `last`
+    frame: int, last: bool,
+    frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
+    y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3),
+):
+    """:func:`kick_drift` on the particles lo:hi with flow coefficients flows[f]: the same float32
+    operations in the same order (the one-launch run equals the per-step launches bit for bit)."""
+    for i in range(lo, hi):
+        cu = cubics[i]
+        pa = wp.vec3(cu[0], cu[1], cu[2])
+        va = wp.vec3(cu[3], cu[4], cu[5])
+        c2 = wp.vec3(cu[6], cu[7], cu[8])
+        c3 = wp.vec3(cu[9], cu[10], cu[11])
+        g_vel = va + s0 * (2.0 * c2 + 3.0 * s0 * c3)
+        g_acc = 2.0 * c2 + 6.0 * s0 * c3
+        g_jerk = 6.0 * c3
+        pr = params[i]
+        y0 = y[i]
+        u0 = edge_kick(i, h_kick, pr[0], adj_offsets, edges, y, u)
+        mu = pr[1]
+        b0 = gravity - g_acc - mu * g_vel
+        b1 = -g_jerk - mu * g_acc
+        b2 = (-0.5 * mu) * g_jerk
+        fl = flows[f, i]
+        y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
+        u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
+        y1, u1 = within_reach(y1, u1, pr[2])
+        if frame >= 0 or last:                      # positions only where someone reads them
+            s1 = s0 + h
+            x1 = pa + s1 * (va + s1 * (c2 + s1 * c3)) + y1
+            if frame >= 0:
+                frames_out[frame, i] = x1
+            if last:
+                x_out[i] = x1
+        y_out[i] = y1
+        u_out[i] = u1
+
+
+@wp.kernel
+def integrate_run(
+    # model
+    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row),
+    adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
+    group_offsets: wp.array(dtype=wp.int32),
+    # goals
+    pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec3), vel_end: wp.array2d(dtype=wp.vec3),
+    # steps (K,): knot interval, its length H, start s0 in it, length h, kick before it, flows index, frame (-1: none)
+    step_seg: wp.array(dtype=wp.int32), step_H: wp.array(dtype=float), step_s0: wp.array(dtype=float),
+    step_h: wp.array(dtype=float), step_kick: wp.array(dtype=float), step_flow: wp.array(dtype=wp.int32),
+    step_frame: wp.array(dtype=wp.int32),
+    # the closing half kick: at s_end of interval step_seg[K - 1], over h_end
+    s_end: float, h_end: float,
+    # state in
+    x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
+    # scratch: offsets, double-buffered; the goals' cubics on the current knot interval
+    y_a: wp.array(dtype=wp.vec3), u_a: wp.array(dtype=wp.vec3), y_b: wp.array(dtype=wp.vec3),
+    u_b: wp.array(dtype=wp.vec3), cubics: wp.array(dtype=cubic),
+    # out
+    frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3), v_out: wp.array(dtype=wp.vec3),
+):
+    """All K steps of a cut-free run (:func:`offsets`, K x :func:`kick_drift`, :func:`kick`) for the
+    particles of group tid (no spring leaves a group, so a group steps alone): each step reads only the
+    previous step's buffers, so the result does not depend on the order of the threads. Writes the
+    positions after step k to frames_out[step_frame[k]] and the state at the end to x_out, v_out."""
+    g = wp.tid()
+    lo = int(group_offsets[g])
+    hi = int(group_offsets[g + 1])
+    K = step_seg.shape[0]
+    seg0 = int(step_seg[0])
+    for i in range(lo, hi):
+        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
+        y_a[i] = x[i] - goal_pos(pa, pb, va, vb, step_H[0], step_s0[0])
+        u_a[i] = v[i] - goal_vel(pa, pb, va, vb, step_H[0], step_s0[0])
+    for k in range(K):
+        seg = int(step_seg[k])
+        if k == 0 or seg != int(step_seg[wp.max(k - 1, 0)]):
+            # a new knot interval: the cubics once for all its steps
+            for i in range(lo, hi):
+                pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
+                c2, c3 = hermite(pa, pb, va, vb, step_H[k])
+                cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
+        last = k == K - 1
+        if k % 2 == 0:
+            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+                     step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b)
+        else:
+            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+                     step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a)
+    seg1 = int(step_seg[K - 1])
+    H1 = step_H[K - 1]
+    for i in range(lo, hi):
+        g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
+        inv_m = params[i][0]
+        if K % 2 == 1:
+            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
+        else:
+            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)

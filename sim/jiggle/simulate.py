@@ -185,17 +185,22 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     wanted = np.searchsorted(out_times, grid - TIME_EPS)
     is_out = (wanted < len(out_times)) & (np.abs(out_times[np.minimum(wanted, len(out_times) - 1)] - grid) <= TIME_EPS)
 
+    def save(ks: np.ndarray, frames: np.ndarray) -> None:
+        """Output frames ks (R,) from positions (R, N, 3); the first that is not finite names its muscle."""
+        out[ks] = frames
+        if not np.isfinite(frames).all():
+            r, p = np.argwhere(~np.isfinite(frames).all(axis=2))[0]
+            k = int(ks[r])
+            raise FloatingPointError(f"{model.group_of(int(p))}: the simulation produced NaN at frame {k} "
+                                     f"(t = {out_times[k]:.4f} s)")
+
     def record(g: int, x) -> None:
         if is_out[g]:
-            k = int(wanted[g])
-            out[k] = x.numpy()
-            if not np.isfinite(out[k]).all():
-                p = int(np.argwhere(~np.isfinite(out[k]))[0, 0])
-                raise FloatingPointError(f"{model.group_of(p)}: the simulation produced NaN at frame {k} "
-                                         f"(t = {out_times[k]:.4f} s)")
+            save(wanted[g:g + 1], x.numpy()[None])
 
     record(0, state.x)
-    cut = track.cut[[track.interval(0.5 * (a + b)) for a, b in zip(grid[:-1], grid[1:])]]
+    cut = track.cut[track.intervals(0.5 * (grid[:-1] + grid[1:]))]
+    cut_at = np.flatnonzero(cut)
     g = 0
     while g < len(grid) - 1:
         if cut[g]:
@@ -206,10 +211,13 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
             g += 1
             record(g, state.x)
             continue
-        e = g + 1
-        while e < len(grid) - 1 and not cut[e]:
-            e += 1
-        solver.integrate(state, nxt, control, grid[g:e + 1], on_step=lambda k, x, g=g: record(g + k, x))
+        later = cut_at[cut_at > g]
+        e = int(later[0]) if len(later) else len(grid) - 1
+        # the cut-free stretch grid[g..e] in one launch, its output frames read back once
+        ks = np.flatnonzero(is_out[g + 1:e + 1]) + 1
+        frames = solver.integrate(state, nxt, control, grid[g:e + 1], record=ks)
+        if len(ks):
+            save(wanted[g + ks], frames)
         state, nxt = nxt, state
         g = e
     if return_state:

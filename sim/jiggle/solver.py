@@ -20,7 +20,9 @@ damping never overshoots, and the error left is first order in the damping betwe
 The explicit kicks are stable for omega h < 2 with omega the springs' fastest frequency;
 :meth:`ParticleSolver.max_step` keeps omega h and the damping rate times h <= 0.5, and sim/jiggle/secondary.py
 splits steps to it. :meth:`ParticleSolver.integrate` merges each closing half kick with the next
-opening one (one launch per step).
+opening one and takes a whole run of steps in one launch, a thread per group of particles that no spring
+leaves (a muscle) looping over the steps; :meth:`ParticleSolver.integrate_steps` does the same arithmetic
+with one launch per step.
 """
 from __future__ import annotations
 
@@ -39,20 +41,40 @@ STEP_OMEGA = 0.5
 """Largest omega h (and gamma h) of the neighbour springs in one step; stability ends at 2."""
 
 
-def _check_step(track: GoalTrack, t: float, dt: float) -> tuple[int, float, float]:
-    """(interval j, s0 = t - times[j], H) for a step [t, t + dt] inside one knot interval."""
-    if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0):
-        raise InputError(f"the time step must be a finite number > 0 s, got {dt!r}", field="dt")
-    if not math.isfinite(t):
-        raise InputError(f"the step's time must be finite, got {t!r}", field="t")
-    j = track.interval(t + 0.5 * dt)
+def _check_steps(track: GoalTrack, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(seg, s0, H), each (K,): knot interval j (int64), s0 = t - times[j] and its length H (float64
+    seconds) of each step [grid[k], grid[k + 1]], which must lie inside one knot interval."""
+    grid = np.asarray(grid, dtype=np.float64)
+    t, dt = grid[:-1], np.diff(grid)
+    bad = ~(np.isfinite(dt) & (dt > 0))
+    if bad.any():
+        raise InputError(f"the time step must be a finite number > 0 s, got {float(dt[bad][0])!r}", field="dt")
+    if not np.isfinite(t).all():
+        raise InputError(f"the step's time must be finite, got {float(t[~np.isfinite(t)][0])!r}", field="t")
+    j = track.intervals(t + 0.5 * dt)
     t0, t1 = track.times[j], track.times[j + 1]
-    H = t1 - t0
-    eps = 1e-9 * max(1.0, abs(t1))
-    if t < t0 - eps or t + dt > t1 + eps:
-        raise InputError(f"the step [{t:.6f}, {t + dt:.6f}] s must lie inside one knot interval of the goal track "
-                         f"([{t0:.6f}, {t1:.6f}] s)", field="dt")
-    return j, t - t0, H
+    eps = 1e-9 * np.maximum(1.0, np.abs(t1))
+    out = (t < t0 - eps) | (t + dt > t1 + eps)
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        raise InputError(f"the step [{t[k]:.6f}, {t[k] + dt[k]:.6f}] s must lie inside one knot interval of the goal "
+                         f"track ([{t0[k]:.6f}, {t1[k]:.6f}] s)", field="dt")
+    return j, t - t0, t1 - t0
+
+
+def thread_groups(model: ParticleModel) -> np.ndarray:
+    """(G + 1,) int64 particle offsets of the groups a one-launch run steps apart: the model's groups (the
+    muscles), merged wherever a spring joins two of them (a group's particles then only ever read each
+    other); a model whose springs cross every boundary is one group."""
+    n = model.num_particles
+    b = np.asarray(model.group_offsets, dtype=np.int64)
+    b = np.unique(np.concatenate([[0, n], b[(b > 0) & (b < n)]]))
+    if model.num_springs:
+        span = np.zeros(n + 1, np.int64)          # cumsum: springs (i < j) with i < b <= j, across boundary b
+        np.add.at(span, model.springs.min(axis=1) + 1, 1)
+        np.add.at(span, model.springs.max(axis=1) + 1, -1)
+        b = b[np.cumsum(span)[b] == 0]
+    return b
 
 
 class ParticleSolver:
@@ -64,7 +86,23 @@ class ParticleSolver:
         n, dev = model.num_particles, model.device
         self._y = [wp.zeros(n, dtype=wp.vec3, device=dev) for _ in range(2)]
         self._u = [wp.zeros(n, dtype=wp.vec3, device=dev) for _ in range(2)]
+        self._cubics = wp.zeros(n, dtype=kernels.cubic, device=dev)
+        # the run kernel's packed model: (1 / mass, drag, reach) per particle, the springs as Edge records
+        self._params = wp.array(np.stack([a.numpy() for a in (model.wp_inv_mass, model.wp_drag, model.wp_reach)],
+                                         axis=1), dtype=wp.vec3, device=dev)
+        edges = np.zeros(len(model.adj_index), dtype=kernels.Edge.numpy_dtype())
+        for name, a in (("j", model.wp_adj_index), ("k", model.wp_adj_k), ("c", model.wp_adj_c)):
+            edges[name] = a.numpy()
+        self._edges = wp.array(edges, dtype=kernels.Edge, device=dev)
         self._recorded: dict[str, tuple] = {}
+        self._tables: dict[tuple, wp.array] = {}
+        groups = thread_groups(model)
+        self.num_groups = len(groups) - 1
+        """threads of a one-launch run (:meth:`integrate`): groups of particles no spring leaves."""
+        self._groups = wp.array(groups.astype(np.int32), dtype=wp.int32, device=dev)
+        self.launches = 0
+        """kernel launches so far: every one (glue, the runs of :meth:`integrate`, the steps of
+        :meth:`integrate_steps`)."""
         self._gravity = wp.vec3(*model.gravity_vector.astype(np.float32))
         omega, gamma = model.spring_rate_bound()
         self.max_step = min(STEP_OMEGA / omega if omega > 0 else math.inf,
@@ -86,55 +124,108 @@ class ParticleSolver:
         """Advance state_in at time t by dt seconds into state_out (two different states)."""
         self.integrate(state_in, state_out, control, np.array([t, t + dt]))
 
+    def _flow_table(self, dts: np.ndarray) -> tuple[wp.array, np.ndarray]:
+        """The flow coefficients of the distinct step lengths among dts (K,) seconds, stacked on the
+        device (F, N) of 10 float32 as :meth:`flow` gives them, and each step's index in it (K,) int32."""
+        uniq, inverse = np.unique(dts, return_inverse=True)
+        keys = [round(float(h), 12) for h in uniq]                 # flow()'s key: lengths equal to 1e-12 s share it
+        index = {k: f for f, k in enumerate(dict.fromkeys(keys))}
+        table_key = tuple(index)
+        table = self._tables.get(table_key)
+        if table is None:
+            if len(self._tables) > 16:
+                self._tables.clear()
+            coeffs = np.stack([self.flow(k)[0] for k in table_key]).astype(np.float32)
+            table = self._tables[table_key] = wp.array(coeffs, dtype=kernels.flow_row, device=self.model.device)
+        return table, np.array([index[k] for k in keys], dtype=np.int32)[inverse.reshape(-1)]
+
     def integrate(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl,
-                  grid: np.ndarray, on_step=None) -> None:
-        """Advance state_in from grid[0] through the steps between the times grid (K + 1,) into state_out.
+                  grid: np.ndarray, record=None) -> np.ndarray | None:
+        """Advance state_in from grid[0] through the steps between the times grid (K + 1,) into state_out,
+        in one launch; returns the positions (R, N, 3) float32 metres after the steps `record` (R,)
+        (indices 1..K of grid, increasing), read back once, or None when record is None.
 
         Like K calls of :meth:`step`, but each step's closing half kick is merged with the next step's
         opening one into one kick at the same positions (equal to K steps without spring damping; with
         it the merged kick sees the velocity before both halves, a difference of the order of the
-        damping error): one launch per step, plus one to form the offsets and one to close. The NumPy
-        reference is :func:`integrate_numpy`. on_step(k, x) is called after step k (1..K) with the
-        positions at grid[k] (a device array, valid until the next step).
+        damping error). Equal bit for bit to :meth:`integrate_steps` (one launch per step). The NumPy
+        reference is :func:`integrate_numpy`.
         """
+        m, dev = self.model, self.model.device
+        grid = np.asarray(grid, dtype=np.float64)
+        ks = np.zeros(0, np.int64) if record is None else np.asarray(record, dtype=np.int64).reshape(-1)
+        K = len(grid) - 1
+        if len(ks) and (ks.min() < 1 or ks.max() > K or np.any(np.diff(ks) <= 0)):
+            raise InputError(f"recorded steps must be increasing indices in 1..{K}, got {ks.tolist()}", field="record")
+        if m.num_particles == 0 or K < 1:
+            return None if record is None else np.zeros((len(ks), m.num_particles, 3), np.float32)
+        seg, s0, H = _check_steps(control.track, grid)
+        dts = np.diff(grid)
+        # the kick before step k: its own opening half, plus the previous step's closing half
+        h_kick = 0.5 * dts
+        h_kick[1:] += 0.5 * dts[:-1]
+        table, flow_index = self._flow_table(dts)
+        frame = np.full(K, -1, np.int32)
+        frame[ks - 1] = np.arange(len(ks), dtype=np.int32)
+        frames = wp.empty((max(len(ks), 1), m.num_particles), dtype=wp.vec3, device=dev)
+
+        def dev_array(a, dtype):
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
+
+        Y, U = self._y, self._u
+        self._run(kernels.integrate_run, self.num_groups, [
+            self._params, table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
+            control.pos, control.vel_start, control.vel_end,
+            dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
+            dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
+            dev_array(h_kick.astype(np.float32), float), dev_array(flow_index, wp.int32), dev_array(frame, wp.int32),
+            float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
+            self._cubics, frames, state_out.x, state_out.v])
+        return None if record is None else frames.numpy()[:len(ks)]
+
+    def integrate_steps(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl,
+                        grid: np.ndarray, on_step=None) -> None:
+        """:meth:`integrate` with one launch per step (plus one to form the offsets and one to close):
+        the reference the one-launch run equals bit for bit, and the way to see every step on the device.
+        on_step(k, x) is called after step k (1..K) with the positions at grid[k] (a device array, valid
+        until the next step)."""
         m = self.model
         grid = np.asarray(grid, dtype=np.float64)
         if m.num_particles == 0 or len(grid) < 2:
             return
-        track = control.track
-        steps = [_check_step(track, float(a), float(b - a)) for a, b in zip(grid[:-1], grid[1:])]
+        seg_k, s0_k, H_k = _check_steps(control.track, grid)
+        steps = list(zip(seg_k.tolist(), s0_k.tolist(), H_k.tolist()))
         dts = np.diff(grid)
         Y, (U, U_pre) = list(self._y), self._u
+        dim = (m.num_particles + kernels.BLOCK_SIZE - 1) // kernels.BLOCK_SIZE
         seg, s0, H = steps[0]
-        self._run(kernels.offsets, [control.pos, control.vel_start, control.vel_end, seg, float(H), float(s0),
-                                    state_in.x, state_in.v, Y[0], U])
+        self._run(kernels.offsets, dim, [control.pos, control.vel_start, control.vel_end, seg, float(H), float(s0),
+                                         state_in.x, state_in.v, Y[0], U])
         h_kick = 0.5 * dts[0]
         for k, ((seg, s0, H), h) in enumerate(zip(steps, dts)):
             _, flow = self.flow(h)
             # offsets (Y[0], U) at s0 -> (Y[1], U_pre) at s0 + h; U is free again after this launch
-            self._run(kernels.kick_drift, [m.wp_inv_mass, m.wp_drag, m.wp_reach, flow, m.wp_adj_offsets,
-                                           m.wp_adj_index,
-                                           m.wp_adj_k, m.wp_adj_c, self._gravity, control.pos, control.vel_start,
-                                           control.vel_end, seg, float(H), float(s0), float(h), float(h_kick),
-                                           Y[0], U, state_out.x, Y[1], U_pre])
+            self._run(kernels.kick_drift, dim, [m.wp_inv_mass, m.wp_drag, m.wp_reach, flow, m.wp_adj_offsets,
+                                                m.wp_adj_index, m.wp_adj_k, m.wp_adj_c, self._gravity, control.pos,
+                                                control.vel_start, control.vel_end, seg, float(H), float(s0),
+                                                float(h), float(h_kick), Y[0], U, state_out.x, Y[1], U_pre])
             Y.reverse()
             U, U_pre = U_pre, U
             if on_step is not None:
                 on_step(k + 1, state_out.x)
             h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
         seg, s0, H = steps[-1]
-        self._run(kernels.kick, [m.wp_inv_mass, m.wp_adj_offsets, m.wp_adj_index, m.wp_adj_k, m.wp_adj_c,
-                                 control.pos, control.vel_start, control.vel_end, seg, float(H), float(s0 + dts[-1]),
-                                 float(0.5 * dts[-1]), Y[0], U, state_out.v])
+        self._run(kernels.kick, dim, [m.wp_inv_mass, m.wp_adj_offsets, m.wp_adj_index, m.wp_adj_k, m.wp_adj_c,
+                                      control.pos, control.vel_start, control.vel_end, seg, float(H),
+                                      float(s0 + dts[-1]), float(0.5 * dts[-1]), Y[0], U, state_out.v])
 
-    def _run(self, kernel, args: list) -> None:
-        """Launch `kernel` over the particles with `args` (inputs then outputs). The launch is recorded
-        once and only the arguments that changed since the last step are packed again (packing all
+    def _run(self, kernel, dim: int, args: list) -> None:
+        """Launch `kernel` over `dim` threads with `args` (inputs then outputs). The launch is recorded
+        once and only the arguments that changed since the last call are packed again (packing all
         of them costs more than the kernel on a small model)."""
         rec = self._recorded.get(kernel.key)
         if rec is None:
-            blocks = (self.model.num_particles + kernels.BLOCK_SIZE - 1) // kernels.BLOCK_SIZE
-            launch = wp.launch(kernel, dim=blocks, inputs=args, device=self.model.device, record_cmd=True)
+            launch = wp.launch(kernel, dim=dim, inputs=args, device=self.model.device, record_cmd=True)
             self._recorded[kernel.key] = rec = (launch, list(args))
         else:
             launch, last = rec
@@ -143,6 +234,7 @@ class ParticleSolver:
                     launch.set_param_at_index(i, a)
                     last[i] = a
         rec[0].launch()
+        self.launches += 1
 
     def glue(self, state: ParticleState, control: GoalControl, t: float) -> None:
         """Put every particle on its goal at time t, moving with it (a reset at a cut or a start)."""
@@ -151,6 +243,7 @@ class ParticleSolver:
             return
         track = control.track
         j = track.interval(t)
+        self.launches += 1
         wp.launch(kernels.glue, dim=m.num_particles, device=m.device,
                   inputs=[control.pos, control.vel_start, control.vel_end, j, float(track.times[j + 1] - track.times[j]),
                           float(t - track.times[j])],
@@ -201,7 +294,7 @@ def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray,
     (x, v) (N, 3) at grid[-1] from x, v at grid[0]. flow(h) -> (N, 10) goal_flow coefficients."""
     grid = np.asarray(grid, dtype=np.float64)
     dts = np.diff(grid)
-    steps = [_check_step(track, float(a), float(b - a)) for a, b in zip(grid[:-1], grid[1:])]
+    steps = list(zip(*(a.tolist() for a in _check_steps(track, grid))))
     mu = model.drag[:, None]
 
     def goal(j, s):

@@ -180,8 +180,7 @@ def test_glued_particles_equal_their_goals_while_goals_move():
     a, b_ = model.state(), model.state()
     solver.glue(a, control, 0.0)
     grid = np.linspace(0, 1, 121)
-    xs = []
-    solver.integrate(a, b_, control, grid, on_step=lambda k, x: xs.append(x.numpy().copy()))
+    xs = solver.integrate(a, b_, control, grid, record=np.arange(1, len(grid)))
     for k, x in enumerate(xs, 1):
         np.testing.assert_allclose(x, track.sample(grid[k])[0], atol=2e-6)
 
@@ -229,14 +228,17 @@ def test_step_kernel_matches_the_numpy_reference():
     assert np.abs(v - v_ref).max() < 2e-4 * max(1.0, np.abs(v_ref).max())
 
 
-def integrate_both(model, track, grid, on_step=None):
+def integrate_both(model, track, grid, seen=None):
     """The kernels' and the NumPy reference's integration over `grid` from the track's start, moving
-    with the goals: ((x, v) of the kernels, (x, v) of the reference), (N, 3) each."""
+    with the goals: ((x, v) of the kernels, (x, v) of the reference), (N, 3) each. `seen`: a list to
+    extend with the kernels' positions after every step."""
     solver = ParticleSolver(model)
     x0, v0 = track.sample(float(grid[0]))[:2]
     a, b = model.state(), model.state()
     a.assign(x0, v0)
-    solver.integrate(a, b, track.to_device(), grid, on_step=on_step)
+    xs = solver.integrate(a, b, track.to_device(), grid, record=np.arange(1, len(grid)))
+    if seen is not None:
+        seen.extend(xs)
     return b.numpy(), integrate_numpy(model, lambda h: solver.flow(h)[0], track, x0, v0, grid)
 
 
@@ -267,7 +269,7 @@ def test_reach_holds_every_particle_and_matches_the_numpy_reference():
     track = build_track(t, goals)
     grid = np.unique(np.concatenate([np.linspace(0, 0.6, 49), t]))
     seen = []
-    (x, v), (x_ref, v_ref) = integrate_both(model, track, grid, on_step=lambda k, x: seen.append(x.numpy().copy()))
+    (x, v), (x_ref, v_ref) = integrate_both(model, track, grid, seen)
     assert np.abs(x - x_ref).max() < 1e-5
     assert np.abs(v - v_ref).max() < 1e-3 * max(1.0, np.abs(v_ref).max())
     off = np.stack([np.linalg.norm(xs - track.sample(tk)[0], axis=1) for xs, tk in zip(seen, grid[1:])])
