@@ -1,23 +1,39 @@
-"""The bake's speed, measured in one run: frames per second and the cost against LBS alone.
+"""The bake's cost against plain skinning, measured in one run: ratios per frame, launches, Python, memory.
 
-    .venv/bin/python benchmarks/bench_bake.py [--quick]
+    .venv/bin/python benchmarks/bench_bake.py [--quick] [--memory-frames 10000] [--no-memory]
 
-1. CesiumMan (3,273 vertices, ../shared/assets) with the default template on 02_03.bvh at 30 fps,
-   retargeted: `jiggle bake`'s frame loop (sim.bake.baker: drive, static muscles, particles, blend, skinning of
-   the static and the final skin, chunk files) in frames per second, and the whole bake with its caches
-   (bake.npz and bake.usdc with skins, normals and muscle meshes). The issue's target: >= 200 frames/s.
-2. A 30k-vertex generated body on the demo's jumping jacks at 30 fps (91 frames). Target: >= 60 frames/s.
-3. The same meshes through an LBS-only pipeline (drive, LBS, chunk files; caches: npz and a USD with the one
-   skin), the same chunking: the ratio full / LBS-only per frame, loop and with caches. Target: <= 3x.
+For each mesh (CesiumMan, 3,273 vertices, ../shared/assets, the default template on 02_03.bvh retargeted;
+a 29.9k-vertex generated body on the demo's jumping jacks), both at 30 fps in chunks of 64 frames:
 
-Setup (reading, retargeting, generating the body, fitting, binding) is timed apart and left out of the
-frame rates, as is the first compile of the Warp kernels (one untimed warm-up bake). Frame rates are the
-best of several bakes; both cores are free to the process (Warp launches run on one, NumPy's BLAS on one).
+1. Frame loop: the bake's compute for every chunk (sim.bake.baker.Baker.chunk and its finish: drive,
+   static muscles, particles, blend, LBS + shells of the static and the final skin, the smooth skin,
+   the spread), one thread, no files; against an LBS-only loop (drive + LBS of the same frames, one
+   launch per chunk). Targets: CesiumMan <= 3x, 30k body <= 2x.
+2. With caches: a whole `jiggle bake` (sim.bake.baker.bake: the loop above, with each chunk written into
+   bake.npz, bake.usdc (both skins and the muscle meshes, with normals) and bake.pc2 by a second thread
+   while the next chunk is computed), wall time; against the LBS-only loop writing its skin and joints
+   to an npz filled in place and its skin (with normals) to a USD crate saved per chunk, the same
+   writers, serially. Targets: CesiumMan <= 2x, 30k body <= 1.5x.
+3. Launches per chunk (every Warp launch the bake makes, counted by wrapping wp.launch and
+   wp.Launch.launch), and the share of the main thread's time spent in Python code itself (cProfile's
+   own time of Python functions over the total, one extra profiled bake; cProfile's overhead makes it
+   an upper bound).
+4. Memory: a bake of --memory-frames frames of the 30k body (the jumping jacks looped) against one of
+   100 frames, each in a fresh process, peak RSS (resource.getrusage) and frames per second. Target:
+   peak RSS within 1.5x and time per frame within 10%.
+
+Setup (reading, retargeting, generating the body, fitting, binding) is timed apart and left out; the
+first compile of the Warp kernels too (an untimed warm-up bake). Figures are the best of several runs.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import cProfile
+import json
 import os
+import pstats
+import subprocess
 import sys
 import tempfile
 import time
@@ -32,82 +48,208 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 ASSETS = Path(os.environ.get("JIGGLE_ASSETS", ROOT.parent / "shared" / "assets"))
 
 
-def lbs_only(setup, out_dir: str) -> tuple[float, float]:
-    """(frame loop s, caches s) of the LBS-only pipeline: drive, LBS, chunk files, then npz + one-mesh USD."""
-    from pxr import Usd, UsdGeom
-
-    from sim.bake.caches import _define_mesh
+# ---------------------------------------------------------------------------------- LBS only
+def lbs_loop(setup) -> None:
+    """Drive + LBS of every chunk, no files."""
     skin, times, C = setup.skin, setup.times, setup.chunk
-    t0 = time.perf_counter()
-    parts = []
     for a in range(0, len(times), C):
-        ts = times[a:a + C]
-        world = np.asarray(setup.world_at(ts), dtype=np.float64)
-        pts = (skin.lbs_batch(world) if hasattr(skin, "lbs_batch")
-               else np.stack([skin.lbs(w) for w in world]))
-        path = os.path.join(out_dir, f"lbs_{a:06d}.npz")
-        np.savez(path, skin=pts, joint_world=world.astype(np.float32))
-        parts.append(path)
-    loop = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    skin_all = np.concatenate([np.load(p)["skin"] for p in parts])
-    np.savez(os.path.join(out_dir, "lbs.npz"), skin=skin_all, faces=setup.character.faces, times=times)
-    stage = Usd.Stage.CreateInMemory()
+        world = np.asarray(setup.world_at(times[a:a + C]), dtype=np.float64)
+        skin.lbs_batch(world)
+
+
+def lbs_with_caches(setup, out_dir: str) -> None:
+    """Drive + LBS of every chunk, each chunk written as it comes into an npz filled in place (skin and
+    joint transforms) and a USD crate of the one skin with normals and extent, saved per chunk."""
+    from pxr import Sdf, Usd, UsdGeom
+
+    from rig.character.normals import VertexNormals
+    from sim.bake.caches import NpzInPlace, _author_samples, _define_mesh_prim, _save_layer
+    skin, times, C, T = setup.skin, setup.times, setup.chunk, len(setup.times)
+    V, J, faces = setup.character.num_vertices, len(setup.joint_names), setup.character.faces
+    npz = NpzInPlace(os.path.join(out_dir, "lbs.npz"), {"skin": ((T, V, 3), np.float32),
+                                                         "joint_world": ((T, J, 4, 4), np.float32),
+                                                         "faces": faces, "times": times})
+    layer = Sdf.Layer.CreateNew(os.path.join(out_dir, "lbs.usdc"))
+    stage = Usd.Stage.Open(layer)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
     stage.SetTimeCodesPerSecond(setup.fps)
-    _define_mesh(stage, "/lbs/skin", skin_all, setup.character.faces)
-    stage.GetRootLayer().Export(os.path.join(out_dir, "lbs.usdc"))
-    return loop, time.perf_counter() - t0
+    _define_mesh_prim(stage, "/lbs/skin", faces)
+    del stage
+    normals = VertexNormals(faces, V)
+    for a in range(0, T, C):
+        world = np.asarray(setup.world_at(times[a:a + C]), dtype=np.float64)
+        pts = skin.lbs_batch(world)
+        npz.write("skin", a, pts)
+        npz.write("joint_world", a, world.astype(np.float32))
+        with Sdf.ChangeBlock():
+            _author_samples(layer, "/lbs/skin", pts, normals.batch(pts), a)
+        _save_layer(layer)
+    npz.finish()
 
 
-def measure(label: str, request, repeats: int, target: float) -> dict:
-    from sim.bake.baker import bake
+# ---------------------------------------------------------------------------------- ours
+def bake_loop(setup) -> dict:
+    """The bake's compute of every chunk (Baker.chunk + finish), one thread, no files; its stage timings."""
+    from sim.bake.baker import Baker, num_chunks
+    baker = Baker(setup, defer=False)
+    state = None
+    for c in range(num_chunks(setup)):
+        arrays = baker.chunk(c, state)
+        state = (arrays["state_x"], arrays["state_v"]) if "state_x" in arrays else None
+    return baker.timings
+
+
+@contextlib.contextmanager
+def counted_launches():
+    """Count every Warp launch (direct and recorded) inside the block: yields a one-item list."""
+    import warp as wp
+    count = [0]
+    launch, recorded = wp.launch, wp.Launch.launch
+
+    def counting(*a, **k):
+        if not k.get("record_cmd"):
+            count[0] += 1
+        return launch(*a, **k)
+
+    def counting_recorded(self, *a, **k):
+        count[0] += 1
+        return recorded(self, *a, **k)
+    wp.launch, wp.Launch.launch = counting, counting_recorded
+    try:
+        yield count
+    finally:
+        wp.launch, wp.Launch.launch = launch, recorded
+
+
+def python_share(fn) -> float:
+    """Share of the main thread's time in Python functions' own code while fn() runs (cProfile)."""
+    prof = cProfile.Profile()
+    prof.enable()
+    fn()
+    prof.disable()
+    stats = pstats.Stats(prof).stats
+    total = sum(v[2] for v in stats.values())
+    own = sum(v[2] for (filename, _, _), v in stats.items() if filename != "~" and not filename.startswith("<"))
+    return own / total if total > 0 else float("nan")
+
+
+def best(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def measure(label: str, request, repeats: int, targets: tuple[float, float]) -> dict:
+    from sim.bake.baker import bake, num_chunks
     from sim.bake.setup import prepare
     t0 = time.perf_counter()
     setup = prepare(request)
     prep = time.perf_counter() - t0
-    T = len(setup.times)
+    T, n = len(setup.times), num_chunks(setup)
     with tempfile.TemporaryDirectory() as tmp:
         bake(setup, os.path.join(tmp, "warm"))                                  # compiles, imports pxr
+        lbs_with_caches(setup, tmp)
+        loop = best(lambda: bake_loop(setup), repeats)
+        l_loop = best(lambda: lbs_loop(setup), repeats)
+        whole = best(lambda: bake(setup, os.path.join(tmp, "full")), repeats)
+        l_whole = best(lambda: lbs_with_caches(setup, tmp), repeats)
+        timings = bake_loop(setup)
+        with counted_launches() as count:
+            bake(setup, os.path.join(tmp, "count"))
+        share = python_share(lambda: bake(setup, os.path.join(tmp, "profiled")))
+    per = {k: 1e3 * v / T for k, v in timings.items() if k != "write_s"}
+    r_loop, r_all = loop / l_loop, whole / l_whole
+    print(f"\n## {label}: {T} frames in {n} chunks, {setup.character.num_vertices} vertices, {setup.rig.M} muscles")
+    print(f"setup (read, character, fit, bind): {prep:.2f} s, not in the figures below")
+    print(f"frame loop: {1e3 * loop / T:.2f} ms/frame ({T / loop:.0f} frames/s); LBS-only loop {1e3 * l_loop / T:.3f} "
+          f"ms/frame: ratio {r_loop:.2f}x (target <= {targets[0]:g}x: {'met' if r_loop <= targets[0] else 'NOT met'})")
+    print("  per frame: " + ", ".join(f"{k[:-2]} {v:.3f} ms" for k, v in per.items()))
+    print(f"with caches (npz + usdc + pc2, written while the next chunk is computed): {1e3 * whole / T:.2f} ms/frame "
+          f"({T / whole:.0f} frames/s); LBS-only with its caches {1e3 * l_whole / T:.2f} ms/frame: ratio {r_all:.2f}x "
+          f"(target <= {targets[1]:g}x: {'met' if r_all <= targets[1] else 'NOT met'})")
+    print(f"Warp launches: {count[0] / n:.1f} per chunk ({count[0]} in the bake); time in Python code itself "
+          f"(main thread, cProfile): {100 * share:.0f}%")
+    return {"loop_ratio": r_loop, "all_ratio": r_all, "launches_per_chunk": count[0] / n, "python_share": share}
 
-        def full():
-            s = bake(setup, os.path.join(tmp, "full"))["timings"]
-            return s["frames_s"], s["caches_s"], s
-        loop, caches, tm = min((full() for _ in range(repeats)), key=lambda r: r[0])
-        lbs_runs = [lbs_only(setup, tmp) for _ in range(repeats)]
-        l_loop = min(r[0] for r in lbs_runs)
-        l_caches = min(r[1] for r in lbs_runs)
-    per = {k: 1e3 * tm[k] / T for k in ("drive_s", "static_s", "simulate_s", "skin_s", "write_s")}
-    print(f"\n## {label}: {T} frames, {setup.character.num_vertices} vertices, {setup.rig.M} muscles")
-    print(f"setup (read, character, fit, bind): {prep:.2f} s, not in the rates below")
-    print(f"frame loop: {T / loop:8.1f} frames/s ({1e3 * loop / T:.2f} ms/frame; target >= {target:g} frames/s: "
-          f"{'met' if T / loop >= target else 'NOT met'})")
-    print("  per frame: " + ", ".join(f"{k[:-2]} {v:.2f} ms" for k, v in per.items()))
-    print(f"with caches (npz + usdc): {T / (loop + caches):8.1f} frames/s ({1e3 * caches / T:.2f} ms/frame of caches)")
-    print(f"LBS-only pipeline: loop {1e3 * l_loop / T:.2f} ms/frame, with caches {1e3 * (l_loop + l_caches) / T:.2f} "
-          f"ms/frame")
-    r_loop, r_all = loop / l_loop, (loop + caches) / (l_loop + l_caches)
-    print(f"ratio full / LBS-only per frame: loop {r_loop:.2f}x, with caches {r_all:.2f}x (target <= 3x)")
-    return {"fps": T / loop, "fps_caches": T / (loop + caches), "ratio_loop": r_loop, "ratio_all": r_all}
+
+# ---------------------------------------------------------------------------------- memory
+def memory_child(frames: int, out_dir: str) -> None:
+    """In a fresh process: bake `frames` frames of the 30k body (jumping jacks looped), print JSON."""
+    import resource
+    from types import MappingProxyType
+
+    from sim.bake.baker import bake
+    from sim.bake.setup import BakeRequest, prepare
+    cycles = int(np.ceil(frames / 30.0)) + 1             # one jumping-jacks cycle lasts 1 s
+    src = (ROOT / "scenes" / "motions" / "jumping_jacks.toml").read_text()
+    motion = Path(out_dir) / "jumping_jacks_long.toml"
+    motion.write_text(src.replace("cycles = 3", f"cycles = {cycles}"))
+    scene = Path(out_dir) / "long.toml"
+    scene.write_text((ROOT / "scenes" / "default.toml").read_text().replace(
+        'file = "motions/jumping_jacks.toml"', f'file = "{motion}"'))
+    setup = prepare(BakeRequest(scene=str(scene), fps=30, frames=frames, formats=("npz", "usdc", "pc2"),
+                                body=MappingProxyType({"resolution": 30000})))
+    rss_setup = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    summary = bake(setup, os.path.join(out_dir, "bake"))
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    sizes = {f: os.path.getsize(os.path.join(out_dir, "bake", p)) for f, p in summary["files"].items()}
+    print(json.dumps({"frames": summary["frames"], "rss_mb": rss, "rss_setup_mb": rss_setup,
+                      "loop_s": summary["timings"]["frames_s"], "caches_s": summary["timings"]["caches_s"],
+                      "bytes": sizes}))
+
+
+def memory(frames: int) -> None:
+    runs = {}
+    for n in (100, frames):
+        with tempfile.TemporaryDirectory(dir=os.environ.get("JIGGLE_BENCH_TMP")) as tmp:
+            out = subprocess.run([sys.executable, __file__, "--memory-child", str(n), tmp], capture_output=True,
+                                 text=True, check=True)
+            runs[n] = json.loads(out.stdout.strip().splitlines()[-1])
+    a, b = runs[100], runs[frames]
+    print(f"\n## Memory: the 30k body, {a['frames']} against {b['frames']} frames (npz + usdc + pc2), fresh processes")
+    print("| frames | peak RSS MB | of which setup | s per frame (loop + caches) | caches GB |")
+    print("| --- | --- | --- | --- | --- |")
+    for r in (a, b):
+        per = (r["loop_s"] + r["caches_s"]) / r["frames"]
+        print(f"| {r['frames']} | {r['rss_mb']:.0f} | {r['rss_setup_mb']:.0f} | {1e3 * per:.2f} ms | "
+              f"{sum(r['bytes'].values()) / 1e9:.2f} |")
+    ratio = b["rss_mb"] / a["rss_mb"]
+    pa, pb = ((r["loop_s"] + r["caches_s"]) / r["frames"] for r in (a, b))
+    print(f"peak RSS {ratio:.2f}x (target <= 1.5x: {'met' if ratio <= 1.5 else 'NOT met'}); time per frame "
+          f"{pb / pa:.2f}x (target within 10%: {'met' if abs(pb / pa - 1) <= 0.1 else 'NOT met'})")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="one repeat, CesiumMan only")
+    ap.add_argument("--quick", action="store_true", help="one repeat, CesiumMan only, no memory run")
+    ap.add_argument("--memory-frames", type=int, default=10000, help="frames of the long bake (default 10000)")
+    ap.add_argument("--no-memory", action="store_true", help="skip the memory run")
+    ap.add_argument("--memory-child", nargs=2, metavar=("FRAMES", "DIR"), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.memory_child:
+        memory_child(int(args.memory_child[0]), args.memory_child[1])
+        return
+    from types import MappingProxyType
+
     from sim.bake.setup import BakeRequest
     repeats = 1 if args.quick else 3
+    formats = ("npz", "usdc", "pc2")
     cesium, clip = ASSETS / "characters" / "CesiumMan.glb", ASSETS / "mocap" / "cmu_bvh" / "02_03.bvh"
     if cesium.exists() and clip.exists():
         measure("CesiumMan on 02_03.bvh at 30 fps", BakeRequest(clip=str(clip), character=str(cesium), fps=30,
-                                                               formats=("npz", "usdc")), repeats, 200)
+                                                               formats=formats), repeats, (3.0, 2.0))
     else:
         print(f"CesiumMan or 02_03.bvh not found under {ASSETS}: skipped")
-    if not args.quick:
-        from types import MappingProxyType
-        measure("30k-vertex generated body, jumping jacks at 30 fps",
-                BakeRequest(scene=str(ROOT / "scenes" / "default.toml"), fps=30, formats=("npz", "usdc"),
-                            body=MappingProxyType({"resolution": 30000})), repeats, 60)
+    if args.quick:
+        return
+    measure("30k-vertex generated body, jumping jacks at 30 fps",
+            BakeRequest(scene=str(ROOT / "scenes" / "default.toml"), fps=30, formats=formats,
+                        body=MappingProxyType({"resolution": 30000})), repeats, (2.0, 1.5))
+    if not args.no_memory:
+        memory(args.memory_frames)
 
 
 if __name__ == "__main__":

@@ -13,8 +13,9 @@ mesh, over the same N frames (the clip looped; per-frame figures are the chunk's
   sizes 16 / 64 / 128.
 
 Ratios: pose_batch S = 2 per frame / lbs_batch per frame at the same chunk size (the skinning part of
-the full pipeline against the LBS-only one), and the speedups loop / batch. The largest difference
-between batch and loop is printed too (the contract: <= 1e-6 m).
+the full pipeline against the LBS-only one), and the speedups loop / batch; the bake's call (both sets
+and the smooth skin, smooth=True) at chunk 64, and the Warp launches a chunk makes (MuscleSkin.launches).
+The largest difference between batch and loop is printed too (the contract: <= 1e-6 m).
 
 Meshes: CesiumMan (../shared/assets/characters/CesiumMan.glb, its own walk; skipped with a message
 when absent) and a ~30k-vertex body generated around the default scene's skeleton (scenes/default.toml;
@@ -112,6 +113,15 @@ def bench_mesh(label: str, skin: MuscleSkin, world: np.ndarray, frames: int, rep
         err = max(float(np.abs(out[s][t] - skin.pose(world[t], c[t], curve[t], frame=t)).max())
                   for s, c in enumerate((cvs, blended)) for t in range(n))
         err_lbs = float(np.abs(skin.lbs_batch(world[:n]) - np.stack([skin.lbs(w) for w in world[:n]])).max())
+        # the bake's call: both sets and the smooth skin (skin_lbs) from one pose_batch; its launches
+        launches = {}
+        for size in CHUNKS:
+            before = skin.launches
+            skin.pose_batch(world[:size], [cvs[:size], blended[:size]], [curve[:size], curve[:size]], smooth=True)
+            launches[size] = skin.launches - before
+        ms["pose_batch S=2 + smooth 64"] = per_frame(lambda: chunked(
+            lambda a, b: skin.pose_batch(world[a:b], [cvs[a:b], blended[a:b]], [curve[a:b], curve[a:b]],
+                                         first_frame=a, smooth=True), frames, 64))
 
     print(f"  {'lbs loop':28s} {ms['lbs loop']:8.3f} ms/frame")
     print(f"  {'pose loop, S=1':28s} {ms['pose loop S=1']:8.3f} ms/frame")
@@ -121,6 +131,10 @@ def bench_mesh(label: str, skin: MuscleSkin, world: np.ndarray, frames: int, rep
         print(f"  chunk {size:3d}: lbs_batch {lb:7.3f} ms/frame ({ms['lbs loop'] / lb:5.1f}x the loop), "
               f"pose_batch S=2 {pb:7.3f} ms/frame ({ms['pose loop S=2'] / pb:5.1f}x the loop) "
               f"= {pb / lb:5.2f} x lbs_batch  ({1e3 / pb:6.0f} frames/s)")
+    print(f"  pose_batch S=2 + smooth skin, chunk 64: {ms['pose_batch S=2 + smooth 64']:7.3f} ms/frame "
+          f"= {ms['pose_batch S=2 + smooth 64'] / ms['lbs_batch 64']:5.2f} x lbs_batch (the bake's skin stage)")
+    print("  Warp launches per chunk (pose_batch S=2 + smooth): "
+          + ", ".join(f"{size} frames: {launches[size]}" for size in CHUNKS))
     print(f"  batch vs loop, max |difference|: pose {err:.2e} m, lbs {err_lbs:.2e} m (contract <= 1e-6)")
 
 

@@ -78,6 +78,8 @@ class DeltaMush:
         self._face_offsets = wp.array(face_offsets, dtype=wp.int32, device=d)
         self._face_of = wp.array((forder // 3).astype(np.int32), dtype=wp.int32, device=d)
         self._weight = wp.array(w, dtype=wp.float32, device=d)
+        self.launches = 0
+        """Warp launches made so far (`launch`: iterations + 1 per call)."""
 
         from rig.skin import delta_mush_kernels as k
         pts = wp.array(rest[None], dtype=wp.vec3, device=d)
@@ -114,6 +116,7 @@ class DeltaMush:
         if points.shape[0] == 0:
             return out
         smoothed = self._smooth(points)
+        self.launches += self.iterations + 1
         wp.launch(k.decode, dim=points.shape, device=self.device,
                   inputs=[points, smoothed, *self._topology(), self._delta, self._ok, self._weight], outputs=[out])
         return out

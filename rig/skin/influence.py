@@ -53,6 +53,7 @@ from rig.base.errors import InputError
 from rig.muscle import loft
 from rig.muscle.loft_attach import CVS_PER_MUSCLE, InfluenceBinding, check_cvs, check_pairs, check_weights, loft_frame
 from rig.skin import influence_kernels as kernels
+from rig.skin.scratch import Scratch
 from rig.skin.shell.shells import limit
 
 _CHUNK = 32768                  # pairs per block in the NumPy reference (bounds its temporaries)
@@ -160,6 +161,13 @@ class InfluenceDeformer:
         self._ref = wp.empty(N, dtype=wp.vec3, device=d)
         self._points = wp.empty(self.num_vertices, dtype=wp.vec3, device=d)
         self._positions = wp.empty(self.num_vertices, dtype=wp.vec3, device=d)
+        self.paired = np.nonzero(np.diff(off) > 0)[0]
+        """(P,) the vertices owning pairs, ascending (the batched launch runs only these)."""
+        self._paired = i32(self.paired)
+        self._scratch = Scratch(d)
+        self.thread_per_frame = not d.is_cpu   # as the shells' batched launch
+        self.launches = 0
+        """Warp launches made so far."""
 
     def _reach(self, reach) -> np.ndarray:
         if reach is None:
@@ -189,7 +197,52 @@ class InfluenceDeformer:
         self._ref.assign(ref.astype(np.float32))
         wp.launch(kernels.influence_displace, dim=self.num_vertices, device=self.device,
                   inputs=[*self._model, points, self._cur, self._ref], outputs=[self._positions])
+        self.launches += 1
         return self._positions
+
+    def launch_batch(self, points: wp.array, cvs_cur, cvs_ref, displace: bool = False) -> wp.array:
+        """T frames and S sets in one upload and one launch over the vertices owning pairs.
+
+        points : (T, V) wp.vec3 on this device, metres, shared by the sets.
+        cvs_cur : (S, T, 40 M, 3) float, metres, each set's CVs per frame (finite).
+        cvs_ref : (T, 40 M, 3) float, metres, the rest CVs carried by the bones per frame.
+        displace : False: returns (S, T, V) wp.vec3, [s, t] = :meth:`launch` of points[t] with set s's
+            frame t; True: (S, P, T), the `paired` vertices' displacements from points (float32).
+        The result is the wrapper's buffer, valid until the next batched call.
+        """
+        cur = np.asarray(cvs_cur, np.float64)
+        ref = np.asarray(cvs_ref, np.float64)
+        N = CVS_PER_MUSCLE * self.num_muscles
+        if ref.ndim != 3 or ref.shape[1:] != (N, 3):
+            raise InputError(f"expected (T, {N}, 3) CVs, got {ref.shape}", field="cvs_ref")
+        T, V, P = ref.shape[0], self.num_vertices, len(self.paired)
+        if cur.ndim != 4 or cur.shape[1:] != (T, N, 3):
+            raise InputError(f"expected (S, {T}, {N}, 3) CVs, got {cur.shape}", field="cvs_cur")
+        if (not isinstance(points, wp.array) or points.dtype != wp.vec3 or points.shape != (T, V)
+                or points.device != self.device):
+            raise InputError(f"expected a ({T}, {V}) wp.vec3 array on {self.device}", field="points")
+        for name, a in (("cvs_cur", cur), ("cvs_ref", ref)):
+            if not np.isfinite(a).all():
+                raise InputError("NaN or inf in the CVs", field=name)
+        S = cur.shape[0]
+        out = (self._scratch("moved", (S, P, T), wp.vec3) if displace
+               else self._scratch("positions", (S, T, V), wp.vec3))
+        if S * T * V == 0:
+            return out
+        if not displace:
+            for s in range(S):
+                wp.copy(out, points, dest_offset=s * T * V, count=T * V)
+        if P == 0:
+            return out
+        c = self._scratch("cur", (S * T * N,), wp.vec3)
+        r = self._scratch("ref", (T * N,), wp.vec3)
+        c.assign(cur.reshape(-1, 3).astype(np.float32))
+        r.assign(ref.reshape(-1, 3).astype(np.float32))
+        stride = T if self.thread_per_frame else 1
+        wp.launch(kernels.influence_batch, dim=(stride, P), device=self.device,
+                  inputs=[*self._model, self._paired, stride, int(displace), points, c, r], outputs=[out])
+        self.launches += 1
+        return out
 
     def deform(self, points, cvs_cur, cvs_ref) -> np.ndarray:
         """Displaced positions (V, 3) float32, metres, a new array, from points (V, 3) float."""

@@ -26,9 +26,10 @@ deformer; nothing loops in Python over muscles, pairs or vertices.
 
 Per chunk of T frames (`pose_batch`, `lbs_batch`: the bake), for S sets of muscle states (e.g. the
 static and the blended CVs): one LBS/DQS launch for the T frames, shared by the sets, the frames of
-all sets and frames in a few NumPy operations (the bones' part once), one upload and one shell launch
-for all sets and frames, then the sparse spread of each set (two threads). Influence objects still
-launch once per frame and set.
+all sets and frames in a few NumPy operations (the bones' part once), one upload and one launch of
+the shells (or the influence objects) for all sets and frames over the vertices that have pairs,
+handing the spread their displacements, then the sparse spread of each set over the rings the
+displacement reaches (two threads). `launches` counts pose_batch's Warp launches.
 """
 from __future__ import annotations
 
@@ -42,14 +43,14 @@ from rig.base.errors import InputError, JiggleWarning
 from rig.character.character import Character
 from rig.muscle.loft_attach import bind_influence
 from rig.muscle.model import MuscleRig
-from rig.muscle.shell_params import ShellParams, default_shell
+from rig.muscle.shell_params import MODES, ShellParams, default_shell
 from rig.skin.delta_mush import DeltaMush
 from rig.skin.influence import InfluenceDeformer
 from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
 from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
 from rig.skin.skinning import character_skinner
-from rig.skin.surface_smoothing import JIGGLE_REACH, SurfaceSmoothing, pool, steps_for_reach
+from rig.skin.surface_smoothing import BLOCK, JIGGLE_REACH, SurfaceSmoothing, pool, steps_for_reach
 
 SKINNING = ("shell", "influence", "rbf")
 """How the muscles move the skin: the shell deformers (Pratscher et al.), influence objects (the
@@ -113,6 +114,8 @@ class MuscleSkin:
         self.skinning, self.method, self.device = skinning, method, wp.get_device(device)
         self.jiggle_mask = None
         """(V,) float32 in [0, 1] or None: how much of the jiggle each vertex shows (skin_frames)."""
+        self.launches = 0
+        """Warp launches pose_batch has made so far (skinning, Delta Mush, shells, influence objects, RBF)."""
         self.jiggle_spread = None
         """SurfaceSmoothing of the jiggle (skin_frames), or None: the deformers' displacement is spread
         instead, inside pose / pose_batch (shell, influence)."""
@@ -156,6 +159,9 @@ class MuscleSkin:
                                               reach=np.maximum(reach, 1e-9))
         # the muscles' displacement of the skin, spread over its surface (rig/skin/surface_smoothing.py)
         self.spread = self._surface(spread, np.diff(offsets) > 0)
+        # the batched deformers hand the spread their paired vertices' displacements: its ring 0
+        paired = np.nonzero(np.diff(offsets) > 0)[0]
+        assert self.spread.steps == 0 or np.array_equal(self.spread.order[:self.spread.ring_ends[0]], paired)
 
     def _surface(self, reach: float, active) -> SurfaceSmoothing:
         """The skin's surface smoothing over `reach` x its rest size, on the `active` vertices (None: all)."""
@@ -277,7 +283,8 @@ class MuscleSkin:
         out = self.skinner.skin_batch(self.character.skin_matrices(world), self.method)
         return out if self.mush is None else self.mush.apply(out)
 
-    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0, defer: bool = False):
+    def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0, defer: bool = False,
+                   smooth: bool = False):
         """Deformed skins of T frames for S sets of muscle states: S arrays (T, V, 3) float32 metres
         (defer: a function returning them that finishes the skins' spread; the device work is done and
         every array it needs copied, so it may run in another thread while the caller goes on).
@@ -287,13 +294,18 @@ class MuscleSkin:
             None: the static CVs for `world`.
         curves : S arrays (T, M, 5, 3) of action-curve CVs, metres; None: the static ones.
         first_frame : index of world[0], for the warnings naming a muscle skipped at a frame.
+        smooth : also return the smooth skin alone (what :meth:`lbs_batch` returns: LBS / DQS, through
+            the Delta Mush when there is one), (T, V, 3) float32, as one more array after the S sets;
+            it is the skin the deformers start from, so it costs no launch ("rbf": lbs_batch's).
 
         Set s at frame t equals ``pose(world[t], cvs_sets[s][t], curves[s][t], frame=first_frame + t)``
         to float32 rounding. The smooth skin is computed once for all sets (one launch for the T
         frames), the muscle frames of every set and frame in a few NumPy operations (the bones' part
         and the reference centres' curve parameters shared by sets over one curve), then one upload
-        and one shell launch for all sets and frames. Influence objects ("influence") launch once per
-        frame and set (acceptable: the bake's default is the shells).
+        and one launch of the shells or the influence objects for all sets and frames, over the
+        vertices that have pairs only: with a spread, it returns their displacements in the layout the
+        spread smooths (rig.skin.surface_smoothing.SurfaceSmoothing.spread_front), which computes
+        each step on the rings the displacement has reached. `launches` counts the Warp launches.
         """
         world = self._check_world_batch(world)
         S = len(cvs_sets)
@@ -302,44 +314,107 @@ class MuscleSkin:
                              field="curves")
         T, V = len(world), self.character.num_vertices
         if T == 0:
-            empty = [np.zeros((0, V, 3), np.float32) for _ in range(S)]
+            empty = [np.zeros((0, V, 3), np.float32) for _ in range(S + bool(smooth))]
             return (lambda: empty) if defer else empty
         if any(c is None for c in cvs_sets) or any(k is None for k in curves):
             static = self.rig.static(world)
             cvs_sets = [static.cvs if c is None else c for c in cvs_sets]
             curves = [static.curve if k is None else k for k in curves]
+        before = self._launch_count()
         if self.skinning == "rbf":
             out = self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
             out = [o if self.mush is None else self.mush.apply(o) for o in out]
+            extra = S                                     # the RBF skinner: one launch per set
+            if smooth:
+                out.append(self.lbs_batch(world))
+            self.launches += self._launch_count() - before + extra
             return (lambda: out) if defer else out
         points = self._smooth_points(self.skinner.launch_batch(self.character.skin_matrices(world), self.method))
         base = points.numpy()
-        if defer:                              # the device buffers are reused by the next call
+        if (defer or smooth) and self.device.is_cpu:     # the device buffers are reused by the next call
             base = base.copy()
+        spread = self.spread.steps > 0 and len(self.spread.rows) > 0
         if self.skinning == "shell":
-            arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame)
+            # only "trajectory" muscles read the paths along the action curves
+            paths = bool(np.any(self.table.mode == MODES.index("trajectory")))
+            arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame, paths=paths)
             for sk in skipped:
                 for s in sk:
                     warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
                                   stacklevel=2)
-            out = self.deformer.launch_batch(points, ShellBatch(*arrays)).numpy()        # (S, T, V, 3)
-            sets = [out[s].copy() if defer else out[s] for s in range(S)]
-            return (lambda: self._spread(base, sets, threads=False)) if defer else self._spread(base, sets)
-        # influence objects: one launch per frame and set over the shared smooth skin
+            batch = ShellBatch(*arrays)
+            launch = ((lambda: self.deformer.launch_displace(points, batch)) if spread
+                      else (lambda: self.deformer.launch_batch(points, batch)))
+        else:
+            cur, ref = self._influence_cvs(world, cvs_sets, first_frame)
+            launch = lambda: self.deformer.launch_batch(points, cur, ref, displace=spread)  # noqa: E731
+        out = launch().numpy()               # (S, P, T, 3) displacements with a spread, else (S, T, V, 3)
+        self.launches += self._launch_count() - before
+        if spread:
+            moved = out.copy() if defer and self.device.is_cpu else out
+
+            def finish():
+                return self._spread_moved(base, moved, threads=not defer) + ([base] if smooth else [])
+        else:
+            sets = [out[s].copy() if self.device.is_cpu else out[s] for s in range(S)] + ([base] if smooth else [])
+
+            def finish():
+                return sets
+        return finish if defer else finish()
+
+    def _launch_count(self) -> int:
+        """Warp launches made so far by the skinner, the Delta Mush and the deformer."""
+        return sum(getattr(x, "launches", 0) for x in (self.skinner, self.mush, self.deformer) if x is not None)
+
+    def _influence_cvs(self, world: np.ndarray, cvs_sets, first_frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """Influence objects' CVs: (S, T, N, 3) each set's, every muscle holding NaN or inf put back on
+        its carried rest shape at that frame (with the warning naming it and the frame), and the carried
+        rest CVs (T, N, 3)."""
         ref = self.frames.carried_rest_cvs(world)                                          # (T, N, 3)
-        out = [np.empty((T, V, 3), np.float32) for _ in range(S)]
-        for s in range(S):
-            cvs = np.asarray(cvs_sets[s], dtype=np.float64)
+        T = len(ref)
+        cur = np.empty((len(cvs_sets),) + ref.shape)
+        for s, cvs in enumerate(cvs_sets):
+            cvs = np.asarray(cvs, dtype=np.float64)
             if cvs.shape != ref.shape:
                 raise InputError(f"expected CVs {ref.shape}, got {cvs.shape}", field="cvs_sets")
             bad = ~np.isfinite(cvs.reshape(T, self.rig.M, -1)).all(axis=2)                 # (T, M)
-            for t in range(T):
-                c = cvs[t]
-                if bad[t].any():
-                    self._warn(np.nonzero(bad[t])[0], first_frame + t, "its CVs hold NaN or inf")
-                    c = np.where(np.repeat(bad[t], self.rig.CVS_PER_MUSCLE)[:, None], ref[t], c)
-                out[s][t] = self.deformer.launch(points[t], c, ref[t]).numpy()
-        return (lambda: self._spread(base, out, threads=False)) if defer else self._spread(base, out)
+            for t in np.nonzero(bad.any(axis=1))[0]:
+                self._warn(np.nonzero(bad[t])[0], first_frame + int(t), "its CVs hold NaN or inf")
+            cur[s] = np.where(np.repeat(bad, self.rig.CVS_PER_MUSCLE, axis=1)[..., None], ref, cvs)
+        return cur, ref
+
+    def _spread_moved(self, smooth: np.ndarray, moved: np.ndarray, threads: bool = True) -> list:
+        """Skins (T, V, 3) each smooth + spread(displacement), new arrays, for the smooth skin (T, V, 3)
+        and the deformers' displacements of the paired vertices (S, P, T, 3) (ring 0 of the spread):
+        each set's spread over the rings it reaches (SurfaceSmoothing.spread_front), added to the
+        smooth skin there and scattered into a copy of it; one set per worker thread (NumPy and SciPy
+        run without the GIL), or one after the other without `threads`. Equal to :meth:`_spread` of the
+        full skins bit for bit."""
+        sm = self.spread
+        order = sm.order
+        T, V = smooth.shape[:2]
+        R, n0 = len(order), int(sm.ring_ends[0])
+        base = np.take(smooth, order, axis=1)                                     # (T, R, 3)
+        vec = np.dtype((np.void, 12))          # a vertex's xyz as one item: a scatter 3x faster than [:, rows]
+
+        step = max(BLOCK // 3, 1)
+
+        def one(s):
+            x = moved[s].reshape(n0, 3 * T)
+            out = np.empty_like(smooth)
+            rows = np.empty((step, R, 3), np.float32)
+            # a few frames at a time, each block's spread added, scattered and copied while in the cache
+            for a in range(0, T, step):
+                b = min(a + step, T)
+                d = sm.spread_front(x[:, 3 * a:3 * b])                              # (R, 3 (b - a))
+                # frames first: transposed as 12-byte items (a plain copy), then added as floats
+                d = np.ascontiguousarray(d.view(vec).reshape(R, b - a).T).view(np.float32).reshape(b - a, R, 3)
+                np.add(base[a:b], d, out=rows[:b - a])
+                out[a:b] = smooth[a:b]
+                out[a:b].view(vec).reshape(b - a, V)[:, order] = rows[:b - a].view(vec).reshape(b - a, R)
+            return out
+        S = len(moved)
+        return list(pool().map(one, range(S))) if threads and S > 1 else [one(s) for s in range(S)]
 
     def _finite_cvs(self, cvs, world: np.ndarray, first_frame: int | None) -> np.ndarray:
         """CVs (N, 3) or (T, N, 3) with every muscle holding NaN or inf put back on its rest shape carried
@@ -368,7 +443,8 @@ class MuscleSkin:
                       JiggleWarning, stacklevel=3)
 
 
-def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray, defer: bool = False):
+def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray, defer: bool = False,
+                smooth: bool = False):
     """The pipeline's skin stage: skins (T, V, 3) float32 metres, one per CV set (T, N, 3), over joint
     world transforms (T, J, 4, 4) and action curves (T, M, 5, 3).
 
@@ -380,16 +456,21 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     mask (zones without muscles show none) and spread over the surface.
     defer : return a function that finishes the skins instead (the surface spread, no device work:
     the bake runs it in a worker thread while the next chunk is simulated; sim/bake/baker.py).
+    smooth : also return the smooth skin alone (MuscleSkin.lbs_batch's: LBS / DQS, mushed when the skin
+    mushes), (T, V, 3) float32, as one more array after the sets (pose_batch's, at no extra launch).
     """
     frames = np.asarray(frames, dtype=np.int64).reshape(-1)
     n = len(cvs_sets)
     if hasattr(skin, "pose_batch") and (len(frames) < 2 or np.all(np.diff(frames) == 1)):
         first = int(frames[0]) if len(frames) else 0
-        done = skin.pose_batch(world, list(cvs_sets), [curve] * n, first_frame=first, defer=defer)
+        done = skin.pose_batch(world, list(cvs_sets), [curve] * n, first_frame=first, defer=defer, smooth=smooth)
         pending = done if defer else (lambda: done)
     else:
         out = [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=int(frames[k])) for k in range(len(world))])
                for cvs in cvs_sets]
+        if smooth:
+            out.append(skin.lbs_batch(world) if hasattr(skin, "lbs_batch")
+                       else np.stack([skin.lbs(w) for w in world]).astype(np.float32))
         pending = lambda: out  # noqa: E731
 
     def finish() -> list[np.ndarray]:

@@ -246,6 +246,8 @@ class Skinner:
         # batched launches: a thread per frame and vertex (GPU) or per vertex, running through the frames
         # (CPU: Warp's CPU launch divides the index of every thread of a multi-dimensional launch)
         self.thread_per_frame = not self.device.is_cpu
+        self.launches = 0
+        """Warp launches made so far."""
 
     @property
     def num_vertices(self) -> int:
@@ -280,7 +282,9 @@ class Skinner:
             wp.launch(kernels.lbs, dim=model.num_vertices, device=self.device,
                       inputs=[model.rest, model.joints, model.weights, model.k, self._matrices],
                       outputs=[self._positions])
+            self.launches += 1
         else:
+            self.launches += 2
             J = self._matrices.shape[0]
             wp.launch(kernels.dual_quats_from_matrices, dim=J, device=self.device,
                       inputs=[self._matrices], outputs=[self._real, self._dual])
@@ -322,7 +326,9 @@ class Skinner:
             wp.launch(kernels.lbs_batch, dim=(stride, model.num_vertices), device=self.device,
                       inputs=[model.rest, model.joints, model.weights, model.k, mats, J, stride],
                       outputs=[out])
+            self.launches += 1
         else:
+            self.launches += 2
             real = self._scratch("real", (T * J,), wp.quat)
             dual = self._scratch("dual", (T * J,), wp.quat)
             wp.launch(kernels.dual_quats_from_matrices, dim=T * J, device=self.device,

@@ -17,8 +17,11 @@ so a coarse and a fine mesh of one body smooth alike. Averages keep a uniform of
 the whole skin) exactly, and a smooth one nearly; only the offsets' steps and spikes are spread.
 
 Only the vertices the jiggle can move (`active`: those with deformer pairs) and the n rings around them
-are computed; the rest stay 0. One sparse product per step for all frames at once (SciPy, float32,
-the frames side by side as columns, 16 frames at a time so they stay in the cache through the steps):
+are computed; the rest stay 0. A field that starts on the active vertices alone (the deformers'
+displacement) reaches one more ring per step: `spread_front` computes step k on the rings within k only
+(the rows ordered by ring), ~15% fewer products on the generated body, with the same sums. One sparse
+product per step for all frames at once (SciPy, float32, the frames side by side as columns, 16 frames
+at a time so they stay in the cache through the steps):
 on this 2-core machine ~0.06 ms per step and frame for 13k active vertices, several times faster
 than a Warp gather kernel on the CPU.
 """
@@ -99,6 +102,48 @@ class SurfaceSmoothing:
         mean = mean + sp.diags(lone.astype(np.float32))
         S = (1.0 - step) * sp.identity(num_vertices, np.float32, format="csr") + step * mean
         self.matrix = S.tocsr()[self.rows][:, self.rows].astype(np.float32).tocsr()
+        self._fronts(A, active)
+
+    def _fronts(self, A, active) -> None:
+        """The rows by ring (`order`, `ring_ends`) and each step's operator on its front (`front`).
+
+        order : (R,) the computed rows' vertices, ring by ring from `active` (ring 0; ascending within
+        a ring). ring_ends : (n + 1,) rows within k rings are order[:ring_ends[k]].
+        front : n CSR matrices, step k's rows within k rings and columns within k - 1 (in `order`):
+        a field zero beyond ring 0 stays zero beyond ring k after k steps, so the other entries only
+        ever add exact zeros. Each row keeps `matrix`'s entries in their stored order, so the sums run
+        in the same order and :meth:`spread_front` equals :meth:`smooth_rows` bit for bit.
+        """
+        R, n = len(self.rows), self.steps
+        ring = np.full(self.num_vertices, n + 1, np.int64)
+        if active is None:
+            ring[:] = 0
+        else:
+            reach = np.asarray(active, bool).copy()
+            ring[reach] = 0
+            for k in range(1, n + 1):
+                reach |= (A @ reach.astype(np.float32)) > 0
+                ring[reach & (ring > n)] = k
+        rr = ring[self.rows]
+        order = np.lexsort((self.rows, rr))                      # row-space indices, by ring then vertex
+        self.order = self.rows[order]
+        self.ring_ends = np.searchsorted(rr[order], np.arange(n + 1), side="right")
+        new = np.empty(R, np.int64)
+        new[order] = np.arange(R)                                 # row-space index -> position in order
+        M = self.matrix
+        lengths = np.diff(M.indptr)[order]
+        starts = np.repeat(M.indptr[:-1][order], lengths)
+        entry = starts + np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        row = np.repeat(np.arange(R), lengths)                    # each entry's row, in order
+        col, val = new[M.indices[entry]], M.data[entry].astype(np.float32)
+        self.front = []
+        for k in range(1, n + 1):
+            rows_k, cols_k = int(self.ring_ends[k]), int(self.ring_ends[k - 1])
+            keep = (row < rows_k) & (col < cols_k)
+            indptr = np.zeros(rows_k + 1, np.int64)
+            np.cumsum(np.bincount(row[keep], minlength=rows_k), out=indptr[1:])
+            self.front.append(sp.csr_matrix((val[keep], col[keep].astype(np.int32), indptr.astype(np.int32)),
+                                            shape=(rows_k, cols_k)))
 
     def __call__(self, field: np.ndarray) -> np.ndarray:
         """The smoothed field: (V, 3) or (T, V, 3) float32 (values outside the computed rows kept as given)."""
@@ -113,6 +158,24 @@ class SurfaceSmoothing:
         out = batch.copy()
         out[:, self.rows] = x.reshape(len(self.rows), T, 3).transpose(1, 0, 2)
         return out.reshape(f.shape)
+
+    def spread_front(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The steps on a field that is zero beyond ring 0: x (ring_ends[0], C) float32, ring 0's rows
+        (the active vertices, ascending) -> (R, C) float32, the rows in `order`, into `out` when given.
+        Equal to :meth:`smooth_rows` of the field (zeros elsewhere) with its rows put in `order`; step
+        k computes only the rows within k rings (`front`), from those within k - 1. The columns are
+        taken a block at a time (BLOCK: they stay in the cache through the steps); one thread."""
+        x = np.asarray(x, dtype=np.float32)
+        n0, R = int(self.ring_ends[0]), len(self.rows)
+        if x.ndim != 2 or x.shape[0] != n0:
+            raise InputError(f"expected ({n0}, C) rows of ring 0, got {x.shape}", field="x")
+        out = np.empty((R, x.shape[1]), np.float32) if out is None else out
+        for a in range(0, x.shape[1], BLOCK):
+            y = np.ascontiguousarray(x[:, a:a + BLOCK])
+            for F in self.front:
+                y = F @ y
+            out[:, a:a + BLOCK] = y
+        return out
 
     def smooth_rows(self, x: np.ndarray, copy: bool = True, threads: bool = True) -> np.ndarray:
         """The steps on the computed rows alone: x (R, C) float32, R = len(rows), any C columns (e.g.

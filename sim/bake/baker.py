@@ -1,16 +1,18 @@
 """`jiggle bake`: a clip baked into caches, chunk by chunk, resumable.
 
     BakeSetup (sim.bake.setup: motion, character, muscles, skin, jiggle, output times)
-      per chunk of `chunk` output frames:
+      per chunk of `chunk` output frames, each stage one or a few Warp launches for the whole chunk:
         goal knots of the chunk (+ MARGIN each side) --drive (sim.drive)--> joint world transforms
-          --MuscleRig.static (rig.muscle)--> static CVs
-          --goals, simulate (sim.jiggle.simulate)--> dynamic CVs
+          --MuscleRig.static (rig.muscle, one launch)--> static CVs
+          --goals, simulate (sim.jiggle.simulate, one launch per cut-free stretch)--> dynamic CVs
           --blend (sim.jiggle.blend)--> final CVs
           --skin_frames (rig.skin.muscle_skin: LBS + shell deformers)--> skin_static, skin_final
-        -> OUT/.partial/chunk_NNNNN.npz (atomic), with the particles' state at the chunk's last frame
-      all chunks -> OUT/bake.npz, bake.usdc|usda, bake.pc2 (atomic), bake.json; .partial removed
-      (bake.npz also holds skin_lbs, the smooth skin alone that compare's skin quality reads against,
-      skinned again at assembly: one launch per chunk, no chunk file grows with it)
+          (+ the smooth skin alone, skin_lbs, that compare's skin quality reads against)
+        -> straight into every cache (sim.bake.writer.BakeWriter, in OUT/.partial/, by a second thread
+           while the next chunk is computed), then OUT/.partial/chunk_NNNNN.npz (atomic): the particles'
+           state at the chunk's last frame and the caches' progress
+      all chunks -> the caches completed and renamed into OUT (bake.npz, bake.usdc|usda, bake.pc2),
+      bake.json; .partial removed. Memory holds a chunk or two, whatever the clip's length.
 
 Resuming: a chunk goes on from the particle state stored with the one before it, over the same step
 grid and the same goal knots (the knots of a chunk reach MARGIN knots past its ends, so the knot
@@ -19,12 +21,14 @@ interrupted bake resumed with `--resume` therefore repeats exactly the arithmeti
 its caches are equal bit for bit (tests/bake/test_bake.py kills a bake to show it). The manifest stores
 the parameter set's key; resuming with other parameters is refused, naming what differs.
 
+A resumed bake reopens the caches in .partial at the last finished chunk (the npz and pc2 are filled
+in place, the USD is written again from the npz: sim/bake/writer.py).
+
 A folder holds either a finished bake (its caches and bake.json) or an unfinished one (.partial/):
 starting a new bake removes first the files the old bake and `jiggle compare` recorded writing (bake.json's
 "files", the manifest's "files", compare's record COMPARE_RECORD) and nothing else: a user's own files
-in the folder stay. The caches are written only once every chunk
-is there, each through a temporary file renamed at the end, so no cache that looks complete is ever
-a partial one.
+in the folder stay. The caches grow under temporary names in .partial and are renamed into the
+folder only once every chunk is in them, so no cache that looks complete is ever a partial one.
 """
 from __future__ import annotations
 
@@ -109,7 +113,7 @@ class Baker:
             world_k = np.asarray(s.world_at(kt), dtype=np.float64)
             joints = np.asarray(s.joints_at(times[f0:f1]), dtype=np.float32)
         with self._timed("static_s"):
-            static = rig.static(world_k)
+            static = rig.static(world_k, device=s.settings.device)
             st, curve, world = static.cvs[at], static.curve[at], world_k[at]
         with self._timed("simulate_s"):
             new_state = None
@@ -122,19 +126,16 @@ class Baker:
                 dyn = dyn[1:] if c > 0 else dyn
             cvs = blend(st, dyn, self.blend[f0:f1])
         with self._timed("skin_s"):
-            pending = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1), defer=True)
+            pending = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1), defer=True, smooth=self.smooth)
         out = {"frames": np.array([f0, f1]), "joint_world": joints, "cvs_static": st.astype(np.float32),
                "cvs_dynamic": cvs.astype(np.float32)}
-        if self.smooth:
-            with self._timed("skin_s"):
-                out["skin_lbs"] = s.skin.lbs_batch(world)
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
 
         def finish() -> dict:
             """The chunk's skins finished (the surface spread) and checked: the arrays to save."""
             t = time.perf_counter()
-            skin_static, skin_final = pending()
+            skin_static, skin_final, *smooth = pending()
             self.timings["skin_s"] += time.perf_counter() - t
             for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
                 bad = ~np.isfinite(skin)
@@ -143,6 +144,8 @@ class Baker:
                     raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; "
                                      "nothing of this chunk was written", field=name)
             arrays = {k: v for k, v in out.items() if k != "finish"}
+            if smooth:
+                arrays["skin_lbs"] = smooth[0]
             return {**arrays, "skin_static": skin_static, "skin_final": skin_final}
         if self.defer:
             out["finish"] = finish
@@ -316,6 +319,17 @@ def _diff(a, b, prefix="") -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------- bake
+def _large_blocks_to_the_system() -> None:
+    """Have glibc's malloc give every block over 128 kB its own mapping, returned to the system when
+    freed. By default the threshold rises with the blocks freed (up to 32 MB), and a chunk's arrays,
+    freed in the worker thread among the small blocks USD keeps, then stay in the heap as holes: the
+    bake's memory grew with the clip (a 1,000-frame bake of the 30k body peaked 25% above a 100-frame
+    one). Nothing happens on a system without glibc."""
+    import ctypes
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)             # M_MMAP_THRESHOLD
+
+
 def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Callable[[int], None] | None = None,
          log: Callable[[str], None] = lambda s: None) -> dict:
     """Bake `setup` into `out_dir` (see the module) and return the summary written to bake.json.
@@ -324,6 +338,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         was started with other parameters).
     progress : called with the number of frames each chunk adds (resumed chunks included once).
     """
+    _large_blocks_to_the_system()
     out_dir = os.path.abspath(out_dir)
     partial = os.path.join(out_dir, PARTIAL)
     manifest_path = os.path.join(partial, MANIFEST)
@@ -366,8 +381,9 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     def finish_and_save(c: int, arrays: dict) -> None:
         """In the worker thread: finish chunk c's skins, write its frames into the caches and its marker
         (the particle state and the caches' progress), report it."""
-        if "finish" in arrays:
-            arrays = arrays["finish"]()
+        finish = arrays.pop("finish", None)     # out of the dict first: the closure holds the dict, a cycle
+        if finish is not None:                  # would keep every chunk's skins until the garbage collector ran
+            arrays = finish()
         t = time.perf_counter()
         f0, f1 = chunk_frames(setup, c)
         crcs = writer.append(f0, arrays)

@@ -298,6 +298,15 @@ def test_shell_batch_matches_the_reference_and_the_single_launch():
     # the GPU's launch shape (a thread per frame and paired vertex), run here on the CPU, gives the same
     deformer.thread_per_frame = True
     np.testing.assert_array_equal(deformer.deform_batch(points, batch), got)
+    # the paired vertices' displacements alone (the spread's input): the same points, minus the smooth ones
+    paired = np.nonzero(~unpaired)[0]
+    p32 = points.astype(np.float32)
+    want = (got[:, :, paired] - p32[None, :, paired]).transpose(0, 2, 1, 3)
+    for per_frame in (True, False):
+        deformer.thread_per_frame = per_frame
+        moved = deformer.launch_displace(wp.array(p32, dtype=wp.vec3), batch).numpy()
+        assert moved.shape == (S, len(paired), T, 3)
+        np.testing.assert_array_equal(moved, want)
 
 
 def test_shell_batch_checks_its_state():
@@ -331,3 +340,74 @@ def test_shell_batch_checks_its_state():
         deformer.launch_batch(wp.zeros(3, dtype=wp.vec3), ShellBatch(E, E, E[None], E[None], curve, active))
     with pytest.raises(InputError, match="batch"):
         deformer.launch_batch(points, "frames")
+
+
+# ---------------------------------------------------------------------------------- smooth skin, launches
+@pytest.mark.parametrize("mode", ["shell", "influence"])
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_smooth_skin_and_launch_count(arm, skins, mode, method):
+    """smooth=True appends lbs_batch's skin, equal bit for bit, at no extra launch; `launches` counts
+    pose_batch's: the skinning (DQS: 2) and one deformer launch for all sets and frames."""
+    skin = skins[mode, method]
+    world, cvs, curve, blended = sweep(arm, T=7)
+    before = skin.launches
+    a, b = skin.pose_batch(world, [cvs, blended], [curve, curve])
+    assert skin.launches - before == (2 if method == "lbs" else 3)
+    before = skin.launches
+    a2, b2, lbs = skin.pose_batch(world, [cvs, blended], [curve, curve], smooth=True)
+    assert skin.launches - before == (2 if method == "lbs" else 3)
+    np.testing.assert_array_equal(a2, a)
+    np.testing.assert_array_equal(b2, b)
+    assert lbs.shape == a.shape and lbs.dtype == np.float32
+    np.testing.assert_array_equal(lbs, skin.lbs_batch(world))
+    # deferred: the smooth skin survives the next call (a new array, not the device buffer)
+    finish = skin.pose_batch(world, [cvs], [curve], defer=True, smooth=True)
+    skin.pose_batch(world[::-1], [cvs[::-1]], [curve[::-1]], smooth=True)
+    got = finish()
+    assert len(got) == 2
+    np.testing.assert_array_equal(got[0], a)
+    np.testing.assert_array_equal(got[1], lbs)
+    empty = skin.pose_batch(world[:0], [cvs[:0]], [curve[:0]], smooth=True)
+    assert len(empty) == 2 and empty[1].shape == (0, arm.character.num_vertices, 3)
+
+
+def test_skin_frames_smooth(arm, skins):
+    """skin_frames(smooth=True): the sets, then the smooth skin; batched or frame by frame alike."""
+    from rig.skin.muscle_skin import skin_frames
+    skin = skins["shell", "lbs"]
+    world, cvs, curve, blended = sweep(arm, T=5)
+    got = skin_frames(skin, world, (cvs, blended), curve, np.arange(5), smooth=True)
+    assert len(got) == 3
+    np.testing.assert_array_equal(got[2], skin.lbs_batch(world))
+    loose = skin_frames(skin, world, (cvs, blended), curve, np.array([0, 2, 4, 6, 8]), smooth=True)
+    for g, h in zip(got, loose):
+        assert np.abs(g - h).max() <= TOL
+    deferred = skin_frames(skin, world, (cvs, blended), curve, np.arange(5), defer=True, smooth=True)()
+    for g, h in zip(got, deferred):
+        np.testing.assert_array_equal(g, h)
+
+
+@pytest.mark.parametrize("mode", ["shell", "influence"])
+def test_without_spread_batch_equals_loop(arm, mode):
+    """spread = 0: the deformers' full skins, no spread; still equal to pose frame by frame."""
+    skin = MuscleSkin(arm.character, arm.rig, skinning=mode, spread=0.0)
+    world, cvs, curve, blended = sweep(arm, T=6)
+    out = skin.pose_batch(world, [cvs, blended], [curve, curve])
+    for got, c in zip(out, (cvs, blended)):
+        assert np.abs(got - loop(skin, world, c, curve)).max() <= TOL
+
+
+@pytest.mark.parametrize("mode", ["shell", "influence"])
+def test_gpu_launch_shape_gives_the_same_skins(arm, skins, mode):
+    """A thread per frame and paired vertex (the GPU's shape of the batched launches), run here on the
+    CPU, gives the same skins bit for bit, with and without the spread."""
+    for skin in (skins[mode, "lbs"], MuscleSkin(arm.character, arm.rig, skinning=mode, spread=0.0)):
+        world, cvs, curve, blended = sweep(arm, T=5)
+        want = skin.pose_batch(world, [cvs, blended], [curve, curve])
+        try:
+            skin.deformer.thread_per_frame = skin.skinner.thread_per_frame = True
+            got = skin.pose_batch(world, [cvs, blended], [curve, curve])
+        finally:
+            skin.deformer.thread_per_frame = skin.skinner.thread_per_frame = False
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)

@@ -125,6 +125,13 @@ def test_batch_equals_single_frames(skin):
         one = sk.pose(world[t], st.cvs[t], st.curve[t])
         np.testing.assert_allclose(batch[0][t], one, atol=1e-6)
         np.testing.assert_allclose(batch[1][t], one, atol=1e-6)
+    # smooth=True: the smooth skin (lbs_batch's) after the sets; launches: the RBF skinner's, one per
+    # set, and the smooth skin's
+    before = sk.launches
+    *sets, smooth = sk.pose_batch(world, [st.cvs, None], [st.curve, None], smooth=True)
+    assert len(sets) == 2 and sk.launches - before == 3
+    np.testing.assert_array_equal(sets[0], batch[0])
+    np.testing.assert_array_equal(smooth, sk.lbs_batch(world))
 
 
 def test_nan_muscle_falls_back_to_its_rest_shape_with_a_warning(skin):

@@ -72,3 +72,23 @@ def test_steps_follow_the_reach_not_the_mesh_resolution():
     assert steps_for_reach(fine, ff, 0.0) == 0
     with pytest.raises(InputError):
         SurfaceSmoothing(ff, len(fine), -1)
+
+
+@pytest.mark.parametrize("steps", [0, 1, 5])
+def test_spread_front_equals_the_steps_on_all_rows(steps):
+    """A field zero beyond the active vertices: the front-restricted steps (each over the rings the
+    field has reached, rows by ring) equal smooth_rows over all computed rows bit for bit."""
+    vertices, faces = grid()
+    V = len(vertices)
+    rng = np.random.default_rng(3)
+    active = rng.random(V) < 0.15
+    sm = SurfaceSmoothing(faces, V, steps, active)
+    assert set(sm.order.tolist()) == set(sm.rows.tolist())
+    n0 = sm.ring_ends[0]
+    np.testing.assert_array_equal(sm.order[:n0], np.nonzero(active)[0])
+    x = np.zeros((V, 7), np.float32)
+    x[active] = rng.normal(size=(active.sum(), 7))
+    want = sm.smooth_rows(x[sm.rows])[np.searchsorted(sm.rows, sm.order)]
+    np.testing.assert_array_equal(sm.spread_front(x[sm.order[:n0]]), want)
+    whole = SurfaceSmoothing(faces, V, steps)          # every vertex active: ring 0 is all of them
+    np.testing.assert_array_equal(whole.spread_front(x), whole.smooth_rows(x))

@@ -8,7 +8,10 @@ Batched (`launch_batch`, kernel :func:`rig.skin.shell.kernels.shells_batch`): a 
 sets of muscle states (e.g. static and blended CVs) in one upload and one launch over the vertices
 that have pairs (on the CPU a thread runs its vertex through every frame and set; on a GPU a thread
 per frame and vertex); the reference ellipsoids ride the bones and are shared by the sets
-(:class:`ShellBatch`).
+(:class:`ShellBatch`). `launch_displace` runs the same launch but returns only the paired vertices'
+displacements from the smooth skin, (S, P, T), the layout the skin's spread smooths
+(rig.skin.muscle_skin.MuscleSkin.pose_batch): nothing is copied for the other vertices. In either, a
+pair's reference part is computed once for all sets that share its point (kernels.shell_sets).
 """
 from __future__ import annotations
 
@@ -217,6 +220,8 @@ class ShellDeformer:
         # batched launches: a thread per frame and vertex (GPU) or per vertex, running through the frames
         # (CPU: Warp's CPU launch divides the index of every thread of a multi-dimensional launch)
         self.thread_per_frame = not self.device.is_cpu
+        self.launches = 0
+        """Warp launches made so far (every launch method adds its own)."""
 
     @property
     def num_vertices(self) -> int:
@@ -252,6 +257,7 @@ class ShellDeformer:
         state = _state(*self._E, self._centre, self._curve, self._active)
         wp.launch(kernels.shells, dim=model.num_vertices, device=self.device,
                   inputs=[model.arrays, state, points], outputs=[self._points_out])
+        self.launches += 1
         return self._points_out
 
     def deform_batch(self, points, batch: ShellBatch) -> np.ndarray:
@@ -274,17 +280,8 @@ class ShellDeformer:
         Row [s, t] equals :meth:`launch` of points[t] with set s's frame t (the same per-vertex code).
         """
         model = self.model
-        if not isinstance(batch, ShellBatch):
-            raise InputError(f"expected a ShellBatch, got {type(batch).__name__}", field="batch")
-        S, T, M = batch.num_sets, batch.num_frames, batch.num_muscles
-        V = model.num_vertices
-        if (not isinstance(points, wp.array) or points.dtype != wp.vec3 or points.shape != (T, V)
-                or points.device != self.device):
-            desc = (f"{points.dtype.__name__} {points.shape} on {points.device}" if isinstance(points, wp.array)
-                    else type(points).__name__)
-            raise InputError(f"expected a ({T}, {V}) wp.vec3 array on {self.device}, got {desc}", field="points")
-        if M != model.num_muscles:
-            raise InputError(f"expected frames of {model.num_muscles} muscles, got {M}", field="batch")
+        S, T, V = self._check_batch(points, batch)
+        M = batch.num_muscles
         out = self._scratch("points_out", (S, T, V), wp.vec3)
         if S * T * V == 0:
             return out
@@ -297,7 +294,45 @@ class ShellDeformer:
         stride = T if self.thread_per_frame else 1
         wp.launch(kernels.shells_batch, dim=(stride, model.num_paired), device=self.device,
                   inputs=[model.arrays, model.paired, M, stride, _state(*state), points], outputs=[out])
+        self.launches += 1
         return out
+
+    def launch_displace(self, points: wp.array, batch: ShellBatch) -> wp.array:
+        """The displacements of the paired vertices only, (S, P, T) wp.vec3, metres, the wrapper's
+        buffer valid until the next call: [s, i, t] = :meth:`launch_batch`'s [s, t, paired[i]] minus
+        points[t, paired[i]] (float32), P = `model.num_paired`, `model.paired` ascending. Every other
+        vertex is left where the smooth skin puts it; one launch, nothing copied for them.
+
+        points, batch : as :meth:`launch_batch`.
+        """
+        model = self.model
+        S, T, V = self._check_batch(points, batch)
+        out = self._scratch("moved_out", (S, model.num_paired, T), wp.vec3)
+        if S * T * model.num_paired == 0:
+            return out
+        state = self._upload_batch(batch)
+        stride = T if self.thread_per_frame else 1
+        wp.launch(kernels.shells_displace, dim=(stride, model.num_paired), device=self.device,
+                  inputs=[model.arrays, model.paired, batch.num_muscles, stride, _state(*state), points],
+                  outputs=[out])
+        self.launches += 1
+        return out
+
+    def _check_batch(self, points, batch) -> tuple[int, int, int]:
+        """(S, T, V) of a batched launch's points (T, V) and batch, checked (InputError naming them)."""
+        model = self.model
+        if not isinstance(batch, ShellBatch):
+            raise InputError(f"expected a ShellBatch, got {type(batch).__name__}", field="batch")
+        S, T, M = batch.num_sets, batch.num_frames, batch.num_muscles
+        V = model.num_vertices
+        if (not isinstance(points, wp.array) or points.dtype != wp.vec3 or points.shape != (T, V)
+                or points.device != self.device):
+            desc = (f"{points.dtype.__name__} {points.shape} on {points.device}" if isinstance(points, wp.array)
+                    else type(points).__name__)
+            raise InputError(f"expected a ({T}, {V}) wp.vec3 array on {self.device}, got {desc}", field="points")
+        if M != model.num_muscles:
+            raise InputError(f"expected frames of {model.num_muscles} muscles, got {M}", field="batch")
+        return S, T, V
 
     def _upload_batch(self, batch: ShellBatch) -> list:
         """Check the active muscles' state is finite and upload the batch once: E_ref, E_ref_inv,

@@ -429,7 +429,7 @@ class MuscleFrames:
         out, skipped = self._compute(world, cvs, curve, first_frame)
         return [ShellFrames(*(x[t] for x in out)) for t in range(len(world))], skipped
 
-    def frame_sets(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0):
+    def frame_sets(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0, paths: bool = True):
         """Ellipsoids of S sets of muscle states over the same T frames (e.g. the static and the
         blended CVs of a bake chunk), the bones' part computed once.
 
@@ -440,6 +440,8 @@ class MuscleFrames:
         E_cur, E_cur_inv (S, T, M, 4, 4), curve (S, T, M, K, 3) trajectory samples, active (S, T, M);
         skipped = S tuples of Skipped (frame = first_frame + batch index). Set s at frame t equals
         `frame(world[t], cvs_sets[s][t], curves[s][t], first_frame + t)`.
+        paths : False: no trajectory paths (no muscle is in "trajectory" mode, the only reader): each
+            muscle's K samples are its current centre, the curve's nearest points are not searched.
         """
         if len(cvs_sets) != len(curves) or not len(cvs_sets):
             raise InputError(f"expected as many curves as CVs sets (at least one), got {len(curves)} and "
@@ -450,7 +452,7 @@ class MuscleFrames:
         sets, skipped, shared = [], [], []          # shared: (curve, its `along`) already computed
         for _, cvs, curve in checked:
             along = next((a for k, a in shared if k is curve or np.array_equal(k, curve, equal_nan=True)), None)
-            cur, sk, along = self._current(E_ref, E_ref_inv, cvs, curve, first_frame, along)
+            cur, sk, along = self._current(E_ref, E_ref_inv, cvs, curve, first_frame, along, paths)
             shared.append((curve, along))
             sets.append(cur)
             skipped.append(sk)
@@ -516,16 +518,17 @@ class MuscleFrames:
         return ok, Q, t_ref
 
     def _current(self, E_ref: np.ndarray, E_ref_inv: np.ndarray, cvs: np.ndarray, curve: np.ndarray,
-                 first_frame: int, along: tuple | None = None):
+                 first_frame: int, along: tuple | None = None, paths: bool = True):
         """(E_cur, E_cur_inv, path, active), the Skipped records and `along` (see `_along`) for the
         reference ellipsoids (T, M, 4, 4), cvs (T, N, 3) and curve (T, M, 5, 3). `along`: already
-        computed for this curve and these frames (another set of CVs over the same curve)."""
+        computed for this curve and these frames (another set of CVs over the same curve). paths:
+        False: each path is its muscle's current centre K times (see `frame_sets`)."""
         T, M = len(E_ref), self.M
         centre_ref = E_ref[..., :3, 3].reshape(-1, 3).T                             # (3, T M)
         # the curves alone decide C (a muscle skipped for its CVs gets its path replaced below), so
         # t_ref depends on the curves and the bones only and sets of CVs over one curve share it
         if along is None:
-            along = self._along(curve, centre_ref)
+            along = self._along(curve, centre_ref) if paths else (np.isfinite(curve).all(axis=(2, 3)), None, None)
         curve_ok, Q, t_ref = along
         Y = cvs.reshape(T, M, self.rest_cvs.shape[1], 3)
         finite = np.isfinite(Y).all(axis=(2, 3)) & curve_ok                         # (T, M)
@@ -563,8 +566,11 @@ class MuscleFrames:
         E_cur_inv = np.where(active[..., None, None], E_cur_inv, E_ref_inv)
 
         centre_cur = E_cur[..., :3, 3].reshape(-1, 3).T
-        t_cur = _nearest(Q, centre_cur, np.broadcast_to(self.t0, (T, M)).ravel())
-        path = _curve_major(_trajectory(Q, t_ref, t_cur, centre_ref, centre_cur), (T, M))
+        if paths:
+            t_cur = _nearest(Q, centre_cur, np.broadcast_to(self.t0, (T, M)).ravel())
+            path = _curve_major(_trajectory(Q, t_ref, t_cur, centre_ref, centre_cur), (T, M))
+        else:
+            path = np.repeat(E_cur[..., None, :3, 3], TRAJECTORY_SAMPLES, axis=2)
         # a skipped muscle stands still on its reference centre
         if not active.all():
             path = np.where(active[..., None, None], path, E_ref[..., None, :3, 3])

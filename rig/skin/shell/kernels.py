@@ -7,9 +7,11 @@ shells, star offsets) is in the docstring of :mod:`rig.skin.shell.shells`. Every
 in ascending muscle order. Ellipsoids are 4x4 affine matrices (local unit sphere -> world, metres);
 ``wp.transform_point`` applies the full 3x4 part of a mat44.
 
-The per-vertex maths is one ``@wp.func`` (:func:`shell_point`), shared by the single-frame kernel
-:func:`shells` (dim V) and the batched :func:`shells_batch` (S sets of muscle states
-over T frames of skinned points, the reference state shared by the sets).
+The per-vertex maths is :func:`shell_point` in the single-frame kernel :func:`shells` (dim V); the
+batched kernels :func:`shells_batch` (full skins) and :func:`shells_displace` (the paired vertices'
+displacements, the spread's layout) run S sets of muscle states over T frames of skinned points through
+:func:`shell_sets`, the same per-pair code with the reference part (which the sets share) computed once
+per pair and frame for every set whose point is the same.
 """
 from __future__ import annotations
 
@@ -246,6 +248,145 @@ def shells(
     points_out[v] = shell_point(model, state, 0, 0, v, points[v])
 
 
+@wp.func
+def shell_sets(
+    # model
+    model: ShellArrays,
+    # state in
+    state: ShellState,
+    points: wp.array2d(dtype=wp.vec3),
+    num_muscles: int,
+    v: int,
+    first_frame: int,
+    frame_stride: int,
+    # out
+    p_io: wp.array3d(dtype=wp.vec3),
+    i: int,
+    displace: int,
+):
+    """Vertex v at frames t = first_frame, first_frame + frame_stride, ... < T for every set s (S, T =
+    p_io.shape[0], points.shape[0]): points[t, v] with set s's muscles at frame t applied in series,
+    each pair exactly as :func:`shell_point` applies it (ref = t * M, cur = (s * T + t) * M), written
+    to p_io[s, t, v] (displace = 0), or its displacement from points[t, v] to p_io[s, i, t]
+    (displace = 1; float32, the difference the host would form). p_io holds each set's point while
+    the pairs run.
+
+    A pair's reference part (the point in E_ref's space, its pull and fall-off, the limit's reach)
+    depends only on the point and E_ref, which the sets share: it is computed once and reused by
+    every set whose point is still the same (bit for bit; always at a vertex's first pair), so the
+    result is the same as the set-by-set loop and the star lookup runs once instead of S times.
+    The pairs run in the outer loop and the frames in the inner one (each frame's sets in series
+    over the pairs as before): a pair's parameters are read once per vertex, not once per frame, and
+    one call runs all of a vertex's frames (a Warp function takes its structs by value).
+    """
+    S = p_io.shape[0]
+    T = points.shape[0]
+    K = state.curve.shape[1]
+    for t in range(first_frame, T, frame_stride):
+        x = t
+        y = v
+        if displace != 0:
+            x = i
+            y = t
+        p_in = points[t, v]
+        for s in range(S):
+            p_io[s, x, y] = p_in
+    first, end = csr_span(model.pair_offsets, v)
+    for k in range(first, end):
+        m, pw = entry(model.pair_muscle, model.pair_weight, k)
+        d = model.drop_off[m]
+        table = model.star_index[m]
+        # beyond this local radius rho >= 1 + d for any direction: beta = alpha = 0 and D = 0
+        reach = 1.0 + d
+        if table >= 0:
+            reach = reach + model.star_max[table]
+        mo = model.mode[m]
+        for t in range(first_frame, T, frame_stride):
+            x = t
+            y = v
+            if displace != 0:
+                x = i
+                y = t
+            mr = t * num_muscles + m
+            # the reference part, for the point p_c (have_l: p_l, r2; have_q: the pull; have_w: the limit's reach)
+            have_l = int(0)
+            have_q = int(0)
+            have_w = int(0)
+            p_c = wp.vec3(0.0, 0.0, 0.0)
+            p_l = wp.vec3(0.0, 0.0, 0.0)
+            r2 = float(0.0)
+            reach_w = float(0.0)
+            q = wp.vec3(0.0, 0.0, 0.0)
+            Eq = wp.vec3(0.0, 0.0, 0.0)
+            a = float(0.0)
+            for s in range(S):
+                mc = (s * T + t) * num_muscles + m
+                # inactive muscles (NaN CVs, degenerate frames) may hold NaN matrices: never read them
+                if state.active[mc] != 0:
+                    p = p_io[s, x, y]
+                    if have_l == 0 or p[0] != p_c[0] or p[1] != p_c[1] or p[2] != p_c[2]:
+                        p_c = p
+                        have_l = 1
+                        have_q = 0
+                        p_l = wp.transform_point(state.E_ref_inv[mr], p)
+                        r2 = wp.dot(p_l, p_l)
+                        have_w = 0
+                    D = wp.vec3(0.0, 0.0, 0.0)
+                    moved = False
+                    if mo == MODE_BASIC:
+                        pc_l = wp.transform_point(state.E_cur_inv[mc], p)
+                        if r2 < reach * reach or wp.dot(pc_l, pc_l) < reach * reach:
+                            if have_q == 0:
+                                q0, rho0 = pull(p_l, model.star, table, model.sticky[m], model.hard[m], d)
+                                q = q0
+                                Eq = wp.transform_point(state.E_ref[mr], q0)
+                                have_q = 1
+                            qc, rho_c = pull(pc_l, model.star, table, model.sticky[m], model.hard[m], d)
+                            E_cur = state.E_ref[mr] + state.dE[mc]
+                            D = wp.transform_point(E_cur, qc) - Eq
+                            moved = True
+                    elif r2 < reach * reach:
+                        if have_q == 0:
+                            q1, rho = pull(p_l, model.star, table, model.sticky[m], model.hard[m], d)
+                            q = q1
+                            al = shell_alpha(rho, d)
+                            # a = 0 wherever alpha = 0 (also for l = 0): nothing beyond the drop-off shell moves
+                            a = float(0.0)
+                            if al > 0.0:
+                                l = model.slippage[m]
+                                a = al
+                                if l != 1.0:    # pow is the costliest step of a pair; l = 1 is the default
+                                    a = wp.pow(al, l)
+                            have_q = 1
+                        if a > 0.0:
+                            if mo == MODE_STRETCH:
+                                # (E_cur - E_ref) (q, 1): the difference first, exactly 0 when they are equal
+                                D = a * wp.transform_point(state.dE[mc], q)
+                            else:
+                                xk = a * float(K - 1)
+                                j = wp.min(int(xk), K - 2)
+                                f = xk - float(j)
+                                c0 = state.curve[mc, j]
+                                c = c0 + f * (state.curve[mc, j + 1] - c0)
+                                D = (c - state.curve[mc, 0]) + a * wp.transform_vector(state.dE[mc], q)
+                            moved = True
+                    if moved:
+                        if have_w == 0:
+                            # the limit's reach, LIMIT_REACH x the drop-off distance along the point's
+                            # direction d |L_ref u| = d |p - c_ref| / r (L_ref p_l = p - c_ref)
+                            r = wp.sqrt(r2)
+                            reach_w = float(0.0)
+                            if r >= TINY_R:
+                                reach_w = LIMIT_REACH * d * wp.length(p - state.centre[mr]) / r
+                            have_w = 1
+                        p_io[s, x, y] = p + (model.weight[m] * pw) * limit(D, reach_w)
+    if displace != 0:
+        for t in range(first_frame, T, frame_stride):
+            p_in = points[t, v]
+            for s in range(S):
+                p_io[s, i, t] = p_io[s, i, t] - p_in
+
+
 @wp.kernel
 def shells_batch(
     # model
@@ -262,7 +403,7 @@ def shells_batch(
     """S sets x T frames (S, T = points_out.shape[:2]) in one launch, dim (B, P) over the P vertices
     owning pairs (`paired`): thread (b, i) deforms vertex v = paired[i] at frames t = b, b + B, ...
     (B = frame_stride) for every set s: points_out[s, t, v] is points[t, v] (frame t's skinned points,
-    shared by the sets) with set s's muscles at frame t applied (:func:`shell_point`). The wrapper has
+    shared by the sets) with set s's muscles at frame t applied (:func:`shell_sets`). The wrapper has
     copied the smooth skin into points_out for the vertices no muscle moves, and picks B = 1 on the
     CPU (a thread runs its vertex through every frame and set: no index division per item, the
     vertex's pairs stay in cache) and B = T on a GPU.
@@ -272,9 +413,25 @@ def shells_batch(
     (s * T + t) * M + m.
     """
     b, i = wp.tid()
-    v = paired[i]
-    T = points.shape[0]
-    for s in range(points_out.shape[0]):
-        for t in range(b, T, frame_stride):
-            points_out[s, t, v] = shell_point(model, state, t * num_muscles, (s * T + t) * num_muscles, v,
-                                              points[t, v])
+    shell_sets(model, state, points, num_muscles, paired[i], b, frame_stride, points_out, i, 0)
+
+
+@wp.kernel
+def shells_displace(
+    # model
+    model: ShellArrays,
+    paired: wp.array(dtype=wp.int32),
+    num_muscles: int,
+    frame_stride: int,
+    # state in
+    state: ShellState,
+    points: wp.array2d(dtype=wp.vec3),
+    # out
+    moved_out: wp.array3d(dtype=wp.vec3),
+):
+    """As :func:`shells_batch`, but only the paired vertices' displacements from the smooth skin:
+    moved_out[s, i, t] = deformed - points[t, paired[i]] (float32, the same difference the host would
+    form), (S, P, T): for each set, the vertices as rows and the frames' xyz side by side, the layout
+    the surface spread smooths (rig.skin.surface_smoothing.SurfaceSmoothing.spread_front)."""
+    b, i = wp.tid()
+    shell_sets(model, state, points, num_muscles, paired[i], b, frame_stride, moved_out, i, 1)
