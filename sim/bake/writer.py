@@ -142,6 +142,7 @@ class BakeWriter:
         except OSError as e:
             raise _cannot_write(self.partial, e) from None
         self.frames = f0 + len(arrays["skin_static"])
+        _return_free_memory()
         return crcs
 
     def _usd(self, f0: int, static, final, cvs) -> None:
@@ -187,3 +188,15 @@ def skin_parts(character) -> dict:
     names = tuple(str(p[0]) for p in parts)
     offsets = np.array([int(p[1]) for p in parts] + [int(parts[-1][1]) + int(parts[-1][2])], np.int64)
     return {"part_names": names, "part_offsets": offsets}
+
+
+def _return_free_memory() -> None:
+    """Hand the heap's free pages back to the system (glibc's malloc_trim; nothing elsewhere). The chunk's
+    arrays are freed in this thread among the small blocks USD keeps for its samples; without this the
+    holes they leave count in the process's memory and it grows with the clip (a 3,000-frame bake of the
+    30k body peaked at 1.21x a 100-frame one, with it at 1.14x). A few milliseconds per chunk."""
+    import ctypes
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
