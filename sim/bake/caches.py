@@ -58,6 +58,7 @@ FORMAT = "jiggle.bake/1"
 PC2_MAGIC = b"POINTCACHE2\0"
 PC2_VERSION = 1
 _PC2_HEADER = struct.Struct("<12siiffi")  # magic, version, numPoints, startFrame, sampleRate, numSamples
+PC2_HEADER_BYTES = _PC2_HEADER.size
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,43 +222,7 @@ NPZ_KEYS = tuple(f.name for f in fields(BakeData))
 _OPTIONAL_KEYS = ("skin_lbs", "skin_rest", "part_names", "part_offsets")
 FRAME_KEYS = {"skin_static": "vertex", "skin_final": "vertex", "skin_lbs": "vertex", "joint_world": "joint",
               "muscle_cvs_static": "CV", "muscle_cvs_dynamic": "CV", "times": None}
-"""The npz keys with one row per frame (what a stream writes block by block), and what their axis 1 counts."""
-
-
-@dataclass(frozen=True)
-class Stream:
-    """One array of T frames written block by block (a bake's chunks) without ever holding it whole.
-
-    shape : the whole array's shape, (T, ...) frames first.
-    dtype : its dtype.
-    blocks : called once per write; yields consecutive blocks (t, ...) whose t add up to T.
-    item : what axis 1 counts (vertex, joint, CV), for the message naming a non-finite number.
-    """
-
-    shape: tuple
-    dtype: object
-    blocks: object
-    item: str | None = None
-
-    def each(self, name: str):
-        """The blocks as contiguous arrays of the stream's dtype, each checked (shape, finite) before it is
-        given out, so a writer never writes a NaN; InputError naming `name` and the frame otherwise."""
-        n, tail = 0, tuple(self.shape[1:])
-        for block in self.blocks():
-            b = np.ascontiguousarray(block, dtype=self.dtype)
-            if b.shape[1:] != tail or n + len(b) > self.shape[0]:
-                raise InputError(f"a block of shape {b.shape} does not continue {self.shape} at frame {n}", field=name)
-            require_finite(name, b, self.item, first=n)
-            yield b
-            n += len(b)
-        if n != self.shape[0]:
-            raise InputError(f"the blocks hold {n} frames, expected {self.shape[0]}", field=name)
-
-
-def whole(array, item: str | None = None) -> Stream:
-    """A Stream of one block: an array already in memory."""
-    a = np.asarray(array)
-    return Stream(a.shape, a.dtype, lambda: iter((a,)), item)
+"""The npz keys with one row per frame (a bake writes them chunk by chunk), and what their axis 1 counts."""
 
 
 def npz_arrays(data: BakeData) -> dict:
@@ -277,29 +242,11 @@ def npz_arrays(data: BakeData) -> dict:
 
 def write_npz(data: BakeData, path: str | os.PathLike, compress: bool = True) -> None:
     """Write `data` to `path` as a `.npz` (the keys in the module docstring), atomically; compress
-    False stores the arrays as they are (faster to write and read; skin positions shrink only ~10%)."""
-    write_npz_stream(path, npz_arrays(data), compress=compress)
-
-
-def write_npz_stream(path: str | os.PathLike, members: dict, compress: bool = False) -> None:
-    """Write a `.npz` atomically whose members are arrays or Streams ({name: array | Stream}, in the
-    order given): a Stream's member is written block by block, so memory holds one block, not the
-    array. np.load reads the result as any npz (one `<name>.npy` member each, zip64 where large).
-    A non-finite number in a stream stops the write (InputError naming the member and the frame) and
-    leaves no file."""
-    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    False stores the arrays as they are (faster to write and read; skin positions shrink only ~10%).
+    A bake writes its npz chunk by chunk instead (NpzInPlace)."""
     with _writing(path) as tmp:
-        with zipfile.ZipFile(tmp, "w", method, allowZip64=True) as zf:
-            for name, value in members.items():
-                with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
-                    if not isinstance(value, Stream):
-                        np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
-                        continue
-                    header = {"descr": np.lib.format.dtype_to_descr(np.dtype(value.dtype)), "fortran_order": False,
-                              "shape": tuple(int(n) for n in value.shape)}
-                    np.lib.format.write_array_header_1_0(fh, header)
-                    for block in value.each(name):
-                        fh.write(memoryview(block).cast("B"))
+        with open(tmp, "wb") as fh:  # a file object: savez would append ".npz" to other names
+            (np.savez_compressed if compress else np.savez)(fh, **npz_arrays(data))
 
 
 def read_npz(path: str | os.PathLike) -> BakeData:
@@ -357,32 +304,29 @@ def write_pc2(points, path: str | os.PathLike, fps: float, start_time: float = 0
     Layout (little-endian): b"POINTCACHE2\\0" (12 bytes), int32 version 1, int32 numPoints V,
     float32 startFrame = start_time * fps, float32 sampleRate = 1.0 (one sample every frame at fps),
     int32 numSamples T, then T * V * 3 float32, frame-major. Axes are written as they are: jiggle
-    and Blender are both Z-up metres (3ds Max too, in its system units set to metres).
+    and Blender are both Z-up metres (3ds Max too, in its system units set to metres). A bake
+    writes its pc2 chunk by chunk instead, each frame at its offset (sim/bake/writer.py).
     """
     p = np.asarray(points)
     if p.ndim != 3 or p.shape[2] != 3 or p.shape[0] < 1:
         raise InputError(f"expected shape (T >= 1, V, 3), got {p.shape}", field="points")
-    write_pc2_stream(whole(p, "vertex"), path, fps, start_time)
-
-
-def write_pc2_stream(points: Stream, path: str | os.PathLike, fps: float, start_time: float = 0.0) -> None:
-    """`write_pc2` of a Stream of (T, V, 3) points: the header first (T is known), then each block's
-    frames as they come; one block in memory at a time."""
-    if len(points.shape) != 3 or points.shape[2] != 3 or points.shape[0] < 1:
-        raise InputError(f"expected shape (T >= 1, V, 3), got {points.shape}", field="points")
+    p = np.ascontiguousarray(p, dtype="<f4")
+    require_finite("points", p, "vertex")
     fps, start_time = float(fps), float(start_time)
     if not np.isfinite(fps) or fps <= 0:
         raise InputError(f"must be a finite number > 0, got {fps}", field="fps")
     if not np.isfinite(start_time):
         raise InputError(f"must be finite, got {start_time}", field="start_time")
-    T, V = int(points.shape[0]), int(points.shape[1])
-    stream = Stream(points.shape, "<f4", points.blocks, points.item)
-    header = _PC2_HEADER.pack(PC2_MAGIC, PC2_VERSION, V, start_time * fps, 1.0, T)
+    header = pc2_header(p.shape[1], p.shape[0], fps, start_time)
     with _writing(path) as tmp:
         with open(tmp, "wb") as fh:
             fh.write(header)
-            for block in stream.each("points"):
-                _write_frames(fh, block)
+            _write_frames(fh, p)
+
+
+def pc2_header(V: int, T: int, fps: float, start_time: float) -> bytes:
+    """The 32-byte `.pc2` header of T samples of V points at fps, the first at start_time seconds."""
+    return _PC2_HEADER.pack(PC2_MAGIC, PC2_VERSION, int(V), float(start_time) * float(fps), 1.0, int(T))
 
 
 def _write_frames(fh, p: np.ndarray) -> None:
@@ -432,46 +376,16 @@ def write_usd(data: BakeData, path: str | os.PathLike, muscle_points=None,
     muscle_points : (T, M, P, 3) float32 metres, each muscle's lofted surface per frame
         (MuscleRig.surface of the dynamic CVs), or None for no muscle meshes.
     """
-    T = data.num_frames
-    muscles = None
-    if muscle_points is not None:
-        muscles = np.asarray(muscle_points, dtype=np.float32)
-        M = len(data.muscle_names)
-        if muscles.ndim != 4 or muscles.shape[:2] != (T, M) or muscles.shape[3] != 3:
-            raise InputError(f"expected shape ({T}, {M}, P, 3), got {muscles.shape}",
-                             field="muscle_points")
-    meshes = {"skin_static": whole(data.skin_static, "vertex"), "skin_final": whole(data.skin_final, "vertex")}
-    if muscles is not None:
-        meshes["muscles"] = whole(muscles, "muscle")
-    write_usd_stream(data, meshes, path, usda=usda)
-
-
-def write_usd_stream(head: BakeData, meshes: dict, path: str | os.PathLike, usda: bool | None = None) -> None:
-    """`write_usd` of streamed frames: `head` gives the stage's faces, names, parts, fps and params (its
-    own frames are not written); `meshes` {"skin_static": Stream (T, V, 3), "skin_final": Stream
-    (T, V, 3), optionally "muscles": Stream (T, M, P, 3)} the frames, block by block (UsdAppender)."""
     path = os.fspath(path)
     fmt = _usd_format(path, usda)
-    skin = meshes["skin_static"]
-    T = int(skin.shape[0])
-    muscles = meshes.get("muscles")
-    for name in ("skin_static", "skin_final"):
-        if tuple(meshes[name].shape) != (T, len(head.skin_static[0]), 3):
-            raise InputError(f"expected shape ({T}, {len(head.skin_static[0])}, 3), got {tuple(meshes[name].shape)}",
-                             field=name)
+    T = data.num_frames
+    block = {"skin_static": data.skin_static, "skin_final": data.skin_final}
+    if muscle_points is not None:
+        block["muscles"] = np.asarray(muscle_points, dtype=np.float32)
+        require_finite("muscle_points", block["muscles"], "muscle")
     with _writing(path) as tmp:
-        usd = UsdAppender(tmp, head, T, None if muscles is None else tuple(muscles.shape), fmt)
-        streams = {k: v.each("muscle_points" if k == "muscles" else k) for k, v in meshes.items() if v is not None}
-        k0 = 0
-        while k0 < T:
-            block = {k: next(it, None) for k, it in streams.items()}
-            if any(b is None for b in block.values()):
-                raise InputError(f"the meshes' blocks end before frame {T}", field="meshes")
-            usd.append(k0, block)
-            k0 += len(block["skin_static"])
-        for it in streams.values():          # the streams check that no frame is left over
-            for _ in it:
-                pass
+        usd = UsdAppender(tmp, data, T, None if muscle_points is None else block["muscles"].shape, fmt)
+        usd.append(0, block)
         usd.finish()
 
 
@@ -631,16 +545,6 @@ def _author_samples(layer, prim_path: str, points: np.ndarray, normals: np.ndarr
         layer.SetTimeSample(n_path, k0 + k, Vt.Vec3fArray.FromNumpy(normals[k]))
         if extent is not None:
             layer.SetTimeSample(ext_path, k0 + k, Vt.Vec3fArray.FromNumpy(extent[k]))
-
-
-def _define_mesh(stage, prim_path: str, points: np.ndarray, faces: np.ndarray):
-    """A UsdGeom.Mesh at prim_path: triangles faces (F, 3), points (T, V, 3) float32 metres
-    sampled at time codes 0..T-1, with vertex normals and extent per sample."""
-    mesh = _define_mesh_prim(stage, prim_path, faces)
-    points = np.asarray(points, dtype=np.float32)
-    _author_samples(stage.GetEditTarget().GetLayer(), prim_path, points,
-                    VertexNormals(faces, points.shape[1]).batch(points), 0)
-    return mesh
 
 
 def _save_layer(layer) -> None:

@@ -25,16 +25,14 @@ import numpy as np
 
 from rig.base.errors import InputError
 from sim.bake.caches import (
-    _PC2_HEADER,
     FRAME_KEYS,
     NPZ_KEYS,
-    PC2_MAGIC,
-    PC2_VERSION,
+    PC2_HEADER_BYTES,
     BakeData,
     NpzInPlace,
     UsdAppender,
-    _usd_format,
     npz_arrays,
+    pc2_header,
     require_finite,
 )
 
@@ -101,16 +99,15 @@ class BakeWriter:
             try:
                 if progress is None or not os.path.isfile(path):
                     with open(path, "wb") as fh:
-                        fh.write(_PC2_HEADER.pack(PC2_MAGIC, PC2_VERSION, V, float(setup.times[0]) * setup.fps,
-                                                  1.0, T))
+                        fh.write(pc2_header(V, T, setup.fps, float(setup.times[0])))
                 self.pc2 = open(path, "r+b")
             except OSError as e:
                 raise _cannot_write(path, e) from None
         self.usd = None
         usd = [f for f in setup.formats if f in USD_TMP]
         if usd:
-            fmt = _usd_format(USD_TMP[usd[0]], None)
-            self.paths[usd[0]] = path = os.path.join(partial, USD_TMP[usd[0]])
+            fmt = usd[0]
+            self.paths[fmt] = path = os.path.join(partial, USD_TMP[usd[0]])
             with contextlib.suppress(FileNotFoundError):
                 os.remove(path)             # a crate file cannot be cut back: written again from the npz
             P = rig.surface(rig.rest_cvs).shape[1]
@@ -133,7 +130,7 @@ class BakeWriter:
                 self.npz.write(key, f0, arrays[CHUNK_KEYS[key]])
             if self.pc2 is not None:
                 final = np.ascontiguousarray(arrays["skin_final"], dtype="<f4")
-                self.pc2.seek(_PC2_HEADER.size + f0 * self._frame_bytes)
+                self.pc2.seek(PC2_HEADER_BYTES + f0 * self._frame_bytes)
                 self.pc2.write(memoryview(final).cast("B"))
                 self.pc2.flush()
             if self.usd is not None:

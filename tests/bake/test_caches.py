@@ -195,75 +195,80 @@ def test_unwritable_folder_names_the_path(tmp_path):
 
 
 def test_interrupted_writes_leave_no_file(tmp_path, monkeypatch):
-    """Ctrl-C in the middle of a streamed write (after the first block) leaves nothing behind."""
     data = BakeData(**make_data())
 
-    def interrupted(a):
-        def blocks():
-            yield a[:1]
-            raise KeyboardInterrupt
-        return caches.Stream(a.shape, a.dtype, blocks, "vertex")
+    def half_npz(fh, **arrays):
+        fh.write(b"PK\x03\x04 half a zip")
+        raise KeyboardInterrupt
+
+    def half_frames(fh, p):
+        fh.write(p[0].tobytes())
+        raise KeyboardInterrupt
 
     def half_save(layer):
         raise KeyboardInterrupt
 
-    with pytest.raises(KeyboardInterrupt):
-        caches.write_npz_stream(tmp_path / "bake.npz", {**caches.npz_arrays(data),
-                                                        "skin_final": interrupted(data.skin_final)})
-    with pytest.raises(KeyboardInterrupt):
-        caches.write_pc2_stream(interrupted(data.skin_final), tmp_path / "skin.pc2", FPS)
-    with pytest.raises(KeyboardInterrupt):
-        caches.write_usd_stream(data, {"skin_static": interrupted(data.skin_static),
-                                       "skin_final": interrupted(data.skin_final)}, tmp_path / "bake.usdc")
+    monkeypatch.setattr(caches.np, "savez_compressed", half_npz)
+    monkeypatch.setattr(caches, "_write_frames", half_frames)
     monkeypatch.setattr(caches, "_save_layer", half_save)
+    with pytest.raises(KeyboardInterrupt):
+        write_npz(data, tmp_path / "bake.npz")
+    with pytest.raises(KeyboardInterrupt):
+        write_pc2(data.skin_final, tmp_path / "skin.pc2", FPS)
     with pytest.raises(KeyboardInterrupt):
         write_usd(data, tmp_path / "bake.usdc")
     assert leftovers(tmp_path) == []
 
 
-def test_streamed_caches_equal_whole_ones_and_hold_one_block(tmp_path):
-    """Caches written block by block (2 + 1 + 1 frames) read back equal to those written whole; a
-    NaN in the third block names its frame in the whole clip and leaves no file; a stream that
-    ends short is refused."""
+def test_caches_filled_chunk_by_chunk_equal_whole_ones(tmp_path):
+    """A bake's writers: an npz laid out up front and filled in blocks of 2 + 1 + 1 frames (stopped after
+    the first block and reopened with its progress, as a resumed bake does) reads back equal to one
+    written whole, passes zip's CRC test; a USD appended block by block equals one written whole; a
+    block that does not go on from the frames written, or a member left short, is refused."""
+    import zipfile
+
     from pxr import Usd, UsdGeom
     data = BakeData(**make_data())
-
-    def in_blocks(a, cuts=(0, 2, 3, 4)):
-        return caches.Stream(a.shape, a.dtype, lambda: (a[i:j] for i, j in zip(cuts[:-1], cuts[1:])), "vertex")
-
-    members = {**caches.npz_arrays(data), **{k: in_blocks(getattr(data, k)) for k in caches.FRAME_KEYS
-                                                 if getattr(data, k) is not None}}
-    caches.write_npz_stream(tmp_path / "s.npz", members)
-    back, ref = read_npz(tmp_path / "s.npz"), data
+    whole = caches.npz_arrays(data)
+    frame_keys = [k for k in caches.FRAME_KEYS if k != "times" and getattr(data, k) is not None]
+    members = {k: ((getattr(data, k).shape, np.float32) if k in frame_keys else v) for k, v in whole.items()}
+    path = str(tmp_path / "filled.npz")
+    npz = caches.NpzInPlace(path, members)
+    for k in frame_keys:
+        npz.write(k, 0, getattr(data, k)[:2])
+    crcs, frames = npz.progress()
+    npz.close()
+    npz = caches.NpzInPlace(path, members, crcs, frames)
+    with pytest.raises(InputError, match="does not continue"):
+        npz.write("skin_final", 3, data.skin_final[3:])
+    for a, b in ((2, 3), (3, 4)):
+        for k in frame_keys:
+            npz.write(k, a, getattr(data, k)[a:b])
+    npz.finish()
+    assert zipfile.ZipFile(path).testzip() is None
+    back = read_npz(path)
     for name in caches.NPZ_KEYS:
-        a, b = getattr(ref, name), getattr(back, name)
+        a, b = getattr(data, name), getattr(back, name)
         assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), name
-    caches.write_pc2_stream(in_blocks(data.skin_final), tmp_path / "s.pc2", FPS, 0.5)
-    write_pc2(data.skin_final, tmp_path / "w.pc2", FPS, 0.5)
-    assert (tmp_path / "s.pc2").read_bytes() == (tmp_path / "w.pc2").read_bytes()
+    short = caches.NpzInPlace(str(tmp_path / "short.npz"), members)
+    with pytest.raises(InputError, match="holds 0 of 4 frames"):
+        short.finish()
+    short.close()
+
     mp = muscle_points()
-    caches.write_usd_stream(data, {"skin_static": in_blocks(data.skin_static), "skin_final": in_blocks(data.skin_final),
-                                   "muscles": in_blocks(mp)}, tmp_path / "s.usdc")
-    write_usd(data, tmp_path / "w.usdc", muscle_points=mp)
-    a, b = Usd.Stage.Open(str(tmp_path / "s.usdc")), Usd.Stage.Open(str(tmp_path / "w.usdc"))
+    usd = caches.UsdAppender(str(tmp_path / "blocks.usdc"), data, T, mp.shape, "usdc")
+    for a, b in ((0, 2), (2, 3), (3, 4)):
+        usd.append(a, {"skin_static": data.skin_static[a:b], "skin_final": data.skin_final[a:b], "muscles": mp[a:b]})
+    usd.finish()
+    write_usd(data, tmp_path / "whole.usdc", muscle_points=mp)
+    s1, s2 = Usd.Stage.Open(str(tmp_path / "blocks.usdc")), Usd.Stage.Open(str(tmp_path / "whole.usdc"))
     for prim in ("/jiggle/skin_static", "/jiggle/skin_final", "/jiggle/muscles/biceps_l", "/jiggle/muscles/belly_fat"):
-        ma, mb = UsdGeom.Mesh(a.GetPrimAtPath(prim)), UsdGeom.Mesh(b.GetPrimAtPath(prim))
+        m1, m2 = UsdGeom.Mesh(s1.GetPrimAtPath(prim)), UsdGeom.Mesh(s2.GetPrimAtPath(prim))
         for k in range(T):
             for get in (UsdGeom.Mesh.GetPointsAttr, UsdGeom.Mesh.GetNormalsAttr, UsdGeom.Mesh.GetExtentAttr):
-                assert np.array_equal(np.array(get(ma).Get(k)), np.array(get(mb).Get(k))), (prim, k)
-    assert np.array_equal(np.array(UsdGeom.Mesh(a.GetPrimAtPath("/jiggle/skin_final")).GetPointsAttr().Get(3)),
+                assert np.array_equal(np.array(get(m1).Get(k)), np.array(get(m2).Get(k))), (prim, k)
+    assert np.array_equal(np.array(UsdGeom.Mesh(s1.GetPrimAtPath("/jiggle/skin_final")).GetPointsAttr().Get(3)),
                           data.skin_final[3])
-    bad = np.array(data.skin_final)
-    bad[3, 2, 1] = np.nan
-    with pytest.raises(InputError, match="frame 3, vertex 2") as e:
-        caches.write_npz_stream(tmp_path / "bad.npz", {"skin_final": in_blocks(bad)})
-    assert e.value.field == "skin_final"
-    with pytest.raises(InputError, match="frame 3"):
-        caches.write_pc2_stream(in_blocks(bad), tmp_path / "bad.pc2", FPS)
-    short = caches.Stream((T + 1, 4, 3), np.float32, lambda: iter((data.skin_final,)), "vertex")
-    with pytest.raises(InputError, match="4 frames, expected 5"):
-        caches.write_npz_stream(tmp_path / "short.npz", {"skin_final": short})
-    assert not list(tmp_path.glob("bad*")) and not list(tmp_path.glob("short*")) and not list(tmp_path.glob(".*"))
 
 
 def test_interrupted_overwrite_keeps_the_old_file(tmp_path, monkeypatch):
