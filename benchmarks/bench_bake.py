@@ -13,8 +13,8 @@ a 29.9k-vertex generated body on the demo's jumping jacks), both at 30 fps in ch
 2. With caches: a whole `jiggle bake` (sim.bake.baker.bake: the loop above, with each chunk written into
    bake.npz, bake.usdc (both skins and the muscle meshes, with normals) and bake.pc2 by a second thread
    while the next chunk is computed), wall time; against the LBS-only loop writing its skin and joints
-   to an npz filled in place and its skin (with normals) to a USD crate saved per chunk, the same
-   writers, serially. Targets: CesiumMan <= 2x, 30k body <= 1.5x.
+   to an npz filled in place, its skin (with normals) to a USD crate saved per chunk and to a pc2, the
+   same writers, serially. Targets: CesiumMan <= 2x, 30k body <= 1.5x.
 3. Launches per chunk (every Warp launch the bake makes, counted by wrapping wp.launch and
    wp.Launch.launch), and the share of the main thread's time spent in Python code itself (cProfile's
    own time of Python functions over the total, one extra profiled bake; cProfile's overhead makes it
@@ -60,11 +60,18 @@ def lbs_loop(setup) -> None:
 
 def lbs_with_caches(setup, out_dir: str) -> None:
     """Drive + LBS of every chunk, each chunk written as it comes into an npz filled in place (skin and
-    joint transforms) and a USD crate of the one skin with normals and extent, saved per chunk."""
+    joint transforms), a USD crate of the one skin with normals and extent, saved per chunk, and a pc2."""
     from pxr import Sdf, Usd, UsdGeom
 
     from rig.character.normals import VertexNormals
-    from sim.bake.caches import NpzInPlace, _author_samples, _define_mesh_prim, _save_layer
+    from sim.bake.caches import (
+        PC2_HEADER_BYTES,
+        NpzInPlace,
+        _author_samples,
+        _define_mesh_prim,
+        _save_layer,
+        pc2_header,
+    )
     skin, times, C, T = setup.skin, setup.times, setup.chunk, len(setup.times)
     V, faces = setup.character.num_vertices, setup.character.faces
     J = np.asarray(setup.world_at(times[:1])).shape[1]          # the character's joints
@@ -78,6 +85,8 @@ def lbs_with_caches(setup, out_dir: str) -> None:
     _define_mesh_prim(stage, "/lbs/skin", faces)
     del stage
     normals = VertexNormals(faces, V)
+    pc2 = open(os.path.join(out_dir, "lbs.pc2"), "wb")
+    pc2.write(pc2_header(V, T, setup.fps, float(times[0])))
     for a in range(0, T, C):
         world = np.asarray(setup.world_at(times[a:a + C]), dtype=np.float64)
         pts = skin.lbs_batch(world)
@@ -86,6 +95,9 @@ def lbs_with_caches(setup, out_dir: str) -> None:
         with Sdf.ChangeBlock():
             _author_samples(layer, "/lbs/skin", pts, normals.batch(pts), a)
         _save_layer(layer)
+        pc2.seek(PC2_HEADER_BYTES + a * V * 12)
+        pc2.write(memoryview(np.ascontiguousarray(pts, "<f4")).cast("B"))
+    pc2.close()
     npz.finish()
 
 

@@ -160,16 +160,21 @@ class ParticleModel:
 
 
 class ParticleBuilder:
-    """Collects particles, springs and groups, then :meth:`finalize` freezes them."""
+    """Collects particles, springs and groups, then :meth:`finalize` freezes them. Particles and springs
+    come one at a time or in bulk (arrays, checked at once): a muscle's 40 particles and ~90 springs are
+    one call each."""
+
+    _FIELDS = ("rest", "mass", "k", "c", "drag", "reach")
 
     def __init__(self):
-        self._mass, self._k, self._c, self._drag, self._rest, self._reach = [], [], [], [], [], []
-        self._springs, self._sk, self._sc = [], [], []
+        self._parts = {f: [] for f in self._FIELDS}
+        self._spring_parts = {f: [] for f in ("ij", "k", "c")}
+        self._n = 0
         self._groups, self._group_start = [], []
 
     @property
     def num_particles(self) -> int:
-        return len(self._mass)
+        return self._n
 
     def begin_group(self, name: str) -> None:
         """Particles added from now on belong to group `name` (a muscle), for messages."""
@@ -187,37 +192,66 @@ class ParticleBuilder:
         mass (inf: glued to its goal). goal_damping : c >= 0, 1/s per unit mass. drag : mu >= 0, 1/s.
         reach : metres > 0 (inf: no limit), how far it may move from its goal.
         """
-        where = f"{self._where()}, particle {self.num_particles}"
         p = np.asarray(position, dtype=np.float64).reshape(-1)
         if p.shape != (3,) or not np.isfinite(p).all():
-            raise InputError(f"{where}: position must be 3 finite numbers, got {position!r}", field="position")
-        for f, v, ok, expect in (("mass", mass, mass > 0, "> 0 kg"),
-                                 ("goal_stiffness", goal_stiffness, goal_stiffness >= 0, ">= 0 1/s^2"),
-                                 ("goal_damping", goal_damping, goal_damping >= 0, ">= 0 1/s"),
-                                 ("drag", drag, drag >= 0, ">= 0 1/s"),
-                                 ("reach", reach, reach > 0, "> 0 m")):
-            if not ok or (math.isnan(v)) or (f not in ("goal_stiffness", "reach") and not math.isfinite(v)):
-                raise InputError(f"{where}: {f} must be {expect}, got {v!r}", field=f)
-        self._rest.append(p)
-        self._mass.append(float(mass))
-        self._k.append(float(goal_stiffness))
-        self._c.append(float(goal_damping))
-        self._drag.append(float(drag))
-        self._reach.append(float(reach))
-        return self.num_particles - 1
+            raise InputError(f"{self._where()}, particle {self.num_particles}: position must be 3 finite numbers, "
+                             f"got {position!r}", field="position")
+        return int(self.add_particles(p[None], [mass], [goal_stiffness], [goal_damping], [drag], [reach])[0])
+
+    def add_particles(self, positions, mass, goal_stiffness, goal_damping, drag, reach) -> np.ndarray:
+        """Add n particles at once (as :meth:`add_particle` each): positions (n, 3) metres, the rest (n,)
+        arrays or scalars; returns their indices (n,). The first bad value is named as add_particle does."""
+        p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        n = len(p)
+        values = {f: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)).copy()
+                  for f, v in (("mass", mass), ("goal_stiffness", goal_stiffness), ("goal_damping", goal_damping),
+                               ("drag", drag), ("reach", reach))}
+        bad_p = ~np.isfinite(p).all(axis=1)
+        if bad_p.any():
+            i = int(np.argmax(bad_p))
+            raise InputError(f"{self._where()}, particle {self._n + i}: position must be 3 finite numbers, got "
+                             f"{p[i].tolist()!r}", field="position")
+        for f, expect in (("mass", "> 0 kg"), ("goal_stiffness", ">= 0 1/s^2"), ("goal_damping", ">= 0 1/s"),
+                          ("drag", ">= 0 1/s"), ("reach", "> 0 m")):
+            v = values[f]
+            ok = (v > 0) if f in ("mass", "reach") else (v >= 0)
+            if f not in ("goal_stiffness", "reach"):
+                ok &= np.isfinite(v)
+            if not ok.all():
+                i = int(np.argmax(~ok))
+                raise InputError(f"{self._where()}, particle {self._n + i}: {f} must be {expect}, "
+                                 f"got {float(v[i])!r}", field=f)
+        for f, v in zip(self._FIELDS, (p, values["mass"], values["goal_stiffness"], values["goal_damping"],
+                                       values["drag"], values["reach"])):
+            self._parts[f].append(v)
+        self._n += n
+        return np.arange(self._n - n, self._n)
 
     def add_spring(self, i: int, j: int, stiffness: float, damping: float = 0.0) -> None:
         """A neighbour spring between particles i != j: stiffness N/m >= 0, damping N s/m >= 0."""
-        where = f"{self._where()}, spring ({i}, {j})"
-        n = self.num_particles
-        if not (0 <= i < n and 0 <= j < n) or i == j:
-            raise InputError(f"{where}: expected two different particles in [0, {n})", field="spring")
-        for f, v in (("stiffness", stiffness), ("damping", damping)):
-            if not (math.isfinite(v) and v >= 0):
-                raise InputError(f"{where}: {f} must be a finite number >= 0, got {v!r}", field=f)
-        self._springs.append((min(i, j), max(i, j)))
-        self._sk.append(float(stiffness))
-        self._sc.append(float(damping))
+        self.add_springs([[i, j]], [stiffness], [damping])
+
+    def add_springs(self, pairs, stiffness, damping=0.0) -> None:
+        """Add E springs at once (as :meth:`add_spring` each): pairs (E, 2) particle indices, stiffness and
+        damping (E,) arrays or scalars."""
+        ij = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        E, n = len(ij), self.num_particles
+        k = np.broadcast_to(np.asarray(stiffness, dtype=np.float64), (E,)).copy()
+        c = np.broadcast_to(np.asarray(damping, dtype=np.float64), (E,)).copy()
+        bad = (ij < 0).any(axis=1) | (ij >= n).any(axis=1) | (ij[:, 0] == ij[:, 1])
+        if bad.any():
+            e = int(np.argmax(bad))
+            raise InputError(f"{self._where()}, spring ({ij[e, 0]}, {ij[e, 1]}): expected two different particles in "
+                             f"[0, {n})", field="spring")
+        for f, v in (("stiffness", k), ("damping", c)):
+            ok = np.isfinite(v) & (v >= 0)
+            if not ok.all():
+                e = int(np.argmax(~ok))
+                raise InputError(f"{self._where()}, spring ({ij[e, 0]}, {ij[e, 1]}): {f} must be a finite number >= 0, "
+                                 f"got {float(v[e])!r}", field=f)
+        self._spring_parts["ij"].append(np.sort(ij, axis=1))
+        self._spring_parts["k"].append(k)
+        self._spring_parts["c"].append(c)
 
     def add_muscles(self, rest_cvs: np.ndarray, rest_volume: np.ndarray, jiggles: Sequence[MuscleJiggle]) -> None:
         """One group of 40 particles per muscle, with the springs of the module docstring.
@@ -238,22 +272,23 @@ class ParticleBuilder:
             with np.errstate(invalid="ignore"):
                 c = np.where(np.isfinite(k), 2.0 * mj.damping_ratio * np.sqrt(k), 0.0)
             base = self.num_particles
-            for p, m_, k_, c_ in zip(cvs.reshape(CVS, 3), mass, k, c):
-                self.add_particle(p, m_, k_, c_, mj.friction, mj.reach if mj.reach > 0 else math.inf)
+            self.add_particles(cvs.reshape(CVS, 3), mass, k, c, mj.friction, mj.reach if mj.reach > 0 else math.inf)
             if mj.spring_frequency_hz > 0:
                 w = 2.0 * math.pi * mj.spring_frequency_hz
-                for i, j in muscle_springs(cvs.reshape(CVS, 3)):
-                    m_ = mass[i] * mass[j] / (mass[i] + mass[j])     # reduced mass: a light end CV stays slow
-                    self.add_spring(base + i, base + j, m_ * w * w, 2.0 * mj.spring_damping_ratio * m_ * w)
+                ij = muscle_springs(cvs.reshape(CVS, 3))
+                m_ = mass[ij[:, 0]] * mass[ij[:, 1]] / (mass[ij[:, 0]] + mass[ij[:, 1]])   # reduced mass: a light
+                self.add_springs(base + ij, m_ * w * w, 2.0 * mj.spring_damping_ratio * m_ * w)  # end CV stays slow
 
     def finalize(self, device: str = "cpu", gravity: bool = False) -> ParticleModel:
         """Freeze into a ParticleModel on `device` (CPU default; CUDA works unchanged)."""
         n = self.num_particles
-        mass = np.array(self._mass, dtype=np.float64)
-        k = np.array(self._k, dtype=np.float64)
-        springs = np.array(self._springs, dtype=np.int64).reshape(-1, 2)
-        sk = np.array(self._sk, dtype=np.float64)
-        sc = np.array(self._sc, dtype=np.float64)
+
+        def cat(parts, shape=(0,)):
+            return np.concatenate(parts) if parts else np.zeros(shape)
+        rest, mass, k, goal_c, drag, reach = (cat(self._parts[f], (0, 3) if f == "rest" else (0,))
+                                              for f in self._FIELDS)
+        springs = cat(self._spring_parts["ij"], (0, 2)).astype(np.int64).reshape(-1, 2)
+        sk, sc = cat(self._spring_parts["k"]), cat(self._spring_parts["c"])
         # CSR adjacency: each spring listed from both ends, rows in particle order
         ends = np.concatenate([springs, springs[:, ::-1]])
         order = np.lexsort((ends[:, 1], ends[:, 0]))
@@ -270,18 +305,18 @@ class ParticleBuilder:
             return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
 
         return ParticleModel(
-            mass=frozen_array(mass), goal_k=frozen_array(k), goal_c=frozen_array(np.array(self._c)),
-            drag=frozen_array(np.array(self._drag)), reach=frozen_array(np.array(self._reach)),
+            mass=frozen_array(mass), goal_k=frozen_array(k), goal_c=frozen_array(goal_c),
+            drag=frozen_array(drag), reach=frozen_array(reach),
             glued=frozen_array(glued, bool),
-            rest=frozen_array(np.array(self._rest).reshape(n, 3)), springs=frozen_array(springs, np.int64),
+            rest=frozen_array(rest.reshape(n, 3)), springs=frozen_array(springs, np.int64),
             spring_k=frozen_array(sk), spring_c=frozen_array(sc), adj_offsets=frozen_array(offsets, np.int64),
             adj_index=frozen_array(ends[:, 1], np.int64), adj_k=frozen_array(adj_k), adj_c=frozen_array(adj_c),
             group_offsets=frozen_array(np.append(groups, n), np.int64), group_names=names, gravity=bool(gravity),
             device=str(device),
             wp_inv_mass=dev(inv_mass.astype(np.float32), wp.float32),
-            wp_drag=dev(np.array(self._drag, dtype=np.float32), wp.float32),
+            wp_drag=dev(drag.astype(np.float32), wp.float32),
             # inf reaches as the largest float32: no offset ever reaches it
-            wp_reach=dev(np.minimum(np.array(self._reach), np.finfo(np.float32).max).astype(np.float32), wp.float32),
+            wp_reach=dev(np.minimum(reach, np.finfo(np.float32).max).astype(np.float32), wp.float32),
             wp_adj_offsets=dev(offsets.astype(np.int32), wp.int32),
             wp_adj_index=dev(ends[:, 1].astype(np.int32), wp.int32),
             wp_adj_k=dev(adj_k.astype(np.float32), wp.float32),
