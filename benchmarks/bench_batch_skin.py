@@ -14,7 +14,8 @@ mesh, over the same N frames (the clip looped; per-frame figures are the chunk's
 
 Ratios: pose_batch S = 2 per frame / lbs_batch per frame at the same chunk size (the skinning part of
 the full pipeline against the LBS-only one), and the speedups loop / batch; the bake's call (both sets
-and the smooth skin, smooth=True) at chunk 64, and the Warp launches a chunk makes (MuscleSkin.launches).
+and the smooth skin, smooth=True) at chunk 64, also exactly as the bake makes it (defer=True,
+reuse=True: the skin's kept buffers), and the Warp launches a chunk makes (MuscleSkin.launches).
 The largest difference between batch and loop is printed too (the contract: <= 1e-6 m).
 
 Meshes: CesiumMan (../shared/assets/characters/CesiumMan.glb, its own walk; skipped with a message
@@ -122,6 +123,10 @@ def bench_mesh(label: str, skin: MuscleSkin, world: np.ndarray, frames: int, rep
         ms["pose_batch S=2 + smooth 64"] = per_frame(lambda: chunked(
             lambda a, b: skin.pose_batch(world[a:b], [cvs[a:b], blended[a:b]], [curve[a:b], curve[a:b]],
                                          first_frame=a, smooth=True), frames, 64))
+        # exactly as sim/bake/baker.py calls it: deferred, into the skin's two generations of kept buffers
+        ms["bake call 64"] = per_frame(lambda: chunked(
+            lambda a, b: skin.pose_batch(world[a:b], [cvs[a:b], blended[a:b]], [curve[a:b], curve[a:b]],
+                                         first_frame=a, smooth=True, defer=True, reuse=True)(), frames, 64))
 
     print(f"  {'lbs loop':28s} {ms['lbs loop']:8.3f} ms/frame")
     print(f"  {'pose loop, S=1':28s} {ms['pose loop S=1']:8.3f} ms/frame")
@@ -133,6 +138,7 @@ def bench_mesh(label: str, skin: MuscleSkin, world: np.ndarray, frames: int, rep
               f"= {pb / lb:5.2f} x lbs_batch  ({1e3 / pb:6.0f} frames/s)")
     print(f"  pose_batch S=2 + smooth skin, chunk 64: {ms['pose_batch S=2 + smooth 64']:7.3f} ms/frame "
           f"= {ms['pose_batch S=2 + smooth 64'] / ms['lbs_batch 64']:5.2f} x lbs_batch (the bake's skin stage)")
+    print(f"  the same as the bake calls it (defer, reuse: kept buffers), chunk 64: {ms['bake call 64']:7.3f} ms/frame")
     print("  Warp launches per chunk (pose_batch S=2 + smooth): "
           + ", ".join(f"{size} frames: {launches[size]}" for size in CHUNKS))
     print(f"  batch vs loop, max |difference|: pose {err:.2e} m, lbs {err_lbs:.2e} m (contract <= 1e-6)")

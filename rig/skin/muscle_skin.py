@@ -29,10 +29,15 @@ static and the blended CVs): one LBS/DQS launch for the T frames, shared by the 
 all sets and frames in a few NumPy operations (the bones' part once), one upload and one launch of
 the shells (or the influence objects) for all sets and frames over the vertices that have pairs,
 handing the spread their displacements, then the sparse spread of each set over the rings the
-displacement reaches (two threads). `launches` counts pose_batch's Warp launches.
+displacement reaches (two threads). `launches` counts pose_batch's Warp launches. On the CPU the
+kernels write straight into the host arrays returned (no device-to-host copy) and the spread works in
+kept workspaces a block of frames at a time; with `reuse` (the bake) the returned arrays themselves
+are two generations of kept buffers, so a chunk makes no new array of its size: with the bake's
+mallopt every such array is a fresh mapping whose pages fault in, which had doubled the stage's time.
 """
 from __future__ import annotations
 
+import threading
 import warnings
 from typing import Sequence
 
@@ -116,6 +121,8 @@ class MuscleSkin:
         """(V,) float32 in [0, 1] or None: how much of the jiggle each vertex shows (skin_frames)."""
         self.launches = 0
         """Warp launches pose_batch has made so far (skinning, Delta Mush, shells, influence objects, RBF)."""
+        self._slots, self._turn = ({}, {}), 0          # pose_batch(reuse=True)'s kept host buffers
+        self._work_free, self._work_lock = [], threading.Lock()     # _spread_moved's workspaces
         self.jiggle_spread = None
         """SurfaceSmoothing of the jiggle (skin_frames), or None: the deformers' displacement is spread
         instead, inside pose / pose_batch (shell, influence)."""
@@ -284,7 +291,7 @@ class MuscleSkin:
         return out if self.mush is None else self.mush.apply(out)
 
     def pose_batch(self, world: np.ndarray, cvs_sets, curves, first_frame: int = 0, defer: bool = False,
-                   smooth: bool = False):
+                   smooth: bool = False, reuse: bool = False):
         """Deformed skins of T frames for S sets of muscle states: S arrays (T, V, 3) float32 metres
         (defer: a function returning them that finishes the skins' spread; the device work is done and
         every array it needs copied, so it may run in another thread while the caller goes on).
@@ -297,6 +304,12 @@ class MuscleSkin:
         smooth : also return the smooth skin alone (what :meth:`lbs_batch` returns: LBS / DQS, through
             the Delta Mush when there is one), (T, V, 3) float32, as one more array after the S sets;
             it is the skin the deformers start from, so it costs no launch ("rbf": lbs_batch's).
+        reuse : the arrays returned (and what a deferred function reads) live in buffers this skin
+            keeps and hands out in turn, two generations of them (shell and influence skins on the CPU;
+            otherwise new arrays as without it): call n's arrays stay valid until call n + 2 with
+            `reuse` overwrites them, and call n's deferred function must have run by then. The bake
+            (at most two chunks in flight) saves allocating and faulting in ~(S + 1) x T x V x 12 bytes
+            per chunk. Without it (default) every call returns new arrays.
 
         Set s at frame t equals ``pose(world[t], cvs_sets[s][t], curves[s][t], frame=first_frame + t)``
         to float32 rounding. The smooth skin is computed once for all sets (one launch for the T
@@ -329,11 +342,22 @@ class MuscleSkin:
                 out.append(self.lbs_batch(world))
             self.launches += self._launch_count() - before + extra
             return (lambda: out) if defer else out
-        points = self._smooth_points(self.skinner.launch_batch(self.character.skin_matrices(world), self.method))
-        base = points.numpy()
-        if (defer or smooth) and self.device.is_cpu:     # the device buffers are reused by the next call
-            base = base.copy()
+        cpu = self.device.is_cpu
+        # reuse: this call's generation of kept buffers; None: new arrays where they outlive the call
+        slot = self._next_slot() if reuse and cpu else None
+        keep = (defer or smooth or slot is not None) and cpu      # base outlives this call
+        matrices = self.character.skin_matrices(world)
+        if keep and self.mush is None:      # skinned straight into the host array returned: no copy
+            base = self._host(slot, "smooth", (T, V, 3))
+            points = self.skinner.launch_batch(matrices, self.method, out=_on_device(base, self.device))
+        else:
+            points = self._smooth_points(self.skinner.launch_batch(matrices, self.method))
+            base = points.numpy()
+            if keep:                        # the device buffers are reused by the next call
+                base = _copy_into(self._host(slot, "smooth", (T, V, 3)), base)
         spread = self.spread.steps > 0 and len(self.spread.rows) > 0
+        # where the displacements go: a host array that outlives the call (defer), else the deformer's buffer
+        hold = spread and cpu and (defer or slot is not None)
         if self.skinning == "shell":
             # only "trajectory" muscles read the paths along the action curves
             paths = bool(np.any(self.table.mode == MODES.index("trajectory")))
@@ -343,20 +367,27 @@ class MuscleSkin:
                     warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
                                   stacklevel=2)
             batch = ShellBatch(*arrays)
-            launch = ((lambda: self.deformer.launch_displace(points, batch)) if spread
-                      else (lambda: self.deformer.launch_batch(points, batch)))
+            if spread:
+                held = self._host(slot, "moved", (S, self.deformer.model.num_paired, T, 3)) if hold else None
+                out = self.deformer.launch_displace(points, batch, out=_on_device(held, self.device)).numpy()
+            else:
+                out = self.deformer.launch_batch(points, batch).numpy()
         else:
             cur, ref = self._influence_cvs(world, cvs_sets, first_frame)
-            launch = lambda: self.deformer.launch_batch(points, cur, ref, displace=spread)  # noqa: E731
-        out = launch().numpy()               # (S, P, T, 3) displacements with a spread, else (S, T, V, 3)
+            out = self.deformer.launch_batch(points, cur, ref, displace=spread).numpy()
+            if hold:
+                out = _copy_into(self._host(slot, "moved", out.shape), out)
+        # out: (S, P, T, 3) displacements with a spread, else (S, T, V, 3)
         self.launches += self._launch_count() - before
         if spread:
-            moved = out.copy() if defer and self.device.is_cpu else out
+            moved = out            # a host array of its own when it outlives the call (hold), or the GPU's copy
+            sets = [self._host(slot, f"set{s}", (T, V, 3)) for s in range(S)] if slot is not None else None
 
             def finish():
-                return self._spread_moved(base, moved, threads=not defer) + ([base] if smooth else [])
+                return self._spread_moved(base, moved, threads=not defer, out=sets) + ([base] if smooth else [])
         else:
-            sets = [out[s].copy() if self.device.is_cpu else out[s] for s in range(S)] + ([base] if smooth else [])
+            sets = ([_copy_into(self._host(slot, f"set{s}", (T, V, 3)), out[s]) for s in range(S)] if cpu
+                    else [out[s] for s in range(S)]) + ([base] if smooth else [])
 
             def finish():
                 return sets
@@ -383,38 +414,85 @@ class MuscleSkin:
             cur[s] = np.where(np.repeat(bad, self.rig.CVS_PER_MUSCLE, axis=1)[..., None], ref, cvs)
         return cur, ref
 
-    def _spread_moved(self, smooth: np.ndarray, moved: np.ndarray, threads: bool = True) -> list:
-        """Skins (T, V, 3) each smooth + spread(displacement), new arrays, for the smooth skin (T, V, 3)
-        and the deformers' displacements of the paired vertices (S, P, T, 3) (ring 0 of the spread):
-        each set's spread over the rings it reaches (SurfaceSmoothing.spread_front), added to the
-        smooth skin there and scattered into a copy of it; one set per worker thread (NumPy and SciPy
-        run without the GIL), or one after the other without `threads`. Equal to :meth:`_spread` of the
-        full skins bit for bit."""
+    def _spread_moved(self, smooth: np.ndarray, moved: np.ndarray, threads: bool = True, out=None) -> list:
+        """Skins (T, V, 3) each smooth + spread(displacement), for the smooth skin (T, V, 3) and the
+        deformers' displacements of the paired vertices (S, P, T, 3) (ring 0 of the spread): each set's
+        spread over the rings it reaches (SurfaceSmoothing.spread_front), added to the smooth skin
+        there and scattered into a copy of it, written into out[s] (S arrays (T, V, 3) float32) or new
+        arrays; one set per worker thread (NumPy and SciPy run without the GIL), or one after the
+        other without `threads`. Equal to :meth:`_spread` of the full skins bit for bit.
+
+        A block of 16 frames at a time, everything in a kept workspace (`_workspace`) of a few MB that
+        stays in the cache: no array the size of the chunk is made besides the outputs, each of whose
+        pages is written by one copy and one scatter."""
         sm = self.spread
         order = sm.order
         T, V = smooth.shape[:2]
         R, n0 = len(order), int(sm.ring_ends[0])
-        base = np.take(smooth, order, axis=1)                                     # (T, R, 3)
         vec = np.dtype((np.void, 12))          # a vertex's xyz as one item: a scatter 3x faster than [:, rows]
-
+        smooth_v = smooth.view(vec).reshape(T, V)
         step = max(BLOCK // 3, 1)
 
         def one(s):
             x = moved[s].reshape(n0, 3 * T)
-            out = np.empty_like(smooth)
-            rows = np.empty((step, R, 3), np.float32)
-            # a few frames at a time, each block's spread added, scattered and copied while in the cache
-            for a in range(0, T, step):
-                b = min(a + step, T)
-                d = sm.spread_front(x[:, 3 * a:3 * b])                              # (R, 3 (b - a))
-                # frames first: transposed as 12-byte items (a plain copy), then added as floats
-                d = np.ascontiguousarray(d.view(vec).reshape(R, b - a).T).view(np.float32).reshape(b - a, R, 3)
-                np.add(base[a:b], d, out=rows[:b - a])
-                out[a:b] = smooth[a:b]
-                out[a:b].view(vec).reshape(b - a, V)[:, order] = rows[:b - a].view(vec).reshape(b - a, R)
-            return out
+            dst = np.empty_like(smooth) if out is None else out[s]
+            dst_v = dst.view(vec).reshape(T, V)
+            work, d_flat, rows_all, d_frames = self._workspace()
+            try:
+                # a few frames at a time, each block's spread added, scattered and copied while in the cache
+                for a in range(0, T, step):
+                    b = min(a + step, T)
+                    n = b - a
+                    d = d_flat[:R * 3 * n].reshape(R, 3 * n)
+                    sm.spread_front(x[:, 3 * a:3 * b], out=d, work=work)              # (R, 3 n)
+                    rows, dt = rows_all[:n], d_frames[:n]                            # (n, R, 3)
+                    rows_v = rows.view(vec).reshape(n, R)
+                    # frames first: the smooth skin's rows and the spread transposed as 12-byte items
+                    # (plain copies), then added as floats (the same sums as base + d); per frame, a
+                    # gather and a scatter of R items stay in the cache
+                    np.copyto(dt.view(vec).reshape(n, R), d.view(vec).reshape(R, n).T)
+                    for t in range(n):
+                        np.take(smooth_v[a + t], order, out=rows_v[t], mode="clip")
+                    np.add(rows, dt, out=rows)
+                    dst[a:b] = smooth[a:b]
+                    for t in range(n):
+                        np.put(dst_v[a + t], order, rows_v[t], mode="clip")
+            finally:
+                self._workspace(release=(work, d_flat, rows_all, d_frames))
+            return dst
         S = len(moved)
         return list(pool().map(one, range(S))) if threads and S > 1 else [one(s) for s in range(S)]
+
+    def _workspace(self, release=None):
+        """A spread workspace (spread_front's `work`, (R * BLOCK,) and twice (BLOCK // 3, R, 3) float32) for one
+        set in one thread, kept between calls (one per thread that ever spread at the same time), or
+        `release` one."""
+        with self._work_lock:
+            if release is not None:
+                self._work_free.append(release)
+                return None
+            if self._work_free:
+                return self._work_free.pop()
+        R = len(self.spread.order)
+        F = max(BLOCK // 3, 1)
+        return (self.spread.workspace(), np.empty(R * BLOCK, np.float32), np.empty((F, R, 3), np.float32),
+                np.empty((F, R, 3), np.float32))
+
+    def _next_slot(self) -> dict:
+        """The next generation of kept host buffers (pose_batch's `reuse`: two, in turn)."""
+        self._turn = (self._turn + 1) % len(self._slots)
+        return self._slots[self._turn]
+
+    def _host(self, slot, name: str, shape: tuple) -> np.ndarray:
+        """A C-contiguous float32 array `shape`: slot None a new one; else the slot's buffer `name`,
+        grown when it is too small (the last, shorter chunk of a bake takes a prefix of it)."""
+        n = int(np.prod(shape))
+        if slot is None:
+            return np.empty(shape, np.float32)
+        buf = slot.get(name)
+        if buf is None or buf.size < n:
+            buf = slot[name] = np.empty(n, np.float32)
+        return buf[:n].reshape(shape)
 
     def _finite_cvs(self, cvs, world: np.ndarray, first_frame: int | None) -> np.ndarray:
         """CVs (N, 3) or (T, N, 3) with every muscle holding NaN or inf put back on its rest shape carried
@@ -443,8 +521,18 @@ class MuscleSkin:
                       JiggleWarning, stacklevel=3)
 
 
+def _on_device(a: np.ndarray | None, device):
+    """A host float32 array (..., 3) as a Warp vec3 array over the same memory (the CPU device), or None."""
+    return None if a is None else wp.array(a, dtype=wp.vec3, device=device, copy=False)
+
+
+def _copy_into(dst: np.ndarray, src: np.ndarray) -> np.ndarray:
+    np.copyto(dst, src)
+    return dst
+
+
 def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np.ndarray, defer: bool = False,
-                smooth: bool = False):
+                smooth: bool = False, reuse: bool = False):
     """The pipeline's skin stage: skins (T, V, 3) float32 metres, one per CV set (T, N, 3), over joint
     world transforms (T, J, 4, 4) and action curves (T, M, 5, 3).
 
@@ -458,12 +546,17 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     the bake runs it in a worker thread while the next chunk is simulated; sim/bake/baker.py).
     smooth : also return the smooth skin alone (MuscleSkin.lbs_batch's: LBS / DQS, mushed when the skin
     mushes), (T, V, 3) float32, as one more array after the sets (pose_batch's, at no extra launch).
+    reuse : MuscleSkin.pose_batch's: the arrays live in buffers the skin keeps, two generations in turn
+    (valid until the second batched call after this one; a deferred function must run before it); the
+    bake's two chunks in flight. Ignored frame by frame (new arrays).
     """
     frames = np.asarray(frames, dtype=np.int64).reshape(-1)
     n = len(cvs_sets)
     if hasattr(skin, "pose_batch") and (len(frames) < 2 or np.all(np.diff(frames) == 1)):
         first = int(frames[0]) if len(frames) else 0
-        done = skin.pose_batch(world, list(cvs_sets), [curve] * n, first_frame=first, defer=defer, smooth=smooth)
+        kw = {"reuse": True} if reuse else {}       # only asked of skins that take it
+        done = skin.pose_batch(world, list(cvs_sets), [curve] * n, first_frame=first, defer=defer, smooth=smooth,
+                               **kw)
         pending = done if defer else (lambda: done)
     else:
         out = [np.stack([skin.pose(world[k], cvs[k], curve[k], frame=int(frames[k])) for k in range(len(world))])

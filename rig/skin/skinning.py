@@ -303,20 +303,26 @@ class Skinner:
         out = self.launch_batch(matrices, method).numpy()
         return out.copy() if self.device.is_cpu else out
 
-    def launch_batch(self, matrices, method: str = "lbs") -> wp.array:
+    def launch_batch(self, matrices, method: str = "lbs", out: wp.array | None = None) -> wp.array:
         """Skin T frames on the device in one launch (DQS: one more over the T * J matrices for
         their dual quaternions); on the CPU a thread per vertex, on a GPU one per frame and vertex.
         Returns the wrapper's (T, V) wp.vec3 buffer, valid until the next batched call
-        (:meth:`launch`'s buffer is another one).
+        (:meth:`launch`'s buffer is another one), or `out`.
 
         matrices : (T, J, 4, 4) float, metres.
+        out : a (T, V) wp.vec3 array on this device to skin into instead (e.g. on the CPU a NumPy
+            array the caller keeps, wrapped without a copy), or None.
         """
         if method not in METHODS:
             raise InputError(f"expected one of {METHODS}, got {method!r}", field="method")
         m = check_matrices_batch(matrices, self.model.num_joints_needed)
         T, J = m.shape[:2]
         model = self.model
-        out = self._scratch("positions", (T, model.num_vertices), wp.vec3)
+        if out is None:
+            out = self._scratch("positions", (T, model.num_vertices), wp.vec3)
+        elif (not isinstance(out, wp.array) or out.dtype != wp.vec3 or out.shape != (T, model.num_vertices)
+              or out.device != self.device):
+            raise InputError(f"expected a ({T}, {model.num_vertices}) wp.vec3 array on {self.device}", field="out")
         if T == 0 or model.num_vertices == 0:
             return out
         mats = self._scratch("matrices", (T * J,), wp.mat44)

@@ -33,6 +33,11 @@ import scipy.sparse as sp
 from rig.base.errors import InputError
 from rig.character.mesh_graph import mesh_neighbours
 
+try:        # SciPy's CSR x dense kernel (what F @ y runs), into a result we keep: y += F x
+    from scipy.sparse._sparsetools import csr_matvecs as _matvecs
+except ImportError:         # a SciPy without it: F @ y, a new array per step
+    _matvecs = None
+
 JIGGLE_REACH = 0.015
 """How far the skin spreads the muscles' displacement, as a fraction of the character's size (2.7 cm
 on a 1.8 m body, 7 steps on the generated body): measured on it over the shared clips
@@ -159,23 +164,50 @@ class SurfaceSmoothing:
         out[:, self.rows] = x.reshape(len(self.rows), T, 3).transpose(1, 0, 2)
         return out.reshape(f.shape)
 
-    def spread_front(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def spread_front(self, x: np.ndarray, out: np.ndarray | None = None, work: np.ndarray | None = None
+                     ) -> np.ndarray:
         """The steps on a field that is zero beyond ring 0: x (ring_ends[0], C) float32, ring 0's rows
         (the active vertices, ascending) -> (R, C) float32, the rows in `order`, into `out` when given.
         Equal to :meth:`smooth_rows` of the field (zeros elsewhere) with its rows put in `order`; step
         k computes only the rows within k rings (`front`), from those within k - 1. The columns are
-        taken a block at a time (BLOCK: they stay in the cache through the steps); one thread."""
+        taken a block at a time (BLOCK: they stay in the cache through the steps); one thread.
+
+        work : (2, R * BLOCK) float32 (:meth:`workspace`), or None: the steps' products go into it
+        (and the last straight into a C-contiguous `out` of at most BLOCK columns) instead of a new
+        array per step; what the bake wants, where every array over 128 kB is a fresh mapping whose
+        pages fault in (sim/bake/baker.py). The sums are the same either way (SciPy's own kernel)."""
         x = np.asarray(x, dtype=np.float32)
         n0, R = int(self.ring_ends[0]), len(self.rows)
         if x.ndim != 2 or x.shape[0] != n0:
             raise InputError(f"expected ({n0}, C) rows of ring 0, got {x.shape}", field="x")
         out = np.empty((R, x.shape[1]), np.float32) if out is None else out
+        if work is not None and _matvecs is not None:
+            if work.dtype != np.float32 or work.shape != (2, R * BLOCK) or not work.flags.c_contiguous:
+                raise InputError(f"expected (2, {R * BLOCK}) float32, got {work.shape} {work.dtype}", field="work")
+            direct = len(self.front) > 0 and out.flags.c_contiguous and out.shape[1] <= BLOCK
+            for a in range(0, x.shape[1], BLOCK):
+                C = min(BLOCK, x.shape[1] - a)
+                y = work[0, :n0 * C].reshape(n0, C)
+                np.copyto(y, x[:, a:a + C])
+                for k, F in enumerate(self.front):
+                    last = k == len(self.front) - 1
+                    z = out if last and direct else work[(k + 1) % 2, :F.shape[0] * C].reshape(F.shape[0], C)
+                    z.fill(0.0)         # SciPy's product adds into its (zeroed) result: F @ y's sums exactly
+                    _matvecs(F.shape[0], F.shape[1], C, F.indptr, F.indices, F.data, y.reshape(-1), z.reshape(-1))
+                    y = z
+                if not direct:
+                    out[:, a:a + C] = y
+            return out
         for a in range(0, x.shape[1], BLOCK):
             y = np.ascontiguousarray(x[:, a:a + BLOCK])
             for F in self.front:
                 y = F @ y
             out[:, a:a + BLOCK] = y
         return out
+
+    def workspace(self) -> np.ndarray:
+        """(2, R * BLOCK) float32, uninitialised: the products of :meth:`spread_front` (`work`)."""
+        return np.empty((2, len(self.rows) * BLOCK), np.float32)
 
     def smooth_rows(self, x: np.ndarray, copy: bool = True, threads: bool = True) -> np.ndarray:
         """The steps on the computed rows alone: x (R, C) float32, R = len(rows), any C columns (e.g.

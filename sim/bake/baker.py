@@ -126,7 +126,10 @@ class Baker:
                 dyn = dyn[1:] if c > 0 else dyn
             cvs = blend(st, dyn, self.blend[f0:f1])
         with self._timed("skin_s"):
-            pending = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1), defer=True, smooth=self.smooth)
+            # reuse: the skins of chunk c live in buffers chunk c + 2 writes again; the bake finishes and writes
+            # chunk c before it starts chunk c + 2 (bake(), sim/bake/baker.py)
+            pending = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1), defer=True, smooth=self.smooth,
+                                  reuse=self.defer)
         out = {"frames": np.array([f0, f1]), "joint_world": joints, "cvs_static": st.astype(np.float32),
                "cvs_dynamic": cvs.astype(np.float32)}
         if new_state is not None:

@@ -411,3 +411,83 @@ def test_gpu_launch_shape_gives_the_same_skins(arm, skins, mode):
             skin.deformer.thread_per_frame = skin.skinner.thread_per_frame = False
         for g, w in zip(got, want):
             np.testing.assert_array_equal(g, w)
+
+
+@pytest.mark.parametrize("mode", ["shell", "influence"])
+@pytest.mark.parametrize("spread", [None, 0.0])
+def test_reuse_rotates_two_generations_of_buffers(arm, mode, spread):
+    """reuse=True (the bake's call): the same skins bit for bit as new arrays, deferred or not; call n's
+    arrays hold through call n + 1 (the bake's two chunks in flight: call n + 1 runs before n's deferred
+    function) and come back at call n + 2; a shorter chunk takes a prefix of the kept buffers."""
+    kw = {} if spread is None else {"spread": spread}
+    skin = MuscleSkin(arm.character, arm.rig, skinning=mode, **kw)
+    world, cvs, curve, blended = sweep(arm, T=9)
+    chunks = [(0, 6), (6, 9), (0, 6), (6, 9), (2, 7)]
+
+    def call(a, b, **k):
+        return skin.pose_batch(world[a:b], [cvs[a:b], blended[a:b]], [curve[a:b], curve[a:b]], first_frame=a,
+                               smooth=True, **k)
+    want = [call(a, b) for a, b in chunks]
+    pending = None
+    kept = []
+    for (a, b), w in zip(chunks, want):
+        finish = call(a, b, defer=True, reuse=True)
+        if pending is not None:
+            kept.append(pending())
+        pending = finish
+        if len(kept) >= 1:                      # the previous chunk's arrays survive this call
+            for g, h in zip(kept[-1], want[len(kept) - 1]):
+                np.testing.assert_array_equal(g, h)
+    kept.append(pending())
+    for g, h in zip(kept[-1], want[-1]):
+        np.testing.assert_array_equal(g, h)
+    # not deferred: the same, and the arrays of two calls apart share memory (the rotation)
+    first = call(0, 6, reuse=True)
+    second = call(6, 9, reuse=True)
+    third = call(0, 6, reuse=True)
+    for g, h in zip(second, want[1]):
+        np.testing.assert_array_equal(g, h)
+    for g, h in zip(third, want[0]):
+        np.testing.assert_array_equal(g, h)
+    assert all(np.shares_memory(f, t) for f, t in zip(first, third))
+    assert not any(np.shares_memory(f, t) for f, t in zip(second, third))
+    assert len({id(a.base) for a in third}) == len(third)      # every array its own buffer
+
+
+def test_skin_frames_reuse(arm, skins):
+    """skin_frames(reuse=True) passes the flag to pose_batch: equal skins; ignored frame by frame."""
+    from rig.skin.muscle_skin import skin_frames
+    skin = MuscleSkin(arm.character, arm.rig)
+    world, cvs, curve, blended = sweep(arm, T=5)
+    want = skin_frames(skin, world, (cvs, blended), curve, np.arange(5), smooth=True)
+    got = skin_frames(skin, world, (cvs, blended), curve, np.arange(5), defer=True, smooth=True, reuse=True)()
+    for g, h in zip(got, want):
+        np.testing.assert_array_equal(g, h)
+    loose = skin_frames(skin, world, (cvs, blended), curve, np.array([0, 2, 4, 6, 8]), reuse=True)
+    assert len(loose) == 2
+
+
+def test_launches_into_given_arrays(arm, skins):
+    """Skinner.launch_batch and ShellDeformer.launch_displace write into `out` when given (a host array
+    wrapped without a copy on the CPU) the same values as into their own buffers; a wrong one is named."""
+    skin = skins["shell", "lbs"]
+    world, cvs, curve, blended = sweep(arm, T=4)
+    mats = skin.character.skin_matrices(world)
+    own = skin.skinner.launch_batch(mats).numpy().copy()
+    host = np.full(own.shape, np.nan, np.float32)
+    got = skin.skinner.launch_batch(mats, out=wp.array(host, dtype=wp.vec3, device="cpu", copy=False))
+    assert got.ptr == host.ctypes.data
+    np.testing.assert_array_equal(host, own)
+    with pytest.raises(InputError) as e:
+        skin.skinner.launch_batch(mats, out=wp.empty(3, dtype=wp.vec3, device="cpu"))
+    assert e.value.field == "out"
+    arrays, _ = skin.frames.frame_sets(world, [cvs, blended], [curve, curve], 0)
+    batch = ShellBatch(*arrays)
+    points = wp.array(own, dtype=wp.vec3, device="cpu")
+    moved = skin.deformer.launch_displace(points, batch).numpy().copy()
+    held = np.full(moved.shape, np.nan, np.float32)
+    skin.deformer.launch_displace(points, batch, out=wp.array(held, dtype=wp.vec3, device="cpu", copy=False))
+    np.testing.assert_array_equal(held, moved)
+    with pytest.raises(InputError) as e:
+        skin.deformer.launch_displace(points, batch, out=wp.empty((1, 2, 3), dtype=wp.vec3, device="cpu"))
+    assert e.value.field == "out"

@@ -6,7 +6,7 @@ import pytest
 from rig.base.errors import InputError
 from rig.character.mesh_graph import mesh_neighbours
 from rig.skin.quality import SkinQuality
-from rig.skin.surface_smoothing import SurfaceSmoothing, steps_for_reach
+from rig.skin.surface_smoothing import BLOCK, SurfaceSmoothing, steps_for_reach
 
 
 def grid(n=21, size=0.4):
@@ -90,5 +90,19 @@ def test_spread_front_equals_the_steps_on_all_rows(steps):
     x[active] = rng.normal(size=(active.sum(), 7))
     want = sm.smooth_rows(x[sm.rows])[np.searchsorted(sm.rows, sm.order)]
     np.testing.assert_array_equal(sm.spread_front(x[sm.order[:n0]]), want)
+    # into a kept workspace (the products into it, the last straight into `out`): the same sums
+    work = sm.workspace()
+    work.fill(np.nan)
+    np.testing.assert_array_equal(sm.spread_front(x[sm.order[:n0]], work=work), want)
+    out = np.full((len(sm.rows), 7), np.nan, np.float32)
+    assert sm.spread_front(x[sm.order[:n0]], out=out, work=work) is out
+    np.testing.assert_array_equal(out, want)
+    wide = np.zeros((V, 2 * BLOCK + 5), np.float32)   # several column blocks, out wider than one
+    wide[active] = rng.normal(size=(active.sum(), wide.shape[1]))
+    np.testing.assert_array_equal(sm.spread_front(wide[sm.order[:n0]], work=work),
+                                  sm.spread_front(wide[sm.order[:n0]]))
+    with pytest.raises(InputError):
+        sm.spread_front(x[sm.order[:n0]], work=work[:1])
     whole = SurfaceSmoothing(faces, V, steps)          # every vertex active: ring 0 is all of them
     np.testing.assert_array_equal(whole.spread_front(x), whole.smooth_rows(x))
+    np.testing.assert_array_equal(whole.spread_front(x, work=whole.workspace()), whole.smooth_rows(x))

@@ -297,17 +297,25 @@ class ShellDeformer:
         self.launches += 1
         return out
 
-    def launch_displace(self, points: wp.array, batch: ShellBatch) -> wp.array:
+    def launch_displace(self, points: wp.array, batch: ShellBatch, out: wp.array | None = None) -> wp.array:
         """The displacements of the paired vertices only, (S, P, T) wp.vec3, metres, the wrapper's
-        buffer valid until the next call: [s, i, t] = :meth:`launch_batch`'s [s, t, paired[i]] minus
-        points[t, paired[i]] (float32), P = `model.num_paired`, `model.paired` ascending. Every other
-        vertex is left where the smooth skin puts it; one launch, nothing copied for them.
+        buffer valid until the next call (or `out`): [s, i, t] = :meth:`launch_batch`'s
+        [s, t, paired[i]] minus points[t, paired[i]] (float32), P = `model.num_paired`, `model.paired`
+        ascending. Every other vertex is left where the smooth skin puts it; one launch, nothing
+        copied for them.
 
         points, batch : as :meth:`launch_batch`.
+        out : a (S, P, T) wp.vec3 array on this device to write into instead (e.g. on the CPU a NumPy
+            array the caller keeps, wrapped without a copy), or None.
         """
         model = self.model
         S, T, V = self._check_batch(points, batch)
-        out = self._scratch("moved_out", (S, model.num_paired, T), wp.vec3)
+        shape = (S, model.num_paired, T)
+        if out is None:
+            out = self._scratch("moved_out", shape, wp.vec3)
+        elif (not isinstance(out, wp.array) or out.dtype != wp.vec3 or out.shape != shape
+              or out.device != self.device):
+            raise InputError(f"expected a {shape} wp.vec3 array on {self.device}", field="out")
         if S * T * model.num_paired == 0:
             return out
         state = self._upload_batch(batch)
