@@ -124,9 +124,14 @@ def map_options(g, clip: bool = True, alias: bool = True) -> None:
 
 def bake_options(p: argparse.ArgumentParser, out: str) -> None:
     """Options shared by `jiggle bake` and `jiggle demo`."""
-    from sim.bake.scene import FORMATS
     p.add_argument("--out", default=out, help=f"output folder (default: {out})")
     p.add_argument("--resume", action="store_true", help="finish the interrupted bake in --out (same parameters)")
+    bake_settings(p)
+
+
+def bake_settings(p: argparse.ArgumentParser) -> None:
+    """The bake's settings (time, jiggle, caches, skin) of `jiggle bake`, `demo` and `batch`."""
+    from sim.bake.scene import FORMATS
     g = p.add_argument_group("time")
     g.add_argument("--fps", type=positive("--fps"), metavar="N", help="output frames per second (default: the "
                    "scene's, else 30)")

@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
                "which are printed only when it succeeds (a failing command prints one error line); Warp's "
                "start-up and kernel-load lines and NumPy's overflow/invalid-value warnings are hidden unless "
                "--verbose; --quiet prints errors only. --quiet and --verbose go before or after COMMAND. "
-               "Exit codes: 0 done, 2 bad input, 130 interrupted.")
+               "Exit codes: 0 done, 1 some jobs of a batch failed, 2 bad input, 130 interrupted.")
     output_options(top, top=True)
     sub = top.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for command in COMMANDS:

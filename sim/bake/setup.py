@@ -16,7 +16,7 @@ import os
 import time
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from types import MappingProxyType
-from typing import Callable, Mapping
+from typing import Callable, Mapping, MutableMapping
 
 import numpy as np
 
@@ -157,6 +157,41 @@ def params_key(params: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+@dataclass(frozen=True, eq=False)
+class FittedRig:
+    """The per-character part of a setup, shared by every clip baked on the same character: the
+    character (rig.character.Character), its fitted musculature (rig.muscle.fit) and the bound
+    MuscleSkin. Nothing in a bake changes them."""
+
+    character: object
+    musculature: object
+    skin: object
+
+
+def fitted_key(req: BakeRequest, pick: Callable, character_file: str | None, body, template: str, clip) -> str:
+    """What the FittedRig of a request depends on, hashed: the character file's bytes and how it is read
+    (skin, unit, influences), or for a generated body the clip it is generated around (every array of
+    it) and the body options; the template and joint map (their bytes when files); the skin's deformer,
+    method and Delta Mush steps."""
+    def named(path):
+        return {"file": os.path.abspath(path), "sha256": file_digest(path)} if path and os.path.isfile(path) else path
+    if character_file is not None:
+        character = {"file": named(character_file), "skin": pick("skin", 0), "unit": pick("unit", None)}
+    else:
+        h = hashlib.sha256()
+        for name in ("parents", "offsets", "rest_rotations", "rotations", "translations", "end_parents",
+                     "end_offsets"):
+            a = np.ascontiguousarray(getattr(clip, name))
+            h.update(f"{name}{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+        h.update(json.dumps([list(clip.joint_names), clip.fps, clip.name, clip.source,
+                             jsonable(dict(clip.meta))], sort_keys=True, default=str).encode())
+        character = {"generated": jsonable(body), "clip": h.hexdigest()}
+    return params_key({"jiggle_bake": VERSION, "character": character, "influences": pick("influences", 4),
+                       "template": named(str(template)), "character_map": named(req.character_map),
+                       "skinning": [pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)]})
+
+
 def output_times(duration: float, fps: float, start: float | None, end: float | None,
                  frames: int | None) -> np.ndarray:
     """(T,) seconds of the clip: start..end (default the whole clip) every 1/fps, the first `frames`."""
@@ -169,8 +204,15 @@ def output_times(duration: float, fps: float, start: float | None, end: float | 
     return times if frames is None else times[:frames]
 
 
-def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> BakeSetup:
-    """Resolve `req` against its scene and do the one-off work (see the module)."""
+def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
+            rigs: MutableMapping | None = None) -> BakeSetup:
+    """Resolve `req` against its scene and do the one-off work (see the module).
+
+    rigs : a cache of the per-character work (the character read or generated, its fitted muscles and
+        bound skin: a FittedRig), by fitted_key; given, a request whose key is in it skips that work
+        (`jiggle batch` keeps one per worker), and a new one is stored in it. The setup, its params and
+        key are the same either way: nothing in that work depends on the clip beyond what the key names.
+    """
     from sim.bake.scene import load_scene
     timings = {}
     t = time.perf_counter()
@@ -196,38 +238,52 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None) -> Ba
     if character_file is not None and req.body:
         raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
                          f"the character {os.path.basename(character_file)} has its own", field="--character")
-    if character_file is not None:
-        from rig.motion.retarget_onto import retarget_onto
+    if character_file is None:
+        body = BodyOptions(**{**(dict(spec.body) if spec is not None else {}), **dict(req.body)})
+    template = req.template or (spec.template if spec is not None else None) or "auto"
+    skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
+    rig_key = cached = None
+    if rigs is not None:
+        rig_key = fitted_key(req, pick, character_file, body, template, clip)
+        cached = rigs.get(rig_key)
+    if cached is not None:
+        character = cached.character
+    elif character_file is not None:
         character = load_character(character_file, k=pick("influences", 4), unit=pick("unit", None),
                                    skin=pick("skin", 0))
+    else:
+        character = body_character(clip, body, k=pick("influences", 4))
+    if character_file is not None:
+        from rig.motion.retarget_onto import retarget_onto
         clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
                              scale=character.meta.get("unit_scale", 1.0))
-        what = os.path.basename(character_file)
-    else:
-        body = BodyOptions(**{**(dict(spec.body) if spec is not None else {}), **dict(req.body)})
-        character = body_character(clip, body, k=pick("influences", 4))
-        what = "generated body"
+    what = os.path.basename(character_file) if character_file is not None else "generated body"
+    reused = "reused, " if cached is not None else ""
     log(f"character: {what}, {character.num_vertices} vertices, {character.num_joints} joints "
-        f"({time.perf_counter() - t:.1f} s)")
+        f"({reused}{time.perf_counter() - t:.1f} s)")
     timings["character_s"] = time.perf_counter() - t
 
     from rig.muscle.fit import FitOptions, fit_musculature
     from rig.skin.muscle_skin import MuscleSkin
     from sim.jiggle.params import default_jiggles
     t = time.perf_counter()
-    template = req.template or (spec.template if spec is not None else None) or "auto"
-    mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
+    if cached is not None:
+        mus, skin = cached.musculature, cached.skin
+    else:
+        mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
     if template == "auto":
         template = mus.template.name
     log(f"body plan: {mus.plan.kind} ({mus.plan.reason})")
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
-    skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
-    skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file,
-                                       mush=mush)
+    if cached is None:
+        skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file,
+                                           mush=mush)
+        if rigs is not None:
+            rigs[rig_key] = FittedRig(character, mus, skin)
     log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
-        f"pairs ({time.perf_counter() - t:.1f} s)")
+        f"pairs ({reused}{time.perf_counter() - t:.1f} s)")
     timings["fit_s"] = time.perf_counter() - t
 
     fps = float(req.fps or (scene.fps if scene is not None else None) or BAKE_FPS)
