@@ -493,9 +493,9 @@ QUALITY = (("final folds", "final_folded_edges"), ("folds / LBS", "folds_added_o
 """compare's skin quality targets (sim.app.skin_quality.check_targets), one column each."""
 
 SORT_JS = """
-document.querySelectorAll('th[data-k]').forEach(function (th, col) {
+document.querySelectorAll('th[data-k]').forEach(function (th) {
   th.addEventListener('click', function () {
-    var tb = th.closest('table').tBodies[0], rows = Array.from(tb.rows), up = th.dataset.dir !== 'up';
+    var col = th.cellIndex, tb = th.closest('table').tBodies[0], rows = Array.from(tb.rows), up = th.dataset.dir !== 'up';
     th.dataset.dir = up ? 'up' : 'down';
     var key = function (r) { var c = r.cells[col], v = c.dataset.v;
       return th.dataset.k === 'n' ? (v === '' ? -Infinity : parseFloat(v)) : c.textContent.toLowerCase(); };
@@ -574,7 +574,7 @@ def render_index(doc: dict) -> str:
     ths = "".join(f'<th data-k="{k}">{e(label)}</th>' if k else f"<th>{e(label)}</th>" for label, k in head)
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>jiggle batch</title>"
             f"<style>{CSS} body {{ max-width: none; margin: 2em; }} th[data-k] {{ cursor: pointer; }} "
-            "img.thumb { max-width: 220px; }</style></head>\n<body>\n"
+            "th, td { overflow-wrap: normal; } td .note { overflow-wrap: anywhere; } img.thumb { max-width: 220px; }</style></head>\n<body>\n"
             f"<h1>jiggle batch</h1><p class=\"note\">{e(doc['out'])}: {t['jobs']} jobs, {t['ok']} ok, {t['failed']} "
             f"failed, {t['pending']} not finished; {t['frames']} frames. Click a column's header to sort.</p>\n"
             f"<table><thead><tr>{ths}</tr></thead><tbody>\n" + "\n".join(rows) + "\n</tbody></table>\n"
