@@ -236,6 +236,8 @@ class MuscleRig:
     hinge_along : (M, 2) component along u of the rest hinge -> belly-end directions (1, -1 by default).
     rest_chord : (M,) metres, |ends[1] - ends[0]|.
     station_basis, station_slope : (M, 5, 5) curve weights (and d/du) at each section's parameter.
+    pose_shapes : None, or rig.muscle.pose_shapes.SectionShapes: sections scaled by joint bends, applied
+        after the volume rule (attach them with dataclasses.replace; rest_cvs stays the fitted shape).
     """
 
     CVS_PER_MUSCLE: ClassVar[int] = loft.SECTIONS * loft.RING
@@ -263,6 +265,7 @@ class MuscleRig:
     rest_chord: np.ndarray
     station_basis: np.ndarray
     station_slope: np.ndarray
+    pose_shapes: object = None
 
     def __post_init__(self):
         # the per-frame path works on components-first, muscles-last arrays (x, ..., T, M): every
@@ -311,6 +314,8 @@ class MuscleRig:
                 cvs = np.concatenate([c for c, _ in parts]) if parts else np.zeros((0, self.M, 5, 8, 3))
                 curve = np.concatenate([q for _, q in parts]) if parts else np.zeros((0, self.M, 5, 3))
         cvs = cvs.reshape(len(world), self.M * self.CVS_PER_MUSCLE, 3)
+        if self.pose_shapes is not None:
+            cvs = self.pose_shapes.apply(cvs, curve, world, self.cv_offsets)
         return StaticShape(cvs[0], curve[0]) if single else StaticShape(cvs, curve)
 
     def _static(self, world: np.ndarray, rule: str):

@@ -133,3 +133,144 @@ def fit_pose_shapes(character, poses: list[SculptedPose], template="human", opti
         local.append(np.einsum("mij,mcj->mci", inv_r, cvs - W[:, None, :3, 3]))
     return PoseShapes(names=tuple(names), bones=bones, angles=np.stack([p.angles for p in poses]),
                       local=np.stack(local))
+
+
+# ---------------------------------------------------------------------------------- scaled sections
+SECTIONS = 5
+MAX_SCALE = 10.0
+"""Largest section scale a pose shape may key (and 1 / MAX_SCALE the smallest)."""
+
+
+@dataclass(frozen=True)
+class SectionShape:
+    """One muscle's sections scaled by keys on one joint's bend, as an artist shapes a muscle by pose
+    ("the biceps bulges 25% at 90 degrees of elbow flexion") without sculpting a mesh.
+
+    muscle : the muscle's name. joint : the joint whose bend drives it (a name of the character's joints).
+    angles : (K,) degrees of that joint's rotation away from its rest pose, increasing, K >= 1.
+    scales : (K, 5) factors on the size of each section (origin rim, bulge, middle, bulge, insertion rim)
+    about its centre on the action curve at each key; linear between keys, held beyond the first and last.
+    path, line : where the shape was given (a scene file and the line of its table), for errors.
+    """
+
+    muscle: str
+    joint: str
+    angles: tuple
+    scales: tuple
+    path: str | None = None
+    line: int | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class SectionShapes:
+    """Section shapes bound to a rig and a skeleton, applied by MuscleRig.static after the volume rule
+    (a pose shape is the artist's word: it changes the volume on purpose).
+
+    muscles : (P,) int64 each shape's muscle (an index of the rig). joints, parents : (P,) int64 the
+    driving joint and its parent (-1: the root, whose rotation is measured in the world).
+    rest : (P, 3, 3) the driving joint's rest rotation relative to its parent.
+    angles : (P, K) degrees, keys padded by repeating the last; scales : (P, K, 5).
+    station_basis : (P, 5, 5) the muscle's action-curve weights at its sections (section centres).
+    """
+
+    shapes: tuple
+    muscles: np.ndarray
+    joints: np.ndarray
+    parents: np.ndarray
+    rest: np.ndarray
+    angles: np.ndarray
+    scales: np.ndarray
+    station_basis: np.ndarray
+
+    def __post_init__(self):
+        for k in ("muscles", "joints", "parents"):
+            object.__setattr__(self, k, frozen_array(getattr(self, k), np.int64))
+        for k in ("rest", "angles", "scales", "station_basis"):
+            object.__setattr__(self, k, frozen_array(getattr(self, k)))
+
+    def bend(self, world: np.ndarray) -> np.ndarray:
+        """(T, P) degrees: each shape's joint rotated away from its rest pose, for rigid joint world
+        transforms (T, J, 4, 4)."""
+        R = np.asarray(world, float)[:, :, :3, :3]
+        Rj = R[:, self.joints]                                                   # (T, P, 3, 3)
+        Rp = np.where((self.parents >= 0)[None, :, None, None], R[:, np.maximum(self.parents, 0)], np.eye(3))
+        local = np.einsum("tpji,tpjk->tpik", Rp, Rj)                            # parent^T joint
+        delta = np.einsum("pji,tpjk->tpik", self.rest, local)                   # rest^T local
+        cos = (np.trace(delta, axis1=2, axis2=3) - 1.0) / 2.0
+        return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+    def factors(self, world: np.ndarray) -> np.ndarray:
+        """(T, P, 5) section scales at the joints' bends (linear between keys, held beyond them)."""
+        a = self.bend(world)                                                     # (T, P)
+        out = np.empty(a.shape + (SECTIONS,))
+        for p in range(len(self.muscles)):                  # a few shapes per rig; every frame at once
+            for s in range(SECTIONS):
+                out[:, p, s] = np.interp(a[:, p], self.angles[p], self.scales[p, :, s])
+        return out
+
+    def apply(self, cvs: np.ndarray, curve: np.ndarray, world: np.ndarray, cv_offsets: np.ndarray) -> np.ndarray:
+        """cvs (T, N, 3) with each shaped muscle's sections scaled about their centres (a copy).
+        curve : (T, M, 5, 3) the action-curve CVs of the same frames; world : (T, J, 4, 4)."""
+        f = self.factors(world)
+        out = np.array(cvs, dtype=np.float64)
+        T = len(out)
+        for p, m in enumerate(self.muscles):
+            a, b = cv_offsets[m], cv_offsets[m + 1]
+            centre = np.einsum("kj,tjx->tkx", self.station_basis[p], curve[:, m])      # (T, 5, 3)
+            x = out[:, a:b].reshape(T, SECTIONS, -1, 3)
+            out[:, a:b] = (centre[:, :, None] + f[:, p, :, None, None] * (x - centre[:, :, None])).reshape(T, -1, 3)
+        return out
+
+
+def bind_section_shapes(shapes, rig, joint_names, parents, bind_world) -> SectionShapes | None:
+    """SectionShapes of `shapes` (SectionShape, ...) on `rig` (rig.muscle.model.MuscleRig) and the
+    character's skeleton (joint_names (J,), parents (J,), rigid bind_world (J, 4, 4)); None when there
+    are none. A shape's muscle may be a glob ("biceps_*", "*_fat"): one shape per muscle it matches.
+    InputError naming the shape's file and line for an unknown muscle or joint, an empty glob, keys out of order
+    or scales outside [1 / MAX_SCALE, MAX_SCALE]."""
+    from fnmatch import fnmatchcase
+    if not shapes:
+        return None
+    names = list(rig.names)
+    joints = list(joint_names)
+    bound, rows = [], []
+    for sh in shapes:
+        at = (sh.path, sh.line)
+        hits = [i for i, n in enumerate(names) if fnmatchcase(n, sh.muscle)]
+        if not hits:
+            close = _close(sh.muscle, names)
+            raise InputError(f"pose shape for {sh.muscle!r}: no such muscle{close}", *at, field="pose_shapes.muscle")
+        if sh.joint not in joints:
+            raise InputError(f"pose shape for {sh.muscle!r}: no joint {sh.joint!r} in the character"
+                             f"{_close(sh.joint, joints)}", *at, field="pose_shapes.joint")
+        ang = np.asarray(sh.angles, float).reshape(-1)
+        sc = np.asarray(sh.scales, float)
+        if len(ang) < 1 or not np.isfinite(ang).all() or np.any(np.diff(ang) <= 0) or ang.min() < 0 or ang.max() > 180:
+            raise InputError(f"pose shape for {sh.muscle!r}: angles must increase within [0, 180] degrees, "
+                             f"got {ang.tolist()}", *at, field="pose_shapes.angles")
+        if sc.ndim == 1 and len(sc) == len(ang):
+            sc = np.repeat(sc[:, None], SECTIONS, axis=1)            # one factor for all five sections
+        if sc.shape != (len(ang), SECTIONS):
+            raise InputError(f"pose shape for {sh.muscle!r}: scales must give one number or {SECTIONS} numbers "
+                             f"per angle ({len(ang)} angles), got shape {sc.shape}", *at, field="pose_shapes.scales")
+        if not (np.isfinite(sc).all() and sc.min() >= 1.0 / MAX_SCALE and sc.max() <= MAX_SCALE):
+            raise InputError(f"pose shape for {sh.muscle!r}: scales must be in [{1 / MAX_SCALE:g}, {MAX_SCALE:g}]"
+                             f", got {sc.tolist()}", *at, field="pose_shapes.scales")
+        j = joints.index(sh.joint)
+        for m in hits:
+            bound.append(replace(sh, muscle=names[m]))
+            rows.append((m, j, int(parents[j]), ang, sc))
+    K = max(len(r[3]) for r in rows)
+    pad = lambda a: np.concatenate([a, np.repeat(a[-1:], K - len(a), axis=0)])  # noqa: E731
+    W = np.asarray(bind_world, float)[:, :3, :3]
+    rest = np.stack([W[p].T @ W[j] if p >= 0 else W[j] for _, j, p, _, _ in rows])
+    return SectionShapes(tuple(bound), np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
+                         np.array([r[2] for r in rows]), rest, np.stack([pad(r[3]) for r in rows]),
+                         np.stack([pad(r[4]) for r in rows]), np.stack([rig.station_basis[r[0]] for r in rows]))
+
+
+def _close(name: str, names: list[str]) -> str:
+    import difflib
+    near = difflib.get_close_matches(name, names, n=3)
+    return f" (did you mean {', '.join(map(repr, near))}?)" if near else f" ({len(names)} known, e.g. " + \
+        ", ".join(map(repr, names[:4])) + ")"

@@ -201,3 +201,83 @@ def test_bad_input_is_refused(arm, elbow):
             elbow.local_cvs(q)
         with pytest.raises(InputError):
             elbow.cvs(W, q)
+
+
+# ---------------------------------------------------------------------------------- scaled sections
+def bent(arm, deg: float) -> np.ndarray:
+    """(J, 4, 4) the arm's bind pose with the elbow (and the wrist it carries) flexed by `deg` about z."""
+    W = arm.bind_world.copy()
+    R = np.eye(4)
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    R[:2, :2] = [[c, -s], [s, c]]
+    G = np.eye(4)
+    G[:3, 3] = JOINTS[1]
+    G = G @ R
+    G[:3, 3] -= G[:3, :3] @ JOINTS[1]
+    W[1:] = G @ W[1:]
+    return W
+
+
+def section_radii(rig, shape, m: int) -> np.ndarray:
+    """(T, 5) mean distance (m) of muscle m's section CVs from their centres on the action curve."""
+    from rig.muscle.pose_shapes import SECTIONS
+    cvs = shape.cvs if shape.cvs.ndim == 3 else shape.cvs[None]
+    curve = shape.curve if shape.curve.ndim == 4 else shape.curve[None]
+    a, b = rig.cv_offsets[m], rig.cv_offsets[m + 1]
+    centre = np.einsum("kj,tjx->tkx", rig.station_basis[m], curve[:, m])
+    x = cvs[:, a:b].reshape(len(cvs), SECTIONS, -1, 3)
+    return np.linalg.norm(x - centre[:, :, None], axis=-1).mean(axis=-1)
+
+
+@pytest.fixture(scope="module")
+def arm_rig(arm):
+    return fit_musculature(arm, TEMPLATE, roles=ROLES, front=FRONT).rig
+
+
+def test_scaled_sections_take_their_keyed_size_at_the_keyed_bend(arm, arm_rig):
+    """The biceps keyed 1 at 0 degrees and (1, 1.2, 1.4, 1.2, 1) at 90 degrees of elbow flexion: bent 90
+    degrees its sections are those factors times the unshaped ones (about the same centres), bent 45
+    degrees halfway, bent 120 held at the 90-degree key; the triceps and the bind pose are untouched."""
+    from dataclasses import replace
+
+    from rig.muscle.pose_shapes import SectionShape, bind_section_shapes
+    keyed = [1.0, 1.2, 1.4, 1.2, 1.0]
+    shapes = bind_section_shapes([SectionShape("left_bic*", "elbow", (0.0, 90.0), ((1.0,) * 5, tuple(keyed)))],
+                                 arm_rig, arm.joint_names, arm.parents, arm.bind_world)
+    shaped = replace(arm_rig, pose_shapes=shapes)
+    world = np.stack([bent(arm, d) for d in (0.0, 45.0, 90.0, 120.0)])
+    np.testing.assert_allclose(shapes.bend(world)[:, 0], [0.0, 45.0, 90.0, 120.0], atol=1e-9)
+    for device in ("cpu", None):
+        plain, new = arm_rig.static(world, device=device), shaped.static(world, device=device)
+        ratio = section_radii(shaped, new, 0) / section_radii(arm_rig, plain, 0)
+        np.testing.assert_allclose(ratio[0], 1.0, atol=1e-12)
+        np.testing.assert_allclose(ratio[1], 1.0 + 0.5 * (np.array(keyed) - 1.0), atol=1e-12)
+        np.testing.assert_allclose(ratio[2], keyed, atol=1e-12)
+        np.testing.assert_allclose(ratio[3], keyed, atol=1e-12)
+        np.testing.assert_array_equal(new.curve, plain.curve)                 # the action curve is not shaped
+        tri = slice(arm_rig.cv_offsets[1], arm_rig.cv_offsets[2])
+        np.testing.assert_array_equal(new.cvs[:, tri], plain.cvs[:, tri])
+        np.testing.assert_array_equal(new.cvs[0], plain.cvs[0])
+    # one frame (J, 4, 4) as well as a batch
+    np.testing.assert_allclose(shaped.static(world[2]).cvs, shaped.static(world).cvs[2], atol=1e-12)
+    assert volumes(shaped.static(world[2]).cvs[None, :40][:, None])[0, 0] > \
+        1.3 * volumes(arm_rig.static(world[2]).cvs[None, :40][:, None])[0, 0]
+
+
+@pytest.mark.parametrize("shape, match", [
+    (dict(muscle="quads*"), "no such muscle"),
+    (dict(muscle="left_bicep"), "did you mean 'left_biceps'"),
+    (dict(joint="knee"), "no joint 'knee'"),
+    (dict(angles=(90.0, 0.0)), "angles must increase"),
+    (dict(angles=(0.0, 200.0)), "angles must increase"),
+    (dict(scales=((1.0, 1.0), (1.0, 1.0))), "one number or 5 numbers"),
+    (dict(scales=(1.0, 0.0)), r"scales must be in \[0.1, 10\]"),
+    (dict(scales=(1.0, float("nan"))), "scales must be in"),
+])
+def test_bad_section_shapes_name_where_they_were_given(arm, arm_rig, shape, match):
+    from rig.muscle.pose_shapes import SectionShape, bind_section_shapes
+    given = dict(muscle="left_biceps", joint="elbow", angles=(0.0, 90.0), scales=(1.0, 1.3), path="s.toml", line=7)
+    with pytest.raises(InputError, match=match) as e:
+        bind_section_shapes([SectionShape(**{**given, **shape})], arm_rig, arm.joint_names, arm.parents,
+                            arm.bind_world)
+    assert str(e.value).startswith("s.toml:7: pose_shapes.")
