@@ -85,7 +85,8 @@ def find_cuts(times: np.ndarray, pos: np.ndarray, ratio: float = 8.0, jump: floa
     exceeds `jump` metres and `ratio` times the largest move of each neighbouring interval."""
     if len(times) < 2:
         return np.zeros(0, bool)
-    d = np.linalg.norm(np.diff(pos, axis=0), axis=2).max(axis=1)          # (S - 1,)
+    step = np.diff(pos, axis=0)
+    d = np.sqrt(np.einsum("snk,snk->sn", step, step).max(axis=1))          # (S - 1,)
     cut = np.zeros(len(d), bool)
     # the first and last intervals have one neighbour: a reversal of the motion there looks like a
     # jump, and a cut there would change nothing visible, so only inner intervals qualify
@@ -101,14 +102,22 @@ def knot_velocities(times: np.ndarray, pos: np.ndarray, cut: np.ndarray) -> tupl
     track and of each piece between cuts); cut intervals move linearly."""
     S = len(times)
     h = np.diff(times)[:, None, None]                                      # (S - 1, 1, 1)
-    slope = np.diff(pos, axis=0) / h                                       # (S - 1, N, 3)
+    slope = np.diff(pos, axis=0)
+    slope /= h                                                             # (S - 1, N, 3)
     vel = np.empty_like(pos)
     # a knot's left (right) interval exists and is not a cut
     has_l = np.concatenate([[False], ~cut])
     has_r = np.concatenate([~cut, [False]])
     both = has_l & has_r
     i = np.flatnonzero(both)
-    if len(i):
+    if len(i) == S - 2:
+        # no cut (the usual track): the same arithmetic on slices, written in place (a chunk's track is
+        # a few MB per array, and every temporary costs as much as the sum)
+        inner = vel[1:-1]
+        np.multiply(h[1:], slope[:-1], out=inner)
+        inner += h[:-1] * slope[1:]
+        inner /= h[:-1] + h[1:]
+    elif len(i):
         h0, h1 = h[i - 1], h[i]
         vel[i] = (h1 * slope[i - 1] + h0 * slope[i]) / (h0 + h1)
     # ends of a piece: the quadratic through the end knot and the next two inward; a = the interval
@@ -121,6 +130,10 @@ def knot_velocities(times: np.ndarray, pos: np.ndarray, cut: np.ndarray) -> tupl
             vel[k] = slope[a]
     alone = ~has_l & ~has_r
     vel[alone] = 0.0
+    if not cut.any():
+        # views of one array (the ends of interval j and the starts of j + 1 are the same knots): no
+        # copies of a chunk's worth of velocities
+        return vel[:-1], vel[1:]
     vs, ve = vel[:-1].copy(), vel[1:].copy()
     vs[cut] = slope[cut]
     ve[cut] = slope[cut]
@@ -143,9 +156,8 @@ def build_track(times, pos, *, cuts=None, ratio: float = 8.0, jump: float = 0.1,
         raise InputError(f"goals must be ({len(times)}, N, 3), got {pos.shape}", field="goals")
     if not np.isfinite(times).all() or np.any(np.diff(times) <= 0):
         raise InputError("knot times must be finite and strictly increasing", field="times")
-    bad = ~np.isfinite(pos).all(axis=2)
-    if bad.any():
-        s, p = np.argwhere(bad)[0]
+    if not np.isfinite(pos).all():
+        s, p = np.argwhere(~np.isfinite(pos).all(axis=2))[0]
         who = f"particle {p}"
         if names is not None and offsets is not None:
             m = int(np.searchsorted(offsets, p, side="right")) - 1
@@ -156,5 +168,6 @@ def build_track(times, pos, *, cuts=None, ratio: float = 8.0, jump: float = 0.1,
     if cut.shape != (len(times) - 1,):
         raise InputError(f"cuts must mark {len(times) - 1} intervals, got {cut.shape}", field="cuts")
     vs, ve = knot_velocities(times, pos, cut)
-    return GoalTrack(frozen_array(times), frozen_array(pos), frozen_array(vs), frozen_array(ve),
-                     frozen_array(cut, bool))
+    vs.setflags(write=False)                    # made here, held by nobody else: frozen without a copy
+    ve.setflags(write=False)
+    return GoalTrack(frozen_array(times), frozen_array(pos), vs, ve, frozen_array(cut, bool))
