@@ -20,6 +20,7 @@ import numpy as np
 
 from rig.base.errors import InputError, JiggleWarning
 from rig.base.frozen import frozen_array
+from rig.character.painted_maps import PaintedMaps
 from rig.motion.clip import Clip, joint_index, local_from_world
 from rig.motion.gltf_io import polar_rotation
 
@@ -48,6 +49,8 @@ class Character:
     skeleton : one-frame Clip of the bind pose, to drive with `sim.drive.skeleton.Skeleton`.
     name, source : a label and the file it came from ("" when generated).
     meta : how it was made: {"weights": "file" | "bone heat", "unit_scale": metres per file unit, ...}.
+    maps : the maps painted on the skin (rig.character.painted_maps.PaintedMaps: where jiggle shows, and
+        each muscle's shell influence), or None.
     """
 
     vertices: np.ndarray
@@ -64,6 +67,7 @@ class Character:
     name: str = ""
     source: str = ""
     meta: dict = field(default_factory=dict)
+    maps: PaintedMaps | None = None
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
@@ -81,6 +85,9 @@ class Character:
         assert self.joints.shape == self.weights.shape == (V, self.joints.shape[1])
         assert self.bind_world.shape == self.bind_matrices.shape == (J, 4, 4) and self.parents.shape == (J,)
         assert self.skeleton.joint_names == self.joint_names
+        if self.maps is not None and self.maps.num_vertices not in (None, V):
+            raise InputError(f"the painted maps have {self.maps.num_vertices} vertices, the skin {V}",
+                             self.source or None, field="maps")
 
     # ------------------------------------------------------------------ sizes
     @property

@@ -105,8 +105,14 @@ def _influence_sets(attrs) -> list[tuple[int, int]]:
 
 
 def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
-                        unit: str | float | None = None) -> Character:
+                        unit: str | float | None = None, jiggle_attribute: str | None = None) -> Character:
     """Read skin number `skin` of a glTF/GLB file and every mesh it deforms as a Character.
+
+    Painted maps (rig.character.painted_maps) come with it, in ``Character.maps``: the jiggle map from
+    each primitive's `jiggle_attribute` (default ``_JIGGLE``; or a vertex colour's channel, "COLOR_0.r"),
+    influence maps from its ``_SHELL_<MUSCLE>`` attributes; None when no primitive has any.
+    ``meta["primitives"]`` lists ``[mesh, primitive, first vertex, count]`` of every merged primitive,
+    in vertex order (what rig.character.gltf_maps writes the maps back to).
 
     k : influences kept per vertex (top k by weight, renormalised).
     unit : metres per file unit when the file is not in metres as the spec says (see
@@ -124,7 +130,10 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
             tree_of_skin[sj] = t
     node_to_tree = {int(n): t for t, n in enumerate(skel.nodes)}
 
+    from rig.character.painted_maps import assemble, parse_jiggle_attribute, primitive_maps
+    jiggle_attribute = parse_jiggle_attribute(jiggle_attribute)
     pos, nrm, uv, faces, jnt, wgt, parts = [], [], [], [], [], [], []
+    prims, maps = [], []
     has_normals, has_uvs, offset = True, True, 0
     skipped = []
     used_meshes = set()
@@ -175,6 +184,8 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
             faces.append(triangles(mode, idx) + offset)
             several = len(g.meshes[nd.mesh].primitives) > 1
             parts.append([doc.node_names[ni] + (f".{pi}" if several else ""), int(offset), int(nv)])
+            prims.append([int(nd.mesh), int(pi), int(offset), int(nv)])
+            maps.append((int(offset), int(nv), primitive_maps(doc, a, nv, what, jiggle_attribute)))
             if rigid_joint is not None:
                 jnt.append(np.full((nv, 1), rigid_joint))
                 wgt.append(np.ones((nv, 1)))
@@ -239,7 +250,9 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
         vertices=vertices, faces=faces, normals=normals, uvs=np.concatenate(uv) if has_uvs and uv else None,
         joint_names=skel.joint_names, parents=skel.parents, bind_world=bind_world, bind_matrices=bind_m,
         joints=joints, weights=weights, skeleton=_scaled_clip(skel.to_clip(), s), name=skel.name, source=p,
-        meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin), "parts": parts})
+        meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin), "parts": parts,
+              "primitives": prims},
+        maps=assemble(maps, len(vertices), os.path.basename(p)))
     check_height(character.height, p)
     return character
 

@@ -70,7 +70,8 @@ _MATERIAL_TEXTURES = ("normalTexture", "occlusionTexture", "emissiveTexture")
 
 
 def write_character(character, path: str | os.PathLike, *, source: str | os.PathLike | None = None,
-                    name: str | None = None, extras: dict | None = None, animations: dict | None = None) -> str:
+                    name: str | None = None, extras: dict | None = None, animations: dict | None = None,
+                    attributes: dict | None = None) -> str:
     """Write `character` (rig.character.character.Character, Z-up metres) as a skinned glTF 2.0 file.
 
     Parameters
@@ -87,6 +88,8 @@ def write_character(character, path: str | os.PathLike, *, source: str | os.Path
     animations : {name: rig.motion.clip.Clip} written as named glTF animations (module docstring);
         each clip must have the character's joint names and parents in the same order (InputError
         naming the animation otherwise).
+    attributes : {name: (V,) float} custom vertex attributes written as SCALAR FLOAT (names starting
+        with "_", as the spec asks: e.g. rig.character.gltf_maps' _JIGGLE and _SHELL_<MUSCLE>).
 
     Returns the path written. InputError for an unknown extension, a missing folder, NaN or infinite
     values (naming the field), or indices out of range.
@@ -114,7 +117,14 @@ def write_character(character, path: str | os.PathLike, *, source: str | os.Path
             raise InputError(f"extras must be JSON-serialisable with finite numbers ({e})", p, field="extras") \
                 from None
     anims = {str(k): _animation_arrays(character, clip, p, str(k)) for k, clip in (animations or {}).items()}
-    doc, blob = _document(character, arrays, material, name, extras, anims)
+    extra_attrs = {}
+    for k, v in (attributes or {}).items():
+        v = np.asarray(v, np.float32).reshape(-1)
+        if not str(k).startswith("_") or len(v) != character.num_vertices:
+            raise InputError(f"a custom attribute needs a name starting with '_' and one value per vertex "
+                             f"({character.num_vertices}); got {k!r} with {len(v)}", p, field="attributes")
+        extra_attrs[str(k)] = _finite(v, p, f"attributes.{k}").astype(np.float32)
+    doc, blob = _document(character, arrays, material, name, extras, anims, extra_attrs)
     with atomic_path(p) as tmp:
         if ext == ".glb":
             data = _glb(doc, blob)
@@ -265,7 +275,7 @@ def _animation_arrays(c, clip, path: str, name: str) -> dict:
 
 
 def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
-              animations: dict | None = None) -> tuple[dict, bytes]:
+              animations: dict | None = None, custom: dict | None = None) -> tuple[dict, bytes]:
     buf = _Buffer()
     accessors: list[dict] = []
 
@@ -287,6 +297,8 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
     for n in range(a["joints"].shape[1] // 4):
         attributes[f"JOINTS_{n}"] = accessor(a["joints"][:, 4 * n:4 * n + 4], _UINT16, "VEC4", _ARRAY_BUFFER)
         attributes[f"WEIGHTS_{n}"] = accessor(a["weights"][:, 4 * n:4 * n + 4], _FLOAT, "VEC4", _ARRAY_BUFFER)
+    for k, v in (custom or {}).items():
+        attributes[k] = accessor(v, _FLOAT, "SCALAR", _ARRAY_BUFFER, bounds=True)
     indices = accessor(a["faces"].reshape(-1), _UINT32, "SCALAR", _ELEMENT_ARRAY_BUFFER)
     ibm = accessor(a["ibm"], _FLOAT, "MAT4", None)
 

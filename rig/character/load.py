@@ -31,7 +31,8 @@ from rig.motion.mocap import load_clip
 
 
 def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Clip | None = None,
-                   k: int = 4, unit: str | float | None = None, up: str = "auto", skin: int = 0) -> Character:
+                   k: int = 4, unit: str | float | None = None, up: str = "auto", skin: int = 0,
+                   jiggle_attribute: str | None = None) -> Character:
     """Read a character from a file.
 
     path : a skinned .glb/.gltf (its own skeleton and weights), or an unskinned .glb/.gltf, .obj, .ply
@@ -43,7 +44,25 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
         unless the height says centimetres or millimetres (rig.character.character.resolve_unit).
     up : axis that is up in an OBJ/PLY/STL file, "y", "z" or "auto" (the longer of the y and z
         extents, since a standing body is taller than it is deep); glTF is always Y-up.
+    jiggle_attribute : the glTF vertex attribute the jiggle map is read from (default ``_JIGGLE``, or a
+        vertex colour's channel "COLOR_0.r").
+
+    The painted maps (rig.character.painted_maps: the jiggle map and each muscle's influence map) come
+    with the character in ``Character.maps``: a skinned glTF's own vertex attributes, completed by a
+    sidecar ``<stem>.jiggle_map.npz`` / ``.ply`` beside the file (checked against the vertex count).
     """
+    return with_sidecar_maps(_load_character(path, skeleton=skeleton, k=k, unit=unit, up=up, skin=skin,
+                                             jiggle_attribute=jiggle_attribute), path)
+
+
+def with_sidecar_maps(character: Character, path: str | os.PathLike) -> Character:
+    """`character` (read from `path`) with its own maps completed by the sidecar beside `path`."""
+    from rig.character.painted_maps import read_maps
+    maps = read_maps(path, character.num_vertices, character.maps)
+    return character if maps is character.maps else replace(character, maps=maps)
+
+
+def _load_character(path, *, skeleton, k, unit, up, skin, jiggle_attribute) -> Character:
     p = os.fspath(path)
     ext = os.path.splitext(p)[1].lower()
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 8:
@@ -51,7 +70,7 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
     if ext in (".glb", ".gltf"):
         skinned = gltf_has_skin(p)
         if skinned and skeleton is None:
-            return read_gltf_character(p, skin=skin, k=k, unit=unit)
+            return read_gltf_character(p, skin=skin, k=k, unit=unit, jiggle_attribute=jiggle_attribute)
         if skinned:
             warnings.warn(f"{p}: the file's own skin is ignored: weights are computed from the given skeleton",
                           JiggleWarning, stacklevel=2)

@@ -51,6 +51,7 @@ from rig.muscle.model import MuscleRig
 from rig.muscle.shell_params import MODES, ShellParams, default_shell
 from rig.skin.delta_mush import DeltaMush
 from rig.skin.influence import InfluenceDeformer
+from rig.skin.painted_maps import JiggleMap, painted_pairs
 from rig.skin.shell.deformer import ShellBatch, ShellDeformer
 from rig.skin.shell.frames import MuscleFrames
 from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
@@ -119,6 +120,11 @@ class MuscleSkin:
         self.skinning, self.method, self.device = skinning, method, wp.get_device(device)
         self.jiggle_mask = None
         """(V,) float32 in [0, 1] or None: how much of the jiggle each vertex shows (skin_frames)."""
+        maps = character.maps
+        jm = JiggleMap(maps.jiggle) if maps is not None and maps.jiggle is not None else None
+        self.jiggle_map = None if jm is None or jm.identity else jm
+        """rig.skin.painted_maps.JiggleMap of the character's painted jiggle map (skin_frames: the final
+        skin's jiggle scaled by it, applied last), or None (none, or 1 everywhere)."""
         self.launches = 0
         """Warp launches pose_batch has made so far (skinning, Delta Mush, shells, influence objects, RBF)."""
         self._slots, self._turn = ({}, {}), 0          # pose_batch(reuse=True)'s kept host buffers
@@ -147,17 +153,25 @@ class MuscleSkin:
             return
         offsets, muscle = cull_pairs(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
                                      star=self.table.star, star_index=self.table.star_index)
+        # painted influence maps add the pairs they paint > 0 and replace the computed fall-off of each
+        # pair they cover (NaN where they keep it)
+        offsets, muscle, influence = painted_pairs(offsets, muscle, self._influence_table())
         vertex = np.repeat(np.arange(V), np.diff(offsets))
         pair_w = painted[vertex, muscle]
         self.pair_offsets, self.pair_muscle = offsets, muscle
         if skinning == "shell":
             # every pull fades out before the culling line (shells.pair_envelope)
-            pair_w = pair_w * pair_envelope(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
-                                            offsets, muscle, star=self.table.star, star_index=self.table.star_index)
-            self.pair_weight = pair_w.astype(np.float32)
+            fall = pair_envelope(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
+                                 offsets, muscle, star=self.table.star, star_index=self.table.star_index)
+            if influence is not None:
+                fall = np.where(np.isnan(influence), fall, influence)
+            self.pair_weight = (pair_w * fall).astype(np.float32)
             self.deformer = ShellDeformer(self.table, offsets, muscle, self.pair_weight, device=device)
         else:
-            self.pair_weight = (pair_w * self._bind_falloff(vertex, muscle)).astype(np.float32)
+            fall = self._bind_falloff(vertex, muscle)
+            if influence is not None:   # the map stands for the fall-off beta, the muscle's weight w stays
+                fall = np.where(np.isnan(influence), fall, self.table.weight[muscle] * influence)
+            self.pair_weight = (pair_w * fall).astype(np.float32)
             binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
             # like the shells' limit: a pair moves its vertex by at most the muscle's drop-off distance
             # (d x its mean rest radius), so no large pull folds the skin where it fades
@@ -169,6 +183,19 @@ class MuscleSkin:
         # the batched deformers hand the spread their paired vertices' displacements: its ring 0
         paired = np.nonzero(np.diff(offsets) > 0)[0]
         assert self.spread.steps == 0 or np.array_equal(self.spread.order[:self.spread.ring_ends[0]], paired)
+
+    def _influence_table(self) -> np.ndarray | None:
+        """(V, M) float32 influence maps of the character in rig order (NaN: not painted), or None;
+        maps naming no muscle of the rig are left out with a JiggleWarning."""
+        maps = self.character.maps
+        if maps is None or not maps.influence:
+            return None
+        names = [n.lower() for n in self.rig.names]
+        extra = [n for n in maps.influence if n not in names]
+        if extra:
+            warnings.warn(f"{maps.source}: influence map(s) of no muscle of the rig ignored: {', '.join(extra[:8])}"
+                          f"{' ...' if len(extra) > 8 else ''}", JiggleWarning, stacklevel=3)
+        return maps.influence_table(self.rig.names)
 
     def _surface(self, reach: float, active) -> SurfaceSmoothing:
         """The skin's surface smoothing over `reach` x its rest size, on the `active` vertices (None: all)."""
@@ -541,7 +568,8 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     frames are consecutive and the skin can; frame by frame otherwise.
     With several sets the first is the static one: where the skin has a `jiggle_mask` or a
     `jiggle_spread` (the RBF skin), every other set's difference from it (its jiggle) is scaled by the
-    mask (zones without muscles show none) and spread over the surface.
+    mask (zones without muscles show none) and spread over the surface; then, where the character has
+    a painted jiggle map (MuscleSkin.jiggle_map), scaled by it per vertex (rig.skin.painted_maps).
     defer : return a function that finishes the skins instead (the surface spread, no device work:
     the bake runs it in a worker thread while the next chunk is simulated; sim/bake/baker.py).
     smooth : also return the smooth skin alone (MuscleSkin.lbs_batch's: LBS / DQS, mushed when the skin
@@ -569,10 +597,13 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     def finish() -> list[np.ndarray]:
         out = list(pending())
         mask, spread = getattr(skin, "jiggle_mask", None), getattr(skin, "jiggle_spread", None)
+        painted = getattr(skin, "jiggle_map", None)
         for s in range(1, n):
             if mask is not None or spread is not None:
                 d = out[s] - out[0]
                 d = d if mask is None else np.asarray(mask, np.float32)[:, None] * d
                 out[s] = out[0] + (d if spread is None else spread(d))
+            if painted is not None:     # last: where the map is 0 the final skin is the static one exactly
+                out[s] = painted.apply(out[0], out[s])
         return out
     return finish if defer else finish()

@@ -123,8 +123,9 @@ def musculature_toml(mus: Musculature) -> str:
 
 
 def write_fit_outputs(mus: Musculature, toml_path: str | None, png_path: str | None,
-                      json_path: str | None = None) -> dict:
-    """Write whichever of muscles TOML, PNG and JSON paths are given (atomically); returns {kind: path}."""
+                      json_path: str | None = None, maps: dict | None = None) -> dict:
+    """Write whichever of muscles TOML, PNG and JSON paths are given (atomically); returns {kind: path}.
+    maps: {panel title: (V,) values in [0, 1]} drawn as extra panels of the PNG (the painted maps)."""
     import json
     out = {}
     if toml_path:
@@ -136,12 +137,13 @@ def write_fit_outputs(mus: Musculature, toml_path: str | None, png_path: str | N
             json.dump(musculature_facts(mus), fh, indent=1)
         out["facts"] = json_path
     if png_path:
-        render_musculature(mus, png_path)
+        render_musculature(mus, png_path, maps=maps)
         out["picture"] = png_path
     return out
 
 
-def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None = None, views=None) -> str:
+def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None = None, views=None,
+                       maps: dict | None = None) -> str:
     """PNG: the segmentation, then the skin (translucent) over coloured muscles and tendons per view.
     An upright body is drawn in a row, from the front, side and back (1800 x 800); a long one (a
     quadruped) in a 2 x 2 grid, the segmentation and the muscles from its side, then from above and
@@ -179,6 +181,10 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None
     views = views or (("side", "top", "right") if long else ("front", "side", "back"))
     size = size or ((1800, 1100) if long else (1800, 800))
     panels = [("segmentation", views[0] if long else "front")] + [(view, view) for view in views]
+    # the painted maps (rig.character.painted_maps), each a panel of the skin coloured 0 (dark) to 1 (bright)
+    panels += [(title, views[0] if long else "front") for title in (maps or {})]
+    if maps and not long:
+        size = (size[0] * len(panels) // (len(panels) - len(maps)), size[1])
     rows, cols = (2, (len(panels) + 1) // 2) if long else (1, len(panels))
     pl = pv.Plotter(off_screen=True, shape=(rows, cols), window_size=list(size), border=False)
     for i, (title, view) in enumerate(panels):
@@ -187,6 +193,11 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None
         if title == "segmentation":
             pl.add_mesh(skin.copy(deep=False), scalars="region", cmap="tab20", clim=(-0.5, 19.5), n_colors=20,
                         show_scalar_bar=False, smooth_shading=True)
+        elif maps and title in maps:
+            painted = skin.copy(deep=False)
+            painted.point_data["map"] = np.asarray(maps[title], np.float32)
+            pl.add_mesh(painted, scalars="map", cmap="viridis", clim=(0.0, 1.0), smooth_shading=True,
+                        show_scalar_bar=False)    # the panel's title says what 0 and 1 look like
         else:
             for mesh, colour in meshes:
                 # a refused muscle is not in the rig: drawn as a wireframe

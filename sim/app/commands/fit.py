@@ -1,6 +1,11 @@
 """`jiggle fit [CHARACTER]`: fit a template's muscles and fat to a character from the outside in and
 write the musculature, its facts and a picture, and print how well each muscle fits (rig.muscle.fit_quality:
 a summary line, then one line per muscle kept with a warning or refused).
+
+It also writes the painted maps' starting point (rig.character.painted_maps): ``<stem>.painted.glb``, a
+copy of the character with a ``_JIGGLE`` and a ``_SHELL_<MUSCLE>`` vertex attribute per muscle to paint
+in Blender (import, paint the attributes, export with "Attributes" on) and read back as the character,
+and ``<stem>.jiggle_map.npz``, the same maps as a sidecar to put beside the original character file.
 """
 from __future__ import annotations
 
@@ -22,7 +27,43 @@ def fit_character(path: str | None, args):
     if os.path.splitext(path)[1].lower() in SKELETON_SUFFIXES:
         return generated_character(load_skeleton(path), args)
     return load_character(path, skeleton=args.skeleton, k=args.influences, unit=args.unit, up=args.up,
-                          skin=args.skin)
+                          skin=args.skin, jiggle_attribute=getattr(args, "jiggle_attribute", None))
+
+
+def starting_maps(mus):
+    """The painted maps a user starts from (rig.character.painted_maps.PaintedMaps, complete): the
+    character's own where it has them, else the jiggle map 1 everywhere (today's skin: a map of ones
+    changes nothing, stays right when the template later reaches further, and the painter only lowers
+    it where jiggle should not show) and each muscle's computed shell region (rig.skin.painted_maps.
+    shell_regions, smooth: 1 within the drop-off shell, fading to 0 at the culling line), so that read
+    back unpainted they give the skin jiggle gives without them."""
+    import numpy as np
+
+    from rig.character.painted_maps import PaintedMaps
+    from rig.skin.painted_maps import shell_regions
+    ch, rig = mus.character, mus.rig
+    own = ch.maps
+    computed = shell_regions(ch, rig, [m.spec.shell for m in mus.muscles])
+    if own is not None:
+        painted = own.influence_table(rig.names)
+        if painted is not None:
+            computed = np.where(np.isnan(painted), computed, painted)
+    jiggle = own.jiggle if own is not None and own.jiggle is not None else np.ones(ch.num_vertices, np.float32)
+    return PaintedMaps(jiggle=jiggle, influence={n: computed[:, m] for m, n in enumerate(rig.names)},
+                       source="jiggle fit")
+
+
+def write_maps(mus, maps, out_dir: str) -> dict:
+    """The starting point to paint: ``<stem>.painted.glb`` (the character's glTF with _JIGGLE and
+    _SHELL_<MUSCLE> attributes, rig.character.gltf_maps) and ``<stem>.jiggle_map.npz`` (the same maps;
+    beside the original character file it is read as its sidecar), in `out_dir`. Returns {kind: path}."""
+    from rig.character.gltf_maps import write_maps_copy
+    from rig.character.painted_maps import SIDECAR, save_maps
+    ch = mus.character
+    stem = os.path.splitext(os.path.basename(ch.source))[0] if ch.source else (ch.name or "body").replace(" ", "_")
+    glb = write_maps_copy(ch, os.path.join(out_dir, f"{stem}.painted.glb"), maps)
+    npz = save_maps(os.path.join(out_dir, f"{stem}{SIDECAR}.npz"), maps, ch.num_vertices)
+    return {"painted": glb, "maps": str(npz)}
 
 
 def run(args) -> int:
@@ -36,7 +77,16 @@ def run(args) -> int:
     mus = fit_musculature(character, args.template or "auto", options)
     png = None if args.no_render else (args.png or os.path.join(os.path.dirname(args.out) or ".", "fit.png"))
     json_path = os.path.splitext(args.out)[0] + ".json"
-    files = write_fit_outputs(mus, args.out, png, json_path)
+    maps = None if args.no_maps else starting_maps(mus)
+    shown = None
+    if maps is not None:
+        import numpy as np
+        reach = np.max(np.stack(list(maps.influence.values())), axis=0) if maps.influence else \
+            np.zeros(character.num_vertices)
+        shown = {"jiggle map (0 dark: none, 1 bright)": maps.jiggle, "shell regions (max over muscles)": reach}
+    files = write_fit_outputs(mus, args.out, png, json_path, maps=shown)
+    if maps is not None:
+        files.update(write_maps(mus, maps, os.path.dirname(args.out) or "."))
     rig = mus.rig
     print(f"body plan: {mus.plan.kind} ({mus.plan.reason})")
     print(f"fitted {len(mus.muscles)} muscles ({sum(m.kind == 'fat' for m in mus.muscles)} fat) from template "
@@ -77,5 +127,9 @@ def add_parser(sub) -> None:
                    help="how muscles keep their volume when they stretch (default: exact)")
     p.add_argument("--skeleton", metavar="FILE", help="the skeleton of a mesh character (clip, ASF, MJCF)")
     mesh_options(p)
+    p.add_argument("--no-maps", action="store_true", help="do not write the painted maps' starting point "
+                   "(<stem>.painted.glb with _JIGGLE and _SHELL_<MUSCLE> vertex attributes, <stem>.jiggle_map.npz)")
+    p.add_argument("--jiggle-attribute", metavar="ATTR", help="the glTF vertex attribute the jiggle map is read "
+                   "from: _JIGGLE (default), another '_NAME', or a vertex colour's channel such as COLOR_0.r")
     character_options(p)
     p.set_defaults(func=run)
