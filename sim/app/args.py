@@ -154,6 +154,7 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
                    "gravity below their static shape (default: the scene's, else off)")
     g.add_argument("--preroll", type=non_negative("--preroll"), metavar="S", help="start at rest at the bind pose S "
                    "seconds early (default: the scene's, else 0: start settled on the first frame)")
+    collision_option(g)
     g = p.add_argument_group("caches")
     g.add_argument("--formats", metavar="LIST", help=f"comma-separated cache formats: {', '.join(FORMATS)} "
                    "(default: the scene's, else npz,usdc)")
@@ -172,6 +173,14 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
     for name in ("belly", "chest", "glutes", "upper-arms"):
         g.add_argument(f"--{name}", type=non_negative(f"--{name}"), metavar="M",
                        help=f"generated body: metres of fat on the {name.replace('-', ' ')}")
+
+
+def collision_option(g) -> None:
+    """--collisions / --no-collisions: the particles collide with other body parts' bone capsules and the floor."""
+    from sim.jiggle.params import JiggleSettings
+    g.add_argument("--collisions", action=argparse.BooleanOptionalAction, default=None,
+                   help="the muscles' particles collide with the bone capsules of other body parts and with the floor "
+                   f"(default: the scene's, else {'on' if JiggleSettings().collisions else 'off'})")
 
 
 def template_option(g) -> None:

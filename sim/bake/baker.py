@@ -49,6 +49,7 @@ from rig.skin.muscle_skin import skin_frames
 from sim.bake.setup import BakeSetup
 from sim.bake.writer import BakeWriter
 from sim.jiggle.blend import blend, blend_weights, needs_simulation
+from sim.jiggle.colliders import collider_model, contact_summary, muscle_contacts, skin_check
 from sim.jiggle.particles import muscle_model
 from sim.jiggle.simulate import TIME_EPS, goals, simulate
 from sim.jiggle.solver import ParticleSolver
@@ -92,9 +93,14 @@ class Baker:
         self.smooth = hasattr(s.skin, "lbs_batch")
         """whether the chunks bring the smooth skin alone (skin_lbs, what compare's skin quality reads against)"""
         self.timings = dict.fromkeys(("drive_s", "static_s", "simulate_s", "skin_s", "write_s"), 0.0)
+        self.colliders = self.skin_check = None
         if needs_simulation(self.blend):          # blend 0 everywhere: the static CVs, no simulation
             self.model = muscle_model(s.rig, list(s.jiggles), s.settings.device, gravity=s.settings.gravity)
             self.solver = ParticleSolver(self.model)
+        if s.settings.collisions:
+            self.colliders = collider_model(s.rig, s.character, capsules=s.capsules, floor=s.floor,
+                                            device=s.settings.device)
+            self.skin_check = skin_check(s.character, self.colliders.capsules)
 
     def chunk(self, c: int, state) -> dict:
         """Arrays of chunk c (see the module), going on from `state` ((x, v) of the particles at the
@@ -115,15 +121,24 @@ class Baker:
         with self._timed("static_s"):
             static = rig.static(world_k, device=s.settings.device)
             st, curve, world = static.cvs[at], static.curve[at], world_k[at]
+        contacts = {}
         with self._timed("simulate_s"):
             new_state = None
             if self.model is None:
                 dyn = st
             else:
                 track = goals(rig, kt, static.cvs, s.settings)
+                colliders = None if self.colliders is None else self.colliders.at(kt, world_k, track.cut)
+                sink = {}
                 dyn, new_state = simulate(self.model, track, times[a:f1], s.settings, solver=self.solver,
-                                          preroll=None if c == 0 else 0.0, start=state if c > 0 else None)
+                                          preroll=None if c == 0 else 0.0, start=state if c > 0 else None,
+                                          colliders=colliders, contacts=sink)
                 dyn = dyn[1:] if c > 0 else dyn
+                if colliders is not None:
+                    per = muscle_contacts(sink["records"][1:] if c > 0 else sink["records"], rig.cv_offsets)
+                    contacts = {"contact_depth": per["depth"].astype(np.float32),
+                                "contact_hit": per["hit"].astype(np.int32),
+                                "contact_impulse": per["impulse"].astype(np.float32)}
             cvs = blend(st, dyn, self.blend[f0:f1])
         with self._timed("skin_s"):
             # reuse: the skins of chunk c live in buffers chunk c + 2 writes again; the bake finishes and writes
@@ -134,6 +149,7 @@ class Baker:
                "cvs_dynamic": cvs.astype(np.float32)}
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
+        out.update(contacts)
 
         def finish() -> dict:
             """The chunk's skins finished (the surface spread) and checked: the arrays to save."""
@@ -149,6 +165,9 @@ class Baker:
             arrays = {k: v for k, v in out.items() if k != "finish"}
             if smooth:
                 arrays["skin_lbs"] = smooth[0]
+            if self.skin_check is not None:             # skin vertices inside another part's capsule, per frame
+                arrays["inside_static"] = self.skin_check.count(world, skin_static, s.settings.device).astype(np.int32)
+                arrays["inside_final"] = self.skin_check.count(world, skin_final, s.settings.device).astype(np.int32)
             return {**arrays, "skin_static": skin_static, "skin_final": skin_final}
         if self.defer:
             out["finish"] = finish
@@ -322,17 +341,6 @@ def _diff(a, b, prefix="") -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------- bake
-def _large_blocks_to_the_system() -> None:
-    """Have glibc's malloc give every block over 128 kB its own mapping, returned to the system when
-    freed. By default the threshold rises with the blocks freed (up to 32 MB), and a chunk's arrays,
-    freed in the worker thread among the small blocks USD keeps, then stay in the heap as holes: the
-    bake's memory grew with the clip (a 1,000-frame bake of the 30k body peaked 25% above a 100-frame
-    one). Nothing happens on a system without glibc."""
-    import ctypes
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)             # M_MMAP_THRESHOLD
-
-
 def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Callable[[int], None] | None = None,
          log: Callable[[str], None] = lambda s: None) -> dict:
     """Bake `setup` into `out_dir` (see the module) and return the summary written to bake.json.
@@ -341,7 +349,6 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         was started with other parameters).
     progress : called with the number of frames each chunk adds (resumed chunks included once).
     """
-    _large_blocks_to_the_system()
     out_dir = os.path.abspath(out_dir)
     partial = os.path.join(out_dir, PARTIAL)
     manifest_path = os.path.join(partial, MANIFEST)
@@ -375,6 +382,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         _write_json(manifest_path, manifest)
     if progress is not None and done:
         progress(chunk_frames(setup, done - 1)[1])
+    contact_parts = _resumed_contacts(out_dir, done) if done else {}
     baker = Baker(setup, defer=True)
     t = time.perf_counter()
     writer = BakeWriter(setup, partial, None if not done else (crcs, chunk_frames(setup, done - 1)[1]),
@@ -393,6 +401,10 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         marker = {"frames": arrays["frames"], "progress": np.array(json.dumps(crcs))}
         if "state_x" in arrays:
             marker["state_x"], marker["state_v"] = arrays["state_x"], arrays["state_v"]
+        for k in CONTACT_KEYS:                  # the contacts and skin checks, for bake.json after a resume
+            if k in arrays:
+                marker[k] = arrays[k]
+                contact_parts[c] = {**contact_parts.get(c, {}), k: arrays[k]}
         _save_chunk(chunk_path(out_dir, c), marker)
         baker.timings["write_s"] += time.perf_counter() - t
         if os.environ.get(PAUSE_ENV):
@@ -425,9 +437,56 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         worker.shutdown(wait=True)
         writer.close()
     summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
+    if baker.colliders is not None:
+        summary["contacts"] = _contacts_json(setup, baker, contact_parts)
     _write_json(os.path.join(out_dir, SUMMARY), summary)
     shutil.rmtree(partial, ignore_errors=True)
     return summary
+
+
+CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final")
+"""Per-frame arrays of a bake with collisions a chunk's marker keeps for bake.json: per muscle the deepest
+contact (m), what it hit, the summed impulse (N s); the skin vertices inside another part's capsule."""
+
+
+def _resumed_contacts(out_dir: str, done: int) -> dict:
+    """{chunk: {key: array}} of CONTACT_KEYS stored with the first `done` chunks."""
+    parts = {}
+    for c in range(done):
+        try:
+            with np.load(chunk_path(out_dir, c), allow_pickle=False) as z:
+                parts[c] = {k: z[k] for k in CONTACT_KEYS if k in z.files}
+        except Exception:  # noqa: BLE001 - a marker read at resume; a damaged one was baked again
+            continue
+    return parts
+
+
+def _contacts_json(setup: BakeSetup, baker: Baker, parts: dict) -> dict:
+    """bake.json's "contacts": the colliders, per frame which muscle hit what and how deep, per pair the
+    totals (sim.jiggle.colliders.contact_summary), and per frame the skin vertices inside another body
+    part's capsule, static and final skin."""
+    cm = baker.colliders
+    order = sorted(parts)
+
+    def cat(k, shape):
+        got = [parts[c][k] for c in order if k in parts[c]]
+        return np.concatenate(got) if got else np.zeros(shape)
+    M, T = setup.rig.M, len(setup.times)
+    out = {"method": "projection with Coulomb friction after every step (sim/jiggle/contact_kernels.py)",
+           "friction": cm.friction, "floor_m": cm.floor, "colliders": list(cm.names),
+           "capsule_radius_mm": [round(1000.0 * float(r), 3) for r in cm.capsules.radius],
+           "pairs_checked": int(len(cm.pair_capsule)), "pairs_touching_at_rest": int(cm.excluded_rest.sum())}
+    depth = cat("contact_depth", (0, M))
+    if len(depth) == T:
+        out.update(contact_summary(depth, cat("contact_hit", (0, M)).astype(np.int64), cat("contact_impulse", (0, M)),
+                                   setup.rig.names, cm.names, setup.times))
+    inside_s, inside_f = cat("inside_static", (0,)), cat("inside_final", (0,))
+    if len(inside_s) == T:
+        out["skin_inside"] = {"static": inside_s.astype(int).tolist(), "final": inside_f.astype(int).tolist(),
+                              "max_static": int(inside_s.max()) if T else 0,
+                              "max_final": int(inside_f.max()) if T else 0,
+                              "frames_final_above_static": int((inside_f > inside_s).sum())}
+    return out
 
 
 def _resume(setup: BakeSetup, out_dir: str, manifest_path: str, log) -> tuple[int, tuple | None, dict | None]:

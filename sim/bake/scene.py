@@ -41,9 +41,16 @@ Layout (paths relative to the scene file)::
     blend = 1.0                   # static_dyn_blend: a number in [0, 1] or keys [[t_s, b], ...]
     cut_ratio = 8.0
     cut_jump = 0.1                # metres
+    collisions = true             # particles collide with other body parts' bone capsules and the floor
     [jiggle.muscles.belly_fat]    # per muscle, keys of sim.jiggle.params.OVERRIDES
     damping = 0.3
     blend = [[0.0, 0.0], [0.5, 1.0]]
+    [[pose_shapes]]               # any number: a muscle's sections scaled by a joint's bend
+    muscle = "left_biceps"        #   a muscle's name or a glob ("*_biceps")
+    joint = "lelbow"              #   the joint whose bend drives it (the character's joint name)
+    angles = [0, 90, 140]         #   degrees the joint is rotated away from its rest pose, increasing
+    scales = [1.0, 1.25, [1, 1.2, 1.45, 1.2, 1]]   # per angle: all five sections, or each (origin
+                                  #   rim, bulge, middle, bulge, insertion rim); linear between angles
 
 A ``${VAR}`` at the start of a path whose value is relative is taken from the current directory, as
 the shell would (``JIGGLE_ASSETS=../shared/assets jiggle simulate scenes/belly_run.toml``); an unset
@@ -68,13 +75,15 @@ from rig.base.tomlfile import read_toml
 from rig.motion.clip import Clip
 from sim.jiggle.params import OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
 
-_JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump")
+_JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump",
+                    "collisions")
 _BODY = ("resolution", "belly", "chest", "glutes", "upper_arms")
 _CHARACTER = {"file", "skin", "unit", "template", "influences", "skinning", "method", "mush", *_BODY}
 _KNOWN = {"name": None, "builtin": None,
           "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
           "character": _CHARACTER, "skeleton": {"drive"}, "output": {"fps", "focus", "formats", "chunk"},
-          "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}}
+          "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}, "pose_shapes": None}
+_POSE_SHAPE_KEYS = ("muscle", "joint", "angles", "scales")
 BUILTINS = ("simple_arm",)
 FORMATS = ("npz", "usdc", "usda", "pc2")
 """Cache formats `jiggle bake` writes (usdc and usda are one USD stage, crate or text)."""
@@ -129,6 +138,8 @@ class Scene:
     character : the [character] table (CharacterSpec). builtin : a scene made in code (BUILTINS).
     formats : `jiggle bake` cache formats ([output] formats), None for the default. chunk : frames
         per bake chunk, None for the default.
+    pose_shapes : the [[pose_shapes]] tables (rig.muscle.pose_shapes.SectionShape), checked against the
+        rig and the character when applied (:meth:`apply_pose_shapes`).
     """
 
     name: str
@@ -143,6 +154,20 @@ class Scene:
     builtin: str | None = None
     formats: tuple[str, ...] | None = None
     chunk: int | None = None
+    pose_shapes: tuple = ()
+
+    def apply_pose_shapes(self, rig, character):
+        """`rig` (rig.muscle.model.MuscleRig) with this scene's pose shapes bound to it and to the
+        character's skeleton (the rig itself when the scene has none); InputError naming the scene's
+        line for an unknown muscle or joint, or bad keys."""
+        from dataclasses import replace
+
+        from rig.muscle.pose_shapes import bind_section_shapes
+        if not self.pose_shapes:
+            return rig
+        shapes = bind_section_shapes(self.pose_shapes, rig, character.joint_names, character.parents,
+                                     character.bind_world)
+        return replace(rig, pose_shapes=shapes)
 
     def apply_jiggle(self, jiggles: Sequence) -> list:
         """`jiggles` (sim.jiggle.params.MuscleJiggle, one per muscle of the rig) with this scene's
@@ -247,10 +272,11 @@ def load_scene(path: str | os.PathLike) -> Scene:
                          field="output.chunk")
     character = _character(doc.get("character", {}), p, here, lines)
     settings, tables = (None, {}) if "jiggle" not in doc else _jiggle_section(doc["jiggle"], p, lines)
+    pose_shapes = _pose_shapes(doc.get("pose_shapes"), p)
     return Scene(name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), path=p, clip=clip,
                  drive=drive, fps=None if fps is None else float(fps), jiggle=settings,
                  muscle_jiggle=MappingProxyType(tables), focus=tuple(focus), character=character,
-                 builtin=builtin, formats=formats, chunk=chunk)
+                 builtin=builtin, formats=formats, chunk=chunk, pose_shapes=pose_shapes)
 
 
 def parse_formats(value, path=None, line=None, where="--formats") -> tuple[str, ...]:
@@ -366,7 +392,7 @@ def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
                 v = BlendCurve.parse(v, where)
             except InputError as e:
                 raise InputError(e.message, p, line, field=where) from None
-        elif k == "gravity":
+        elif k in ("gravity", "collisions"):
             if not isinstance(v, bool):
                 raise InputError(f"expected true or false, found {v!r}", p, line, field=where)
         elif k == "substeps":
@@ -413,6 +439,43 @@ def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
         _override(probe, t, where, p, lines)
         tables[name] = MappingProxyType(t)
     return settings, tables
+
+
+def _pose_shapes(tables, p: str) -> tuple:
+    """The [[pose_shapes]] tables as SectionShape (types checked here, with the line of each table's
+    header; ranges, muscles and joints when they are bound to a rig)."""
+    from rig.muscle.pose_shapes import SectionShape
+    if tables is None:
+        return ()
+    with open(p, encoding="utf-8") as fh:
+        heads = [i for i, s in enumerate(fh.read().splitlines(), 1) if re.match(r"\s*\[\[\s*pose_shapes\s*\]\]", s)]
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise InputError("expected [[pose_shapes]] tables", p, heads[0] if heads else None, field="pose_shapes")
+    out = []
+    for n, t in enumerate(tables):
+        line = heads[n] if n < len(heads) else None
+        where = f"pose_shapes[{n + 1}]"
+        for k in t:
+            if k not in _POSE_SHAPE_KEYS:
+                raise InputError(f"unknown key {k!r}; expected {', '.join(_POSE_SHAPE_KEYS)}", p, line, field=where)
+        missing = [k for k in _POSE_SHAPE_KEYS if k not in t]
+        if missing:
+            raise InputError(f"missing {', '.join(missing)}; a pose shape needs {', '.join(_POSE_SHAPE_KEYS)}", p,
+                             line, field=where)
+        for k in ("muscle", "joint"):
+            if not isinstance(t[k], str) or not t[k]:
+                raise InputError(f"expected a name, found {t[k]!r}", p, line, field=f"{where}.{k}")
+        angles, scales = t["angles"], t["scales"]
+        if not isinstance(angles, list) or not angles or not all(_real(a) for a in angles):
+            raise InputError(f"expected a list of degrees, found {angles!r}", p, line, field=f"{where}.angles")
+        ok = isinstance(scales, list) and len(scales) == len(angles) and all(
+            _real(v) or (isinstance(v, list) and len(v) == 5 and all(_real(x) for x in v)) for v in scales)
+        if not ok:
+            raise InputError(f"expected one scale per angle ({len(angles)}), each a number or 5 numbers (one per "
+                             f"section), found {scales!r}", p, line, field=f"{where}.scales")
+        rows = tuple(tuple(float(x) for x in v) if isinstance(v, list) else (float(v),) * 5 for v in scales)
+        out.append(SectionShape(t["muscle"], t["joint"], tuple(float(a) for a in angles), rows, p, line))
+    return tuple(out)
 
 
 class _Lines:

@@ -9,6 +9,7 @@ caches frame chunk by frame chunk.
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -43,7 +44,7 @@ class BakeRequest:
     character : skinned glTF/GLB (the clip is retargeted onto it), over the scene's [character] file.
     template : muscle template, a built-in name or a .toml/.xml path.
     fps, substeps, blend (static_dyn_blend of every muscle), jiggle (strength J of every muscle),
-    gravity (bool), preroll (seconds): over the scene's [jiggle].
+    gravity (bool), preroll (seconds), collisions (bool): over the scene's [jiggle].
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
@@ -66,6 +67,7 @@ class BakeRequest:
     jiggle: float | None = None
     gravity: bool | None = None
     preroll: float | None = None
+    collisions: bool | None = None
     start: float | None = None
     end: float | None = None
     frames: int | None = None
@@ -95,6 +97,9 @@ class BakeSetup:
     joint_names : the clip's own joint names. formats, chunk : caches to write, frames per chunk.
     params : the full parameter set (JSON-ready); key : its hash, naming this bake.
     timings : seconds spent preparing, by step.
+    floor : metres, world z of the floor the particles collide with (settings.collisions), None: none.
+    capsules : the bone capsules (rig.character.capsules.BoneCapsules) the particles collide with, None:
+        the character's own (built by the baker).
     """
 
     name: str
@@ -112,6 +117,8 @@ class BakeSetup:
     params: dict
     key: str
     timings: dict
+    floor: float | None = None
+    capsules: object = None
 
     @property
     def rig(self):
@@ -282,6 +289,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                                            mush=mush)
         if rigs is not None:
             rigs[rig_key] = FittedRig(character, mus, skin)
+    if scene is not None and scene.pose_shapes:
+        # the fitted skin (maybe a worker's cached one) stays as it is: this bake's copy carries the shapes
+        skin = copy.copy(skin)
+        skin.rig = scene.apply_pose_shapes(mus.rig, character)
+        log(f"pose shapes: {len(skin.rig.pose_shapes.shapes)} muscle(s) shaped by joint bends")
     log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
         f"pairs ({reused}{time.perf_counter() - t:.1f} s)")
     timings["fit_s"] = time.perf_counter() - t
@@ -319,10 +331,28 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "muscles": _muscle_params(mus.rig, jiggles),
         "chunk": _chunk(req, scene),
     }
+    if skin.rig.pose_shapes is not None:
+        params["pose_shapes"] = [{"muscle": sh.muscle, "joint": sh.joint, "angles_deg": list(sh.angles),
+                                  "scales": [list(r) for r in sh.scales]} for sh in skin.rig.pose_shapes.shapes]
+    floor = None
+    if settings.collisions:
+        floor = _floor(character, drive, world_at, knots)
+        params["collisions"] = {"capsules": "bone", "floor_m": round(floor, 6)}
     return BakeSetup(name=scene.name if scene is not None else source.name, skin=skin, jiggles=tuple(jiggles),
                      settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
-                     chunk=params["chunk"], params=params, key=params_key(params), timings=timings)
+                     chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor)
+
+
+def _floor(character, drive: str, world_at, knots: np.ndarray) -> float:
+    """metres: the floor the particles collide with: the physics drive's plane, else the lowest foot at rest
+    lowered where the clip's joints reach below the bind pose's (sim.jiggle.colliders.rest_floor)."""
+    from sim.jiggle.colliders import rest_floor
+    height = getattr(world_at, "floor_height", None)
+    if drive == "physics" and height is not None:
+        return float(height)
+    lowest = min(float(np.min(np.asarray(world_at(knots[a:a + 512]))[..., 2, 3])) for a in range(0, len(knots), 512))
+    return rest_floor(character, lowest)
 
 
 def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
@@ -344,6 +374,7 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
     settings, jiggles = _settings(req, scene, jiggles)
     knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, fps))
     log(f"built-in scene {scene.builtin}: {arm.character.num_vertices} vertices, {arm.rig.M} muscle")
+    floor = _floor(arm.character, "kinematic", arm.world_at, knots) if settings.collisions else None
     params = {
         "jiggle_bake": VERSION, "scene": {"path": scene.path, "sha256": file_digest(scene.path),
                                           "builtin": scene.builtin},
@@ -354,10 +385,12 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
                                                   "mush": mush},
         "settings": jsonable(settings), "muscles": _muscle_params(arm.rig, jiggles), "chunk": _chunk(req, scene),
     }
+    if floor is not None:
+        params["collisions"] = {"capsules": "bone", "floor_m": round(floor, 6)}
     return BakeSetup(name=scene.name, skin=skin, jiggles=tuple(jiggles), settings=settings, times=times, fps=fps,
                      knots=knots, world_at=arm.world_at, joints_at=arm.world_at,
                      joint_names=tuple(arm.character.joint_names), formats=_formats(req, scene),
-                     chunk=params["chunk"], params=params, key=params_key(params), timings={})
+                     chunk=params["chunk"], params=params, key=params_key(params), timings={}, floor=floor)
 
 
 def _picker(req: BakeRequest, spec):
@@ -397,6 +430,7 @@ def _settings(req: BakeRequest, scene, jiggles):
     replaces every muscle's own blend curve too."""
     settings = scene.jiggle if scene is not None and scene.jiggle is not None else JiggleSettings()
     given = {"substeps": req.substeps, "strength": req.jiggle, "gravity": req.gravity, "preroll": req.preroll,
+             "collisions": req.collisions,
              "blend": None if req.blend is None else BlendCurve.constant(req.blend)}
     settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
     if req.blend is not None:
@@ -436,6 +470,7 @@ def _drive(clip, drive: str, knots: np.ndarray, log) -> Callable:
         if np.any(np.abs(knots[k] - ts) > 1e-9):
             raise ValueError("the physics drive was run at the goal knots only")
         return world[k]
+    world_at.floor_height = motion.info.get("floor_height_m")
     return world_at
 
 

@@ -264,6 +264,8 @@ class JiggleSettings:
     cut_ratio, cut_jump : a knot interval is a cut (a teleport) when its largest CV move exceeds
         cut_jump metres and cut_ratio times the largest move in each neighbouring interval; the
         particles are glued through it and restart at their goals.
+    collisions : the particles collide with the bone capsules of other body parts and the floor
+        (sim/jiggle/colliders.py).
     device : Warp device.
     """
 
@@ -275,9 +277,12 @@ class JiggleSettings:
     strength: float | None = None
     cut_ratio: float = 8.0
     cut_jump: float = 0.1
+    collisions: bool = False
     device: str = "cpu"
 
     def __post_init__(self):
+        if not isinstance(self.collisions, (bool, np.bool_)):
+            raise InputError(f"expected true or false, got {self.collisions!r}", field="collisions")
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) or self.substeps < 1:
             raise InputError(f"expected an integer >= 1, got {self.substeps!r}", field="substeps")
         for f, lo, strict in (("goal_rate", 0.0, True), ("preroll", 0.0, False), ("cut_ratio", 1.0, True),

@@ -23,6 +23,7 @@ import numpy as np
 from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
 from sim.jiggle.blend import blend, blend_weights, needs_simulation
+from sim.jiggle.colliders import muscle_contacts
 from sim.jiggle.params import CVS, JiggleSettings, MuscleJiggle
 from sim.jiggle.particles import muscle_model
 from sim.jiggle.simulate import TIME_EPS, goals, merge_times, simulate
@@ -38,6 +39,7 @@ class JiggleResult:
     what the skin deformers get). curve : (T, M, 5, 3) static action curves. blend : (T, M).
     knots : (S,) goal knot times. cuts : (C,) seconds, the starts of cut intervals.
     names : (M,) muscles. cv_offsets : (M + 1,). jiggles : the MuscleJiggle used. settings.
+    contacts : with colliders, {"depth", "hit", "impulse"} (T, M) each (sim.jiggle.colliders.muscle_contacts).
     """
 
     times: np.ndarray
@@ -52,6 +54,7 @@ class JiggleResult:
     cv_offsets: np.ndarray
     jiggles: tuple
     settings: JiggleSettings
+    contacts: dict | None = None
 
     def amplitude(self) -> np.ndarray:
         """(T, M) metres: each muscle's largest CV distance between dynamic and static per frame."""
@@ -75,13 +78,17 @@ def knot_times(out_times: np.ndarray, goal_rate: float) -> np.ndarray:
 
 
 def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndarray], np.ndarray],
-               times: np.ndarray, settings: JiggleSettings = JiggleSettings(), *, cuts=None) -> JiggleResult:
+               times: np.ndarray, settings: JiggleSettings = JiggleSettings(), *, cuts=None,
+               colliders=None) -> JiggleResult:
     """Simulate every muscle of `rig` (rig.muscle.model.MuscleRig) over a motion.
 
     world_at : times (K,) seconds -> joint world transforms (K, J, 4, 4) in the rig's joint order,
         asked from times[0] to a few goal knots past times[-1] (KNOTS_AFTER).
     times : (T,) output times, seconds, increasing (T >= 1).
     cuts : None to detect cuts from the goals, or (S - 1,) bool over the knot intervals.
+    colliders : None, or a sim.jiggle.colliders.ColliderModel of the rig's muscles: the particles collide
+        with its capsules (moving with world_at's joints) and floor; the result's `contacts` then holds
+        the per-frame, per-muscle contacts (sim.jiggle.colliders.muscle_contacts).
     """
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     if len(times) == 0 or not np.isfinite(times).all() or np.any(np.diff(times) <= 0):
@@ -95,13 +102,19 @@ def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndar
     rate = settings.goal_rate or max(DEFAULT_GOAL_RATE, fps)
     knots = knot_times(times, rate)
     out = np.searchsorted(knots, times - TIME_EPS)
-    static = rig.static(np.asarray(world_at(knots), dtype=np.float64))          # rig.muscle: static CVs
+    world = np.asarray(world_at(knots), dtype=np.float64)
+    static = rig.static(world)                                                     # rig.muscle: static CVs
     st = static.cvs[out]
     track = goals(rig, knots, static.cvs, settings, cuts=cuts)                   # sim.jiggle: goals
     weights = blend_weights(jiggles, settings, times)
+    contacts = None
     if needs_simulation(weights):                                                 # sim.jiggle: particles
         model = muscle_model(rig, jiggles, settings.device, gravity=settings.gravity)
-        dyn, _ = simulate(model, track, times, settings)
+        moving = None if colliders is None else colliders.at(knots, world, track.cut)
+        sink = {}
+        dyn, _ = simulate(model, track, times, settings, colliders=moving, contacts=sink)
+        if colliders is not None:
+            contacts = muscle_contacts(sink["records"], rig.cv_offsets)
     else:
         dyn = st.copy()
     cvs = blend(st, dyn, weights)                                                 # sim.jiggle: blend
@@ -109,4 +122,4 @@ def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndar
                         cvs=frozen_array(cvs), curve=frozen_array(static.curve[out]), blend=frozen_array(weights),
                         knots=frozen_array(knots), cuts=frozen_array(knots[:-1][track.cut]),
                         names=tuple(rig.names), cv_offsets=frozen_array(rig.cv_offsets), jiggles=tuple(jiggles),
-                        settings=settings)
+                        settings=settings, contacts=contacts)

@@ -131,7 +131,7 @@ def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: flo
 
 def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps: int = 4,
         preroll: float = 0.0, solver: ParticleSolver | None = None, *, start=None,
-        return_state: bool = False):
+        return_state: bool = False, colliders=None, contacts: dict | None = None):
     """Particle positions (T, N, 3) float64 at out_times (T,) seconds, increasing, inside the track.
 
     substeps : steps per output interval (more where knots or the spring limit need them).
@@ -141,6 +141,10 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         be 0. Going on from the state a run returned, with the same step grid, repeats the steps an
         unbroken run would take, so the chunks of a bake do not depend on where it was interrupted.
     return_state : also return the (x, v) float32 state at out_times[-1]: ``(positions, (x, v))``.
+    colliders : None, or sim.jiggle.colliders.Colliders on the track's knots: the particles collide with
+        its capsules and floor (during a preroll the capsules hold the first knot's pose).
+    contacts : a dict that, with colliders, receives "records": (T, N, 3) float32 contact records per
+        output frame (depth m, impulse N s, hit id; zeros and -1 at the first frame and through cuts).
     """
     out_times = np.asarray(out_times, dtype=np.float64)
     if out_times.ndim != 1 or len(out_times) == 0 or np.any(np.diff(out_times) <= 0):
@@ -165,8 +169,13 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         keep = track.times >= t0 - TIME_EPS
         times = np.concatenate([pre, track.times[keep]])
         pos = np.concatenate([pre_pos, track.pos[keep]])
-        track = build_track(times, pos, cuts=np.concatenate([np.zeros(n, bool), track.cut[keep[:-1]]]))
+        cuts = np.concatenate([np.zeros(n, bool), track.cut[keep[:-1]]])
+        track = build_track(times, pos, cuts=cuts)
         start = np.array([pre[0]])
+        if colliders is not None:
+            ends = colliders.control.track.pos
+            colliders = colliders.model.on_track(times, np.concatenate([np.repeat(ends[:1], n, axis=0), ends[keep]]),
+                                                 cuts)
     control = track.to_device(model.device)
     grid = step_times(np.concatenate([start, out_times]) if preroll > 0 else out_times, track.times, substeps,
                       solver.max_step)
@@ -182,6 +191,12 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     else:
         restart(model, solver, state, control, t0)
     out = np.empty((len(out_times), model.num_particles, 3))
+    records = None
+    if colliders is not None:
+        records = np.zeros((len(out_times), model.num_particles, 3), np.float32)
+        records[..., 2] = -1.0
+        if contacts is not None:
+            contacts["records"] = records
     wanted = np.searchsorted(out_times, grid - TIME_EPS)
     is_out = (wanted < len(out_times)) & (np.abs(out_times[np.minimum(wanted, len(out_times) - 1)] - grid) <= TIME_EPS)
 
@@ -215,9 +230,11 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         e = int(later[0]) if len(later) else len(grid) - 1
         # the cut-free stretch grid[g..e] in one launch, its output frames read back once
         ks = np.flatnonzero(is_out[g + 1:e + 1]) + 1
-        frames = solver.integrate(state, nxt, control, grid[g:e + 1], record=ks)
+        frames = solver.integrate(state, nxt, control, grid[g:e + 1], record=ks, colliders=colliders)
         if len(ks):
             save(wanted[g + ks], frames)
+            if records is not None:
+                records[wanted[g + ks]] = solver.contact_records
         state, nxt = nxt, state
         g = e
     if return_state:
@@ -234,9 +251,11 @@ def goals(rig, knots: np.ndarray, static_cvs: np.ndarray, settings: JiggleSettin
 
 
 def simulate(model: ParticleModel, track: GoalTrack, times: np.ndarray, settings: JiggleSettings, *,
-             solver: ParticleSolver | None = None, preroll: float | None = None, start=None):
+             solver: ParticleSolver | None = None, preroll: float | None = None, start=None, colliders=None,
+             contacts: dict | None = None):
     """Dynamic CVs (T, N, 3) float64 metres at times (T,) seconds, and the (x, v) float32 particle
     state at times[-1]: :func:`run` with the settings' substeps and preroll (`preroll` overrides it;
-    a run going on from `start` has none)."""
+    a run going on from `start` has none). colliders, contacts : as :func:`run`."""
     preroll = settings.preroll if preroll is None else preroll
-    return run(model, track, times, settings.substeps, preroll, solver, start=start, return_state=True)
+    return run(model, track, times, settings.substeps, preroll, solver, start=start, return_state=True,
+               colliders=colliders, contacts=contacts)

@@ -37,6 +37,8 @@ from sim.jiggle.goal_flow import flow_numpy, goal_flow
 from sim.jiggle.goal_track import GoalControl, GoalTrack, hermite
 from sim.jiggle.particles import ParticleModel, ParticleState
 
+NO_FLOOR = -1.0e30
+"""metres: the floor height of colliders without a floor (no float32 position is below it)."""
 STEP_OMEGA = 0.5
 """Largest omega h (and gamma h) of the neighbour springs in one step; stability ends at 2."""
 
@@ -95,6 +97,10 @@ class ParticleSolver:
             edges[name] = a.numpy()
         self._edges = wp.array(edges, dtype=kernels.Edge, device=dev)
         self._recorded: dict[str, tuple] = {}
+        self._contact_scratch: dict = {}
+        self.contact_records = np.zeros((0, model.num_particles, 3), np.float32)
+        """(R, N, 3) float32: the contact records of the recorded steps of the last :meth:`integrate` with
+        colliders."""
         self._tables: dict[tuple, wp.array] = {}
         groups = thread_groups(model)
         self.num_groups = len(groups) - 1
@@ -140,7 +146,7 @@ class ParticleSolver:
         return table, np.array([index[k] for k in keys], dtype=np.int32)[inverse.reshape(-1)]
 
     def integrate(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl,
-                  grid: np.ndarray, record=None) -> np.ndarray | None:
+                  grid: np.ndarray, record=None, colliders=None) -> np.ndarray | None:
         """Advance state_in from grid[0] through the steps between the times grid (K + 1,) into state_out,
         in one launch; returns the positions (R, N, 3) float32 metres after the steps `record` (R,)
         (indices 1..K of grid, increasing), read back once, or None when record is None.
@@ -150,6 +156,13 @@ class ParticleSolver:
         it the merged kick sees the velocity before both halves, a difference of the order of the
         damping error). Equal bit for bit to :meth:`integrate_steps` (one launch per step). The NumPy
         reference is :func:`integrate_numpy`.
+
+        colliders : None, or sim.jiggle.colliders.Colliders on the goal track's knots: the particles then
+            collide with its capsules and floor after every step (sim/jiggle/contact_kernels.py; the
+            NumPy reference is :func:`sim.jiggle.colliders.integrate_contact_numpy`), and
+            :attr:`contact_records` holds each recorded step's (R, N, 3) float32 contact records (depth m,
+            impulse N s, hit id; see sim.jiggle.colliders.muscle_contacts). Where nothing touches, the
+            positions are those of a run without colliders bit for bit.
         """
         m, dev = self.model, self.model.device
         grid = np.asarray(grid, dtype=np.float64)
@@ -173,6 +186,10 @@ class ParticleSolver:
             return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
 
         Y, U = self._y, self._u
+        if colliders is not None:
+            out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
+                                          flow_index, frame, frames, ks, dev_array)
+            return None if record is None else out
         self._run(kernels.integrate_run, self.num_groups, [
             self._params, table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
             control.pos, control.vel_start, control.vel_end,
@@ -182,6 +199,57 @@ class ParticleSolver:
             float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
             self._cubics, frames, state_out.x, state_out.v])
         return None if record is None else frames.numpy()[:len(ks)]
+
+    def _integrate_contact(self, state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
+                           flow_index, frame, frames, ks, dev_array):
+        """:meth:`integrate` with contacts (the integrate_run_contact kernel, the broad phase from
+        sim.jiggle.colliders.Colliders.active)."""
+        from sim.jiggle import contact_kernels as ck
+        m, dev, cm = self.model, self.model.device, colliders.model
+        if colliders.control.track.num_knots != control.track.num_knots or \
+                np.any(colliders.control.track.times != control.track.times):
+            raise InputError("the colliders' track must have the goal track's knots", field="colliders")
+        if len(cm.pair_offsets) != len(m.group_offsets):
+            raise InputError(f"the colliders are for {len(cm.pair_offsets) - 1} muscles, the model has "
+                             f"{len(m.group_offsets) - 1}", field="colliders")
+        key = (id(colliders), id(control.track))
+        if self._contact_scratch.get("key") != key:
+            offsets, ids = colliders.active(m, control.track)
+            A = max(len(ids), 1)
+            scratch = self._contact_scratch.get("fixed")
+            if scratch is None:
+                groups = self._groups.numpy()
+                scratch = (wp.zeros(m.num_particles, dtype=wp.vec3, device=dev),
+                           wp.zeros(len(m.group_offsets) - 1, dtype=wp.int32, device=dev),
+                           wp.array(np.searchsorted(m.group_offsets, groups).astype(np.int32), dtype=wp.int32,
+                                    device=dev),
+                           wp.array(m.group_offsets.astype(np.int32), dtype=wp.int32, device=dev))
+            self._contact_scratch = {
+                "key": key, "hold": (colliders, control.track), "fixed": scratch,
+                "active": (dev_array(offsets, wp.int32), dev_array(ids if len(ids) else np.zeros(1, np.int32), wp.int32)),
+                "ends": [wp.zeros(A, dtype=wp.vec3, device=dev) for _ in range(4)]}
+        sc = self._contact_scratch
+        record, dirty, group_muscles, muscle_offsets = sc["fixed"]
+        act_offsets, act_ids = sc["active"]
+        ea, eb, eva, evb = sc["ends"]
+        none = np.zeros((max(len(ks), 1), m.num_particles, 3), np.float32)
+        none[..., 2] = ck.NO_HIT
+        records = wp.array(none, dtype=wp.vec3, device=dev)
+        cc = colliders.control
+        floor = cm.floor if cm.floor is not None else NO_FLOOR
+        Y, U = self._y, self._u
+        self._run(ck.integrate_run_contact, self.num_groups, [
+            self._params, table, m.wp_adj_offsets, self._edges, self._gravity, self._groups, group_muscles,
+            muscle_offsets, cm.wp_radius, float(floor), float(cm.friction), int(cm.num_capsules),
+            int(len(m.group_offsets) - 1), act_offsets, act_ids,
+            control.pos, control.vel_start, control.vel_end, cc.pos, cc.vel_start, cc.vel_end,
+            dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
+            dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
+            dev_array(h_kick.astype(np.float32), float), dev_array(flow_index, wp.int32), dev_array(frame, wp.int32),
+            float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
+            self._cubics, ea, eb, eva, evb, record, dirty, frames, records, state_out.x, state_out.v])
+        self.contact_records = records.numpy()[:len(ks)]
+        return frames.numpy()[:len(ks)] if len(ks) else np.zeros((0, m.num_particles, 3), np.float32)
 
     def integrate_steps(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl,
                         grid: np.ndarray, on_step=None) -> None:

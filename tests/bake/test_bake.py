@@ -350,8 +350,8 @@ def test_a_nan_skin_stops_the_bake_before_any_cache(capsys, tmp_path, monkeypatc
     from sim.bake import baker as bake_mod
     real = bake_mod.skin_frames
 
-    def poisoned(skin, world, cvs_sets, curve, frames, defer=False, smooth=False):
-        pending = real(skin, world, cvs_sets, curve, frames, defer=True, smooth=smooth)
+    def poisoned(skin, world, cvs_sets, curve, frames, defer=False, smooth=False, reuse=False):
+        pending = real(skin, world, cvs_sets, curve, frames, defer=True, smooth=smooth, reuse=reuse)
 
         def finish():
             out = pending()

@@ -168,8 +168,9 @@ def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
     ("[jiggle]\nblend = 1.5\n", r"j.toml:5: jiggle.blend: blend must be in \[0, 1\]"),
     ("[jiggle]\nblend = [[1.0, 0.0], [0.5, 1.0]]\n", r"jiggle.blend: blend key times must increase"),
     ("[jiggle]\ngravity = 1\n", r"jiggle.gravity: expected true or false"),
+    ("[jiggle]\ncollisions = \"yes\"\n", r"j.toml:5: jiggle.collisions: expected true or false, found 'yes'"),
     ("[jiggle]\npreroll = -1.0\n", r"jiggle.preroll: expected seconds >= 0"),
-    ("[jiggle]\nwobble = 1\n", r"j.toml:5: jiggle.wobble: unknown key; expected one of blend, cut_jump, cut_ratio, "
+    ("[jiggle]\nwobble = 1\n", r"j.toml:5: jiggle.wobble: unknown key; expected one of blend, collisions, cut_jump, cut_ratio, "
                                  r"goal_rate, gravity, muscles, preroll, strength, substeps"),
     ("[jiggle.muscles.belly_fat]\nblend = [[0.0, -0.5]]\n", r"j.toml:5: jiggle.muscles.belly_fat.blend: blend must be in"),
     ("[jiggle.muscles.belly_fat]\ndamping = -0.1\n", r"j.toml:5: jiggle.muscles.belly_fat.damping: damping "

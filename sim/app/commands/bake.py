@@ -24,6 +24,7 @@ def bake_request(args):
         tpose=getattr(args, "tpose", "auto"), character=getattr(args, "character", None),
         template=getattr(args, "template", None), fps=args.fps, substeps=args.substeps, blend=args.blend,
         jiggle=args.jiggle, gravity=getattr(args, "gravity", None), preroll=getattr(args, "preroll", None),
+        collisions=getattr(args, "collisions", None),
         start=args.start, end=args.end, frames=args.frames, drive=args.drive,
         formats=formats, chunk=args.chunk, body=MappingProxyType(body), influences=args.influences,
         skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),

@@ -10,6 +10,7 @@ from rig.base.errors import InputError
 from sim.app.args import (
     character_options,
     clip_options,
+    collision_option,
     count,
     map_options,
     mesh_options,
@@ -40,6 +41,7 @@ class SimulateJob:
     scene: object | None
     skin: Callable
     source: dict
+    character: object = None
 
 
 def simulate_job(args) -> SimulateJob:
@@ -70,7 +72,7 @@ def simulate_job(args) -> SimulateJob:
             duration=FLEX_DURATION, fps=None, scene=None,
             skin=lambda: MuscleSkin(arm.character, arm.rig, skinning=args.skinning, method=args.method, mush=args.mush),
             source={"scene": "simple arm (built in)",
-                    "motion": f"elbow 0 -> {FLEX_PEAK:g} deg in {FLEX_RISE:g} s, hold, back"})
+                    "motion": f"elbow 0 -> {FLEX_PEAK:g} deg in {FLEX_RISE:g} s, hold, back"}, character=arm.character)
     from rig.muscle.fit import FitOptions, fit_musculature
     clip = scene.clip if scene is not None else load_clip(args)
     if args.character is not None:
@@ -83,14 +85,21 @@ def simulate_job(args) -> SimulateJob:
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
+    rig = scene.apply_pose_shapes(mus.rig, character) if scene is not None else mus.rig
+
+    def skin():
+        s = MuscleSkin.from_musculature(mus, skinning=args.skinning, method=args.method, mush=args.mush,
+                                        character_path=args.character)
+        s.rig = rig                         # the scene's pose shapes, when it has any
+        return s
     return SimulateJob(
-        name=scene.name if scene is not None else clip.name, rig=mus.rig, jiggles=jiggles,
+        name=scene.name if scene is not None else clip.name, rig=rig, jiggles=jiggles,
         world_at=lambda t: transforms(*clip.world(*clip.sample(t))), duration=clip.duration,
         fps=scene.fps if scene is not None else None, scene=scene,
-        skin=lambda: MuscleSkin.from_musculature(mus, skinning=args.skinning, method=args.method, mush=args.mush,
-                                                 character_path=args.character),
+        skin=skin,
         source={"scene": scene.path if scene is not None else None, "clip": clip.source or args.clip,
-                "character": args.character or "generated body", "template": mus.template.name})
+                "character": args.character or "generated body", "template": mus.template.name},
+        character=character)
 
 
 def simulate_times(args, duration: float, fps: float):
@@ -103,6 +112,8 @@ def run(args) -> int:
     import time
     from dataclasses import replace
 
+    import numpy as np
+
     from sim.app.jiggle_outputs import top_muscles, write_jiggle_outputs
     from sim.jiggle.params import BlendCurve, JiggleSettings
     from sim.jiggle.secondary import jiggle_rig
@@ -112,7 +123,7 @@ def run(args) -> int:
     settings = scene.jiggle if scene is not None and scene.jiggle is not None else JiggleSettings()
     given = {"substeps": args.substeps, "strength": args.jiggle, "preroll": args.preroll,
              "blend": None if args.blend is None else BlendCurve.constant(args.blend),
-             "gravity": True if args.gravity else None}
+             "gravity": True if args.gravity else None, "collisions": getattr(args, "collisions", None)}
     settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
     jiggles = job.jiggles
     if args.blend is not None:    # --blend is every muscle's, over the scene's own curves
@@ -120,8 +131,15 @@ def run(args) -> int:
     fps = args.fps or job.fps or SIMULATE_FPS
     times = simulate_times(args, job.duration, fps)
     rig = job.rig
+    colliders = None
+    if settings.collisions:
+        from sim.jiggle.colliders import collider_model, rest_floor
+        from sim.jiggle.secondary import DEFAULT_GOAL_RATE
+        ts = np.linspace(times[0], times[-1], max(2, int((times[-1] - times[0]) * DEFAULT_GOAL_RATE) + 1))
+        floor = rest_floor(job.character, float(np.min(np.asarray(job.world_at(ts))[..., 2, 3])))
+        colliders = collider_model(rig, job.character, floor=floor, device=settings.device)
     t0 = time.perf_counter()
-    result = jiggle_rig(rig, jiggles, job.world_at, times, settings)
+    result = jiggle_rig(rig, jiggles, job.world_at, times, settings, colliders=colliders)
     sim_s = time.perf_counter() - t0
     skin = None
     if not args.no_render:
@@ -192,6 +210,7 @@ def add_parser(sub) -> None:
     g.add_argument("--blend", type=unit_interval("--blend"), metavar="B", help="static_dyn_blend in [0, 1] of every "
                    "muscle: 0 static, 1 dynamic (default: the scene's curves, else 1)")
     g.add_argument("--gravity", action="store_true", help="let the muscles sag under gravity below their static shape")
+    collision_option(g)
     g.add_argument("--preroll", type=non_negative("--preroll"), metavar="S", help="start at rest at the bind pose S "
                    "seconds early (default: 0, start settled on the first frame)")
     g = p.add_argument_group("output")

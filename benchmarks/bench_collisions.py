@@ -1,0 +1,186 @@
+"""The cost of collisions, measured in one run: collisions on against off, per frame.
+
+    .venv/bin/python benchmarks/bench_collisions.py [--frames N] [--clip BVH ...]
+
+1. The demo (scenes/default.toml: a generated body, 28 muscles, jumping jacks): the bake's simulate stage
+   (sim.jiggle.simulate over chunks of 64 frames, as sim/bake/baker.py runs it: goal track, colliders on
+   the knots, the particles) per frame, off and on, and the skin check (skin vertices inside another
+   part's capsule, both skins) the bake adds with collisions, per frame.
+2. 40 muscles x 40 particles: fat pads in a column (a torso's worth of soft tissue) swaying and bending
+   at their own phases over 20 capsules near them (each pad checked against every capsule: the broad
+   phase, not a short list, keeps it cheap), 30 fps, 4 substeps: ParticleSolver.integrate per frame, off
+   and on, and how many particle-steps touched.
+3. The skin table: for each clip given (default: the shared CMU clips of tests/conftest.py when present),
+   a bake with collisions on, the most skin vertices inside another part's capsule in any frame, static
+   and final, and the frames where the final skin has more than the static.
+
+Times are the best of several repeats after a warm-up (kernel compiles excluded); ratios on / off are
+of the same run.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import json  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from conftest import ASSETS, CMU_BVH  # noqa: E402
+from timing import best  # noqa: E402
+
+from rig.character.capsules import BoneCapsules  # noqa: E402
+from sim.jiggle.colliders import ColliderModel, collider_model, skin_check  # noqa: E402
+from sim.jiggle.goal_track import build_track  # noqa: E402
+from sim.jiggle.params import MuscleJiggle, section_goals  # noqa: E402
+from sim.jiggle.particles import ParticleBuilder, muscle_model  # noqa: E402
+from sim.jiggle.simulate import goals, simulate, step_times  # noqa: E402
+from sim.jiggle.solver import ParticleSolver  # noqa: E402
+
+
+def demo(frames: int) -> dict:
+    from sim.bake.baker import MARGIN
+    from sim.bake.setup import BakeRequest, prepare
+    from sim.jiggle.simulate import TIME_EPS
+    s = prepare(BakeRequest(frames=frames, collisions=True))
+    rig = s.rig
+    model = muscle_model(rig, list(s.jiggles), "cpu", gravity=s.settings.gravity)
+    cm = collider_model(rig, s.character, floor=s.floor)
+    check = skin_check(s.character, cm.capsules)
+    times = s.times
+    world = np.asarray(s.world_at(s.knots))
+    static = rig.static(world)
+    chunks = []
+    for f0 in range(0, len(times), 64):
+        f1 = min(len(times), f0 + 64)
+        a = max(f0 - 1, 0)
+        ka = max(0, int(np.searchsorted(s.knots, times[a] - TIME_EPS)) - MARGIN)
+        kb = min(len(s.knots), int(np.searchsorted(s.knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
+        chunks.append((a, f1, ka, kb))
+
+    def bake(on: bool):
+        solver = ParticleSolver(model)
+        state = None
+        for c, (a, f1, ka, kb) in enumerate(chunks):
+            track = goals(rig, s.knots[ka:kb], static.cvs[ka:kb], s.settings)
+            col = cm.at(s.knots[ka:kb], world[ka:kb], track.cut) if on else None
+            _, state = simulate(model, track, times[a:f1], s.settings, solver=solver, preroll=None if c == 0 else 0.0,
+                                start=state, colliders=col, contacts={})
+    off_s, _ = best(lambda: bake(False), repeats=3, warmup=True)
+    on_s, _ = best(lambda: bake(True), repeats=3, warmup=True)
+    skin = np.asarray(s.skin.character.vertices, np.float32)[None].repeat(64, axis=0)
+    w64 = np.asarray(s.world_at(times[:64]))
+    skin = skin[:len(w64)]
+    check_s, _ = best(lambda: check.count(w64, skin), repeats=3, warmup=True)
+    T = len(times)
+    return {"frames": T, "muscles": rig.M, "particles": model.num_particles, "capsules": cm.num_capsules,
+            "pairs": len(cm.pair_capsule), "off_ms": 1e3 * off_s / T, "on_ms": 1e3 * on_s / T,
+            "ratio": on_s / off_s, "skin_check_ms": 2e3 * check_s / len(w64)}
+
+
+def grid(muscles: int = 40, capsules: int = 20, seconds: float = 2.0) -> dict:
+    """40 fat pads in a column swaying, 20 capsules beside and between them."""
+    rng = np.random.default_rng(0)
+    a = 2 * np.pi * np.arange(8) / 8
+    ring = np.stack([np.cos(a) * 0.03, np.zeros(8), np.sin(a) * 0.03], axis=1)
+    pad = np.concatenate([ring + [0, y, 0] for y in np.linspace(-0.06, 0.06, 5)])
+    centres = np.stack([np.full(muscles, 0.12), np.tile([-0.1, 0.1], muscles // 2),
+                        np.repeat(np.linspace(0.0, 1.2, muscles // 2), 2)], axis=1)
+    rest = np.concatenate([pad + c for c in centres])
+    # reach 6 cm: two radii, a fat pad's default (sim/jiggle/params.py MAX_OFFSET_RADII)
+    jig = MuscleJiggle(name="pad", frequency_hz=3.0, damping_ratio=0.3, goal=section_goals(0.5, 0.2), density=900.0,
+                       spring_frequency_hz=6.0, spring_damping_ratio=0.3, max_offset=0.06)
+    b = ParticleBuilder()
+    b.add_muscles(rest, np.full(muscles, 3e-4), [replace(jig, name=f"pad{m}") for m in range(muscles)])
+    model = b.finalize("cpu")
+    fps, knot_rate = 30.0, 120.0
+    knots = np.arange(0, seconds + 1e-9, 1 / knot_rate)
+    phase = rng.uniform(0, 2 * np.pi, muscles)
+    # each pad swings forward (x) by up to 6 cm at 2-3 Hz: into the capsules in front of the column
+    amp = 0.06 * np.sin(2 * np.pi * 2.5 * knots[:, None] + phase[None])                 # (S, M)
+    goal = rest[None].repeat(len(knots), 0).reshape(len(knots), muscles, 40, 3)
+    goal[..., 0] += amp[..., None]
+    track = build_track(knots, goal.reshape(len(knots), -1, 3), cuts=np.zeros(len(knots) - 1, bool))
+    # capsules: limbs in front of the column (x = 0.2), reached by the pads' swing, along the column
+    z = np.linspace(0.0, 1.2, capsules)
+    ends = np.stack([np.stack([np.full(capsules, 0.21), np.full(capsules, -0.25), z], 1),
+                     np.stack([np.full(capsules, 0.21), np.full(capsules, 0.25), z], 1)], axis=1)
+    caps = BoneCapsules(joint=np.zeros(capsules), child=np.full(capsules, -1), local=ends, radius=np.full(capsules, 0.03),
+                        names=[f"c{c}" for c in range(capsules)], parents=np.array([-1]))
+    cm = ColliderModel.from_pairs(caps, np.ones((muscles, capsules), bool), floor=-0.05)
+    col = cm.on_track(knots, np.repeat(ends.reshape(1, -1, 3), len(knots), 0))
+    out_times = np.arange(0, seconds - 0.05, 1 / fps)
+    g = step_times(out_times, knots, 4, ParticleSolver(model).max_step)
+    control = track.to_device()
+    record = np.flatnonzero(np.isin(np.round(g, 9), np.round(out_times, 9)))
+    record = record[record > 0]
+    solver = ParticleSolver(model)
+    s_in, s_out = model.state(), model.state()
+    x0 = track.sample(0.0)[0]
+
+    def go(on):
+        s_in.assign(x0, np.zeros_like(x0))
+        return solver.integrate(s_in, s_out, control, g, record=record, colliders=col if on else None)
+    off_s, _ = best(lambda: go(False), repeats=5, warmup=True)
+    on_s, _ = best(lambda: go(True), repeats=5, warmup=True)
+    touched = int((solver.contact_records[..., 2] >= 0).sum())
+    T = len(out_times) - 1
+    return {"muscles": muscles, "particles": model.num_particles, "capsules": capsules, "frames": T,
+            "off_ms": 1e3 * off_s / T, "on_ms": 1e3 * on_s / T, "ratio": on_s / off_s,
+            "touching_particle_frames": touched}
+
+
+def skin_table(clips: list[str], frames: int) -> list[dict]:
+    from sim.app.commands.bake import run_bake
+    from sim.bake.setup import BakeRequest
+    rows = []
+    for clip in clips:
+        with tempfile.TemporaryDirectory() as out:
+            summary = run_bake(BakeRequest(clip=clip, frames=frames, collisions=True, formats=("npz",)), out)
+            si = summary["contacts"]["skin_inside"]
+            c = summary["contacts"]
+            rows.append({"clip": os.path.basename(clip), "frames": summary["frames"], "max_static": si["max_static"],
+                         "max_final": si["max_final"], "frames_final_above_static": si["frames_final_above_static"],
+                         "contact_frames": c.get("frames_in_contact"), "max_penetration_mm": c.get("max_penetration_mm")})
+    return rows
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--frames", type=int, default=300, help="demo frames (default 300)")
+    p.add_argument("--clip", nargs="*", help="clips for the skin table (default: the shared CMU BVH clips)")
+    p.add_argument("--clip-frames", type=int, default=240, help="frames per clip in the skin table")
+    args = p.parse_args()
+    d = demo(args.frames)
+    print(f"demo ({d['frames']} frames, {d['muscles']} muscles, {d['particles']} particles, {d['capsules']} capsules, "
+          f"{d['pairs']} muscle-capsule pairs): simulate off {d['off_ms']:.3f} ms/frame, on {d['on_ms']:.3f} ms/frame, "
+          f"ratio {d['ratio']:.2f}x; skin check (both skins) {d['skin_check_ms']:.3f} ms/frame")
+    g = grid()
+    print(f"40 x 40 ({g['particles']} particles, {g['capsules']} capsules, {g['frames']} frames): integrate off "
+          f"{g['off_ms']:.3f} ms/frame, on {g['on_ms']:.3f} ms/frame, ratio {g['ratio']:.2f}x; "
+          f"{g['touching_particle_frames']} particle-frames in contact")
+    clips = args.clip if args.clip is not None else [str(ASSETS / "mocap" / "cmu_bvh" / f"{c}.bvh") for c in CMU_BVH]
+    clips = [c for c in clips if os.path.isfile(c)]
+    if clips:
+        rows = skin_table(clips, args.clip_frames)
+        print("\n| clip | frames | skin inside, static (max/frame) | final | frames final > static | contact frames "
+              "| max penetration mm |\n|---|---|---|---|---|---|---|")
+        for r in rows:
+            print(f"| {r['clip']} | {r['frames']} | {r['max_static']} | {r['max_final']} | "
+                  f"{r['frames_final_above_static']} | {r['contact_frames']} | {r['max_penetration_mm']} |")
+    print(json.dumps({"demo": d, "grid": g}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

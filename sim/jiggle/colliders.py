@@ -1,0 +1,503 @@
+"""What the particles collide with: bone capsules and the floor, built once; their motion per run.
+
+:class:`ColliderModel` (frozen, built once at bind by :func:`collider_model`): the character's bone
+capsules (rig/character/capsules.py) shrunk inside the muscles over each bone, the floor height, the
+friction, and for every muscle the capsules it collides with, as a CSR list:
+
+- not the bones of its own chain: the joints its attachments ride and every joint on the skeleton's
+  paths between them (a muscle does not collide with the bones it wraps), nor a bone ending at one
+  of those joints (the neighbour it meets at the joint);
+- not a capsule one of its particles already lies in (or within REST_CLEARANCE of) at bind: a
+  constraint violated at rest would push the rest shape about.
+
+Every muscle collides with the floor (a half-space z >= floor).
+
+:class:`Colliders` is a ColliderModel with the capsules' ends as a goal track on a run's knots (the
+same knots as the particles' goals, so a capsule's position inside a step is the same Hermite
+arithmetic as a goal's, and a chunked bake's resumed chunks see the same track). The solver takes it
+in :meth:`sim.jiggle.solver.ParticleSolver.integrate`; the contact is a projection with friction
+(sim/jiggle/contact_kernels.py says how and why).
+
+:class:`SkinCheck` counts skin vertices of one body part (its dominant joint) inside another part's
+capsule per frame: the check that the skin, not only the particles, respects the body.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import warp as wp
+
+from rig.base.errors import InputError
+from rig.base.frozen import frozen_array
+from rig.character.capsules import BoneCapsules, bone_capsules
+from sim.jiggle.goal_track import GoalControl, build_track
+from sim.jiggle.params import CVS
+
+FRICTION = 0.5
+"""Coulomb friction coefficient of a particle sliding on a capsule or the floor (skin on skin, ~0.5)."""
+REST_CLEARANCE = 0.005
+"""metres: a muscle whose particles come this close to a capsule at bind does not collide with it."""
+SHRINK = 0.9
+"""A capsule's radius is at most this fraction of the distance to the nearest CV of its own muscles."""
+NO_FLOOR = -1.0e30
+
+
+@dataclass(frozen=True, eq=False)
+class ColliderModel:
+    """The colliders of a particle model (read-only arrays; `wp_*` their device copies).
+
+    capsules : rig.character.capsules.BoneCapsules (C capsules).
+    floor : metres, world z of the floor plane (None: no floor).
+    friction : Coulomb coefficient >= 0.
+    pair_offsets : (M + 1,) int64; muscle m collides with capsules pair_capsule[pair_offsets[m]:pair_offsets[m + 1]].
+    pair_capsule : (P,) int64.
+    excluded_rest : (M, C) bool, pairs left out because they touch at bind.
+    muscle_names : (M,).
+    """
+
+    capsules: BoneCapsules
+    floor: float | None
+    friction: float
+    pair_offsets: np.ndarray
+    pair_capsule: np.ndarray
+    excluded_rest: np.ndarray
+    muscle_names: tuple
+    device: str
+    wp_radius: wp.array
+    wp_pair_offsets: wp.array
+    wp_pair_capsule: wp.array
+
+    @property
+    def num_capsules(self) -> int:
+        return self.capsules.count
+
+    @property
+    def names(self) -> tuple:
+        """(C + 1,) names of what a particle may hit: the capsules, then "floor"."""
+        return tuple(self.capsules.names) + ("floor",)
+
+    @classmethod
+    def from_pairs(cls, capsules: BoneCapsules, keep: np.ndarray, *, floor: float | None = None,
+                   friction: float = FRICTION, muscle_names=None, device: str = "cpu",
+                   excluded_rest: np.ndarray | None = None) -> "ColliderModel":
+        """A model from capsules and which muscle collides with which: keep (M, C) bool."""
+        if not (isinstance(friction, (int, float)) and math.isfinite(friction) and friction >= 0):
+            raise InputError(f"collision friction must be a number >= 0, got {friction!r}", field="friction")
+        if floor is not None and not math.isfinite(floor):
+            raise InputError(f"the floor height must be a finite number of metres, got {floor!r}", field="floor")
+        keep = np.asarray(keep, bool)
+        if keep.ndim != 2 or keep.shape[1] != capsules.count:
+            raise InputError(f"expected (muscles, {capsules.count}) collision pairs, got {keep.shape}", field="colliders")
+        M = len(keep)
+        offsets = np.concatenate([[0], np.cumsum(keep.sum(axis=1))]).astype(np.int64)
+        pair = np.concatenate([np.flatnonzero(k) for k in keep]).astype(np.int64) if M else np.zeros(0, np.int64)
+
+        def dev(a, dtype):
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
+        return cls(capsules=capsules, floor=None if floor is None else float(floor), friction=float(friction),
+                   pair_offsets=frozen_array(offsets, np.int64), pair_capsule=frozen_array(pair, np.int64),
+                   excluded_rest=frozen_array(np.zeros_like(keep) if excluded_rest is None else excluded_rest, bool),
+                   muscle_names=tuple(muscle_names or (f"group {m}" for m in range(M))), device=str(device),
+                   wp_radius=dev(capsules.radius.astype(np.float32), wp.float32),
+                   wp_pair_offsets=dev(offsets.astype(np.int32), wp.int32),
+                   wp_pair_capsule=dev(pair.astype(np.int32), wp.int32))
+
+    @cached_property
+    def keep(self) -> np.ndarray:
+        """(M, C) bool: which muscle collides with which capsule."""
+        keep = np.zeros((len(self.pair_offsets) - 1, self.num_capsules), bool)
+        for m in range(len(keep)):
+            keep[m, self.pairs(m)] = True
+        return keep
+
+    @cached_property
+    def margin(self) -> np.ndarray:
+        """(M,) metres: the largest radius of each muscle's capsules (how far one push may move a particle)."""
+        return np.array([self.capsules.radius[self.pairs(m)].max() if len(self.pairs(m)) else 0.0
+                         for m in range(len(self.pair_offsets) - 1)])
+
+    def pairs(self, m: int) -> np.ndarray:
+        """Capsules muscle m collides with."""
+        return self.pair_capsule[self.pair_offsets[m]:self.pair_offsets[m + 1]]
+
+    def at(self, knots: np.ndarray, world: np.ndarray, cuts=None) -> "Colliders":
+        """The colliders moving with joint world transforms world (S, J, 4, 4) at knots (S,) seconds;
+        cuts (S - 1,) bool as the particles' goal track has them (None: none)."""
+        knots = np.asarray(knots, dtype=np.float64)
+        ends = self.capsules.ends(np.asarray(world, dtype=np.float64)).reshape(len(knots), -1, 3)
+        return self.on_track(knots, ends, cuts)
+
+    def on_track(self, knots: np.ndarray, ends: np.ndarray, cuts=None) -> "Colliders":
+        """As :meth:`at` from the capsules' ends (S, 2C, 3) metres at knots (S,)."""
+        ends = np.asarray(ends, dtype=np.float64).reshape(len(knots), 2 * self.num_capsules, 3)
+        if self.num_capsules == 0:                 # a track needs points: one still point far away
+            ends = np.full((len(knots), 2, 3), 1.0e6)
+        cut = np.zeros(len(knots) - 1, bool) if cuts is None else np.asarray(cuts, bool)
+        track = build_track(knots, ends, cuts=cut)
+        return Colliders(self, track.to_device(self.device))
+
+
+@dataclass(frozen=True, eq=False)
+class Colliders:
+    """A ColliderModel and its capsules' ends as a goal track on a run's knots (control.track.pos: (S, 2C, 3))."""
+
+    model: ColliderModel
+    control: GoalControl
+
+    def active(self, particles, track) -> tuple[np.ndarray, np.ndarray]:
+        """The broad phase of a run (sim/jiggle/contact_kernels.py): for knot interval j and muscle m, what the
+        muscle may touch there, ids[offsets[j M + m]:offsets[j M + m + 1]] (capsule c, or C for the floor).
+
+        particles : the ParticleModel (its groups are the muscles; reach per particle). track : the particles'
+        GoalTrack, on the same knots as this one. Returns (offsets ((S - 1) M + 1,), ids (A,)) int32.
+        """
+        cm = self.model
+        offs = np.asarray(particles.group_offsets, dtype=np.int64)
+        M, C = len(offs) - 1, cm.num_capsules
+        mlo, mhi = group_boxes(track, offs[:-1])                            # (S - 1, M, 3)
+        reach = np.maximum.reduceat(np.where(particles.glued, 0.0, particles.reach), offs[:-1])
+        grow = (reach + cm.margin + 1e-4)[None, :, None]                    # inf reach: always near
+        mlo, mhi = mlo - grow, mhi + grow
+        near = np.zeros((len(mlo), M, C + 1), bool)
+        if C:
+            starts = np.arange(0, 2 * C, 2)
+            clo, chi = group_boxes(self.control.track, starts)               # (S - 1, C, 3): both ends
+            clo = clo - cm.capsules.radius[None, :, None]
+            chi = chi + cm.capsules.radius[None, :, None]
+            hit = np.broadcast_to(cm.keep[None], near[..., :C].shape).copy()
+            for ax in range(3):                                             # box overlap, axis by axis
+                hit &= clo[:, None, :, ax] <= mhi[:, :, None, ax]
+                hit &= chi[:, None, :, ax] >= mlo[:, :, None, ax]
+            near[..., :C] = hit
+        if cm.floor is not None:
+            near[..., C] = mlo[..., 2] < cm.floor
+        counts = near.sum(axis=2).reshape(-1)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        ids = np.nonzero(near.reshape(-1, C + 1))[1].astype(np.int32)
+        return offsets, ids
+
+
+def group_boxes(track, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (S - 1, G, 3) metres: per knot interval, a box around the goal curves of each group of
+    particles starts[g]:starts[g + 1] (the last to the end): the box of the group's knot positions at
+    both ends, grown per axis by the largest |velocity| x H / 3 of its particles there. Each cubic lies
+    in the hull of its Bezier control points pa, pa + va H / 3, pb - vb H / 3, pb, which that box holds."""
+    H = (np.diff(track.times) / 3.0)[:, None, None]
+    def red(f, a):
+        return (np.minimum if f is np.min else np.maximum).reduceat(a, starts, axis=1)
+    pmin, pmax = red(np.min, track.pos), red(np.max, track.pos)             # (S, G, 3)
+    speed = np.maximum(red(np.max, np.abs(track.vel_start)), red(np.max, np.abs(track.vel_end))) * H
+    return np.minimum(pmin[:-1], pmin[1:]) - speed, np.maximum(pmax[:-1], pmax[1:]) + speed
+
+
+def muscle_chains(rig, parents: np.ndarray) -> list[set]:
+    """Per muscle of `rig` (rig.muscle.model.MuscleRig): the joints it rides (rig.joints) and every joint
+    on the skeleton paths between them (through their deepest common ancestor)."""
+    parents = np.asarray(parents)
+
+    def up(j):
+        path = [int(j)]
+        while parents[path[-1]] >= 0:
+            path.append(int(parents[path[-1]]))
+        return path
+    out = []
+    for joints in np.asarray(rig.joints):
+        paths = [up(j) for j in set(int(j) for j in joints)]
+        common = set(paths[0]).intersection(*map(set, paths[1:]))
+        top = max(common, key=lambda j: len(up(j))) if common else None
+        chain = set()
+        for p in paths:
+            for j in p:
+                chain.add(j)
+                if j == top:
+                    break
+        out.append(chain)
+    return out
+
+
+def collider_model(rig, character, *, capsules: BoneCapsules | None = None, floor: float | None = None,
+                   friction: float = FRICTION, device: str = "cpu") -> ColliderModel:
+    """The colliders of `rig`'s muscles (rig.muscle.model.MuscleRig) on `character` (its bone capsules,
+    unless `capsules` are given, e.g. a MuJoCo model's geoms), with a floor at z = floor metres (None:
+    none). See the module for which muscle collides with what."""
+    if capsules is None:
+        capsules = bone_capsules(character)
+    parents = capsules.parents
+    chains = muscle_chains(rig, parents)
+    C, M = capsules.count, rig.M
+    own = np.array([[capsules.joint[c] in ch or (capsules.child[c] >= 0 and capsules.child[c] in ch)
+                     for c in range(C)] for ch in chains], bool).reshape(M, C)
+    rest = np.asarray(rig.rest_cvs, dtype=np.float64).reshape(M, CVS, 3)
+    bind = np.asarray(character.bind_world, dtype=np.float64)
+    if C:
+        owner = np.repeat(own, CVS, axis=0)                                 # (40 M, C): CVs over their own bones
+        capsules = capsules.shrunk_inside(bind, rest.reshape(-1, 3), owner, SHRINK)
+    ends = capsules.ends(bind)
+    touch = np.zeros((M, C), bool)
+    for c in range(C):
+        a, b = ends[c]
+        ab = b - a
+        L2 = float(ab @ ab)
+        t = np.clip((rest - a) @ ab / L2, 0, 1) if L2 > 0 else np.zeros(rest.shape[:2])
+        d = np.linalg.norm(rest - (a + t[..., None] * ab), axis=2)
+        touch[:, c] = (d < capsules.radius[c] + REST_CLEARANCE).any(axis=1)
+    return ColliderModel.from_pairs(capsules, ~own & ~touch, floor=floor, friction=friction,
+                                    muscle_names=rig.names, device=device, excluded_rest=touch & ~own)
+
+
+def rest_floor(character, lowest_joint: float | None = None) -> float:
+    """metres: the kinematic drive's floor, the lowest skin vertex at rest (the feet), lowered by as much as
+    the motion's lowest joint (lowest_joint, metres) goes below the bind pose's lowest joint: a clip whose
+    feet reach lower than the bind pose's stays above its floor."""
+    skin = float(np.min(character.vertices[:, 2]))
+    if lowest_joint is None:
+        return skin
+    return skin + min(0.0, float(lowest_joint) - float(np.min(np.asarray(character.bind_world)[:, 2, 3])))
+
+
+# ------------------------------------------------------------------------------ contact records
+def muscle_contacts(records: np.ndarray, offsets: np.ndarray, mass: np.ndarray | None = None) -> dict:
+    """Per frame and muscle, from the solver's particle contact records (T, N, 3) (depth m, impulse N s,
+    hit id): {"depth": (T, M) metres, the largest penetration before correction; "hit": (T, M) int, what
+    the deepest particle hit (a capsule, C for the floor, -1 nothing); "impulse": (T, M) N s, summed}."""
+    records = np.asarray(records, dtype=np.float64)
+    T = records.shape[0]
+    M = len(offsets) - 1
+    depth, hit, imp = np.zeros((T, M)), np.full((T, M), -1, np.int64), np.zeros((T, M))
+    for m in range(M):
+        r = records[:, offsets[m]:offsets[m + 1]]
+        if r.shape[1] == 0:
+            continue
+        k = np.argmax(r[..., 0], axis=1)
+        depth[:, m] = r[np.arange(T), k, 0]
+        hit[:, m] = np.where(depth[:, m] > 0, r[np.arange(T), k, 2], -1).astype(np.int64)
+        imp[:, m] = r[..., 1].sum(axis=1)
+    return {"depth": depth, "hit": hit, "impulse": imp}
+
+
+def contact_summary(depth: np.ndarray, hit: np.ndarray, impulse: np.ndarray, muscle_names, collider_names,
+                    times: np.ndarray) -> dict:
+    """bake.json's "contacts" from per-frame, per-muscle contacts (T, M) each: per frame the deepest
+    penetration (mm, before correction), which muscle and what it hit; per (muscle, collider) pair the
+    frames in contact, the deepest penetration and the summed impulse."""
+    T = len(times)
+    deepest = depth.max(axis=1) if depth.size else np.zeros(T)
+    who = depth.argmax(axis=1) if depth.size else np.zeros(T, int)
+    per_frame = {
+        "time_s": [round(float(t), 6) for t in times],
+        "max_penetration_mm": [round(1000.0 * float(d), 4) for d in deepest],
+        "muscle": [muscle_names[int(m)] if d > 0 else None for m, d in zip(who, deepest)],
+        "hit": [collider_names[int(hit[f, who[f]])] if deepest[f] > 0 else None for f in range(T)],
+        "impulse_Ns": [round(float(i), 6) for i in (impulse.sum(axis=1) if impulse.size else np.zeros(T))],
+    }
+    pairs = []
+    for m, c in sorted({(int(m), int(hit[f, m])) for f, m in zip(*np.nonzero(hit >= 0))}):
+        sel = hit[:, m] == c
+        pairs.append({"muscle": muscle_names[m], "hit": collider_names[c], "frames": int(sel.sum()),
+                      "max_penetration_mm": round(1000.0 * float(depth[sel, m].max()), 4),
+                      "impulse_Ns": round(float(impulse[sel, m].sum()), 6)})
+    pairs.sort(key=lambda p: -p["max_penetration_mm"])
+    return {"frames_in_contact": int((deepest > 0).sum()),
+            "max_penetration_mm": round(1000.0 * float(deepest.max()), 4) if T else 0.0,
+            "pairs": pairs, "per_frame": per_frame}
+
+
+# ------------------------------------------------------------------------------ the skin's check
+SKIN_ADJACENT = 1
+"""A vertex is not checked against the capsule of a bone whose joints lie this many bones or fewer from its
+own part (its own bone and the ones meeting it at a joint, where skins legitimately fold over each other)."""
+SKIN_REST_SHARE = 0.02
+"""Nor against a capsule holding more than this share of its part's vertices at rest."""
+
+
+@dataclass(frozen=True, eq=False)
+class SkinCheck:
+    """Counts skin vertices inside another body part's capsule. part : (V,) int32 each vertex's joint
+    (its strongest influence). part_offsets (J + 1,), part_capsule : the capsules each part is checked
+    against (CSR). capsules : BoneCapsules."""
+
+    capsules: BoneCapsules
+    part: np.ndarray
+    part_offsets: np.ndarray
+    part_capsule: np.ndarray
+
+    def inside(self, world: np.ndarray, skin: np.ndarray, device: str = "cpu") -> np.ndarray:
+        """(T, V) bool: vertex v of frame t inside a capsule it is checked against; world (T, J, 4, 4),
+        skin (T, V, 3) metres (one Warp launch)."""
+        from sim.jiggle import contact_kernels as ck
+        skin = np.asarray(skin, dtype=np.float32)
+        T, V = skin.shape[:2]
+        if self.capsules.count == 0 or T == 0:
+            return np.zeros((T, V), bool)
+        ends = self.capsules.ends(world).reshape(T, -1, 3).astype(np.float32)
+        out = wp.zeros((T, V), dtype=wp.int32, device=device)
+
+        def dev(a, dtype):
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
+        wp.launch(ck.skin_inside, dim=(T, V), device=device,
+                  inputs=[dev(self.part.astype(np.int32), wp.int32), dev(self.part_offsets.astype(np.int32), wp.int32),
+                          dev(self.part_capsule.astype(np.int32), wp.int32),
+                          dev(self.capsules.radius.astype(np.float32), wp.float32), dev(ends, wp.vec3),
+                          dev(skin, wp.vec3)],
+                  outputs=[out])
+        return out.numpy().astype(bool)
+
+    def count(self, world: np.ndarray, skin: np.ndarray, device: str = "cpu") -> np.ndarray:
+        """(T,) int: vertices inside another part's capsule per frame."""
+        return self.inside(world, skin, device).sum(axis=1)
+
+
+def skin_check(character, capsules: BoneCapsules) -> SkinCheck:
+    """The SkinCheck of `character` against `capsules` (see SKIN_ADJACENT, SKIN_REST_SHARE)."""
+    parents = np.asarray(character.parents)
+    J = len(parents)
+    # tree distance between joints (bones), by BFS from every joint: J is small (tens)
+    nbr = [[] for _ in range(J)]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            nbr[j].append(int(p))
+            nbr[int(p)].append(j)
+    dist = np.full((J, J), 10**6)
+    for s in range(J):
+        dist[s, s], front = 0, [s]
+        while front:
+            nxt = []
+            for a in front:
+                for b in nbr[a]:
+                    if dist[s, b] > dist[s, a] + 1:
+                        dist[s, b] = dist[s, a] + 1
+                        nxt.append(b)
+            front = nxt
+    part = np.asarray(character.dominant_joint(), dtype=np.int64)
+    rest = np.asarray(character.vertices, dtype=np.float64)
+    C = capsules.count
+    inside_rest = skin_inside_numpy(capsules.ends(character.bind_world)[None], capsules.radius, rest[None],
+                                    all_pairs=True)[0] if C else None                 # (V, C)
+    lists = []
+    for j in range(J):
+        vs = part == j
+        ok = []
+        for c in range(C):
+            near = min(dist[j, capsules.joint[c]], dist[j, capsules.child[c]] if capsules.child[c] >= 0 else 10**6)
+            if near <= SKIN_ADJACENT:
+                continue
+            if vs.any() and inside_rest[vs, c].mean() > SKIN_REST_SHARE:
+                continue
+            ok.append(c)
+        lists.append(ok)
+    offsets = np.concatenate([[0], np.cumsum([len(x) for x in lists])]).astype(np.int64)
+    flat = np.array([c for x in lists for c in x], np.int64)
+    return SkinCheck(capsules, frozen_array(part, np.int64), frozen_array(offsets, np.int64), frozen_array(flat, np.int64))
+
+
+def skin_inside_numpy(ends: np.ndarray, radius: np.ndarray, skin: np.ndarray, part: np.ndarray | None = None,
+                      part_offsets: np.ndarray | None = None, part_capsule=None, all_pairs: bool = False) -> np.ndarray:
+    """NumPy reference of the skin_inside kernel: (T, V) bool from capsule ends (T, C, 2, 3), radius (C,),
+    skin (T, V, 3); all_pairs gives (T, V, C) inside flags for every capsule instead."""
+    ends = np.asarray(ends, dtype=np.float64).reshape(len(skin), -1, 2, 3)
+    a, b = ends[:, None, :, 0], ends[:, None, :, 1]                      # (T, 1, C, 3)
+    ab = b - a
+    L2 = np.sum(ab * ab, axis=-1)
+    x = np.asarray(skin, dtype=np.float64)[:, :, None]                    # (T, V, 1, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(L2 > 0, np.clip(np.sum((x - a) * ab, axis=-1) / np.where(L2 > 0, L2, 1), 0, 1), 0.0)
+    d2 = np.sum((x - (a + t[..., None] * ab)) ** 2, axis=-1)              # (T, V, C)
+    inside = d2 < np.asarray(radius)[None, None] ** 2
+    if all_pairs:
+        return inside
+    mask = np.zeros((len(part_offsets) - 1, inside.shape[2]), bool)
+    for j in range(len(part_offsets) - 1):
+        mask[j, part_capsule[part_offsets[j]:part_offsets[j + 1]]] = True
+    return (inside & mask[part][None]).any(axis=2)
+
+
+# ------------------------------------------------------------------------------ NumPy references
+def capsule_push_numpy(x, v, a, b, va, vb, r, friction):
+    """The kernels' capsule_push in float64 for one particle: (x, v, depth)."""
+    ab = b - a
+    L2 = ab @ ab
+    t = float(np.clip((x - a) @ ab / L2, 0.0, 1.0)) if L2 > 0 else 0.0
+    q = a + t * ab
+    d = x - q
+    dist = float(np.linalg.norm(d))
+    if dist >= r:
+        return x, v, 0.0
+    n = d / dist if dist > 1e-9 else np.array([0.0, 0.0, 1.0])
+    return q + n * r, surface_velocity_numpy(v, va + t * (vb - va), n, friction), r - dist
+
+
+def surface_velocity_numpy(v, w, n, friction):
+    vr = v - w
+    vn = vr @ n
+    if vn >= 0:
+        return v
+    vt = vr - vn * n
+    st = np.linalg.norm(vt)
+    keep = max(0.0, st + friction * vn) / st if st > 0 else 0.0
+    return w + keep * vt
+
+
+def contact_numpy(model: ColliderModel, muscle_offsets: np.ndarray, glued: np.ndarray, x: np.ndarray,
+                  v: np.ndarray, ends: np.ndarray, ends_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The contact pass in float64, every listed pair checked (no broad phase): x, v (N, 3) at a step's
+    end and the capsules' ends (C, 2, 3) and their velocities -> (x, v, depth (N,))."""
+    x, v = np.array(x, dtype=np.float64), np.array(v, dtype=np.float64)
+    depth = np.zeros(len(x))
+    for m in range(len(muscle_offsets) - 1):
+        for i in range(muscle_offsets[m], muscle_offsets[m + 1]):
+            if glued[i]:
+                continue
+            for c in model.pairs(m):
+                x[i], v[i], d = capsule_push_numpy(x[i], v[i], ends[c, 0], ends[c, 1], ends_vel[c, 0], ends_vel[c, 1],
+                                                   model.capsules.radius[c], model.friction)
+                depth[i] = max(depth[i], d)
+            if model.floor is not None and x[i, 2] < model.floor:
+                depth[i] = max(depth[i], model.floor - x[i, 2])
+                x[i, 2] = model.floor
+                v[i] = surface_velocity_numpy(v[i], np.zeros(3), np.array([0.0, 0.0, 1.0]), model.friction)
+    return x, v, depth
+
+
+def integrate_contact_numpy(model, colliders: ColliderModel, flow, track, cap_track, x: np.ndarray, v: np.ndarray,
+                            grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The NumPy reference of ParticleSolver.integrate with colliders, float64: (x, v) (N, 3) at grid[-1]
+    and the largest contact depth (N,) metres over the run. cap_track : the capsules' ends' GoalTrack
+    (S, 2C) on the goal track's knots; flow(h) -> (N, 10) goal_flow coefficients."""
+    from sim.jiggle.goal_flow import flow_numpy
+    from sim.jiggle.goal_track import hermite
+    from sim.jiggle.solver import _check_steps, kick_numpy, within_reach_numpy
+    grid = np.asarray(grid, dtype=np.float64)
+    dts = np.diff(grid)
+    steps = list(zip(*(a.tolist() for a in _check_steps(track, grid))))
+    mu = model.drag[:, None]
+
+    def goal(tr, j, s):
+        return hermite(tr.pos[j], tr.pos[j + 1], tr.vel_start[j], tr.vel_end[j], tr.times[j + 1] - tr.times[j], s)
+
+    j, s0, _ = steps[0]
+    g, gv, _, _ = goal(track, j, s0)
+    y, u = x - g, v - gv
+    deepest = np.zeros(len(x))
+    h_kick = 0.5 * dts[0]
+    for k, ((j, s0, _), h) in enumerate(zip(steps, dts)):
+        _, gv, gacc, gjerk = goal(track, j, s0)
+        u = kick_numpy(model, y, u, h_kick)
+        b0 = model.gravity_vector - gacc - mu * gv
+        b1 = -gjerk - mu * gacc
+        b2 = -0.5 * mu * gjerk
+        y, u = within_reach_numpy(model.reach, *flow_numpy(flow(h), y, u, b0, b1, b2))
+        g1, gv1, _, _ = goal(track, j, s0 + h)
+        ends, ends_v, _, _ = goal(cap_track, j, s0 + h)
+        C = colliders.num_capsules
+        xs, vs, d = contact_numpy(colliders, model.group_offsets, model.glued, g1 + y, gv1 + u,
+                                  ends[:2 * C].reshape(C, 2, 3), ends_v[:2 * C].reshape(C, 2, 3))
+        y, u = xs - g1, vs - gv1
+        deepest = np.maximum(deepest, d)
+        h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
+    j, s0, _ = steps[-1]
+    g1, gv1, _, _ = goal(track, j, s0 + dts[-1])
+    u = kick_numpy(model, y, u, 0.5 * dts[-1])
+    return g1 + y, gv1 + u, deepest

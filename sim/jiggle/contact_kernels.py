@@ -1,0 +1,283 @@
+"""Warp kernels of the contacts: particles against bone capsules and the floor, inside the one-launch
+run of the particle solver (sim/jiggle/particle_kernels.py: integrate_run), and skin vertices counted
+inside capsules (sim/jiggle/colliders.py launches them; the NumPy references are
+sim/jiggle/colliders.py: contact_numpy, integrate_contact_numpy and skin_inside_numpy).
+
+Contact is a projection with friction, done after each step's exact goal flow and reach limit, on
+the step's end positions: a particle found inside a capsule (or below the floor) is put back on its
+surface along the normal, its velocity relative to the surface loses its inward normal part (an
+inelastic stop, like the reach limit's) and its tangential part is slowed by Coulomb friction
+(|dv_t| <= mu |dv_n|). Why a projection rather than a stiff penalty spring: the goal flow is exact
+for any step, and the only explicit parts are the neighbour springs, kept stable by the solver's
+step limit; a penalty stiff enough to hold a fat pad against a landing (tens of g) would need a step
+limit of its own, ~10x smaller, and would let the pad sink in by (m a / k) whatever the step; a
+projection never lets a particle end a step inside, costs nothing when nothing touches, and is the
+same kind of constraint as the reach the solver already keeps. The floor is a half-space, so nothing
+tunnels through it at any speed or step.
+
+The capsules move with their joints: their two ends are a second goal track on the same knots as the
+particles' goals (cubic Hermite between knots, sim/jiggle/goal_track.py), so a capsule's position at
+any step's end is the same arithmetic as a goal's.
+
+Broad phase, per muscle and knot interval, on the host before the launch (sim/jiggle/colliders.py:
+Colliders.active): the box of the muscle's goal curves over the interval (the hull of their Bezier
+control points), grown by the muscle's reach (a particle ends every flow within it of its goal) and
+its largest capsule radius (a push out of one capsule moves a particle at most that far), against
+each candidate capsule's box over the interval grown by its radius; the floor when the box reaches
+below it. A muscle's candidates (capsules of bones that are not its own chain, not touched at rest)
+are listed once. A muscle nothing is near costs one lookup per step.
+"""
+from __future__ import annotations
+
+import warp as wp
+
+from sim.jiggle.particle_kernels import Edge, cubic, edge_kick, flow_row, goal_pos, goal_vel, hermite, run_step, segment
+
+wp.set_module_options({"enable_backward": False})
+
+NO_HIT = -1.0
+"""The hit id of a particle that touched nothing (float: it travels in a vec3 with the depth and impulse)."""
+
+
+@wp.func
+def capsule_push(x: wp.vec3, v: wp.vec3, a: wp.vec3, b: wp.vec3, va: wp.vec3, vb: wp.vec3, r: float,
+                 friction: float):
+    """(x, v, depth): x outside the capsule of axis a-b and radius r (moved onto its surface along the
+    normal when inside), v with its inward normal velocity relative to the surface (the axis point's
+    velocity va + t (vb - va)) dropped and its tangential part slowed by friction; depth > 0 how far
+    inside x was, else 0."""
+    ab = b - a
+    L2 = wp.dot(ab, ab)
+    t = float(0.0)
+    if L2 > 0.0:
+        t = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
+    q = a + t * ab
+    d = x - q
+    dist = wp.length(d)
+    if dist >= r:
+        return x, v, 0.0
+    n = wp.vec3(0.0, 0.0, 1.0)
+    if dist > 1.0e-9:
+        n = d / dist
+    x_new = q + n * r
+    w = va + t * (vb - va)
+    v_new = surface_velocity(v, w, n, friction)
+    return x_new, v_new, r - dist
+
+
+@wp.func
+def surface_velocity(v: wp.vec3, w: wp.vec3, n: wp.vec3, friction: float):
+    """v after an inelastic stop against a surface of normal n moving at w: the inward normal part of
+    the relative velocity dropped, the tangential part reduced by friction x that change (Coulomb)."""
+    vr = v - w
+    vn = wp.dot(vr, n)
+    if vn >= 0.0:
+        return v
+    vt = vr - vn * n
+    st = wp.length(vt)
+    keep = float(0.0)
+    if st > 0.0:
+        keep = wp.max(0.0, st + friction * vn) / st
+    return w + keep * vt
+
+
+@wp.func
+def contact_pass(
+    m0: int, m1: int,
+    # model
+    params: wp.array(dtype=wp.vec3), muscle_offsets: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
+    floor: float, friction: float, num_capsules: int, num_muscles: int,
+    # broad phase: what muscle m may touch on knot interval seg, active_id[active_offsets[seg M + m]:...]
+    active_offsets: wp.array(dtype=wp.int32), active_id: wp.array(dtype=wp.int32),
+    # goals of the particles (cubics of the current interval) and of the capsule ends, at s1
+    cubics: wp.array(dtype=cubic), cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3),
+    cap_ve: wp.array2d(dtype=wp.vec3), seg: int, H: float, s1: float,
+    # scratch: capsule ends at s1 per active entry; per-particle contact records; per-muscle "has records"
+    ends_a: wp.array(dtype=wp.vec3), ends_b: wp.array(dtype=wp.vec3), ends_va: wp.array(dtype=wp.vec3),
+    ends_vb: wp.array(dtype=wp.vec3), record: wp.array(dtype=wp.vec3), dirty: wp.array(dtype=wp.int32),
+    # in/out: the step's end offsets
+    y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3),
+    # out (positions already written by run_step; rewritten where a contact moved them)
+    frame: int, last: bool, frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
+    contacts_out: wp.array2d(dtype=wp.vec3),
+):
+    """The contacts of muscles m0:m1 at the end of a step (s1) against what the broad phase lists for them:
+    positions pushed out of the capsules and above the floor, offsets y, u corrected in place, the
+    positions rewritten where read, contact records kept (largest depth, summed impulse N s, what was
+    hit) and written with each recorded frame (contacts_out holds "none" where a muscle has none)."""
+    for m in range(m0, m1):
+        lo_p = int(muscle_offsets[m])
+        hi_p = int(muscle_offsets[m + 1])
+        e0 = int(active_offsets[seg * num_muscles + m])
+        e1 = int(active_offsets[seg * num_muscles + m + 1])
+        if e1 > e0:
+            for e in range(e0, e1):
+                c = active_id[e]
+                if c < num_capsules:
+                    pa0, pb0, va0, vb0 = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c)
+                    pa1, pb1, va1, vb1 = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c + 1)
+                    ends_a[e] = goal_pos(pa0, pb0, va0, vb0, H, s1)
+                    ends_b[e] = goal_pos(pa1, pb1, va1, vb1, H, s1)
+                    ends_va[e] = goal_vel(pa0, pb0, va0, vb0, H, s1)
+                    ends_vb[e] = goal_vel(pa1, pb1, va1, vb1, H, s1)
+            for i in range(lo_p, hi_p):
+                inv_m = params[i][0]
+                if inv_m > 0.0:
+                    cu = cubics[i]
+                    pa = wp.vec3(cu[0], cu[1], cu[2])
+                    va = wp.vec3(cu[3], cu[4], cu[5])
+                    c2 = wp.vec3(cu[6], cu[7], cu[8])
+                    c3 = wp.vec3(cu[9], cu[10], cu[11])
+                    g1 = pa + s1 * (va + s1 * (c2 + s1 * c3))
+                    g_vel = va + s1 * (2.0 * c2 + 3.0 * s1 * c3)
+                    x = g1 + y[i]                       # run_step's arithmetic: what it wrote
+                    v1 = g_vel + u[i]
+                    v = v1
+                    deepest = float(0.0)
+                    hit = float(NO_HIT)
+                    for e in range(e0, e1):
+                        c = active_id[e]
+                        if c < num_capsules:
+                            x, v, depth = capsule_push(x, v, ends_a[e], ends_b[e], ends_va[e], ends_vb[e],
+                                                       cap_radius[c], friction)
+                            if depth > deepest:
+                                deepest = depth
+                                hit = float(c)
+                        elif x[2] < floor:
+                            depth = floor - x[2]
+                            x = wp.vec3(x[0], x[1], floor)
+                            v = surface_velocity(v, wp.vec3(0.0), wp.vec3(0.0, 0.0, 1.0), friction)
+                            if depth > deepest:
+                                deepest = depth
+                                hit = float(num_capsules)
+                    if hit != NO_HIT:
+                        y[i] = x - g1
+                        u[i] = v - g_vel
+                        if frame >= 0:
+                            frames_out[frame, i] = x
+                        if last:
+                            x_out[i] = x
+                        rec = record[i]
+                        impulse = wp.length(v - v1) / inv_m
+                        if deepest > rec[0]:
+                            record[i] = wp.vec3(deepest, rec[1] + impulse, hit)
+                        else:
+                            record[i] = wp.vec3(rec[0], rec[1] + impulse, rec[2])
+                        dirty[m] = 1
+        if frame >= 0 and dirty[m] != 0:
+            for i in range(lo_p, hi_p):
+                contacts_out[frame, i] = record[i]
+                record[i] = wp.vec3(0.0, 0.0, NO_HIT)
+            dirty[m] = 0
+
+
+@wp.kernel
+def integrate_run_contact(
+    # model
+    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row),
+    adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
+    group_offsets: wp.array(dtype=wp.int32), group_muscles: wp.array(dtype=wp.int32),
+    # colliders
+    muscle_offsets: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
+    floor: float, friction: float, num_capsules: int, num_muscles: int,
+    active_offsets: wp.array(dtype=wp.int32), active_id: wp.array(dtype=wp.int32),
+    # goals: the particles', the capsule ends' (same knots)
+    pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec3), vel_end: wp.array2d(dtype=wp.vec3),
+    cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3), cap_ve: wp.array2d(dtype=wp.vec3),
+    # steps (K,) as integrate_run
+    step_seg: wp.array(dtype=wp.int32), step_H: wp.array(dtype=float), step_s0: wp.array(dtype=float),
+    step_h: wp.array(dtype=float), step_kick: wp.array(dtype=float), step_flow: wp.array(dtype=wp.int32),
+    step_frame: wp.array(dtype=wp.int32),
+    s_end: float, h_end: float,
+    # state in
+    x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
+    # scratch
+    y_a: wp.array(dtype=wp.vec3), u_a: wp.array(dtype=wp.vec3), y_b: wp.array(dtype=wp.vec3),
+    u_b: wp.array(dtype=wp.vec3), cubics: wp.array(dtype=cubic),
+    ends_a: wp.array(dtype=wp.vec3), ends_b: wp.array(dtype=wp.vec3), ends_va: wp.array(dtype=wp.vec3),
+    ends_vb: wp.array(dtype=wp.vec3), record: wp.array(dtype=wp.vec3), dirty: wp.array(dtype=wp.int32),
+    # out
+    frames_out: wp.array2d(dtype=wp.vec3), contacts_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
+    v_out: wp.array(dtype=wp.vec3),
+):
+    """integrate_run (sim/jiggle/particle_kernels.py) with the contacts of :func:`contact_pass` after every
+    step; contacts_out[step_frame[k]] gets each particle's contact record (depth m, impulse N s, hit id:
+    a capsule, num_capsules for the floor, -1 none) since the previous recorded step (filled with "none"
+    by the caller)."""
+    g = wp.tid()
+    lo = int(group_offsets[g])
+    hi = int(group_offsets[g + 1])
+    m0 = int(group_muscles[g])
+    m1 = int(group_muscles[g + 1])
+    K = step_seg.shape[0]
+    seg0 = int(step_seg[0])
+    for i in range(lo, hi):
+        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
+        y_a[i] = x[i] - goal_pos(pa, pb, va, vb, step_H[0], step_s0[0])
+        u_a[i] = v[i] - goal_vel(pa, pb, va, vb, step_H[0], step_s0[0])
+        record[i] = wp.vec3(0.0, 0.0, NO_HIT)
+    for m in range(m0, m1):
+        dirty[m] = 0
+    for k in range(K):
+        seg = int(step_seg[k])
+        if k == 0 or seg != int(step_seg[wp.max(k - 1, 0)]):
+            for i in range(lo, hi):
+                pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
+                c2, c3 = hermite(pa, pb, va, vb, step_H[k])
+                cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
+        last = k == K - 1
+        s1 = step_s0[k] + step_h[k]
+        frame = int(step_frame[k])
+        if k % 2 == 0:
+            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+                     step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b)
+            contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
+                         active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
+                         ends_b, ends_va, ends_vb, record, dirty, y_b, u_b, frame, last, frames_out, x_out,
+                         contacts_out)
+        else:
+            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+                     step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a)
+            contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
+                         active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
+                         ends_b, ends_va, ends_vb, record, dirty, y_a, u_a, frame, last, frames_out, x_out,
+                         contacts_out)
+    seg1 = int(step_seg[K - 1])
+    H1 = step_H[K - 1]
+    for i in range(lo, hi):
+        g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
+        inv_m = params[i][0]
+        if K % 2 == 1:
+            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
+        else:
+            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
+
+
+@wp.kernel
+def skin_inside(
+    # model: capsules and, per vertex part, the capsules it is checked against (CSR)
+    part: wp.array(dtype=wp.int32), part_offsets: wp.array(dtype=wp.int32), part_capsule: wp.array(dtype=wp.int32),
+    cap_radius: wp.array(dtype=float),
+    # in: capsule ends per frame (T, 2C) and skin vertices (T, V)
+    ends: wp.array2d(dtype=wp.vec3), skin: wp.array2d(dtype=wp.vec3),
+    # out: 1 where vertex v of frame t lies inside another part's capsule
+    inside_out: wp.array2d(dtype=wp.int32),
+):
+    """Skin vertices of one body part inside another part's capsule, per frame (thread per (t, v))."""
+    t, i = wp.tid()
+    p = int(part[i])
+    x = skin[t, i]
+    hit = int(0)
+    for e in range(part_offsets[p], part_offsets[p + 1]):
+        c = part_capsule[e]
+        a = ends[t, 2 * c]
+        ab = ends[t, 2 * c + 1] - a
+        L2 = wp.dot(ab, ab)
+        s = float(0.0)
+        if L2 > 0.0:
+            s = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
+        r = cap_radius[c]
+        d = x - (a + s * ab)
+        if wp.dot(d, d) < r * r:
+            hit = 1
+    inside_out[t, i] = hit

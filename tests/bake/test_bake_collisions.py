@@ -1,0 +1,92 @@
+"""`jiggle bake --collisions`: contacts and the skin check reach bake.json, a killed (interrupted) bake
+with collisions resumes to the same caches and contacts bit for bit, --no-collisions bakes what a bake
+without colliders bakes, and bad input names the file, line and field."""
+import json
+
+import numpy as np
+import pytest
+from test_bake import ARM, KEYS, run  # noqa: E402 - tests/bake is on the path (rootdir conftest)
+
+from sim.app.cli import main
+from sim.bake.caches import read_npz
+
+
+def bake(capsys, out, *extra):
+    code, o, err = run(capsys, "bake", ARM, "--out", str(out), "--fps", "60", "--chunk", "16", "--formats", "npz",
+                       *extra)
+    assert code == 0, err
+    return json.loads((out / "bake.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def arm_collide(tmp_path_factory):
+    out = tmp_path_factory.mktemp("arm_collide")
+    assert main(["bake", ARM, "--out", str(out), "--fps", "60", "--chunk", "16", "--formats", "npz",
+                 "--collisions"]) == 0
+    return out
+
+
+def test_collisions_reach_bake_json(arm_collide):
+    """bake.json names the colliders, the floor, per frame the deepest contact and the skin check."""
+    summary = json.loads((arm_collide / "bake.json").read_text())
+    c = summary["contacts"]
+    assert summary["params"]["settings"]["collisions"] is True
+    assert c["colliders"][-1] == "floor" and len(c["capsule_radius_mm"]) == len(c["colliders"]) - 1
+    T = summary["frames"]
+    assert len(c["per_frame"]["max_penetration_mm"]) == T
+    assert len(c["skin_inside"]["static"]) == T and len(c["skin_inside"]["final"]) == T
+
+
+def test_interrupted_bake_with_collisions_resumes_bit_for_bit(capsys, tmp_path, arm_collide, monkeypatch):
+    """Ctrl-C in chunk 3 with collisions on, then --resume: the caches equal the unbroken bake's, and so do
+    bake.json's contacts (kept with each chunk's state)."""
+    from sim.bake import baker as bake_mod
+    real = bake_mod.Baker.chunk
+
+    def chunk(self, c, state):
+        if c == 3:
+            raise KeyboardInterrupt
+        return real(self, c, state)
+    monkeypatch.setattr(bake_mod.Baker, "chunk", chunk)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+                         "--formats", "npz", "--collisions")
+    assert code == 130
+    monkeypatch.setattr(bake_mod.Baker, "chunk", real)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+                         "--formats", "npz", "--collisions", "--resume")
+    assert code == 0, err
+    da, db = read_npz(tmp_path / "bake.npz"), read_npz(arm_collide / "bake.npz")
+    for k in KEYS:
+        np.testing.assert_array_equal(getattr(da, k), getattr(db, k), err_msg=k)
+    ca = json.loads((tmp_path / "bake.json").read_text())["contacts"]
+    cb = json.loads((arm_collide / "bake.json").read_text())["contacts"]
+    assert ca == cb
+
+
+def test_no_collisions_bakes_what_a_bake_without_colliders_bakes(capsys, tmp_path, monkeypatch):
+    """--no-collisions: the bake's arrays are those of the pipeline without any collider code (the
+    simulate stage called as before issue 21), bit for bit."""
+    a = bake(capsys, tmp_path / "a", "--no-collisions", "--frames", "40")
+    assert "contacts" not in a and a["params"]["settings"]["collisions"] is False
+    from sim.jiggle import simulate as sim_mod
+    real = sim_mod.run
+
+    def plain(*args, colliders=None, contacts=None, **kw):
+        assert colliders is None
+        return real(*args, **kw)
+    monkeypatch.setattr(sim_mod, "run", plain)
+    bake(capsys, tmp_path / "b", "--no-collisions", "--frames", "40")
+    da, db = read_npz(tmp_path / "a" / "bake.npz"), read_npz(tmp_path / "b" / "bake.npz")
+    for k in KEYS:
+        np.testing.assert_array_equal(getattr(da, k), getattr(db, k), err_msg=k)
+
+
+def test_bad_collisions_value_names_file_line_and_field(capsys, tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('builtin = "simple_arm"\n[jiggle]\nsubsteps = 2\ncollisions = "yes"\n')
+    code, out, err = run(capsys, "bake", str(p), "--out", str(tmp_path / "o"))
+    assert code == 2 and "s.toml:4:" in err and "jiggle.collisions" in err and "true or false" in err
+    assert len(err.strip().splitlines()) <= 3
+    with pytest.raises(SystemExit) as e:
+        main(["bake", ARM, "--collisions=yes", "--out", str(tmp_path / "x")])
+    assert e.value.code == 2

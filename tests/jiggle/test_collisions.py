@@ -1,0 +1,266 @@
+"""Collisions of the particles with bone capsules and the floor (sim/jiggle/colliders.py,
+sim/jiggle/contact_kernels.py): synthetic scenes with the physics each one expects, the kernels
+against their NumPy references, bit-exactness (no contact: a run without colliders; chunked: an
+unbroken run) and frame-rate independence with contacts."""
+import math
+
+import numpy as np
+import pytest
+
+from rig.base.errors import InputError
+from rig.character.capsules import BoneCapsules, segment_distance
+from sim.jiggle.colliders import (
+    ColliderModel,
+    contact_numpy,
+    integrate_contact_numpy,
+    muscle_contacts,
+    skin_inside_numpy,
+)
+from sim.jiggle.goal_track import build_track
+from sim.jiggle.params import MuscleJiggle, section_goals
+from sim.jiggle.particles import ParticleBuilder
+from sim.jiggle.simulate import run
+from sim.jiggle.solver import ParticleSolver
+
+
+def capsules(ends, radius):
+    """Capsules riding joint 0 of a one-joint skeleton at the identity: ends (C, 2, 3) world metres."""
+    ends = np.asarray(ends, dtype=np.float64).reshape(-1, 2, 3)
+    return BoneCapsules(joint=np.zeros(len(ends)), child=np.full(len(ends), -1), local=ends,
+                        radius=np.asarray(radius, dtype=np.float64).reshape(-1), names=[f"cap{c}" for c in range(len(ends))],
+                        parents=np.array([-1]))
+
+
+def still(model_caps: ColliderModel, times):
+    """The capsules standing still over knots `times`."""
+    ends = model_caps.capsules.local.reshape(1, -1, 3)
+    return model_caps.on_track(times, np.repeat(ends, len(times), axis=0))
+
+
+# ------------------------------------------------------------------------------------ the floor
+def test_a_particle_dropped_on_the_floor_rests_on_it():
+    """A free particle (no goal spring) falling at 5 m/s onto z = 0, gravity on, 24 fps, 1 substep: a
+    step carries it 21 cm, twice its height above the floor; the projection stops it on the floor
+    (no tunnelling, however long the step: the floor is a half-space) and it then rests there,
+    z = 0 exactly, its downward velocity dropped (inelastic)."""
+    b = ParticleBuilder()
+    b.begin_group("drop")
+    b.add_particle([0.0, 0.0, 1.0], 1.0, goal_stiffness=0.0)
+    model = b.finalize("cpu", gravity=True)
+    cm = ColliderModel.from_pairs(capsules(np.zeros((0, 2, 3)), []), np.zeros((1, 0), bool), floor=0.0)
+    times = np.arange(49) / 24.0
+    track = build_track(times, np.ones((len(times), 1, 3)), cuts=np.zeros(len(times) - 1, bool))
+    sink = {}
+    x = run(model, track, times, substeps=1, colliders=still(cm, times), contacts=sink,
+            start=(np.array([[0.0, 0.0, 0.1]], np.float32), np.array([[0.0, 0.0, -5.0]], np.float32)))
+    assert x[:, 0, 2].min() >= 0.0                        # never below the floor, at any frame
+    np.testing.assert_array_equal(x[2:, 0, 2], 0.0)       # landed in the first step, then rests on it
+    rec = sink["records"]
+    assert rec[1, 0, 2] == 0.0                            # hit id 0: the floor (no capsules)
+    # depth before correction: 0.1 - 5 h - g h^2 / 2 below the floor, h = 1/24
+    h = 1.0 / 24.0
+    assert rec[1, 0, 0] == pytest.approx(5.0 * h + 0.5 * 9.81 * h * h - 0.1, rel=1e-4)
+    assert rec[1, 0, 1] == pytest.approx(5.0 + 9.81 * h, rel=1e-4)    # impulse m |dv|: the speed it had
+
+
+# ------------------------------------------------------------------------------------ a forward bend
+HIP = np.zeros(3)
+BEND = math.radians(80.0)
+BEND_START, BEND_END = 0.1, 0.3
+
+
+def fat_pad(centre, radius=0.03, width=0.12):
+    """(40, 3) CVs of a fat pad: 5 rings of 8 about the y axis (across the body) around `centre`."""
+    ys = np.linspace(-0.5, 0.5, 5) * width
+    a = 2 * np.pi * np.arange(8) / 8
+    ring = np.stack([np.cos(a) * radius, np.zeros(8), np.sin(a) * radius], axis=1)
+    return np.concatenate([ring + [0.0, y, 0.0] for y in ys]) + centre
+
+
+def bend_angle(t):
+    s = np.clip((np.asarray(t) - BEND_START) / (BEND_END - BEND_START), 0, 1)
+    return BEND * s * s * (3 - 2 * s)
+
+
+def rotate(points, angle):
+    """points (..., 3) turned by `angle` about the y axis through HIP, the torso bending forward (+x)."""
+    c, s = np.cos(angle), np.sin(angle)
+    p = points - HIP
+    x, z = c * p[..., 0] + s * p[..., 2], -s * p[..., 0] + c * p[..., 2]
+    return np.stack([x, np.broadcast_to(p[..., 1], x.shape), z], axis=-1) + HIP
+
+
+def bend_scene():
+    """A belly fat pad over the hip and a chest pad higher up the torso, bending forward 80 deg in 0.2 s,
+    and a thigh capsule reaching forward from the hip (the legs of a body folding at the hips) just
+    under where the belly ends up: 1 cm of clearance below its bent pad."""
+    belly, chest = fat_pad([0.14, 0.0, 0.10]), fat_pad([0.14, 0.0, 0.40])
+    jiggle = MuscleJiggle(name="belly_fat", frequency_hz=2.5, damping_ratio=0.25, goal=section_goals(0.3, 0.15),
+                          density=900.0, spring_frequency_hz=6.0, spring_damping_ratio=0.3)
+    b = ParticleBuilder()
+    b.add_muscles(np.concatenate([belly, chest]), np.array([4e-4, 4e-4]),
+                  [jiggle, MuscleJiggle(**{**jiggle.__dict__, "name": "chest_fat"})])
+    model = b.finalize("cpu")
+    bent = rotate(belly, BEND)
+    r = 0.06
+    # the thigh runs along the bent belly's underside, 1 cm below its lowest CV
+    low = bent[:, 2].min()
+    thigh = np.array([[0.0, 0.0, low - 0.01 - r], [0.3, 0.0, low - 0.01 - r]])
+    caps = capsules(thigh[None], [r])
+    cm = ColliderModel.from_pairs(caps, np.array([[True], [True]]), muscle_names=["belly_fat", "chest_fat"])
+    knots = np.arange(0, 1.2 + 1e-9, 1 / 120)
+    rest = np.concatenate([belly, chest])
+    goals = rotate(rest[None], bend_angle(knots)[:, None])
+    track = build_track(knots, goals, cuts=np.zeros(len(knots) - 1, bool))
+    return model, cm, track, caps
+
+
+def penetration(x, caps):
+    """(T, N) metres each particle is inside the capsule (0 outside)."""
+    a, b = caps.local[0]
+    d, _ = segment_distance(x.reshape(-1, 3), a, b)
+    return np.maximum(caps.radius[0] - d, 0.0).reshape(x.shape[:2])
+
+
+def test_belly_fat_stays_out_of_the_thigh_in_a_fast_forward_bend():
+    """Bending 80 deg in 0.2 s, the belly pad (2.5 Hz, goal weights 0.15-0.3) overshoots its goal by
+    several cm when the bend stops: without collisions it swings into the thigh capsule, 1 cm below
+    its bent goal; with them no particle ends a frame inside it (beyond 0.1 mm, float32 round-off
+    on a projection), the pad rests on the thigh, and the chest pad, which touches nothing, jiggles as
+    before (amplitude within 10%, here to the bit)."""
+    model, cm, track, caps = bend_scene()
+    times = np.arange(0, 1.2 + 1e-9, 1 / 60)
+    free = run(model, track, times, substeps=4)
+    sink = {}
+    held = run(model, track, times, substeps=4, colliders=still(cm, track.times), contacts=sink)
+    belly = slice(0, 40)
+    assert penetration(free[:, belly], caps).max() > 0.01            # 1 cm and more into the thigh
+    assert penetration(held[:, belly], caps).max() < 1e-4
+    goal = np.stack([track.sample(t)[0] for t in times])
+    amp = lambda x, s: np.linalg.norm(x[:, s] - goal[:, s], axis=2).max()    # noqa: E731
+    chest = slice(40, 80)
+    assert amp(held, chest) == pytest.approx(amp(free, chest), rel=0.10)
+    per = muscle_contacts(sink["records"], model.group_offsets)
+    assert per["depth"][:, 0].max() > 0.001 and (per["hit"][:, 0] == 0).any()     # the belly hit capsule 0
+    assert per["depth"][:, 1].max() == 0.0 and (per["hit"][:, 1] == -1).all()
+    # the pad's far side (the top ring, away from the thigh) jiggles about as before
+    top = slice(0, 40)
+    assert amp(held, top) <= amp(free, top) * 1.10
+
+
+def test_contacts_agree_at_24_and_120_fps():
+    """The same bend with collisions at 24 and 120 fps: the steps differ (1/96 s and the 120 Hz knots
+    against 1/480 s), the projections happen at other times, and the positions at the shared frames
+    agree within 2% of the peak jiggle."""
+    model, cm, track, caps = bend_scene()
+    t24 = np.arange(0, 1.2 + 1e-9, 1 / 24)
+    t120 = np.arange(0, 1.2 + 1e-9, 1 / 120)
+    x24 = run(model, track, t24, substeps=4, colliders=still(cm, track.times))
+    x120 = run(model, track, t120, substeps=4, colliders=still(cm, track.times))[::5]
+    goal = np.stack([track.sample(t)[0] for t in t24])
+    peak = np.linalg.norm(x120 - goal, axis=2).max()
+    assert np.linalg.norm(x24 - x120, axis=2).max() <= 0.02 * peak
+
+
+def test_chunked_run_with_contacts_repeats_bit_for_bit():
+    """A bake's chunks go on from the state the chunk before stored: run in two parts, the second from the
+    first's end state, the same positions come out bit for bit every time (fresh solvers; the contact
+    records start afresh with every run), and they stay within 0.1 mm of an unbroken run (which merges
+    the kicks at the seam, sim/jiggle/solver.py)."""
+    model, cm, track, caps = bend_scene()
+    times = np.arange(0, 1.2 + 1e-9, 1 / 30)
+    col = still(cm, track.times)
+    whole = run(model, track, times, substeps=4, colliders=col)
+
+    def chunked():
+        a, state = run(model, track, times[:13], substeps=4, colliders=col, return_state=True)
+        b = run(model, track, times[12:], substeps=4, colliders=col, start=state)
+        return np.concatenate([a, b[1:]])
+    first = chunked()
+    np.testing.assert_array_equal(chunked(), first)
+    assert np.abs(first - whole).max() < 1e-4
+
+
+def test_no_contact_is_a_run_without_colliders_bit_for_bit():
+    """Colliders that nothing touches (a capsule far away, a floor far below) change nothing: the contact
+    pass writes the same float32 positions the plain run writes."""
+    model, cm, track, caps = bend_scene()
+    far = ColliderModel.from_pairs(capsules([[[5.0, 5.0, 5.0], [6.0, 5.0, 5.0]]], [0.05]),
+                                   np.array([[True], [True]]), floor=-10.0)
+    times = np.arange(0, 1.2 + 1e-9, 1 / 30)
+    plain = run(model, track, times, substeps=4)
+    np.testing.assert_array_equal(run(model, track, times, substeps=4, colliders=still(far, track.times)), plain)
+
+
+# ------------------------------------------------------------------------------------ references
+def test_contact_kernel_run_equals_the_numpy_reference():
+    """Small random model (2 muscles of 40 particles, springs, random goals moving through 3 capsules and
+    above a floor), 6 steps: the one-launch kernel against integrate_contact_numpy (float64, no broad
+    phase) within float32 round-off."""
+    rng = np.random.default_rng(3)
+    jig = MuscleJiggle(name="m", frequency_hz=3.0, damping_ratio=0.3, goal=np.full(40, 0.3), density=1000.0,
+                       spring_frequency_hz=5.0, spring_damping_ratio=0.2)
+    rest = np.concatenate([fat_pad([0.0, 0.0, 0.05]), fat_pad([0.0, 0.3, 0.05])])
+    b = ParticleBuilder()
+    b.add_muscles(rest, np.array([3e-4, 3e-4]), [jig, MuscleJiggle(**{**jig.__dict__, "name": "n"})])
+    model = b.finalize("cpu", gravity=True)
+    ends = rng.normal(scale=0.05, size=(3, 2, 3)) + np.array([0.0, 0.15, 0.03])
+    caps = capsules(ends, [0.03, 0.04, 0.02])
+    cm = ColliderModel.from_pairs(caps, np.array([[True, True, False], [True, False, True]]), floor=0.0)
+    knots = np.linspace(0, 0.1, 5)
+    shift = np.cumsum(rng.normal(scale=0.02, size=(5, 1, 3)), axis=0)
+    goals = rest[None] + shift
+    track = build_track(knots, goals, cuts=np.zeros(4, bool))
+    cap_ends = ends.reshape(1, 6, 3) + np.cumsum(rng.normal(scale=0.01, size=(5, 1, 3)), axis=0)
+    col = cm.on_track(knots, cap_ends)
+    x0 = (rest + rng.normal(scale=0.01, size=rest.shape)).astype(np.float32)
+    v0 = rng.normal(scale=0.5, size=rest.shape).astype(np.float32)
+    solver = ParticleSolver(model)
+    state, out = model.state(), model.state()
+    state.assign(x0, v0)
+    grid = np.linspace(0, 0.1, 9)
+    solver.integrate(state, out, track.to_device(), grid, record=[8], colliders=col)
+    xr, vr, deep = integrate_contact_numpy(model, cm, lambda h: solver.flow(h)[0], track, col.control.track,
+                                           x0.astype(np.float64), v0.astype(np.float64), grid)
+    assert deep.max() > 0.001                             # the test does test contacts
+    x, v = out.numpy()
+    np.testing.assert_allclose(x, xr, atol=2e-5)
+    np.testing.assert_allclose(v, vr, atol=2e-3)
+
+
+def test_contact_pass_reference_pushes_onto_the_surface():
+    """contact_numpy on a particle inside a capsule moving into it: it ends on the surface, its inward
+    velocity dropped and its sliding slowed by friction mu x the normal change (Coulomb)."""
+    cm = ColliderModel.from_pairs(capsules([[[0, 0, 0], [1, 0, 0]]], [0.1]), np.array([[True]]), friction=0.5)
+    x = np.array([[0.5, 0.0, 0.08]])
+    v = np.array([[1.0, 0.0, -2.0]])
+    xs, vs, d = contact_numpy(cm, np.array([0, 1]), np.array([False]), x, v, cm.capsules.local, np.zeros((1, 2, 3)))
+    np.testing.assert_allclose(xs, [[0.5, 0.0, 0.1]])
+    np.testing.assert_allclose(vs, [[0.0, 0.0, 0.0]], atol=1e-12)      # 1 m/s sliding, 0.5 x 2 m/s friction
+    assert d[0] == pytest.approx(0.02)
+
+
+def test_skin_inside_kernel_equals_numpy():
+    """The skin check's kernel against its NumPy reference on random vertices and capsules."""
+    from sim.jiggle.colliders import SkinCheck
+    rng = np.random.default_rng(5)
+    ends = rng.normal(scale=0.2, size=(4, 2, 3))
+    caps = BoneCapsules(joint=np.zeros(4), child=np.full(4, -1), local=ends, radius=rng.uniform(0.05, 0.15, 4),
+                        names=list("abcd"), parents=np.array([-1]))
+    part = rng.integers(0, 2, 500)
+    offsets, flat = np.array([0, 2, 4]), np.array([0, 3, 1, 2])
+    check = SkinCheck(caps, part, offsets, flat)
+    world = np.repeat(np.eye(4)[None, None], 3, axis=0)
+    skin = rng.normal(scale=0.25, size=(3, 500, 3))
+    got = check.inside(world, skin)
+    ref = skin_inside_numpy(np.repeat(ends[None], 3, axis=0), caps.radius, skin, part, offsets, flat)
+    assert ref.any() and not ref.all()
+    np.testing.assert_array_equal(got, ref)
+
+
+def test_bad_collider_input_is_named():
+    with pytest.raises(InputError, match="friction"):
+        ColliderModel.from_pairs(capsules([[[0, 0, 0], [1, 0, 0]]], [0.1]), np.array([[True]]), friction=-1.0)
+    with pytest.raises(InputError, match="true or false"):
+        from sim.jiggle.params import JiggleSettings
+        JiggleSettings(collisions="yes")
