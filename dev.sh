@@ -8,6 +8,8 @@
 # Also, when Python 3.11 is present and JIGGLE_BLENDER is not 0: Blender as a Python module (the extra
 # "blender" of pyproject.toml, for tests/character/test_blender.py) in its own environment .venv/blender,
 # because the bpy wheels pin numpy < 2; and the X11 client libraries bpy loads.
+# Unless JIGGLE_BROWSER=0: Debian's chromium and chromium-driver, which the test extras' selenium drives
+# headless for tests/app/test_view.py (`jiggle view` in a real browser; skipped with a reason without them).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -19,6 +21,8 @@ BLENDER_PKGS=(libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libsm6 libxxf
 
 want_blender() { [ "${JIGGLE_BLENDER:-1}" != 0 ] && command -v python3.11 >/dev/null 2>&1; }
 want_blender && SYSTEM_PKGS+=("${BLENDER_PKGS[@]}")
+BROWSER_PKGS=(chromium chromium-driver)
+[ "${JIGGLE_BROWSER:-1}" != 0 ] && SYSTEM_PKGS+=("${BROWSER_PKGS[@]}")
 
 pick_python() {
   for py in "${PYTHON:-}" python3.11 python3.12 python3.13 python3; do

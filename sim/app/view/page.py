@@ -1,0 +1,576 @@
+"""The viewer's web page: a viser server (scene, GUI panel, websocket) showing a Playback, and tuning it.
+
+Why viser: its GUI is two-way (sliders, buttons and dropdowns call back into this process, which holds the
+rebuilt setup and re-simulates), its scene takes NumPy meshes whose vertices are replaced in place each
+frame, and its HTTP server serves only its own client build (URL segments ".." refused), never a file of
+the bake: the frames travel over the websocket. rerun-sdk's viewer plays logged time series beautifully but
+sends nothing back, so it could not drive a re-simulation.
+
+Layout. Scene (world Z-up, metres): the skin (final, static, side by side or overlaid; or the final skin in
+heat-map colour bands), the muscles as their loft meshes (click one to select it), the skeleton, the selected
+muscle's skin region as a wireframe, a floor grid. Panel: Playback (play/pause, frame slider, loop, speed,
+frame and time), Show (skin, heat map and its scale, muscles, skeleton, skin opacity), Muscles (one button
+per muscle with its peak jiggle amplitude, the selected one's numbers), Skin quality (the frame's numbers from
+metrics.json), Tune (per-muscle strength, frequency, damping ratio, goal weight scale, the global blend,
+reset, save scene).
+
+Playback runs in a thread that advances the frame slider at the bake's fps times the speed; the slider's
+callback draws the frame (so a scrub and a tick draw the same way). A slider of the Tune panel records the
+value and wakes the re-simulation thread, which runs the latest tuning (moves made while it ran collapse into
+one run) and swaps the motion in.
+"""
+from __future__ import annotations
+
+import contextlib
+import html
+import io
+import os
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+from sim.app.view.playback import HEAT_BANDS, Playback, band_colours, compact, heat_bands, skin_regions
+from sim.app.view.tuning import NotTunable, Tuning
+
+SKIN_COLOUR = (222, 184, 160)
+STATIC_COLOUR = (150, 170, 200)
+MUSCLE_COLOUR = {"muscle": (190, 70, 60), "fat": (235, 195, 90)}
+SELECTED_COLOUR = (40, 200, 255)
+BONE_COLOUR = (235, 235, 245)
+SKIN_MODES = ("dynamic", "static", "side by side", "overlaid")
+SPEEDS = ("0.25", "0.5", "1", "2")
+FREQUENCY_RANGE = (0.5, 20.0)
+"""Hz: the frequency slider's range."""
+DAMPING_RANGE = (0.0, 2.0)
+GOAL_SCALE_RANGE = (0.0, 2.0)
+CAMERA_FOV = np.radians(40.0)
+"""The first view: 40 degrees vertically, from the front (figures face -Y), a little from the right and above."""
+
+
+def twin(name: str, names) -> str | None:
+    """The other side's muscle of a left_/right_ (l_/r_) pair, None when there is none."""
+    for a, b in (("left_", "right_"), ("right_", "left_"), ("l_", "r_"), ("r_", "l_")):
+        if name.startswith(a) and b + name[len(a):] in names:
+            return b + name[len(a):]
+    return None
+
+
+class ViewerPage:
+    """The page of one bake (see the module).
+
+    playback : the bake's frames. out_dir : its folder (where "save scene" writes by default).
+    host, port : where to serve (port 0: any free one). paused : start paused at frame 0.
+    tuner_factory : () -> view.tuning.Tuner, run in a background thread (NotTunable: the Tune panel says
+        why); None: no tuning. log : progress lines.
+    """
+
+    def __init__(self, playback: Playback, out_dir: str, host: str = "127.0.0.1", port: int = 8080,
+                 paused: bool = False, tuner_factory: Callable | None = None,
+                 log: Callable[[str], None] = lambda s: None, formats=("npz", "usdc")):
+        import viser
+        self.pb, self.out_dir, self.log, self.formats = playback, os.path.abspath(out_dir), log, tuple(formats)
+        with contextlib.redirect_stdout(io.StringIO()):      # viser's own address box: the command prints one
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.tuner = None
+        self.tuning = Tuning()
+        self.regions = None
+        self.selected: int | None = None
+        self.motion_version = 0
+        """Counts the motions shown: 0 the bake's, +1 per re-simulation swapped in."""
+        self.shown_tuning = self.tuning
+        """The Tuning of the motion shown (`tuning` is the latest asked for)."""
+        self.last_run_s: float | None = None
+        self.tune_error: str | None = None
+        self._draw_lock = threading.RLock()
+        self._syncing = False
+        self._stop = threading.Event()
+        self._wanted = threading.Condition()
+        self._pending: Tuning | None = None
+        self._busy = False
+        self._band_handles: list = []
+        self._region_handle = None
+        self._colours = band_colours(HEAT_BANDS)
+        self._build_scene()
+        self._build_gui(paused)
+        self.draw(0)
+        self._threads = [threading.Thread(target=self._play_loop, name="jiggle-view-play", daemon=True)]
+        if tuner_factory is not None:
+            self._threads.append(threading.Thread(target=self._tune_loop, args=(tuner_factory,),
+                                                  name="jiggle-view-tune", daemon=True))
+        else:
+            self.tune_error = "tuning is off (--no-tune)"
+            self._set_tune_status(self.tune_error)
+        for t in self._threads:
+            t.start()
+
+    # ------------------------------------------------------------------ address and lifetime
+    @property
+    def url(self) -> str:
+        host = self.server.get_host()
+        return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.server.get_port()}/"
+
+    def stop(self) -> None:
+        self._stop.set()
+        with self._wanted:
+            self._wanted.notify_all()
+        self.server.stop()
+
+    def wait_tuner(self, timeout: float = 120.0) -> bool:
+        """Block until the setup is rebuilt (True) or known not to be (False)."""
+        end = time.time() + timeout
+        while time.time() < end and self.tuner is None and self.tune_error is None:
+            time.sleep(0.05)
+        return self.tuner is not None
+
+    def wait_tuned(self, timeout: float = 60.0) -> bool:
+        """Block until the motion shown is the one of the latest tuning asked for."""
+        end = time.time() + timeout
+        while time.time() < end:
+            if self.shown_tuning is self.tuning:
+                return True
+            time.sleep(0.02)
+        return False
+
+    def wait_motion(self, version: int, timeout: float = 60.0) -> bool:
+        """Block until a motion newer than `version` is shown and no run is pending."""
+        end = time.time() + timeout
+        while time.time() < end:
+            with self._wanted:
+                idle = not self._busy and self._pending is None
+            if self.motion_version > version and idle:
+                return True
+            time.sleep(0.02)
+        return False
+
+    # ------------------------------------------------------------------ scene
+    def _build_scene(self) -> None:
+        pb, sc = self.pb, self.server.scene
+        sc.set_up_direction("+z")
+        s0 = pb.data.skin_static[0]
+        lo, hi = pb.data.skin_static.min(axis=(0, 1)), pb.data.skin_static.max(axis=(0, 1))
+        self.centre = 0.5 * (lo + hi)
+        self.size = float(max(hi - lo))
+        self.side_offset = np.array([-1.15 * float(hi[0] - lo[0]) - 0.1 * self.size, 0.0, 0.0])
+        sc.add_grid("/floor", width=3 * self.size, height=3 * self.size, plane="xy",
+                    position=(float(self.centre[0]), float(self.centre[1]), float(lo[2])),
+                    cell_size=0.25 * self.size / 2, section_size=self.size / 2)
+        faces = pb.faces.astype(np.uint32)
+        self.h_dynamic = sc.add_mesh_simple("/skin/dynamic", pb.skin(0, "final"), faces, color=SKIN_COLOUR,
+                                            side="double")
+        self.h_static = sc.add_mesh_simple("/skin/static", s0, faces, color=STATIC_COLOUR, side="double",
+                                           visible=False)
+        self.h_label_static = sc.add_label("/labels/static", "static", visible=False,
+                                           position=tuple(float(x) for x in (self.centre + self.side_offset
+                                                                              + [0, 0, 0.55 * (hi[2] - lo[2])])))
+        self.h_label_dynamic = sc.add_label("/labels/dynamic", "dynamic", visible=False,
+                                            position=tuple(float(x) for x in (self.centre
+                                                                               + [0, 0, 0.55 * (hi[2] - lo[2])])))
+        surf = pb.muscle_surfaces(0)
+        mfaces = np.asarray(pb.data.muscle_faces, np.uint32)
+        self.h_muscles = []
+        for m, info in enumerate(pb.muscles):
+            h = sc.add_mesh_simple(f"/muscles/{info.name}", surf[m], mfaces,
+                                   color=MUSCLE_COLOUR.get(info.kind, MUSCLE_COLOUR["muscle"]), visible=False)
+            h.on_click(lambda event, m=m: self.select(m))
+            self.h_muscles.append(h)
+        self.bones = None
+        """(B, 2) joint index pairs of the skeleton's bones, once the tuner thread knows the parents (from the
+        rebuilt character, when its joints are the bake's); joints alone until then."""
+        self.h_skeleton = self.h_joints = None
+        cam = self.server.initial_camera
+        height = float(hi[2] - lo[2])
+        cam.look_at = tuple(float(x) for x in self.centre)
+        cam.position = tuple(float(x) for x in self.centre + np.array([0.5 * height, -2.4 * height, 0.4 * height]))
+        cam.up = (0.0, 0.0, 1.0)
+        cam.fov = CAMERA_FOV
+
+    # ------------------------------------------------------------------ GUI
+    def _build_gui(self, paused: bool) -> None:
+        gui, pb = self.server.gui, self.pb
+        gui.configure_theme(control_width="large", dark_mode=True, show_logo=False)
+        gui.add_markdown(f"**jiggle view** · {html.escape(pb.name)} · {pb.T} frames at {pb.data.fps:g} fps, "
+                         f"{pb.V} vertices, {len(pb.muscles)} muscles")
+        with gui.add_folder("Playback"):
+            self.g_play = gui.add_button("Play" if paused else "Pause")
+            self.g_frame = gui.add_slider("frame", min=0, max=max(pb.T - 1, 1), step=1, initial_value=0)
+            self.g_loop = gui.add_checkbox("loop", initial_value=True)
+            self.g_speed = gui.add_dropdown("speed", SPEEDS, initial_value="1")
+            self.g_time = gui.add_markdown("")
+        self.playing = not paused
+        self.g_play.on_click(lambda _: self.set_playing(not self.playing))
+        self.g_frame.on_update(lambda _: self.draw(int(self.g_frame.value)))
+
+        with gui.add_folder("Show"):
+            self.g_mode = gui.add_dropdown("skin", SKIN_MODES, initial_value="dynamic")
+            self.g_heat = gui.add_checkbox("heat map", initial_value=False)
+            self.g_heat_bar = gui.add_html(self._heat_bar_html(), visible=False)
+            self.g_muscles = gui.add_checkbox("muscles", initial_value=False)
+            self.g_skeleton = gui.add_checkbox("skeleton", initial_value=False)
+            self.g_opacity = gui.add_slider("skin opacity", min=0.1, max=1.0, step=0.05, initial_value=1.0)
+        for h in (self.g_mode, self.g_heat, self.g_skeleton, self.g_opacity):
+            h.on_update(lambda _: self.redraw())
+        self.g_muscles.on_update(self._muscles_toggled)
+
+        with gui.add_folder("Skin quality"):
+            self.g_quality = gui.add_markdown("")
+
+        with gui.add_folder("Tune"):
+            self.g_tune_status = gui.add_markdown("rebuilding the setup from bake.json ...")
+            names = [m.name for m in pb.muscles]
+            self.g_t_muscle = gui.add_dropdown("muscle", names, initial_value=names[0] if names else "")
+            self.g_t_both = gui.add_checkbox("both sides", initial_value=True)
+            self.g_t_strength = gui.add_slider("strength", min=0.0, max=1.0, step=0.01, initial_value=1.0)
+            self.g_t_frequency = gui.add_slider("frequency (Hz)", min=FREQUENCY_RANGE[0], max=FREQUENCY_RANGE[1],
+                                                step=0.1, initial_value=5.0)
+            self.g_t_damping = gui.add_slider("damping ratio", min=DAMPING_RANGE[0], max=DAMPING_RANGE[1],
+                                              step=0.01, initial_value=0.3)
+            self.g_t_goal = gui.add_slider("goal weight scale", min=GOAL_SCALE_RANGE[0], max=GOAL_SCALE_RANGE[1],
+                                           step=0.01, initial_value=1.0)
+            self.g_t_blend = gui.add_slider("blend (all muscles)", min=0.0, max=1.0, step=0.01, initial_value=1.0)
+            self.g_t_reset = gui.add_button("reset to the bake")
+            self.g_t_path = gui.add_text("scene file", initial_value=os.path.join(self.out_dir, "tuned.toml"))
+            self.g_t_save = gui.add_button("save scene")
+            self.g_t_result = gui.add_markdown("")
+        with gui.add_folder("Muscles (peak jiggle)"):
+            self.g_selected = gui.add_markdown("Click a muscle (here or in the view) to highlight it and its skin.")
+            order = np.argsort(-pb.original_peak_mm, kind="stable")
+            self.g_muscle_buttons = {}
+            for m in order:
+                b = gui.add_button(self._muscle_label(int(m)))
+                b.on_click(lambda _, m=int(m): self.select(m))
+                self.g_muscle_buttons[int(m)] = b
+            self.g_clear = gui.add_button("clear selection")
+            self.g_clear.on_click(lambda _: self.select(None))
+
+        self._tune_controls = (self.g_t_muscle, self.g_t_both, self.g_t_strength, self.g_t_frequency,
+                               self.g_t_damping, self.g_t_goal, self.g_t_blend, self.g_t_reset, self.g_t_save,
+                               self.g_t_path)
+        for h in self._tune_controls:
+            h.disabled = True
+        self.g_t_muscle.on_update(lambda _: self._sync_sliders())
+        for knob, h in (("strength", self.g_t_strength), ("frequency", self.g_t_frequency),
+                        ("damping", self.g_t_damping), ("goal_scale", self.g_t_goal)):
+            h.on_update(lambda _, knob=knob, h=h: self._knob_moved(knob, float(h.value)))
+        self.g_t_blend.on_update(lambda _: self._blend_moved(float(self.g_t_blend.value)))
+        self.g_t_reset.on_click(lambda _: self._reset())
+        self.g_t_save.on_click(lambda _: self._save())
+
+    def _heat_bar_html(self) -> str:
+        top = self.pb.heat_top_mm
+        stops = ", ".join(f"rgb({r},{g},{b}) {100 * k / HEAT_BANDS:.1f}%, rgb({r},{g},{b}) "
+                          f"{100 * (k + 1) / HEAT_BANDS:.1f}%" for k, (r, g, b) in enumerate(self._colours))
+        return (f'<div style="font-size:12px;padding:0 12px">'
+                f'<div style="height:12px;border:1px solid #999;background:linear-gradient(to right,{stops})"></div>'
+                f'<div style="display:flex;justify-content:space-between"><span>0 mm</span>'
+                f'<span>|final - static|</span><span>{top:.1f} mm</span></div></div>')
+
+    def _muscle_label(self, m: int) -> str:
+        pb = self.pb
+        now, was = pb.peak_mm[m], pb.original_peak_mm[m]
+        label = f"{pb.muscles[m].name} · {now:.1f} mm"
+        if pb.tuned and abs(now - was) >= 0.05:
+            label += f" (bake {was:.1f})"
+        return label
+
+    # ------------------------------------------------------------------ drawing
+    def redraw(self) -> None:
+        self.draw(int(self.g_frame.value))
+
+    def draw(self, k: int) -> None:
+        """Show frame k with the current toggles."""
+        pb = self.pb
+        k = int(np.clip(k, 0, pb.T - 1))
+        with self._draw_lock, self.server.atomic():
+            mode, heat = self.g_mode.value, bool(self.g_heat.value)
+            opacity = float(self.g_opacity.value)
+            show_final = mode != "static"
+            final = pb.skin(k, "final")
+            heat_on = heat and show_final
+            self.h_dynamic.visible = show_final and not heat_on
+            if show_final and not heat_on:
+                self.h_dynamic.vertices = final
+                see_through = min(opacity, 0.6) if mode == "overlaid" else opacity
+                self.h_dynamic.opacity = None if see_through >= 1.0 else see_through
+            self._draw_heat(k, final if heat_on else None, opacity)
+            show_static = mode in ("static", "side by side", "overlaid")
+            self.h_static.visible = show_static
+            if show_static:
+                self.h_static.vertices = pb.skin(k, "static")
+                self.h_static.position = tuple(float(x) for x in self.side_offset) if mode == "side by side" \
+                    else (0.0, 0.0, 0.0)
+                self.h_static.opacity = 0.45 if mode == "overlaid" else (None if opacity >= 1.0 else opacity)
+            self.h_label_static.visible = self.h_label_dynamic.visible = mode == "side by side"
+            self._draw_muscles(k, "static" if mode == "static" else "final")
+            self._draw_skeleton(k)
+            self._draw_region(k, "static" if mode == "static" else "final")
+            self.g_heat_bar.visible = heat
+            t = pb.times[k]
+            self.g_time.content = f"frame **{k}** / {pb.T - 1} · t = **{t:.3f} s**" + \
+                (" · *tuned motion*" if pb.tuned else "")
+            self._draw_quality(k)
+        self.frame_shown = k
+
+    def _draw_heat(self, k: int, final: np.ndarray | None, opacity: float) -> None:
+        sc = self.server.scene
+        if final is None:
+            for h in self._band_handles:
+                if h is not None:
+                    h.visible = False
+            return
+        bands = heat_bands(self.pb.displacement_mm[k], self.pb.faces, self.pb.heat_top_mm, HEAT_BANDS)
+        handles = []
+        for b, band in enumerate(bands):
+            if band is None:
+                handles.append(None)
+                continue
+            ids, local = band
+            handles.append(sc.add_mesh_simple(f"/skin/heat/band{b}", final[ids], local,
+                                              color=tuple(int(c) for c in self._colours[b]), side="double",
+                                              opacity=None if opacity >= 1.0 else opacity))
+        for b, h in enumerate(self._band_handles):
+            if h is not None and handles[b] is None:
+                h.remove()
+        self._band_handles = handles
+
+    def _draw_muscles(self, k: int, which: str) -> None:
+        on = bool(self.g_muscles.value)
+        surf = self.pb.muscle_surfaces(k, which) if on else None
+        for m, h in enumerate(self.h_muscles):
+            h.visible = on
+            if on:
+                h.vertices = surf[m]
+
+    def _draw_skeleton(self, k: int) -> None:
+        """The joints (and the bones, once known) made anew each frame: the browser lost other nodes made in the
+        same batch as an update of a point cloud's points (seen: the heat map's first bands), never a node
+        made anew."""
+        sc = self.server.scene
+        if not self.g_skeleton.value:
+            for h in (self.h_joints, self.h_skeleton):
+                if h is not None:
+                    h.remove()
+            self.h_joints = self.h_skeleton = None
+            return
+        j = self.pb.joints(k).astype(np.float32)
+        self.h_joints = sc.add_point_cloud("/skeleton/joints", j, colors=np.array(BONE_COLOUR, np.uint8),
+                                           point_size=0.012 * self.size, point_shape="circle")
+        if self.bones is not None and len(self.bones):
+            self.h_skeleton = sc.add_line_segments("/skeleton/bones", j[self.bones], colors=BONE_COLOUR,
+                                                   thickness=4.0, thickness_units="screen")
+
+    def _draw_region(self, k: int, which: str) -> None:
+        if self._region_handle is not None:
+            self._region_handle.vertices = self.pb.skin(k, which)[self._region_faces[0]]
+
+    def _draw_quality(self, k: int) -> None:
+        rows = self.pb.quality_rows(k)
+        if rows is None:
+            self.g_quality.content = "no skin-quality numbers (run `jiggle compare` on the bake)"
+        else:
+            note = "\n\n*(the bake's motion; the tuned one is not measured)*" if self.pb.tuned else ""
+            self.g_quality.content = "| final skin, this frame | |\n|---|---:|\n" + \
+                "\n".join(f"| {a} | {b} |" for a, b in rows) + note
+
+    # ------------------------------------------------------------------ interaction
+    def set_playing(self, on: bool) -> None:
+        self.playing = bool(on)
+        self.g_play.label = "Pause" if self.playing else "Play"
+
+    def _play_loop(self) -> None:
+        pb = self.pb
+        pos, last = float(self.g_frame.value), time.perf_counter()
+        while not self._stop.is_set():
+            time.sleep(max(0.005, 0.5 / pb.data.fps))
+            now = time.perf_counter()
+            dt, last = now - last, now
+            if not self.playing or pb.T < 2:
+                pos = float(self.g_frame.value)
+                continue
+            if int(round(pos)) != int(self.g_frame.value):
+                pos = float(self.g_frame.value)              # scrubbed meanwhile
+            pos += dt * pb.data.fps * float(self.g_speed.value)
+            if pos > pb.T - 1:
+                if self.g_loop.value:
+                    pos = pos % pb.T
+                else:
+                    pos = pb.T - 1
+                    self.set_playing(False)
+            k = int(pos)
+            if k != int(self.g_frame.value):
+                self.g_frame.value = k                       # draws (the slider's callback)
+
+    def _muscles_toggled(self, _) -> None:
+        if self.g_muscles.value and float(self.g_opacity.value) >= 1.0:
+            self.g_opacity.value = 0.4                       # redraws
+        else:
+            self.redraw()
+
+    def select(self, m: int | None) -> None:
+        """Highlight muscle m (its mesh and its skin region), None: none."""
+        pb = self.pb
+        with self._draw_lock:
+            if self.selected is not None:
+                info = pb.muscles[self.selected]
+                self.h_muscles[self.selected].color = MUSCLE_COLOUR.get(info.kind, MUSCLE_COLOUR["muscle"])
+            if self._region_handle is not None:
+                self._region_handle.remove()
+                self._region_handle = None
+            self.selected = m
+            if m is None:
+                self.g_selected.content = "Click a muscle (here or in the view) to highlight it and its skin."
+                self.redraw()
+                return
+            info = pb.muscles[m]
+            self.h_muscles[m].color = SELECTED_COLOUR
+            region = self.regions[m] if self.regions is not None else pb.region_fallback(m)
+            faces = pb.faces[region[pb.faces].all(axis=1)]
+            if len(faces) == 0:
+                faces = pb.faces[region[pb.faces].any(axis=1)]
+            self._region_faces = compact(faces) if len(faces) else (np.zeros(0, np.int64), np.zeros((0, 3), np.uint32))
+            if len(faces):
+                which = "static" if self.g_mode.value == "static" else "final"
+                self._region_handle = self.server.scene.add_mesh_simple(
+                    "/skin/region", pb.skin(self.frame_shown, which)[self._region_faces[0]], self._region_faces[1],
+                    color=SELECTED_COLOUR, wireframe=True)
+            k_peak = int(np.argmax(pb.amplitude_mm[:, m])) if pb.T else 0
+            self.g_selected.content = (
+                f"**{info.name}** ({info.kind}): peak {pb.peak_mm[m]:.1f} mm at {pb.times[k_peak]:.2f} s"
+                + (f" (bake: {pb.original_peak_mm[m]:.1f} mm)" if pb.tuned else "")
+                + f"; {int(region.sum())} skin vertices in its region"
+                + ("" if self.regions is not None else " (nearest-CV estimate until the setup is rebuilt)"))
+            if self.tuner is not None and self.g_t_muscle.value != info.name:
+                self.g_t_muscle.value = info.name            # the Tune panel follows
+        self.redraw()
+
+    # ------------------------------------------------------------------ tuning
+    def _set_tune_status(self, text: str) -> None:
+        self.g_tune_status.content = text
+
+    def _tune_loop(self, factory: Callable) -> None:
+        try:
+            tuner = factory()
+        except NotTunable as e:
+            self.tune_error = str(e)
+            self._set_tune_status(f"tuning is off: {html.escape(str(e))}")
+            return
+        except Exception as e:  # noqa: BLE001 - the page keeps playing; the panel says what failed
+            self.tune_error = f"{type(e).__name__}: {e}"
+            self._set_tune_status(f"tuning is off: the setup did not rebuild ({html.escape(self.tune_error)})")
+            return
+        pb = self.pb
+        self.regions = skin_regions(tuner.setup.skin, pb.V, len(pb.muscles))
+        ch = tuner.setup.character
+        if tuple(ch.joint_names) == tuple(pb.data.joint_names):
+            parents = np.asarray(ch.parents)
+            kids = np.flatnonzero(parents >= 0)
+            self.bones = np.stack([parents[kids], kids], axis=1)
+        self.base = {j.name: j for j in tuner.jiggles}
+        self.tuner = tuner
+        for h in self._tune_controls:
+            h.disabled = False
+        self._sync_sliders()
+        self._set_tune_status(f"ready: move a slider to re-simulate (setup rebuilt in {tuner.prepare_s:.1f} s)")
+        if self.selected is not None:
+            self.select(self.selected)
+        while not self._stop.is_set():
+            with self._wanted:
+                while self._pending is None and not self._stop.is_set():
+                    self._wanted.wait(0.5)
+                if self._stop.is_set():
+                    return
+                tuning, self._pending = self._pending, None
+                self._busy = True
+            try:
+                self._set_tune_status("re-simulating ...")
+                motion = tuner.run(tuning)
+            except Exception as e:  # noqa: BLE001 - a value that blows up: say so, keep the last motion
+                self._set_tune_status(f"could not re-simulate: {html.escape(str(e))}")
+                with self._wanted:
+                    self._busy = False
+                continue
+            with self._draw_lock:
+                pb.replace_motion(motion.cvs_dynamic, motion.skin_final)
+                self.last_run_s = motion.seconds
+                for m, b in self.g_muscle_buttons.items():
+                    b.label = self._muscle_label(m)
+                self.motion_version += 1
+                if self.selected is not None:
+                    self.select(self.selected)
+                else:
+                    self.redraw()
+                self.shown_tuning = tuning                   # last: the motion is shown, labels and all
+            with self._wanted:
+                self._busy = False
+                more = self._pending is not None
+            self._set_tune_status(("re-simulating ..." if more else "re-simulated") +
+                                  f" (last run {motion.seconds:.2f} s: particles, blend, skin)")
+
+    def _request(self, tuning: Tuning) -> None:
+        self.tuning = tuning
+        with self._wanted:
+            self._pending = tuning
+            self._wanted.notify_all()
+
+    def _current(self, name: str, knob: str) -> float:
+        j = self.base[name]
+        v = self.tuning.muscles.get(name, {}).get(knob)
+        if v is not None:
+            return float(v)
+        return {"strength": j.strength, "frequency": j.frequency_hz, "damping": j.damping_ratio,
+                "goal_scale": 1.0}[knob]
+
+    def _sync_sliders(self) -> None:
+        """The Tune sliders show the chosen muscle's values (without re-simulating)."""
+        if self.tuner is None:
+            return
+        name = self.g_t_muscle.value
+        self._syncing = True
+        try:
+            self.g_t_strength.value = self._current(name, "strength")
+            self.g_t_frequency.value = float(np.clip(self._current(name, "frequency"), *FREQUENCY_RANGE))
+            self.g_t_damping.value = float(np.clip(self._current(name, "damping"), *DAMPING_RANGE))
+            self.g_t_goal.value = self._current(name, "goal_scale")
+            blend = self.tuning.blend
+            if blend is None:
+                curve = self.tuner.setup.settings.blend
+                blend = float(curve.values[0]) if len(curve.values) == 1 else 1.0
+            self.g_t_blend.value = blend
+        finally:
+            self._syncing = False
+
+    def _knob_moved(self, knob: str, value: float) -> None:
+        if self._syncing or self.tuner is None:
+            return
+        name = self.g_t_muscle.value
+        tuning = self.tuning.with_muscle(name, **{knob: value})
+        other = twin(name, self.base) if self.g_t_both.value else None
+        if other is not None:
+            tuning = tuning.with_muscle(other, **{knob: value})
+        self._request(tuning)
+
+    def _blend_moved(self, value: float) -> None:
+        if self._syncing or self.tuner is None:
+            return
+        self._request(self.tuning.with_blend(value))
+
+    def _reset(self) -> None:
+        self._request(Tuning())
+        self._sync_sliders()
+
+    def _save(self) -> None:
+        from sim.app.view.scene_file import save_tuned_scene
+        if self.tuner is None:
+            return
+        path = os.path.abspath(os.path.expanduser(self.g_t_path.value.strip() or "tuned.toml"))
+        try:
+            args = save_tuned_scene(self.tuner, self.tuning, path, self.formats, source=self.out_dir)
+        except Exception as e:  # noqa: BLE001 - a path that cannot be written: the panel says so
+            self.g_t_result.content = f"not saved: {html.escape(str(e))}"
+            return
+        cmd = " ".join(["jiggle bake", path, *args, "--out", "OUT"])
+        self.saved = (path, args)
+        self.g_t_result.content = f"saved **{html.escape(path)}**; bake it with `{html.escape(cmd)}`"
+        self.log(f"saved {path}; bake it with: {cmd}")
+
