@@ -468,7 +468,11 @@ def test_cli_fit_writes_musculature_facts_and_picture(capsys, tmp_path, fits):
     # the render smoke test: without working GL, VTK crashes or draws nothing
     import imageio.v3 as iio
     img = iio.imread(png)
-    assert img.shape[:2] == (800, 1800) and png.stat().st_size > 20_000
+    # 450-pixel panels: segmentation, front, side, back, the painted maps (the jiggle map, the shell regions)
+    # and whatever else fit draws (the bone capsules)
+    assert img.shape[0] == 800 and img.shape[1] % 450 == 0 and img.shape[1] >= 2700 and png.stat().st_size > 20_000
+    # the maps' starting point beside the TOML, to paint in Blender and read back
+    assert {p.name for p in out_toml.parent.iterdir()} >= {"CesiumMan.painted.glb", "CesiumMan.jiggle_map.npz"}
     assert len(np.unique(img.reshape(-1, img.shape[-1]), axis=0)) > 200
     assert not list(png.parent.glob(".*")) and not list(out_toml.parent.glob(".*"))  # no temporary files
 
@@ -479,5 +483,7 @@ def test_cli_fit_default_generated_body_without_picture(capsys, tmp_path):
     code, out, err = run(capsys, "fit", "--no-render", "--out", out_toml)
     assert code == 0, err
     assert "fitted 28 muscles (5 fat)" in out
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["muscles.json", "muscles.toml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["jumping_jacks_body.jiggle_map.npz",
+                                                          "jumping_jacks_body.painted.glb", "muscles.json",
+                                                          "muscles.toml"]
     assert len(tomllib.loads(out_toml.read_text())["muscle"]) == 28
