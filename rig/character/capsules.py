@@ -1,14 +1,18 @@
 """Bone capsules: a capsule inside the body around every bone of a character, built once at bind.
 
-A bone is the segment from a joint to one of its children (or to its end site, for a leaf), riding
-the joint (its world transform carries the segment). Its capsule's radius comes from the skin around
-it: the distances from the segment of the skin vertices the bone's joint dominates, measured along
-the middle of the bone (parameter t in [MID_LO, MID_HI], away from the joints where the neighbours'
-skin folds in), their SKIN_PERCENTILE percentile (the thin side of the limb, not the average), then
-shrunk by the local tissue thickness so that the capsule sits inside the body, under the muscles
-and fat that jiggle over it:
+A bone is the segment from a joint to one of its children (or to its end site, for a leaf, cut back to
+where the joint's skin ends along it, less the radius: an end site may lie past a fingertip or the top
+of the head), riding the joint (its world transform carries the segment). Its capsule's radius comes
+from the skin around it: the distances from the segment of the skin vertices the bone's joint
+dominates, measured along the middle of the bone (parameter t in [MID_LO, MID_HI], away from the
+joints where the neighbours' skin folds in), their SKIN_PERCENTILE percentile (the thin side of the
+limb, not the average), then shrunk by the local tissue thickness so that the capsule sits inside the
+body, under the muscles and fat that jiggle over it:
 
     radius = max(MIN_FRACTION r_skin, r_skin - tissue),  tissue = TISSUE_FRACTION r_skin by default
+
+and at most INSIDE_FRACTION of the distance from any point of its axis to the nearest skin vertex (the
+skin may be thinner near a bone's ends than along its middle: a neck over the chest bone's end)
 
 (sim/jiggle/colliders.py shrinks them further to the inner side of the bone's own muscles,
 :meth:`BoneCapsules.shrunk_inside`). Bones shorter than MIN_LENGTH (CMU's zero-length hip and
@@ -40,6 +44,12 @@ MIN_LENGTH = 0.02
 """metres: shorter bones get no capsule."""
 MIN_VERTICES = 8
 """Skin vertices a bone needs around it for a capsule."""
+INSIDE_FRACTION = 0.9
+"""A capsule's radius is at most this fraction of the distance from its axis to the nearest skin vertex."""
+AXIS_SAMPLES = 17
+"""Points along a capsule's axis where that distance is measured."""
+LEAF_PERCENTILE = 98.0
+"""A leaf bone's capsule ends where this share of its skin vertices lies behind it along the bone."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,8 +132,10 @@ def bone_capsules(character) -> BoneCapsules:
     has_child = np.zeros(len(parents), bool)
     has_child[parents[parents >= 0]] = True
     segs += [(j, -1, pos[j], tips[j]) for j in range(len(parents)) if not has_child[j] and np.isfinite(tips[j]).all()]
+    from scipy.spatial import cKDTree
     dominant = character.dominant_joint()
     verts = np.asarray(character.vertices, dtype=np.float64)
+    tree = cKDTree(verts)
     joint, child, local, radius, names = [], [], [], [], []
     for p, c, a, b in segs:
         if np.linalg.norm(b - a) < MIN_LENGTH:
@@ -137,6 +149,12 @@ def bone_capsules(character) -> BoneCapsules:
             continue
         r_skin = float(np.percentile(d[mid], SKIN_PERCENTILE))
         r = max(MIN_FRACTION * r_skin, r_skin - TISSUE_FRACTION * r_skin)
+        if c < 0:
+            b = _leaf_end(own, a, b, r)
+        # the skin may be thinner near the ends than along the middle (a neck over the chest's end): no
+        # part of the capsule comes nearer the skin than (1 - INSIDE_FRACTION) r
+        near, _ = tree.query(a + np.linspace(0.0, 1.0, AXIS_SAMPLES)[:, None] * (b - a))
+        r = min(r, INSIDE_FRACTION * float(near.min()))
         inv = np.linalg.inv(bind[p])
         joint.append(p)
         child.append(c)
@@ -146,6 +164,17 @@ def bone_capsules(character) -> BoneCapsules:
     return BoneCapsules(joint=np.array(joint, np.int32), child=np.array(child, np.int32),
                         local=np.array(local, np.float64).reshape(-1, 2, 3), radius=np.array(radius, np.float64),
                         names=tuple(names), parents=parents)
+
+
+def _leaf_end(own: np.ndarray, a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:
+    """The far end of a leaf bone's capsule (metres): an end site may lie past the skin (a fingertip, the top
+    of a head), so the axis stops where the skin the joint dominates ends along it (the LEAF_PERCENTILE
+    percentile of the vertices' positions along the axis), less the radius, so the cap stays inside."""
+    ab = b - a
+    L = float(np.linalg.norm(ab))
+    t = (own - a) @ ab / (L * L)
+    reach = min(1.0, float(np.percentile(t, LEAF_PERCENTILE))) * L - r
+    return a + ab * max(reach, 0.5 * MIN_LENGTH) / L
 
 
 def capsules_from_geoms(joint, ends_local, radius, names, parents) -> BoneCapsules:

@@ -143,18 +143,17 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
     g.add_argument("--drive", choices=["kinematic", "physics"], help="kinematic: MuJoCo poses the skeleton from the "
                    "clip; physics: MuJoCo simulates the body on a floor following it (default: the scene's, else "
                    "kinematic)")
-    g = p.add_argument_group("jiggle (over the scene's [jiggle] section)")
+    keyed_options(p)
+    g = p.add_argument_group("jiggle solver (over the scene's [jiggle] section)")
     g.add_argument("--substeps", type=count("--substeps"), metavar="N", help="integration steps per output frame "
                    "(default: 4)")
-    g.add_argument("--blend", type=unit_interval("--blend"), metavar="B", help="static_dyn_blend of every muscle: "
-                   "0 static, 1 dynamic (default: the scene's curves, else 1)")
-    g.add_argument("--jiggle", type=unit_interval("--jiggle"), metavar="J", help="jiggle strength of every muscle "
-                   "in [0, 1] (default: each muscle's, 1)")
     g.add_argument("--gravity", action="store_const", const=True, default=None, help="let the muscles sag under "
                    "gravity below their static shape (default: the scene's, else off)")
     g.add_argument("--preroll", type=non_negative("--preroll"), metavar="S", help="start at rest at the bind pose S "
                    "seconds early (default: the scene's, else 0: start settled on the first frame)")
     collision_option(g)
+    g.add_argument("--device", metavar="NAME", help="the Warp device every kernel runs on: cpu, cuda or cuda:N "
+                   "(default: cpu)")
     g = p.add_argument_group("caches")
     g.add_argument("--formats", metavar="LIST", help=f"comma-separated cache formats: {', '.join(FORMATS)} "
                    "(default: the scene's, else npz,usdc)")
@@ -173,6 +172,69 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
     for name in ("belly", "chest", "glutes", "upper-arms"):
         g.add_argument(f"--{name}", type=non_negative(f"--{name}"), metavar="M",
                        help=f"generated body: metres of fat on the {name.replace('-', ' ')}")
+
+
+class KeyedAction(argparse.Action):
+    """A keyable parameter's repeatable flag: ``[NAME=]VALUE`` with VALUE a number, keys ``[[t, v], ...]`` or
+    ``smooth:[[t, v], ...]`` and NAME a muscle or a glob; appends (NAME or None, value, the flag as typed with
+    its text, for messages). Without NAME: every muscle's (the global value when `global_ok`, else NAME "*").
+    A bad value is a usage error (exit 2) naming the flag as typed (--jiggle or --strength)."""
+
+    def __init__(self, option_strings, dest, parameter: str = "", global_ok: bool = True, **kw):
+        self.parameter, self.global_ok = parameter, global_ok
+        super().__init__(option_strings, dest, **kw)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from rig.base.errors import InputError
+        from sim.jiggle.keyed import parse_assignment
+        text = str(values).strip()
+        try:
+            pattern, value = parse_assignment(text, self.parameter, option_string, self.global_ok)
+        except InputError as e:
+            # argparse's style: the flag, then an entry NAME=VALUE named too
+            parser.error(f"argument {option_string}: " + (e.message if "=" not in text else f"{text}: {e.message}"))
+        items = list(getattr(namespace, self.dest, None) or [])
+        items.append((pattern, value, f"{option_string} {text}"))
+        setattr(namespace, self.dest, items)
+
+
+KEYED_FLAGS = (("--strength", "strength", ("--jiggle",)), ("--frequency", "frequency", ()),
+               ("--damping", "damping", ()), ("--goal-scale", "goal_scale", ()), ("--blend", "blend", ()))
+"""The keyable parameters' flags: (flag, the parameter (sim.jiggle.keyed.PARAMETERS, the scene's key), aliases)."""
+
+
+def keyed_options(p: argparse.ArgumentParser) -> None:
+    """The keyable jiggle parameters (sim/jiggle/keyed.py), one repeatable flag each, in one group:
+    --strength (alias --jiggle), --frequency, --damping, --goal-scale and --blend, each ``[NAME=]VALUE|CURVE``."""
+    from sim.jiggle.keyed import PARAMETERS
+    g = p.add_argument_group(
+        "jiggle parameters, keyable (over the scene's [jiggle] and [jiggle.muscles.NAME])",
+        "Each flag is repeatable: [NAME=]VALUE, NAME a muscle or a glob (\"*_fat\", \"left_*\"; an exact name beats "
+        "a glob, a later glob an earlier one; a glob matching no muscle is an error), VALUE a number or keys "
+        "[[t_s,v],...] (linear; smooth:[[t_s,v],...] for a monotone cubic). Without NAME: every muscle.")
+    for flag, name, aliases in KEYED_FLAGS:
+        par = PARAMETERS[name]
+        unit = f" {par.unit}" if par.unit else ""
+        dest = "jiggle" if name == "strength" else name
+        g.add_argument(flag, *aliases, dest=dest, action=KeyedAction, metavar="[NAME=]VALUE", parameter=name,
+                       global_ok=name in ("strength", "blend"),
+                       help=f"{par.what}; in {par.range_text}{unit} (default: {par.default})"
+                       + ("; --jiggle is the same flag" if aliases else ""))
+
+
+def keyed_request(args) -> dict:
+    """BakeRequest fields from the keyable flags: jiggle (the last global --strength), blend (the last
+    global --blend) and muscles, the NAME=VALUE entries (pattern, {scene key: value}, flag text) in order."""
+    out = {"jiggle": None, "blend": None, "muscles": []}
+    for _, name, _ in KEYED_FLAGS:
+        dest = "jiggle" if name == "strength" else name
+        for pattern, value, text in getattr(args, dest, None) or []:
+            if pattern is None:
+                out[dest] = value
+            else:
+                out["muscles"].append((pattern, {name: value}, text))
+    out["muscles"] = tuple(out["muscles"])
+    return out
 
 
 def collision_option(g) -> None:

@@ -14,6 +14,9 @@ spectrum.png      per-muscle amplitude spectrum, the dominant frequency marked
 displacement.png  the skin's largest and RMS displacement per frame, and a histogram over vertices
 quality.png       skin quality per frame: folded edges of the LBS, static and final skins, jiggle
                   tears (sim.app.skin_quality)
+contacts.png      for a bake with collisions (its bake.json has "contacts"): the deepest particle
+                  penetration per frame and the skin vertices inside another part's capsule per frame,
+                  static and final skin (see :func:`collision_metrics`)
 peak.png          static | dynamic skin at the peak frame (sim.app.compare_render), unless render=False
 quality_closeups.png  the worst frames for skin quality, close up, static | final, unless render=False
 clip.mp4          the same over the whole clip (clip.gif when ffmpeg fails), unless render/video False
@@ -41,8 +44,8 @@ from rig.base.atomic import atomic_path
 from rig.base.errors import InputError
 from sim.app import skin_quality
 from sim.app.jiggle_outputs import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
-from sim.app.plots import pyplot, save_figure
-from sim.bake.baker import COMPARE_NAMES, COMPARE_RECORD, COMPARE_RECORD_FORMAT, compare_files, remove_listed
+from sim.app.plots import plot_contacts, pyplot, save_figure
+from sim.bake.baker import COMPARE_NAMES, COMPARE_RECORD, COMPARE_RECORD_FORMAT, SUMMARY, compare_files, remove_listed
 from sim.bake.caches import BakeData, read_npz
 
 FORMAT = "jiggle.compare/1"
@@ -103,9 +106,11 @@ def read_params(text: str, names) -> tuple[dict, list[dict]]:
         entry = table.get(name)
         entry = entry if isinstance(entry, dict) else {}
         kind = entry.get("kind")
+        # bake.json names them frequency and damping (the scene's keys); older bakes frequency_hz, damping_ratio.
+        # A keyed value (a curve) is no one number: None
         muscles.append({"mass_kg": _number(entry.get("mass_kg")),
-                        "frequency_hz": _number(entry.get("frequency_hz")),
-                        "damping_ratio": _number(entry.get("damping_ratio"), strict=False),
+                        "frequency_hz": _number(entry.get("frequency", entry.get("frequency_hz"))),
+                        "damping_ratio": _number(entry.get("damping", entry.get("damping_ratio")), strict=False),
                         "kind": kind if isinstance(kind, str) else None})
     return params, muscles
 
@@ -390,6 +395,54 @@ def plot_displacement(path, times, arrays, peak_frame, title=""):
     return save_figure(fig, path)
 
 
+# ---------------------------------------------------------------------------------------- collisions
+def read_contacts(out_dir: str) -> dict | None:
+    """The "contacts" of OUT_DIR/bake.json (a bake with collisions, sim.bake.baker), or None: no bake.json,
+    an unreadable one, or a bake without collisions."""
+    try:
+        with open(os.path.join(out_dir, SUMMARY), encoding="utf-8") as fh:
+            summary = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    contacts = summary.get("contacts") if isinstance(summary, dict) else None
+    return contacts if isinstance(contacts, dict) else None
+
+
+def collision_metrics(contacts: dict, times: np.ndarray) -> dict:
+    """metrics.json's "collisions" from bake.json's "contacts" and the bake's frame times (T,) seconds:
+
+    frames_in_contact, max_penetration_mm (the deepest particle penetration before correction), floor_m,
+    friction, colliders (count); pairs: per (muscle, what it hit) the frames in contact, the deepest
+    penetration (mm) and the summed impulse (N s), deepest first; skin_inside: per skin (static, final) the
+    most and the mean skin vertices of one body part inside another part's capsule per frame, the frames
+    where the final skin has more than the static, and the worst frame of the final skin; per_frame: T values
+    each of max_penetration_mm, impulse_Ns, muscle and hit (the deepest contact's), skin_inside_static and
+    skin_inside_final. A per-frame list whose length is not T (a bake cut short) is left out."""
+    T = len(times)
+    per = contacts.get("per_frame") if isinstance(contacts.get("per_frame"), dict) else {}
+    out = {"method": contacts.get("method"), "friction": contacts.get("friction"), "floor_m": contacts.get("floor_m"),
+           "colliders": len(contacts.get("colliders") or ()), "pairs_checked": contacts.get("pairs_checked"),
+           "frames_in_contact": int(contacts.get("frames_in_contact") or 0),
+           "max_penetration_mm": float(contacts.get("max_penetration_mm") or 0.0),
+           "pairs": [p for p in (contacts.get("pairs") or []) if isinstance(p, dict)], "per_frame": {}}
+    for key in ("max_penetration_mm", "impulse_Ns", "muscle", "hit"):
+        if isinstance(per.get(key), list) and len(per[key]) == T:
+            out["per_frame"][key] = per[key]
+    si = contacts.get("skin_inside")
+    if isinstance(si, dict) and all(isinstance(si.get(k), list) and len(si[k]) == T for k in ("static", "final")):
+        s, f = np.asarray(si["static"], np.int64), np.asarray(si["final"], np.int64)
+        out["skin_inside"] = {
+            "rule": "skin vertices of one body part (its dominant joint) inside another part's bone capsule "
+                    "(not the bones meeting it at a joint), per frame",
+            "max_static": int(s.max()) if T else 0, "max_final": int(f.max()) if T else 0,
+            "mean_static": float(s.mean()) if T else 0.0, "mean_final": float(f.mean()) if T else 0.0,
+            "frames_final_above_static": int((f > s).sum()),
+            "worst_final_frame": int(np.argmax(f)) if T else None}
+        out["per_frame"]["skin_inside_static"] = s.tolist()
+        out["per_frame"]["skin_inside_final"] = f.tolist()
+    return out
+
+
 # ---------------------------------------------------------------------------------------- json
 def clean(value, digits: int = 9):
     """`value` as strict JSON: numpy numbers to Python, floats to `digits` significant digits,
@@ -442,7 +495,8 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     progress : called as progress(n) with the frames just rendered (n = 1 per frame, as tqdm's
         update), 1 + len(sim.app.compare_render.video_frames(T)) calls in all with render and video.
     Returns {"files": {key: path}, "metrics": the metrics.json dict}; keys of files: metrics,
-    displacement, amplitude, energy, spectrum, displacement_plot, peak, video, report.
+    displacement, amplitude, energy, spectrum, displacement_plot, quality_plot, contacts_plot (a bake
+    with collisions), peak, video, report.
     InputError for a missing, unfinished or unreadable bake.
     """
     out_dir = os.fspath(out_dir)
@@ -485,6 +539,11 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     files["quality_plot"] = skin_quality.plot_quality(out("quality.png"), times, quality)
     timings["quality_s"] = time.perf_counter() - t0
 
+    contacts = read_contacts(out_dir)            # a bake without collisions: no section, no plot
+    collisions = collision_metrics(contacts, times) if contacts is not None else None
+    if collisions is not None:
+        files["contacts_plot"] = plot_contacts(out("contacts.png"), times, collisions)
+
     video_info = None
     if render and V:
         from sim.app.compare_render import render_outputs
@@ -511,6 +570,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         "frames": T, "fps": data.fps, "duration_s": float(times[-1] - times[0]) if T else 0.0,
         "start_s": float(times[0]), "end_s": float(times[-1]), "vertices": V, "muscle_count": len(names),
         "skin": skin, "peak": peak, "skin_quality": quality,
+        **({"collisions": collisions} if collisions is not None else {}),
         "amplitude": "largest CV distance |dynamic - static| (the bake's blended CVs); rms: over time",
         "energy": "per muscle, sum over its CVs of 0.5 m_cv (|v|^2 + w^2 |d|^2); d = dynamic - static, "
                   "v = dd/dt (central differences), m_cv = mass_kg / CVs, w = 2 pi frequency_hz "

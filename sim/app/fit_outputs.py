@@ -8,7 +8,11 @@ muscles.json  counts, timings, skipped muscles, and the fit quality (rig.muscle.
 fit.png       segmentation (skin coloured by region), then the translucent skin over the lofted
               muscles (one colour each, fat in yellow) and their tendons, from the front, side and back;
               a muscle that fits poorly is solid red, a refused one (not in the rig) a red wireframe,
-              each labelled with its name, and listed with the reasons in the top left
+              each labelled with its name, and listed with the reasons in the top left; with the bone
+              capsules the particles collide with (sim.jiggle.colliders.collider_model: as a bake builds
+              them, shrunk inside the muscles), a panel of them, one colour per body part, inside the
+              translucent skin from the front (from the side for a quadruped), and muscles.json lists
+              each capsule's bone, radius and length
 """
 from __future__ import annotations
 
@@ -122,10 +126,34 @@ def musculature_toml(mus: Musculature) -> str:
     return "\n".join(lines)
 
 
+def capsule_facts(capsules, bind_world: np.ndarray) -> list[dict]:
+    """JSON-ready bone capsules (rig.character.capsules.BoneCapsules): per capsule its bone ("joint>child"),
+    radius and axis length in mm at bind (bind_world (J, 4, 4))."""
+    ends = capsules.ends(bind_world)
+    return [{"bone": n, "radius_mm": round(1e3 * float(r), 2),
+             "length_mm": round(1e3 * float(np.linalg.norm(e[1] - e[0])), 2)}
+            for n, r, e in zip(capsules.names, capsules.radius, ends)]
+
+
+def capsule_meshes(capsules, bind_world: np.ndarray) -> list:
+    """pyvista PolyData per bone capsule at bind (bind_world (J, 4, 4)): a cylinder on the axis with
+    hemispherical caps, of the capsule's radius."""
+    import pyvista as pv
+    out = []
+    for (a, b), r in zip(capsules.ends(bind_world), capsules.radius):
+        axis = b - a
+        L = float(np.linalg.norm(axis))
+        out.append(pv.Capsule(center=0.5 * (a + b), direction=axis / L if L > 0 else (0.0, 0.0, 1.0),
+                              radius=float(r), cylinder_length=max(L, 1e-6), resolution=20))
+    return out
+
+
 def write_fit_outputs(mus: Musculature, toml_path: str | None, png_path: str | None,
-                      json_path: str | None = None, maps: dict | None = None) -> dict:
+                      json_path: str | None = None, maps: dict | None = None, capsules=None) -> dict:
     """Write whichever of muscles TOML, PNG and JSON paths are given (atomically); returns {kind: path}.
-    maps: {panel title: (V,) values in [0, 1]} drawn as extra panels of the PNG (the painted maps)."""
+    maps: {panel title: (V,) values in [0, 1]} drawn as extra panels of the PNG (the painted maps).
+    capsules: the bone capsules the particles collide with (rig.character.capsules.BoneCapsules), drawn in
+    a panel of the PNG and listed in the JSON; None: neither."""
     import json
     out = {}
     if toml_path:
@@ -133,21 +161,25 @@ def write_fit_outputs(mus: Musculature, toml_path: str | None, png_path: str | N
             fh.write(musculature_toml(mus))
         out["muscles"] = toml_path
     if json_path:
+        facts = musculature_facts(mus)
+        if capsules is not None:
+            facts["capsules"] = capsule_facts(capsules, mus.character.bind_world)
         with atomic_path(json_path) as tmp, open(tmp, "w") as fh:
-            json.dump(musculature_facts(mus), fh, indent=1)
+            json.dump(facts, fh, indent=1)
         out["facts"] = json_path
     if png_path:
-        render_musculature(mus, png_path, maps=maps)
+        render_musculature(mus, png_path, maps=maps, capsules=capsules)
         out["picture"] = png_path
     return out
 
 
 def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None = None, views=None,
-                       maps: dict | None = None) -> str:
+                       maps: dict | None = None, capsules=None) -> str:
     """PNG: the segmentation, then the skin (translucent) over coloured muscles and tendons per view.
     An upright body is drawn in a row, from the front, side and back (1800 x 800); a long one (a
     quadruped) in a 2 x 2 grid, the segmentation and the muscles from its side, then from above and
-    from its right (1800 x 1100)."""
+    from its right (1800 x 1100). Then the painted maps (`maps`), then the bone capsules (`capsules`,
+    rig.character.capsules.BoneCapsules) in the translucent skin, each panel as wide as the others."""
     import matplotlib
     import pyvista as pv
 
@@ -183,8 +215,14 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None
     panels = [("segmentation", views[0] if long else "front")] + [(view, view) for view in views]
     # the painted maps (rig.character.painted_maps), each a panel of the skin coloured 0 (dark) to 1 (bright)
     panels += [(title, views[0] if long else "front") for title in (maps or {})]
-    if maps and not long:
-        size = (size[0] * len(panels) // (len(panels) - len(maps)), size[1])
+    CAPSULES = "bone capsules (collisions)"
+    extra = len(maps or {})
+    if capsules is not None and capsules.count:
+        panels.append((CAPSULES, views[0] if long else "front"))
+        extra += 1
+        cap_meshes = capsule_meshes(capsules, ch.bind_world)
+    if extra and not long:
+        size = (size[0] * len(panels) // (len(panels) - extra), size[1])
     rows, cols = (2, (len(panels) + 1) // 2) if long else (1, len(panels))
     pl = pv.Plotter(off_screen=True, shape=(rows, cols), window_size=list(size), border=False)
     for i, (title, view) in enumerate(panels):
@@ -193,6 +231,12 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None
         if title == "segmentation":
             pl.add_mesh(skin.copy(deep=False), scalars="region", cmap="tab20", clim=(-0.5, 19.5), n_colors=20,
                         show_scalar_bar=False, smooth_shading=True)
+        elif title == CAPSULES:
+            # one colour per body part (the joint a capsule rides), the skin over them as over the muscles
+            for c, mesh in enumerate(cap_meshes):
+                pl.add_mesh(mesh, color=palette[int(capsules.joint[c]) % len(palette)], smooth_shading=True,
+                            specular=0.3, opacity=0.85)
+            pl.add_mesh(skin.copy(deep=False), color=SKIN, opacity=0.18, smooth_shading=True)
         elif maps and title in maps:
             painted = skin.copy(deep=False)
             painted.point_data["map"] = np.asarray(maps[title], np.float32)

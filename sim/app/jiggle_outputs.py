@@ -28,6 +28,7 @@ from rig.base.atomic import atomic_path
 from rig.base.errors import InputError
 from rig.skin.muscle_skin import skin_frames
 from sim.app.mesh_render import SKIN, frame_camera
+from sim.jiggle.keyed import jsonable_value
 from sim.jiggle.secondary import JiggleResult
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
@@ -85,7 +86,8 @@ def jiggle_facts(result: JiggleResult) -> dict:
             "end_mm": round(float(a[-1]) * 1e3, 3),
             "settle_s": None if settle is None else round(settle, 4),
             "blended_peak_mm": round(float(shown[:, m].max(initial=0.0)) * 1e3, 3),
-            "frequency_hz": mj.frequency_hz, "damping_ratio": mj.damping_ratio, "strength": mj.strength,
+            "frequency_hz": jsonable_value(mj.frequency_hz), "damping_ratio": jsonable_value(mj.damping_ratio),
+            "strength": jsonable_value(mj.strength), "goal_scale": jsonable_value(mj.goal_scale),
             "density_kg_m3": mj.density, "goal_min": float(mj.goal.min()), "goal_max": float(mj.goal.max()),
             "blend": None if mj.blend is None else _curve(mj.blend),
         }
@@ -98,7 +100,7 @@ def jiggle_facts(result: JiggleResult) -> dict:
         "settle_rule": f"amplitude below {SETTLE_FRACTION:g} x its peak for {SETTLE_WINDOW:g} s (or to the end); "
                        "null: never",
         "settings": {"substeps": s.substeps, "goal_rate_hz": s.goal_rate, "gravity": s.gravity,
-                     "preroll_s": s.preroll, "strength": s.strength, "blend": _curve(s.blend),
+                     "preroll_s": s.preroll, "strength": jsonable_value(s.strength), "blend": _curve(s.blend),
                      "cut_ratio": s.cut_ratio, "cut_jump_m": s.cut_jump, "device": s.device},
         "muscles": muscles,
     }

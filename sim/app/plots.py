@@ -47,3 +47,51 @@ def plot_joint_trajectories(times: np.ndarray, positions: np.ndarray, names: lis
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_contacts(path: str, times: np.ndarray, collisions: dict) -> str:
+    """contacts.png of `jiggle compare` for a bake with collisions: left, the deepest penetration per frame
+    (mm, before the projection corrected it; the summed contact impulse, N s, on the right axis); right,
+    the skin vertices inside another body part's capsule per frame, static and final skin.
+
+    times : (T,) seconds. collisions : metrics.json's "collisions" (sim.app.compare.collision_metrics);
+    its "per_frame" lists of T values (a list absent or of another length is left out)."""
+    plt = pyplot()
+    per = collisions.get("per_frame") or {}
+    T = len(times)
+
+    def series(key):
+        v = per.get(key)
+        return np.array([np.nan if x is None else x for x in v], np.float64) if v is not None and len(v) == T else None
+    fig, (ax, sx) = plt.subplots(1, 2, figsize=(12, 4))
+    depth, impulse = series("max_penetration_mm"), series("impulse_Ns")
+    if depth is not None:
+        ax.plot(times, depth, lw=1.3, color=(0.8, 0.25, 0.1), label="deepest penetration")
+        ax.fill_between(times, 0.0, depth, color=(0.8, 0.25, 0.1), alpha=0.15)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("deepest penetration per frame (mm)\nbefore correction")
+    ax.set_title(f"particle contacts: {collisions.get('frames_in_contact', 0)} frames in contact, "
+                 f"deepest {collisions.get('max_penetration_mm') or 0:.3g} mm")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(alpha=0.3)
+    if impulse is not None:
+        ix = ax.twinx()
+        ix.plot(times, impulse, lw=0.9, color="0.45", ls="--", label="impulse (N s)")
+        ix.set_ylabel("summed contact impulse (N s)")
+        ix.set_ylim(bottom=0.0)
+        lines = ax.get_lines() + ix.get_lines()
+        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper right")
+    static, final = series("skin_inside_static"), series("skin_inside_final")
+    if static is not None:
+        sx.plot(times, static, lw=1.3, color=(0.2, 0.45, 0.8), label="static skin")
+    if final is not None:
+        sx.plot(times, final, lw=1.3, color=(0.85, 0.35, 0.1), ls="--", label="final skin")
+    si = collisions.get("skin_inside") or {}
+    sx.set_xlabel("time (s)")
+    sx.set_ylabel("skin vertices inside\nanother part's capsule")
+    sx.set_title(f"skin inside capsules: max static {si.get('max_static', '-')}, final {si.get('max_final', '-')}")
+    sx.set_ylim(bottom=0.0)
+    sx.grid(alpha=0.3)
+    if static is not None or final is not None:
+        sx.legend(fontsize=8, loc="upper right")
+    return save_figure(fig, path)

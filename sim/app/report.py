@@ -2,7 +2,8 @@
 video embedded as base64 data URIs, no external URL), so it can be mailed or opened offline.
 
 Sections: title, source and settings (from the bake's params), key numbers, skin quality (targets,
-the worst of each measure per skin, the plot and the close-ups), the muscle table (largest peak
+the worst of each measure per skin, the plot and the close-ups), collisions (a bake with them: key
+numbers, the per-frame plot, the table of which muscle hit what), the muscle table (largest peak
 first), the plots, the peak picture, the video.
 """
 from __future__ import annotations
@@ -107,6 +108,41 @@ def _quality_section(q: dict, files: dict) -> list[str]:
     return parts
 
 
+def _collision_section(c: dict, files: dict) -> list[str]:
+    """Collisions (metrics.json's "collisions", a bake with them): key numbers, the skin inside capsules,
+    the per-frame plot and the table of which muscle hit what (deepest first)."""
+    if not c:
+        return []
+    si = c.get("skin_inside") or {}
+    rows = [("frames with a particle in contact", _e(c.get("frames_in_contact"))),
+            ("deepest penetration (before correction)", f"{_num(c.get('max_penetration_mm'), '.3g')} mm"),
+            ("colliders", f"{_e(c.get('colliders'))} (capsules and the floor at z = {_num(c.get('floor_m'), '.3f')} m),"
+                          f" {_e(c.get('pairs_checked'))} muscle-capsule pairs, friction {_e(c.get('friction'))}")]
+    if si:
+        verdict = ('<b style="color:#1a7f37">ok</b>' if si.get("max_final", 0) <= si.get("max_static", 0)
+                   else '<b style="color:#b42318">more than static</b>')
+        rows.append(("skin vertices inside another part's capsule (per frame)",
+                     f"static: max {_e(si.get('max_static'))}, mean {_num(si.get('mean_static'))}; final: max "
+                     f"{_e(si.get('max_final'))}, mean {_num(si.get('mean_final'))} {verdict}; final above static in "
+                     f"{_e(si.get('frames_final_above_static'))} frames"))
+    parts = ["<h2>Collisions</h2>", _kv(rows)]
+    if "contacts_plot" in files:
+        parts.append(f'<img alt="contacts per frame" src="{data_uri(files["contacts_plot"])}">')
+    pairs = c.get("pairs") or []
+    if pairs:
+        head = ("muscle", "hit", "frames in contact", "max penetration (mm)", "impulse (N s)")
+        body = "".join(f"<tr><td>{_e(p.get('muscle'))}</td><td>{_e(p.get('hit'))}</td>"
+                       f'<td class="n">{_e(p.get("frames"))}</td>'
+                       f'<td class="n">{_num(p.get("max_penetration_mm"), ".3g")}</td>'
+                       f'<td class="n">{_num(p.get("impulse_Ns"), ".3g")}</td></tr>' for p in pairs)
+        parts.append("<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>" + body + "</table>")
+    else:
+        parts.append('<p class="note">no particle touched a capsule or the floor.</p>')
+    parts.append(f'<p class="note">{_e(c.get("method"))}. {_e(si.get("rule"))}.</p>' if si else
+                 f'<p class="note">{_e(c.get("method"))}.</p>')
+    return parts
+
+
 def _short(value):
     return f"{value:.3g}" if isinstance(value, float) else value
 
@@ -137,6 +173,7 @@ def render_report(metrics: dict, files: dict) -> str:
         ("muscles", _e(m.get("muscle_count"))),
     ])]
     parts += _quality_section(m.get("skin_quality") or {}, files)
+    parts += _collision_section(m.get("collisions") or {}, files)
     unit = m.get("energy_unit", "J")
     parts += ["<h2>Muscles</h2>", _muscle_table(m.get("muscles") or {}, unit),
               f'<p class="note">amplitude: {_e(m.get("amplitude"))}. energy ({_e(unit)}): {_e(m.get("energy"))}. '

@@ -50,9 +50,9 @@ from sim.bake.setup import BakeSetup
 from sim.bake.writer import BakeWriter
 from sim.jiggle.blend import blend, blend_weights, needs_simulation
 from sim.jiggle.colliders import collider_model, contact_summary, muscle_contacts, skin_check
+from sim.jiggle.keyed_solver import make_solver
 from sim.jiggle.particles import muscle_model
 from sim.jiggle.simulate import TIME_EPS, goals, simulate
-from sim.jiggle.solver import ParticleSolver
 
 PARTIAL = ".partial"
 MANIFEST = "manifest.json"
@@ -96,7 +96,7 @@ class Baker:
         self.colliders = self.skin_check = None
         if needs_simulation(self.blend):          # blend 0 everywhere: the static CVs, no simulation
             self.model = muscle_model(s.rig, list(s.jiggles), s.settings.device, gravity=s.settings.gravity)
-            self.solver = ParticleSolver(self.model)
+            self.solver = make_solver(self.model, s.jiggles)
         if s.settings.collisions:
             self.colliders = collider_model(s.rig, s.character, capsules=s.capsules, floor=s.floor,
                                             device=s.settings.device)
@@ -224,8 +224,8 @@ def cache_paths(out_dir: str, formats) -> dict:
 
 
 COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "energy.png", "spectrum.png",
-                 "displacement.png", "quality.png", "peak.png", "quality_closeups.png", "clip.mp4", "clip.gif",
-                 "report.html")
+                 "displacement.png", "quality.png", "contacts.png", "peak.png", "quality_closeups.png", "clip.mp4",
+                 "clip.gif", "report.html")
 """The names `jiggle compare` writes beside a bake (sim/app/compare.py) when they are free."""
 COMPARE_RECORD = "compare.json"
 """`jiggle compare`'s record of the files it wrote into a bake folder: {"format": COMPARE_RECORD_FORMAT,

@@ -37,7 +37,7 @@ Layout (paths relative to the scene file)::
     goal_rate = 120               # Hz, goal sampling (default max(120, fps))
     gravity = false
     preroll = 0.0                 # seconds
-    strength = 1.0                # jiggle strength J in [0, 1] of every muscle (default: each muscle's)
+    strength = 1.0                # jiggle strength J in [0, 1] of every muscle (default: each muscle's); keyable
     blend = 1.0                   # static_dyn_blend: a number in [0, 1] or keys [[t_s, b], ...]
     cut_ratio = 8.0
     cut_jump = 0.1                # metres
@@ -45,6 +45,9 @@ Layout (paths relative to the scene file)::
     [jiggle.muscles.belly_fat]    # per muscle, keys of sim.jiggle.params.OVERRIDES
     damping = 0.3
     blend = [[0.0, 0.0], [0.5, 1.0]]
+    strength = {keys = [[0.0, 1.0], [2.0, 0.2]], interpolation = "smooth"}
+    [jiggle.muscles."*_fat"]      # or a glob (fnmatch) of muscles: for each key an exact name beats a glob,
+    goal_scale = 0.8              #   a later glob an earlier one; a glob that matches nothing is an error
     [[pose_shapes]]               # any number: a muscle's sections scaled by a joint's bend
     muscle = "left_biceps"        #   a muscle's name or a glob ("*_biceps")
     joint = "lelbow"              #   the joint whose bend drives it (the character's joint name)
@@ -54,9 +57,11 @@ Layout (paths relative to the scene file)::
 
 A ``${VAR}`` at the start of a path whose value is relative is taken from the current directory, as
 the shell would (``JIGGLE_ASSETS=../shared/assets jiggle simulate scenes/belly_run.toml``); an unset
-variable is an error naming it. Blend key times are seconds of the motion as played (after start/end).
-Muscle names under [jiggle.muscles] are checked against the rig when they are applied
-(:meth:`Scene.apply_jiggle`), since the scene does not know the character's muscles.
+variable is an error naming it. Key times (blend, strength, frequency, damping, goal_scale: numbers or
+curves, sim/jiggle/keyed.py) are seconds of the motion as played (after start/end).
+Muscle names and globs under [jiggle.muscles] are checked against the rig when they are applied
+(:meth:`Scene.apply_jiggle`), since the scene does not know the character's muscles. The scene's [jiggle]
+strength is every muscle's; a muscle's own table (by name or glob) goes over it.
 
 The thesis's simple arm (rig/muscle/simple_arm.py) has no scene file: its cylinder, bones and fast flex
 are made in code, and it is what `jiggle simulate` runs when given no scene and no clip.
@@ -73,6 +78,7 @@ from typing import Mapping, Sequence
 from rig.base.errors import InputError
 from rig.base.tomlfile import read_toml
 from rig.motion.clip import Clip
+from sim.jiggle.keyed import parse_curve
 from sim.jiggle.params import OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
 
 _JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump",
@@ -170,23 +176,47 @@ class Scene:
         return replace(rig, pose_shapes=shapes)
 
     def apply_jiggle(self, jiggles: Sequence) -> list:
-        """`jiggles` (sim.jiggle.params.MuscleJiggle, one per muscle of the rig) with this scene's
-        per-muscle tables applied; InputError naming the scene, the muscles the rig lacks and the
-        rig's muscles."""
+        """`jiggles` (sim.jiggle.params.MuscleJiggle, one per muscle of the rig) with this scene's [jiggle]
+        strength (every muscle's) and then its per-muscle tables (names or globs) applied; InputError naming
+        the scene's line for a muscle the rig lacks or a glob that matches none, with the rig's muscles."""
+        if self.jiggle is not None and self.jiggle.strength is not None:
+            from dataclasses import replace
+            jiggles = [replace(j, strength=self.jiggle.strength) for j in jiggles]
         return apply_muscle_jiggle(jiggles, self.muscle_jiggle, self.path)
 
 
 def apply_muscle_jiggle(jiggles: Sequence, tables: Mapping[str, Mapping], path: str | None = None) -> list:
-    """Each MuscleJiggle in `jiggles` with its table of `tables` (name -> OVERRIDES keys) applied."""
+    """Each MuscleJiggle in `jiggles` with the tables of `tables` (muscle name or fnmatch glob -> OVERRIDES
+    keys, in file order) that name it applied, key by key the most specific (sim.jiggle.keyed.resolve_tables:
+    an exact name beats a glob, a later glob an earlier one)."""
+    lines = _Lines(path) if path is not None else None
+    entries = [(n, t, (f"jiggle.muscles.{n}", path, lines.table(f"jiggle.muscles.{n}") if lines else None))
+               for n, t in tables.items()]
+    return apply_entries(jiggles, entries, path, lines)
+
+
+def apply_entries(jiggles: Sequence, entries: Sequence[tuple], path: str | None = None, lines=None) -> list:
+    """`jiggles` with entries (pattern, {OVERRIDES key: value}, where) applied as apply_muscle_jiggle does;
+    where is a name for messages (a flag: "--damping *_fat=0.2") or (name, path, line)."""
+    from sim.jiggle.keyed import resolve_tables
     names = [j.name for j in jiggles]
-    missing = [n for n in tables if n not in names]
-    if missing:
-        raise InputError(f"the rig has no muscle {', '.join(repr(n) for n in missing)}; its muscles are "
-                         f"{', '.join(names) or '(none)'}", path, field="jiggle.muscles")
+    merged = resolve_tables(entries, names)
     out = []
     for j in jiggles:
-        if j.name in tables:
-            j = _override(j, tables[j.name], f"jiggle.muscles.{j.name}", path)
+        if j.name in merged:
+            # keys that came from one entry are applied together, so its errors name it
+            by_where: dict = {}
+            for k, (v, where) in merged[j.name].items():
+                by_where.setdefault(where, {})[k] = v
+            for where, table in by_where.items():
+                if isinstance(where, tuple):
+                    j = _override(j, table, where[0], path, lines)
+                    continue
+                try:                                        # a command-line flag: its errors name the flag
+                    j = override(j, dict(table), where)
+                except InputError as e:
+                    message = e.message.removeprefix(f"{where}: ").removeprefix(f"muscle {j.name!r}: ")
+                    raise InputError(f"{message} (muscle {j.name!r})", field=where) from None
         out.append(j)
     return out
 
@@ -387,11 +417,14 @@ def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
             continue
         v, where = sec[k], f"jiggle.{k}"
         line = lines.key("jiggle", k)
-        if k == "blend":
+        if k in ("blend", "strength"):
             try:
-                v = BlendCurve.parse(v, where)
+                v = BlendCurve.parse(v, where) if k == "blend" else parse_curve(v, "strength", where)
             except InputError as e:
-                raise InputError(e.message, p, line, field=where) from None
+                message = f"jiggle {e.message}" if k == "strength" else e.message
+                raise InputError(message, p, line, field=where) from None
+            kw[k] = v
+            continue
         elif k in ("gravity", "collisions"):
             if not isinstance(v, bool):
                 raise InputError(f"expected true or false, found {v!r}", p, line, field=where)
@@ -403,9 +436,7 @@ def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
             raise InputError(f"expected a number, found {v!r}", p, line, field=where)
         elif k == "preroll" and v < 0:
             raise InputError(f"expected seconds >= 0, found {v!r}", p, line, field=where)
-        elif k == "strength" and not 0.0 <= v <= 1.0:
-            raise InputError(f"jiggle strength must be in [0, 1], found {v!r}", p, line, field=where)
-        kw[k] = float(v) if k in ("goal_rate", "preroll", "strength", "cut_ratio", "cut_jump") else v
+        kw[k] = float(v) if k in ("goal_rate", "preroll", "cut_ratio", "cut_jump") else v
     try:
         settings = JiggleSettings(**kw)
     except InputError as e:

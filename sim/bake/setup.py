@@ -22,6 +22,7 @@ from typing import Callable, Mapping, MutableMapping
 import numpy as np
 
 from rig.base.errors import InputError
+from sim.jiggle.keyed import Curve
 from sim.jiggle.params import BlendCurve, JiggleSettings
 from sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
 
@@ -43,14 +44,18 @@ class BakeRequest:
         read it (rig.motion.mocap.load_clip).
     character : skinned glTF/GLB (the clip is retargeted onto it), over the scene's [character] file.
     template : muscle template, a built-in name or a .toml/.xml path.
-    fps, substeps, blend (static_dyn_blend of every muscle), jiggle (strength J of every muscle),
-    gravity (bool), preroll (seconds), collisions (bool): over the scene's [jiggle].
+    fps, substeps, blend (static_dyn_blend of every muscle), jiggle (strength J of every muscle; blend and
+    jiggle are numbers or sim.jiggle.keyed.Curve), gravity (bool), preroll (seconds), collisions (bool): over
+    the scene's [jiggle].
+    muscles : per-muscle entries from the command line, (pattern, {OVERRIDES key: value}, flag text) in the
+        order given (pattern a muscle name or a glob), over the scene's tables (sim.bake.scene.apply_entries).
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
     method ("lbs"/"dqs"), clip_map, character_map (the character's roles, for the template and for
     retargeting), skin, unit: as `jiggle simulate`; mush:
     Delta Mush steps on the smooth skin (0: off).
+    device : the Warp device every kernel of the bake runs on ("cpu", "cuda", "cuda:N"; None: "cpu").
     """
 
     scene: str | None = None
@@ -63,11 +68,13 @@ class BakeRequest:
     template: str | None = None
     fps: float | None = None
     substeps: int | None = None
-    blend: float | None = None
-    jiggle: float | None = None
+    blend: float | Curve | None = None
+    jiggle: float | Curve | None = None
+    muscles: tuple = ()
     gravity: bool | None = None
     preroll: float | None = None
     collisions: bool | None = None
+    device: str | None = None
     start: float | None = None
     end: float | None = None
     frames: int | None = None
@@ -141,8 +148,8 @@ def file_digest(path: str) -> str:
 def jsonable(x):
     """x with dataclasses, BlendCurves, numpy arrays and scalars turned into JSON values
     (non-finite floats become strings, so the JSON stays strict)."""
-    if isinstance(x, BlendCurve):
-        return {"times": jsonable(x.times), "values": jsonable(x.values)}
+    if isinstance(x, Curve):
+        return x.to_json()
     if is_dataclass(x) and not isinstance(x, type):
         return {f.name: jsonable(getattr(x, f.name)) for f in fields(x)}
     if isinstance(x, Mapping):
@@ -196,7 +203,8 @@ def fitted_key(req: BakeRequest, pick: Callable, character_file: str | None, bod
         character = {"generated": jsonable(body), "clip": h.hexdigest()}
     return params_key({"jiggle_bake": VERSION, "character": character, "influences": pick("influences", 4),
                        "template": named(str(template)), "character_map": named(req.character_map),
-                       "skinning": [pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)]})
+                       "skinning": [pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)],
+                       **({"device": req.device} if req.device not in (None, "cpu") else {})})
 
 
 def output_times(duration: float, fps: float, start: float | None, end: float | None,
@@ -221,6 +229,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         key are the same either way: nothing in that work depends on the clip beyond what the key names.
     """
     from sim.bake.scene import load_scene
+    if req.device is not None:
+        warp_device(req.device)             # before any work: a device that is not here is the user's mistake
     timings = {}
     t = time.perf_counter()
     scene = load_scene(req.scene) if req.scene is not None else None
@@ -282,11 +292,9 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         template = mus.template.name
     log(f"body plan: {mus.plan.kind} ({mus.plan.reason})")
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
-    if scene is not None:
-        jiggles = scene.apply_jiggle(jiggles)
     if cached is None:
         skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file,
-                                           mush=mush)
+                                           mush=mush, device=warp_device(req.device or "cpu"))
         if rigs is not None:
             rigs[rig_key] = FittedRig(character, mus, skin)
     if scene is not None and scene.pose_shapes:
@@ -368,7 +376,7 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
     pick = _picker(req, scene.character)
     skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
     skin = MuscleSkin(arm.character, arm.rig, skinning=skinning, method=method, mush=mush)
-    jiggles = scene.apply_jiggle(default_jiggles(arm.rig))
+    jiggles = default_jiggles(arm.rig)
     fps = float(req.fps or scene.fps or BAKE_FPS)
     times = output_times(FLEX_DURATION, fps, req.start, req.end, req.frames)
     settings, jiggles = _settings(req, scene, jiggles)
@@ -426,18 +434,43 @@ def _clip(req: BakeRequest, scene):
 
 
 def _settings(req: BakeRequest, scene, jiggles):
-    """(JiggleSettings, jiggles): the scene's [jiggle] with the command line's over it; --blend
-    replaces every muscle's own blend curve too."""
+    """(JiggleSettings, jiggles): the scene's [jiggle] with the command line's over it. The muscles'
+    parameters, each over the one before: the template's, the scene's [jiggle] strength, the scene's
+    [jiggle.muscles.NAME] tables (names and globs), the command line's global --strength and --blend
+    (every muscle's, over the scene's own), then its NAME=VALUE entries (req.muscles)."""
     settings = scene.jiggle if scene is not None and scene.jiggle is not None else JiggleSettings()
+    if scene is not None:
+        jiggles = scene.apply_jiggle(jiggles)
     given = {"substeps": req.substeps, "strength": req.jiggle, "gravity": req.gravity, "preroll": req.preroll,
-             "collisions": req.collisions,
-             "blend": None if req.blend is None else BlendCurve.constant(req.blend)}
+             "collisions": req.collisions, "device": None if req.device is None else warp_device(req.device),
+             "blend": None if req.blend is None else BlendCurve.parse(req.blend, "--blend")}
     settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
     if req.blend is not None:
         jiggles = [replace(j, blend=None) for j in jiggles]
-    if settings.strength is not None:
+    if req.jiggle is not None:
         jiggles = [replace(j, strength=settings.strength) for j in jiggles]
+    if req.muscles:
+        from sim.bake.scene import apply_entries
+        jiggles = apply_entries(jiggles, req.muscles)
     return settings, list(jiggles)
+
+
+def warp_device(name: str) -> str:
+    """`name` checked against the Warp devices of this machine ("cpu", "cuda", "cuda:0", ...), as Warp
+    names it; InputError naming --device and the devices there are otherwise (a machine without a GPU
+    has "cpu" only)."""
+    import warp as wp
+    wp.init()
+    have = ", ".join(str(d) for d in wp.get_devices())
+    if str(name).startswith("cuda") and not wp.is_cuda_available():
+        # asked before Warp tries the driver (which prints its own errors on a machine without one)
+        raise InputError(f"no Warp device {name!r} here: Warp finds no CUDA driver or GPU; this machine has: {have}",
+                         field="--device")
+    try:
+        return str(wp.get_device(name))
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise InputError(f"no Warp device {name!r} here ({type(e).__name__}: {e}); this machine has: {have}",
+                         field="--device") from None
 
 
 def _formats(req: BakeRequest, scene) -> tuple:
@@ -474,15 +507,24 @@ def _drive(clip, drive: str, knots: np.ndarray, log) -> Callable:
     return world_at
 
 
+MUSCLE_KEYS = {"strength": "strength", "frequency": "frequency_hz", "damping": "damping_ratio",
+               "goal_scale": "goal_scale", "goal": "goal", "density": "density",
+               "spring_frequency": "spring_frequency_hz", "spring_damping": "spring_damping_ratio", "friction": "friction", "blend": "blend",
+               "max_offset": "max_offset"}
+"""bake.json's per-muscle parameter names (the scene's [jiggle.muscles.NAME] keys) -> MuscleJiggle attributes."""
+
+
 def _muscle_params(rig, jiggles) -> dict:
-    """Per muscle: kind, rest volume, mass and every jiggle parameter (JSON-ready)."""
+    """Per muscle: kind, rest volume, mass and every jiggle parameter under its scene key (MUSCLE_KEYS; a
+    keyed one as {"times", "values", "interpolation"}), max_offset in metres at strength 1 (None: no
+    limit) and reach_m, the reach at the largest strength (JSON-ready)."""
     volumes = rig.volumes(rig.rest_cvs)
     out = {}
     for m, j in enumerate(jiggles):
-        d = jsonable(j)
-        d.pop("name", None)
+        d = {key: jsonable(getattr(j, attr)) for key, attr in MUSCLE_KEYS.items()}
+        d["max_offset"] = j.max_offset if math.isfinite(j.max_offset) else None
         out[rig.names[m]] = {"kind": rig.kinds[m], "volume_m3": float(volumes[m]),
                              "mass_kg": float(volumes[m] * j.density), **d,
-                             "max_offset_m": j.reach if math.isfinite(j.reach) else None}
+                             "reach_m": j.reach if math.isfinite(j.reach) else None}
     return out
 

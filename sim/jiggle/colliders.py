@@ -32,7 +32,7 @@ import warp as wp
 
 from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
-from rig.character.capsules import BoneCapsules, bone_capsules
+from rig.character.capsules import BoneCapsules, bone_capsules, segment_distance
 from sim.jiggle.goal_track import GoalControl, build_track
 from sim.jiggle.params import CVS
 
@@ -43,6 +43,8 @@ REST_CLEARANCE = 0.005
 SHRINK = 0.9
 """A capsule's radius is at most this fraction of the distance to the nearest CV of its own muscles."""
 NO_FLOOR = -1.0e30
+BROAD_BLOCK = 8
+"""Knot intervals the host's broad phase boxes together (Colliders.active)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,40 +159,64 @@ class Colliders:
         cm = self.model
         offs = np.asarray(particles.group_offsets, dtype=np.int64)
         M, C = len(offs) - 1, cm.num_capsules
-        mlo, mhi = group_boxes(track, offs[:-1])                            # (S - 1, M, 3)
+        # boxes per BROAD_BLOCK intervals: the kernel's per-step cull (sim/jiggle/contact_kernels.py) makes
+        # them tight again, so a coarser host phase only costs a few more per-muscle box tests per step
+        mlo, mhi = group_boxes(track, offs[:-1], BROAD_BLOCK)               # (B, M, 3)
         reach = np.maximum.reduceat(np.where(particles.glued, 0.0, particles.reach), offs[:-1])
         grow = (reach + cm.margin + 1e-4)[None, :, None]                    # inf reach: always near
         mlo, mhi = mlo - grow, mhi + grow
         near = np.zeros((len(mlo), M, C + 1), bool)
         if C:
             starts = np.arange(0, 2 * C, 2)
-            clo, chi = group_boxes(self.control.track, starts)               # (S - 1, C, 3): both ends
+            clo, chi = group_boxes(self.control.track, starts, BROAD_BLOCK)  # (B, C, 3): both ends
             clo = clo - cm.capsules.radius[None, :, None]
             chi = chi + cm.capsules.radius[None, :, None]
-            hit = np.broadcast_to(cm.keep[None], near[..., :C].shape).copy()
-            for ax in range(3):                                             # box overlap, axis by axis
-                hit &= clo[:, None, :, ax] <= mhi[:, :, None, ax]
-                hit &= chi[:, None, :, ax] >= mlo[:, :, None, ax]
-            near[..., :C] = hit
+            # box overlap on every axis, for the pairs the muscle collides with
+            overlap = ((clo[:, None] <= mhi[:, :, None]) & (chi[:, None] >= mlo[:, :, None])).all(axis=3)
+            np.logical_and(overlap, cm.keep[None], out=near[..., :C])
         if cm.floor is not None:
             near[..., C] = mlo[..., 2] < cm.floor
+        near = np.repeat(near, BROAD_BLOCK, axis=0)[:len(track.times) - 1]  # (S - 1, M, C + 1)
         counts = near.sum(axis=2).reshape(-1)
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
         ids = np.nonzero(near.reshape(-1, C + 1))[1].astype(np.int32)
         return offsets, ids
 
 
-def group_boxes(track, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) (S - 1, G, 3) metres: per knot interval, a box around the goal curves of each group of
-    particles starts[g]:starts[g + 1] (the last to the end): the box of the group's knot positions at
-    both ends, grown per axis by the largest |velocity| x H / 3 of its particles there. Each cubic lies
-    in the hull of its Bezier control points pa, pa + va H / 3, pb - vb H / 3, pb, which that box holds."""
-    H = (np.diff(track.times) / 3.0)[:, None, None]
-    def red(f, a):
-        return (np.minimum if f is np.min else np.maximum).reduceat(a, starts, axis=1)
-    pmin, pmax = red(np.min, track.pos), red(np.max, track.pos)             # (S, G, 3)
-    speed = np.maximum(red(np.max, np.abs(track.vel_start)), red(np.max, np.abs(track.vel_end))) * H
-    return np.minimum(pmin[:-1], pmin[1:]) - speed, np.maximum(pmax[:-1], pmax[1:]) + speed
+def group_boxes(track, starts: np.ndarray, block: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (B, G, 3) metres: per block of `block` knot intervals (B = ceil((S - 1) / block)), a box
+    around the goal curves of each group of particles starts[g]:starts[g + 1] (the last to the end): the
+    box of the group's knot positions in the block (both ends of every interval), grown per axis by the
+    largest |velocity| x H / 3 of its particles there. Each cubic lies in the hull of its Bezier control
+    points pa, pa + va H / 3, pb - vb H / 3, pb, which that box holds.
+
+    The knots are reduced first, block by block (contiguous rows), then the particles, on the block's
+    rows: a block of 8 intervals costs about an eighth of one box per interval."""
+    S = len(track.times)
+    first = np.arange(0, S - 1, block)                                      # (B,) each block's first interval
+    H = np.maximum.reduceat(np.diff(track.times), first) / 3.0             # (B,) its longest interval / 3
+    starts = np.asarray(starts, dtype=np.int64)
+
+    def red(op, a, rows):
+        # blocks of rows by `block` strided views (numpy's reduceat over rows is several times slower), then
+        # groups of particles on the block rows
+        out = a[0::block].copy()
+        for k in range(1, block):
+            part = a[k::block]
+            op(out[:len(part)], part, out=out[:len(part)])
+        return op.reduceat(out, starts, axis=1)
+    # knots of block b: first[b] .. first[b] + block (its last interval's far end: the next block's first knot)
+    pmin = red(np.minimum, track.pos[:-1], first)
+    pmax = red(np.maximum, track.pos[:-1], first)
+    last = np.minimum(first + block, S - 1)
+    pmin = np.minimum(pmin, np.minimum.reduceat(track.pos[last], starts, axis=1))
+    pmax = np.maximum(pmax, np.maximum.reduceat(track.pos[last], starts, axis=1))
+    # |v| bounded by max(v, -min v): reductions only, no (S, N, 3) temporary (a fresh one page-faults)
+    speed = np.maximum(red(np.maximum, track.vel_start, first), -red(np.minimum, track.vel_start, first))
+    np.maximum(speed, red(np.maximum, track.vel_end, first), out=speed)
+    np.maximum(speed, -red(np.minimum, track.vel_end, first), out=speed)
+    speed *= H[:, None, None]
+    return pmin - speed, pmax + speed
 
 
 def muscle_chains(rig, parents: np.ndarray) -> list[set]:
@@ -317,12 +343,51 @@ SKIN_REST_SHARE = 0.02
 class SkinCheck:
     """Counts skin vertices inside another body part's capsule. part : (V,) int32 each vertex's joint
     (its strongest influence). part_offsets (J + 1,), part_capsule : the capsules each part is checked
-    against (CSR). capsules : BoneCapsules."""
+    against (CSR). capsules : BoneCapsules. cluster : (V,) each vertex's cluster (a few centimetres of one
+    part's skin, :func:`vertex_clusters`), None: one per part; cluster_centre : (K, 3) metres, each
+    cluster's centre in its part's joint's bind frame, None: the world origin (a loose cull).
+
+    :meth:`count` is cheap: per frame each cluster's reach from its centre (riding the joint), then the
+    capsules of its part's list within reach (most clusters have none), then only those tested per vertex."""
 
     capsules: BoneCapsules
     part: np.ndarray
     part_offsets: np.ndarray
     part_capsule: np.ndarray
+    cluster: np.ndarray | None = None
+    cluster_centre: np.ndarray | None = None
+
+    @cached_property
+    def cluster_part(self) -> np.ndarray:
+        """(K,) int64: each cluster's part (joint)."""
+        if self.cluster is None:
+            return np.arange(len(self.part_offsets) - 1)
+        out = np.zeros(int(self.cluster.max()) + 1 if len(self.cluster) else 0, np.int64)
+        out[self.cluster] = self.part
+        return out
+
+    @cached_property
+    def _device_arrays(self) -> dict:
+        return {}
+
+    def _model(self, device: str):
+        """The check's constant arrays on `device` (made once per device): cluster_offsets (K + 1,) and
+        cluster_vertex (V,) (the vertices sorted by cluster, CSR), cluster_part (K,), part_offsets,
+        part_capsule, radius."""
+        got = self._device_arrays.get(device)
+        if got is None:
+            def dev(a, dtype):
+                return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
+            cluster = np.asarray(self.part if self.cluster is None else self.cluster, np.int64)
+            K = len(self.cluster_part)
+            order = np.argsort(cluster, kind="stable")
+            offsets = np.concatenate([[0], np.cumsum(np.bincount(cluster, minlength=K))])
+            got = self._device_arrays[device] = (
+                dev(offsets.astype(np.int32), wp.int32), dev(order.astype(np.int32), wp.int32),
+                dev(self.cluster_part.astype(np.int32), wp.int32), dev(self.part_offsets.astype(np.int32), wp.int32),
+                dev(self.part_capsule.astype(np.int32) if len(self.part_capsule) else np.zeros(1, np.int32), wp.int32),
+                dev(self.capsules.radius.astype(np.float32), wp.float32))
+        return got
 
     def inside(self, world: np.ndarray, skin: np.ndarray, device: str = "cpu") -> np.ndarray:
         """(T, V) bool: vertex v of frame t inside a capsule it is checked against; world (T, J, 4, 4),
@@ -345,9 +410,64 @@ class SkinCheck:
                   outputs=[out])
         return out.numpy().astype(bool)
 
+    def centres(self, world: np.ndarray) -> np.ndarray:
+        """(T, K, 3) float32 metres: each cluster's centre under joint world transforms world (T, J, 4, 4)."""
+        K = len(self.cluster_part)
+        if self.cluster_centre is None:
+            return np.zeros((len(world), K, 3), np.float32)
+        w = np.asarray(world, dtype=np.float64)
+        cp = self.cluster_part
+        out = w[:, :, :3, 3][:, cp]                                         # (T, K, 3): R c + t, column by column
+        for b in range(3):                                                  # (a batched 3x3 einsum is slower)
+            out += w[:, :, :3, b][:, cp] * self.cluster_centre[None, :, None, b]
+        return out.astype(np.float32)
+
     def count(self, world: np.ndarray, skin: np.ndarray, device: str = "cpu") -> np.ndarray:
-        """(T,) int: vertices inside another part's capsule per frame."""
-        return self.inside(world, skin, device).sum(axis=1)
+        """(T,) int32: vertices inside another part's capsule per frame, world (T, J, 4, 4), skin (T, V, 3)
+        metres; equal to inside(world, skin).sum(axis=1) (one launch of
+        sim/jiggle/contact_kernels.py: skin_inside_clusters)."""
+        from sim.jiggle import contact_kernels as ck
+        skin = np.ascontiguousarray(skin, dtype=np.float32)
+        T, V = skin.shape[:2]
+        if self.capsules.count == 0 or T == 0 or len(self.part_capsule) == 0:
+            return np.zeros(T, np.int32)
+        model = self._model(device)
+        K = len(self.cluster_part)
+        ends = wp.array(self.capsules.ends(world).reshape(T, -1, 3).astype(np.float32), dtype=wp.vec3, device=device)
+        centres = wp.array(self.centres(world), dtype=wp.vec3, device=device)
+        x = wp.array(skin, dtype=wp.vec3, device=device, copy=False)     # on the CPU: a view, no copy
+        cand = wp.empty((T, K, int(np.diff(self.part_offsets).max())), dtype=wp.int32, device=device)
+        out = wp.zeros(T, dtype=wp.int32, device=device)
+        wp.launch(ck.skin_inside_clusters, dim=(T, K), device=device, inputs=[*model, ends, centres, x, cand],
+                  outputs=[out])
+        return out.numpy()
+
+
+CLUSTER_SIZE = 0.06
+"""metres: the skin check's clusters are a part's vertices in one cube of this size at rest."""
+
+
+def vertex_clusters(part: np.ndarray, rest: np.ndarray, bind_world: np.ndarray,
+                    size: float = CLUSTER_SIZE) -> tuple[np.ndarray, np.ndarray]:
+    """(cluster (V,) int64, centre (K, 3) metres in the part's joint's bind frame): the vertices of each
+    part (part (V,)) grouped by the cube of side `size` their rest position (V, 3) lies in, each cluster's
+    centre the centroid of its rest vertices. Small clusters keep the skin check's cull tight: a cluster's
+    reach from its centre stays about its own size while the body moves."""
+    rest = np.asarray(rest, dtype=np.float64)
+    cell = np.floor(rest / size).astype(np.int64)
+    cell -= cell.min(axis=0) if len(cell) else 0
+    span = cell.max(axis=0) + 1 if len(cell) else np.ones(3, np.int64)
+    key = ((np.asarray(part, np.int64) * span[0] + cell[:, 0]) * span[1] + cell[:, 1]) * span[2] + cell[:, 2]
+    _, cluster = np.unique(key, return_inverse=True)                    # one int64 key: a 1-d unique
+    cluster = cluster.reshape(-1)
+    K = int(cluster.max()) + 1 if len(cluster) else 0
+    sums = np.zeros((K, 3))
+    np.add.at(sums, cluster, rest)
+    centre = sums / np.bincount(cluster, minlength=K)[:, None]
+    joint = np.zeros(K, np.int64)
+    joint[cluster] = part
+    inv = np.linalg.inv(np.asarray(bind_world, dtype=np.float64))[joint]
+    return cluster, np.einsum("kij,kj->ki", inv[:, :3, :3], centre) + inv[:, :3, 3]
 
 
 def skin_check(character, capsules: BoneCapsules) -> SkinCheck:
@@ -374,23 +494,30 @@ def skin_check(character, capsules: BoneCapsules) -> SkinCheck:
     part = np.asarray(character.dominant_joint(), dtype=np.int64)
     rest = np.asarray(character.vertices, dtype=np.float64)
     C = capsules.count
-    inside_rest = skin_inside_numpy(capsules.ends(character.bind_world)[None], capsules.radius, rest[None],
-                                    all_pairs=True)[0] if C else None                 # (V, C)
+    # (V, C) rest vertices inside each capsule, capsule by capsule ((V, 3) temporaries, not (V, C, 3))
+    bind_ends = capsules.ends(character.bind_world)
+    inside_rest = np.stack([segment_distance(rest, a, b)[0] < r for (a, b), r in zip(bind_ends, capsules.radius)],
+                           axis=1) if C else None
+    # (J, C) share of each part's rest vertices inside each capsule (bincounts, not a boolean mask per pair)
+    n_part = np.bincount(part, minlength=J)
+    share = np.stack([np.bincount(part, weights=inside_rest[:, c], minlength=J) for c in range(C)], axis=1) \
+        / np.maximum(n_part, 1)[:, None] if C else np.zeros((J, 0))
     lists = []
     for j in range(J):
-        vs = part == j
         ok = []
         for c in range(C):
             near = min(dist[j, capsules.joint[c]], dist[j, capsules.child[c]] if capsules.child[c] >= 0 else 10**6)
             if near <= SKIN_ADJACENT:
                 continue
-            if vs.any() and inside_rest[vs, c].mean() > SKIN_REST_SHARE:
+            if n_part[j] and share[j, c] > SKIN_REST_SHARE:
                 continue
             ok.append(c)
         lists.append(ok)
     offsets = np.concatenate([[0], np.cumsum([len(x) for x in lists])]).astype(np.int64)
     flat = np.array([c for x in lists for c in x], np.int64)
-    return SkinCheck(capsules, frozen_array(part, np.int64), frozen_array(offsets, np.int64), frozen_array(flat, np.int64))
+    cluster, centre = vertex_clusters(part, rest, character.bind_world)
+    return SkinCheck(capsules, frozen_array(part, np.int64), frozen_array(offsets, np.int64),
+                     frozen_array(flat, np.int64), frozen_array(cluster, np.int64), frozen_array(centre, np.float64))
 
 
 def skin_inside_numpy(ends: np.ndarray, radius: np.ndarray, skin: np.ndarray, part: np.ndarray | None = None,

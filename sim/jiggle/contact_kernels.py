@@ -19,13 +19,21 @@ The capsules move with their joints: their two ends are a second goal track on t
 particles' goals (cubic Hermite between knots, sim/jiggle/goal_track.py), so a capsule's position at
 any step's end is the same arithmetic as a goal's.
 
-Broad phase, per muscle and knot interval, on the host before the launch (sim/jiggle/colliders.py:
-Colliders.active): the box of the muscle's goal curves over the interval (the hull of their Bezier
-control points), grown by the muscle's reach (a particle ends every flow within it of its goal) and
-its largest capsule radius (a push out of one capsule moves a particle at most that far), against
-each candidate capsule's box over the interval grown by its radius; the floor when the box reaches
-below it. A muscle's candidates (capsules of bones that are not its own chain, not touched at rest)
-are listed once. A muscle nothing is near costs one lookup per step.
+Broad phase, per muscle and block of BROAD_BLOCK knot intervals, on the host before the launch
+(sim/jiggle/colliders.py: Colliders.active): the box of the muscle's goal curves over the block (the
+hull of their Bezier control points), grown by the muscle's reach (a particle ends every flow within it
+of its goal) and its largest capsule radius (a push out of one capsule moves a particle at most that
+far), against each candidate capsule's box over the block grown by its radius; the floor when the box
+reaches below it. A muscle's candidates (capsules of bones that are not its own chain, not touched at
+rest) are listed once. A muscle nothing is near costs one lookup per step. In the kernel, per step, the
+listed capsules' boxes at the step's end and their union: a particle outside the union costs one box
+test, the rest a box test per capsule before the exact one (contact_pass).
+
+The skin check (skin vertices of one body part inside another part's capsule, every frame) is one
+launch over (frame, cluster of a part's vertices, a few centimetres across, riding the part's joint):
+the cluster's reach from its centre, the capsules of its part's list within reach of it (most clusters
+have none), the cluster's vertices against those only (skin_inside_clusters); skin_inside is the plain
+per-vertex test over the part's whole list, its reference.
 """
 from __future__ import annotations
 
@@ -53,9 +61,10 @@ def capsule_push(x: wp.vec3, v: wp.vec3, a: wp.vec3, b: wp.vec3, va: wp.vec3, vb
         t = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
     q = a + t * ab
     d = x - q
-    dist = wp.length(d)
-    if dist >= r:
+    d2 = wp.dot(d, d)
+    if d2 >= r * r:                          # outside (most calls): no square root
         return x, v, 0.0
+    dist = wp.sqrt(d2)
     n = wp.vec3(0.0, 0.0, 1.0)
     if dist > 1.0e-9:
         n = d / dist
@@ -81,6 +90,38 @@ def surface_velocity(v: wp.vec3, w: wp.vec3, n: wp.vec3, friction: float):
     return w + keep * vt
 
 
+FAR = 1.0e30
+"""metres: beyond any position (an empty box's bounds)."""
+
+
+@wp.func
+def end_pos(cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3), cap_ve: wp.array2d(dtype=wp.vec3),
+            seg: int, k: int, H: float, s: float):
+    """Capsule end k's position at s on knot interval seg (goal_pos's arithmetic)."""
+    pa, pb, va, vb = segment(cap_pos, cap_vs, cap_ve, seg, k)
+    return goal_pos(pa, pb, va, vb, H, s)
+
+
+@wp.func
+def capsule_contact(x: wp.vec3, v: wp.vec3, a: wp.vec3, b: wp.vec3, cap_pos: wp.array2d(dtype=wp.vec3),
+                    cap_vs: wp.array2d(dtype=wp.vec3), cap_ve: wp.array2d(dtype=wp.vec3), seg: int, c: int, H: float,
+                    s: float, r: float, friction: float):
+    """capsule_push against capsule c (ends a, b at s), its ends' velocities evaluated only when x is inside."""
+    ab = b - a
+    L2 = wp.dot(ab, ab)
+    t = float(0.0)
+    if L2 > 0.0:
+        t = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
+    d = x - (a + t * ab)
+    if wp.dot(d, d) >= r * r:
+        return x, v, 0.0
+    pa, pb, va, vb = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c)
+    wa = goal_vel(pa, pb, va, vb, H, s)
+    pa, pb, va, vb = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c + 1)
+    wb = goal_vel(pa, pb, va, vb, H, s)
+    return capsule_push(x, v, a, b, wa, wb, r, friction)
+
+
 @wp.func
 def contact_pass(
     m0: int, m1: int,
@@ -92,7 +133,8 @@ def contact_pass(
     # goals of the particles (cubics of the current interval) and of the capsule ends, at s1
     cubics: wp.array(dtype=cubic), cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3),
     cap_ve: wp.array2d(dtype=wp.vec3), seg: int, H: float, s1: float,
-    # scratch: capsule ends at s1 per active entry; per-particle contact records; per-muscle "has records"
+    # scratch per active entry at s1: capsule ends a, b and box lo, hi;
+    # per-particle contact records; per-muscle "has records"
     ends_a: wp.array(dtype=wp.vec3), ends_b: wp.array(dtype=wp.vec3), ends_va: wp.array(dtype=wp.vec3),
     ends_vb: wp.array(dtype=wp.vec3), record: wp.array(dtype=wp.vec3), dirty: wp.array(dtype=wp.int32),
     # in/out: the step's end offsets
@@ -104,33 +146,57 @@ def contact_pass(
     """The contacts of muscles m0:m1 at the end of a step (s1) against what the broad phase lists for them:
     positions pushed out of the capsules and above the floor, offsets y, u corrected in place, the
     positions rewritten where read, contact records kept (largest depth, summed impulse N s, what was
-    hit) and written with each recorded frame (contacts_out holds "none" where a muscle has none)."""
+    hit) and written with each recorded frame (contacts_out holds "none" where a muscle has none).
+
+    Per muscle and step, the listed capsules' ends at s1 and their boxes (grown by the radius) first, and
+    the union of those boxes; a particle outside the union (and above the floor, when the floor is listed)
+    touches nothing and costs one box test, the others are tested against each capsule's box before its
+    exact test, and a capsule's end velocities are evaluated only on a contact. The host's broad phase
+    lists what a muscle may reach over a block of knot intervals (sim/jiggle/colliders.py: Colliders.active),
+    these tests what each particle reaches now; they skip only what cannot touch, so the result is that of
+    testing every listed capsule."""
     for m in range(m0, m1):
         lo_p = int(muscle_offsets[m])
         hi_p = int(muscle_offsets[m + 1])
         e0 = int(active_offsets[seg * num_muscles + m])
         e1 = int(active_offsets[seg * num_muscles + m + 1])
         if e1 > e0:
+            # the listed capsules at s1: ends and boxes, and the union of the boxes; the floor's height when
+            # it is listed (else far below)
+            ulo = wp.vec3(FAR)
+            uhi = wp.vec3(-FAR)
+            floor_live = float(-FAR)
             for e in range(e0, e1):
                 c = active_id[e]
                 if c < num_capsules:
-                    pa0, pb0, va0, vb0 = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c)
-                    pa1, pb1, va1, vb1 = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c + 1)
-                    ends_a[e] = goal_pos(pa0, pb0, va0, vb0, H, s1)
-                    ends_b[e] = goal_pos(pa1, pb1, va1, vb1, H, s1)
-                    ends_va[e] = goal_vel(pa0, pb0, va0, vb0, H, s1)
-                    ends_vb[e] = goal_vel(pa1, pb1, va1, vb1, H, s1)
+                    a = end_pos(cap_pos, cap_vs, cap_ve, seg, 2 * c, H, s1)
+                    b = end_pos(cap_pos, cap_vs, cap_ve, seg, 2 * c + 1, H, s1)
+                    r = cap_radius[c]
+                    clo = wp.min(a, b) - wp.vec3(r)
+                    chi = wp.max(a, b) + wp.vec3(r)
+                    # the ends and the capsule's box; its ends' velocities are needed only on a contact
+                    ends_a[e] = a
+                    ends_b[e] = b
+                    ends_va[e] = clo
+                    ends_vb[e] = chi
+                    ulo = wp.min(ulo, clo)
+                    uhi = wp.max(uhi, chi)
+                else:
+                    floor_live = floor
             for i in range(lo_p, hi_p):
                 inv_m = params[i][0]
-                if inv_m > 0.0:
-                    cu = cubics[i]
-                    pa = wp.vec3(cu[0], cu[1], cu[2])
-                    va = wp.vec3(cu[3], cu[4], cu[5])
-                    c2 = wp.vec3(cu[6], cu[7], cu[8])
-                    c3 = wp.vec3(cu[9], cu[10], cu[11])
-                    g1 = pa + s1 * (va + s1 * (c2 + s1 * c3))
+                cu = cubics[i]
+                pa = wp.vec3(cu[0], cu[1], cu[2])
+                va = wp.vec3(cu[3], cu[4], cu[5])
+                c2 = wp.vec3(cu[6], cu[7], cu[8])
+                c3 = wp.vec3(cu[9], cu[10], cu[11])
+                g1 = pa + s1 * (va + s1 * (c2 + s1 * c3))
+                x = g1 + y[i]                           # run_step's arithmetic: what it wrote
+                # a particle outside every live capsule's box and above a live floor touches nothing
+                near = x[0] >= ulo[0] and x[1] >= ulo[1] and x[2] >= ulo[2] and \
+                    x[0] <= uhi[0] and x[1] <= uhi[1] and x[2] <= uhi[2]
+                if inv_m > 0.0 and (near or x[2] < floor_live):
                     g_vel = va + s1 * (2.0 * c2 + 3.0 * s1 * c3)
-                    x = g1 + y[i]                       # run_step's arithmetic: what it wrote
                     v1 = g_vel + u[i]
                     v = v1
                     deepest = float(0.0)
@@ -138,11 +204,16 @@ def contact_pass(
                     for e in range(e0, e1):
                         c = active_id[e]
                         if c < num_capsules:
-                            x, v, depth = capsule_push(x, v, ends_a[e], ends_b[e], ends_va[e], ends_vb[e],
-                                                       cap_radius[c], friction)
-                            if depth > deepest:
-                                deepest = depth
-                                hit = float(c)
+                            clo = ends_va[e]
+                            chi = ends_vb[e]
+                            # outside the capsule's box (most particles): no push
+                            if x[0] >= clo[0] and x[1] >= clo[1] and x[2] >= clo[2] and \
+                                    x[0] <= chi[0] and x[1] <= chi[1] and x[2] <= chi[2]:
+                                x, v, depth = capsule_contact(x, v, ends_a[e], ends_b[e], cap_pos, cap_vs, cap_ve,
+                                                              seg, c, H, s1, cap_radius[c], friction)
+                                if depth > deepest:
+                                    deepest = depth
+                                    hit = float(c)
                         elif x[2] < floor:
                             depth = floor - x[2]
                             x = wp.vec3(x[0], x[1], floor)
@@ -281,3 +352,73 @@ def skin_inside(
         if wp.dot(d, d) < r * r:
             hit = 1
     inside_out[t, i] = hit
+
+
+@wp.func
+def inside_capsule(x: wp.vec3, a: wp.vec3, b: wp.vec3, r: float):
+    """x strictly inside the capsule of axis a-b and radius r (skin_inside's arithmetic)."""
+    ab = b - a
+    L2 = wp.dot(ab, ab)
+    s = float(0.0)
+    if L2 > 0.0:
+        s = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
+    d = x - (a + s * ab)
+    return wp.dot(d, d) < r * r
+
+
+@wp.kernel
+def skin_inside_clusters(
+    # model: clusters (CSR over the vertices sorted by cluster), each cluster's part, the parts' capsule lists
+    cluster_offsets: wp.array(dtype=wp.int32), cluster_vertex: wp.array(dtype=wp.int32),
+    cluster_part: wp.array(dtype=wp.int32), part_offsets: wp.array(dtype=wp.int32),
+    part_capsule: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
+    # in: capsule ends (T, 2C), the clusters' centres (T, K), the skin (T, V)
+    ends: wp.array2d(dtype=wp.vec3), centres: wp.array2d(dtype=wp.vec3), skin: wp.array2d(dtype=wp.vec3),
+    # scratch: the candidate capsules of each thread (T, K, L)
+    cand: wp.array3d(dtype=wp.int32),
+    # out: per frame the vertices inside a capsule of their part's list (zeroed by the caller)
+    count_out: wp.array(dtype=wp.int32),
+):
+    """:func:`skin_inside` counted per frame, a thread per (frame t, cluster k): the cluster's reach from its
+    centre (its vertices' largest distance), the capsules of its part's list whose axis comes within reach +
+    radius of the centre (a vertex inside a capsule is within its radius of the axis and within reach of the
+    centre, so no other capsule can hold one), then the cluster's vertices against those only (most
+    clusters have none: one pass of distances)."""
+    t, k = wp.tid()
+    p = int(cluster_part[k])
+    e0 = int(part_offsets[p])
+    e1 = int(part_offsets[p + 1])
+    if e1 > e0:
+        v0 = int(cluster_offsets[k])
+        v1 = int(cluster_offsets[k + 1])
+        x0 = centres[t, k]
+        reach2 = float(0.0)
+        for j in range(v0, v1):
+            d0 = skin[t, cluster_vertex[j]] - x0
+            reach2 = wp.max(reach2, wp.dot(d0, d0))
+        reach = wp.sqrt(reach2)
+        n = int(0)
+        for e in range(e0, e1):
+            c = part_capsule[e]
+            a = ends[t, 2 * c]
+            ab = ends[t, 2 * c + 1] - a
+            L2 = wp.dot(ab, ab)
+            s = float(0.0)
+            if L2 > 0.0:
+                s = wp.clamp(wp.dot(x0 - a, ab) / L2, 0.0, 1.0)
+            d = x0 - (a + s * ab)
+            lim = reach + cap_radius[c]
+            if wp.dot(d, d) <= lim * lim:
+                cand[t, k, n] = c
+                n += 1
+        if n > 0:
+            inside = int(0)
+            for j in range(v0, v1):
+                x = skin[t, cluster_vertex[j]]
+                for q in range(n):
+                    c = cand[t, k, q]
+                    if inside_capsule(x, ends[t, 2 * c], ends[t, 2 * c + 1], cap_radius[c]):
+                        inside += 1
+                        break
+            if inside > 0:
+                wp.atomic_add(count_out, t, inside)

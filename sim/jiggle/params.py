@@ -35,34 +35,36 @@ bulge, end) get (tendon, mean, belly, mean, tendon); painted weights (one per CV
 ``static_dyn_blend`` (the thesis appendix's blend shape) mixes static and dynamic CVs before the
 skin deformers, ``cvs = static + b (dynamic - static)``: a :class:`BlendCurve` per muscle, keyable
 (linear between keys, held before the first and after the last), defaulting to the global curve.
+
+Keyable: strength, frequency, damping, goal_scale (a multiplier of the goal weights, clipped to [0, 1]) and
+blend are each a number or a curve of keys (sim/jiggle/keyed.py: the syntax, linear or smooth, and how the
+solver holds a keyed goal spring per goal-knot interval); a MuscleJiggle's attribute then holds a
+sim.jiggle.keyed.Curve, and its particle model is built from :meth:`MuscleJiggle.reference`.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Mapping
 
 import numpy as np
 
 from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
+from sim.jiggle.keyed import PARAMETERS, Curve, muscle_curves, parse_curve, reference_values
 
 CVS = 40
 SECTIONS, RING = 5, 8
 MAX_OFFSET_RADII = {"muscle": 1.0, "fat": 2.0}
+KEYABLE = {p.attribute: p.name for p in PARAMETERS.values() if p.attribute not in (None, "blend")}
+"""MuscleJiggle attributes that may hold a Curve -> the parameter's documented name."""
 """A CV's reach at strength 1, in its muscle's mean rest radii, per kind (see the module)."""
 
 
 @dataclass(frozen=True, eq=False)
-class BlendCurve:
-    """A value in [0, 1] over time: keys `times` (K,) seconds ascending, `values` (K,), linear between
-    keys and held outside them. K = 1 is a constant."""
-
-    times: np.ndarray
-    values: np.ndarray
-
-    def __post_init__(self):
-        object.__setattr__(self, "times", frozen_array(np.atleast_1d(self.times)))
-        object.__setattr__(self, "values", frozen_array(np.atleast_1d(self.values)))
+class BlendCurve(Curve):
+    """A value in [0, 1] over time: keys `times` (K,) seconds ascending, `values` (K,), linear (or smooth)
+    between keys and held outside them (sim.jiggle.keyed.Curve). K = 1 is a constant."""
 
     @classmethod
     def constant(cls, value: float) -> "BlendCurve":
@@ -70,32 +72,18 @@ class BlendCurve:
 
     @classmethod
     def parse(cls, value, where: str) -> "BlendCurve":
-        """A number, or keys [[t, b], ...] (seconds, blend); InputError naming `where` otherwise."""
+        """A number, keys [[t, b], ...] (seconds, blend) or {keys = ..., interpolation = "smooth"} (the syntax of
+        every keyable parameter, sim.jiggle.keyed.parse_curve); InputError naming `where` otherwise."""
         if isinstance(value, BlendCurve):
             return value
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            keys = np.array([[0.0, float(value)]])
-        else:
-            try:
-                keys = np.asarray(value, dtype=np.float64)
-            except (TypeError, ValueError):
-                keys = np.zeros((0, 0))
-            if keys.ndim != 2 or keys.shape[1] != 2 or len(keys) == 0:
-                raise InputError(f"expected a number in [0, 1] or keys [[time_s, blend], ...], got {value!r}",
-                                 field=where)
-        if not np.isfinite(keys).all():
-            raise InputError("blend keys hold NaN or inf", field=where)
-        if np.any(np.diff(keys[:, 0]) <= 0):
-            raise InputError(f"blend key times must increase, got {keys[:, 0].tolist()}", field=where)
-        bad = (keys[:, 1] < 0) | (keys[:, 1] > 1)
-        if bad.any():
-            raise InputError(f"blend must be in [0, 1], got {keys[bad, 1][0]:g} at t = {keys[bad, 0][0]:g} s",
-                             field=where)
-        return cls(keys[:, 0], keys[:, 1])
-
-    def __call__(self, t) -> np.ndarray:
-        """Blend at times `t` (seconds), same shape."""
-        return np.interp(np.asarray(t, dtype=np.float64), self.times, self.values)
+        if isinstance(value, Curve):
+            value = {"keys": np.stack([value.times, value.values], axis=1).tolist(),
+                     "interpolation": value.interpolation}
+        if isinstance(value, (list, tuple)) and len(value) == 1 and isinstance(value[0], (list, tuple)) \
+                and len(value[0]) == 2:
+            value = value[0][1]                     # one key: its value (held everywhere), as before
+        v = parse_curve(value, "blend", where)
+        return cls.constant(v) if not isinstance(v, Curve) else cls(v.times, v.values, v.interpolation)
 
     @property
     def is_zero(self) -> bool:
@@ -107,7 +95,10 @@ class MuscleJiggle:
     """One muscle's simulation parameters (see the module docstring for the model).
 
     name : the muscle. frequency_hz : f > 0, Hz. damping_ratio : zeta >= 0 of the goal springs.
-    strength : J in [0, 1]. density : kg/m^3 > 0. spring_frequency_hz : >= 0, Hz (0: no neighbour
+    strength : J in [0, 1]. goal_scale : >= 0, multiplies the goal weights (clipped to [0, 1]).
+    strength, frequency_hz, damping_ratio and goal_scale may each be a sim.jiggle.keyed.Curve (keys given as
+    lists or {keys, interpolation} are parsed; keys all equal become the number).
+    density : kg/m^3 > 0. spring_frequency_hz : >= 0, Hz (0: no neighbour
     springs). spring_damping_ratio : >= 0. friction : >= 0, 1/s.
     goal : (40,) goal weights in [0, 1], one per CV (rig.muscle.model order: section-major, 8 per ring).
     blend : the muscle's static_dyn_blend curve, or None for the global one.
@@ -126,11 +117,18 @@ class MuscleJiggle:
     friction: float = 0.0
     blend: BlendCurve | None = None
     max_offset: float = math.inf
+    goal_scale: float = 1.0
 
     def __post_init__(self):
         where = f"muscle {self.name!r}"
+        for f, name in KEYABLE.items():
+            v = getattr(self, f)
+            if isinstance(v, (Curve, list, tuple, dict, Mapping)):
+                object.__setattr__(self, f, parse_curve(v, name, f))     # a Curve, or the number all keys hold
         for f in ("frequency_hz", "damping_ratio", "density", "strength", "spring_frequency_hz",
-                  "spring_damping_ratio", "friction", "max_offset"):
+                  "spring_damping_ratio", "friction", "max_offset", "goal_scale"):
+            if isinstance(getattr(self, f), Curve):
+                continue                                                  # checked key by key by parse_curve
             try:
                 v = float(getattr(self, f))
             except (TypeError, ValueError):
@@ -146,10 +144,12 @@ class MuscleJiggle:
             k = int(np.argmax(bad))
             raise InputError(f"{where}: goal weight of CV {k} must be in [0, 1], got {g[k]:g}", field="goal")
         object.__setattr__(self, "goal", frozen_array(g))
-        checks = (("frequency_hz", self.frequency_hz > 0, "> 0 Hz"),
-                  ("damping_ratio", self.damping_ratio >= 0, ">= 0"),
+        plain = {f: getattr(self, f) if not isinstance(getattr(self, f), Curve) else None for f in KEYABLE}
+        checks = (("frequency_hz", plain["frequency_hz"] is None or plain["frequency_hz"] > 0, "> 0 Hz"),
+                  ("damping_ratio", plain["damping_ratio"] is None or plain["damping_ratio"] >= 0, ">= 0"),
                   ("density", self.density > 0, "> 0 kg/m^3"),
-                  ("strength", 0 <= self.strength <= 1, "in [0, 1]"),
+                  ("strength", plain["strength"] is None or 0 <= plain["strength"] <= 1, "in [0, 1]"),
+                  ("goal_scale", plain["goal_scale"] is None or plain["goal_scale"] >= 0, ">= 0"),
                   ("spring_frequency_hz", self.spring_frequency_hz >= 0, ">= 0 Hz"),
                   ("spring_damping_ratio", self.spring_damping_ratio >= 0, ">= 0"),
                   ("friction", self.friction >= 0, ">= 0 1/s"),
@@ -161,13 +161,38 @@ class MuscleJiggle:
             object.__setattr__(self, "blend", BlendCurve.parse(self.blend, f"{where}.blend"))
 
     @property
+    def keyed(self) -> dict:
+        """{attribute: Curve} of the keyed goal-spring attributes (strength, frequency_hz, damping_ratio,
+        goal_scale); empty for a plain muscle."""
+        return muscle_curves(self)
+
+    def reference(self) -> "MuscleJiggle":
+        """This muscle with every Curve replaced by the number its particle model is built with
+        (sim.jiggle.keyed.reference_values: the largest strength, the smallest goal_scale); itself when
+        nothing is keyed."""
+        ref = reference_values(self)
+        return replace(self, **ref) if ref else self
+
+    @property
     def reach(self) -> float:
-        """metres: how far a CV may move from its goal, strength x max_offset (inf: no limit)."""
+        """metres: how far a CV may move from its goal, strength x max_offset (inf: no limit); for a keyed
+        strength, at its largest key."""
+        if self.keyed:
+            return self.reference().reach
         return self.strength * self.max_offset if math.isfinite(self.max_offset) else math.inf
 
+    def goal_weights(self) -> np.ndarray:
+        """(40,) the goal weights after goal_scale, clip(goal_scale goal, 0, 1) (the goal itself at 1)."""
+        if self.goal_scale == 1.0:
+            return self.goal
+        return np.clip(self.goal * self.goal_scale, 0.0, 1.0)
+
     def goal_stiffness(self) -> np.ndarray:
-        """(40,) omega_i^2, 1/s^2, per unit mass; inf where the particle is glued (w = 1 or J = 0)."""
-        w = self.goal
+        """(40,) omega_i^2, 1/s^2, per unit mass; inf where the particle is glued (w = 1 or J = 0); for a
+        keyed muscle, at its :meth:`reference` values."""
+        if self.keyed:
+            return self.reference().goal_stiffness()
+        w = self.goal_weights()
         if self.strength == 0.0:
             return np.full(CVS, np.inf)
         with np.errstate(divide="ignore"):
@@ -203,7 +228,7 @@ def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
 
 
 
-OVERRIDES = ("frequency", "damping", "strength", "goal", "goal_tendon", "goal_belly", "density",
+OVERRIDES = ("frequency", "damping", "strength", "goal_scale", "goal", "goal_tendon", "goal_belly", "density",
              "spring_frequency", "spring_damping", "friction", "blend", "max_offset")
 ATTRIBUTES = {"frequency": "frequency_hz", "damping": "damping_ratio", "spring_frequency": "spring_frequency_hz",
          "spring_damping": "spring_damping_ratio"}
@@ -212,7 +237,8 @@ ATTRIBUTES = {"frequency": "frequency_hz", "damping": "damping_ratio", "spring_f
 def override(mj: MuscleJiggle, values: dict, where: str | None = None) -> MuscleJiggle:
     """`mj` with keys of OVERRIDES replaced (a scene's per-muscle table or a CLI option). ``goal`` is
     40 weights, 5 (one per section) or one number; ``goal_tendon``/``goal_belly`` rebuild the section
-    defaults; ``blend`` is a number or keys [[t, b], ...]."""
+    defaults; ``blend``, ``strength``, ``frequency``, ``damping`` and ``goal_scale`` are numbers or curves
+    (sim.jiggle.keyed.parse_curve)."""
     where = where or f"muscle {mj.name!r}"
     unknown = sorted(set(values) - set(OVERRIDES))
     if unknown:
@@ -260,7 +286,8 @@ class JiggleSettings:
         at rest, that long before the first frame, the goals blending to the first frame's over the
         first half and holding over the second.
     blend : the global static_dyn_blend curve (muscles without their own use it).
-    strength : if given, every muscle's jiggle strength J (the CLI's --jiggle).
+    strength : if given, every muscle's jiggle strength J (the CLI's --strength J, alias --jiggle), a
+        number or a sim.jiggle.keyed.Curve.
     cut_ratio, cut_jump : a knot interval is a cut (a teleport) when its largest CV move exceeds
         cut_jump metres and cut_ratio times the largest move in each neighbouring interval; the
         particles are glued through it and restart at their goals.
@@ -274,10 +301,10 @@ class JiggleSettings:
     gravity: bool = False
     preroll: float = 0.0
     blend: BlendCurve = field(default_factory=lambda: BlendCurve.constant(1.0))
-    strength: float | None = None
+    strength: float | Curve | None = None
     cut_ratio: float = 8.0
     cut_jump: float = 0.1
-    collisions: bool = False
+    collisions: bool = True
     device: str = "cpu"
 
     def __post_init__(self):
@@ -295,6 +322,11 @@ class JiggleSettings:
                 raise InputError(f"expected a finite number {'>' if strict else '>='} {lo:g}, got {v!r}", field=f)
         if not isinstance(self.blend, BlendCurve):
             object.__setattr__(self, "blend", BlendCurve.parse(self.blend, "blend"))
-        if self.strength is not None and not (isinstance(self.strength, (int, float)) and 0 <= self.strength <= 1):
-            raise InputError(f"jiggle strength must be in [0, 1], got {self.strength!r}", field="strength")
+        if self.strength is not None:
+            if isinstance(self.strength, bool) or not isinstance(self.strength, (int, float, Curve, list, tuple, dict)):
+                raise InputError(f"jiggle strength must be in [0, 1], got {self.strength!r}", field="strength")
+            try:
+                object.__setattr__(self, "strength", parse_curve(self.strength, "strength"))
+            except InputError as e:
+                raise InputError(f"jiggle {e.message}", field="strength") from None
 

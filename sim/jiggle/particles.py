@@ -264,6 +264,7 @@ class ParticleBuilder:
             raise InputError(f"expected one jiggle entry per muscle ({len(rest_cvs)}), got {len(jiggles)}",
                              field="jiggle")
         for cvs, volume, mj in zip(rest_cvs, rest_volume, jiggles):
+            mj = mj.reference()          # keyed parameters: built at their reference values (sim/jiggle/keyed.py)
             self.begin_group(mj.name)
             if not (np.isfinite(volume) and volume > 0):
                 raise InputError(f"muscle {mj.name!r}: rest volume must be > 0 m^3, got {volume!r}", field="volume")

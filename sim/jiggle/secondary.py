@@ -24,6 +24,7 @@ from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
 from sim.jiggle.blend import blend, blend_weights, needs_simulation
 from sim.jiggle.colliders import muscle_contacts
+from sim.jiggle.keyed_solver import make_solver
 from sim.jiggle.params import CVS, JiggleSettings, MuscleJiggle
 from sim.jiggle.particles import muscle_model
 from sim.jiggle.simulate import TIME_EPS, goals, merge_times, simulate
@@ -112,7 +113,8 @@ def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndar
         model = muscle_model(rig, jiggles, settings.device, gravity=settings.gravity)
         moving = None if colliders is None else colliders.at(knots, world, track.cut)
         sink = {}
-        dyn, _ = simulate(model, track, times, settings, colliders=moving, contacts=sink)
+        solver = make_solver(model, jiggles)             # keyed: sim/jiggle/keyed_solver.py
+        dyn, _ = simulate(model, track, times, settings, solver=solver, colliders=moving, contacts=sink)
         if colliders is not None:
             contacts = muscle_contacts(sink["records"], rig.cv_offsets)
     else:

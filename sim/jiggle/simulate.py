@@ -121,7 +121,10 @@ def start_motion(track: GoalTrack, t0: float, window: float = START_WINDOW) -> t
 def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: float) -> None:
     """Put the particles on their goals at time t as a run starts (and restarts after a cut): at the
     quasi-static offset of the goals' fitted acceleration (and gravity), within their reach, with their
-    fitted velocity (start_motion); glued particles exactly on their goals, moving with them."""
+    fitted velocity (start_motion); glued particles exactly on their goals, moving with them. A solver of
+    keyed parameters (sim/jiggle/keyed_solver.py) gives the model's goal springs at t (`model_at`)."""
+    if hasattr(solver, "model_at"):
+        model = solver.model_at(t)
     solver.glue(state, control, t)
     x, v = state.numpy()
     vel, acc = start_motion(control.track, t)

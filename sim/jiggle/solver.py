@@ -187,8 +187,8 @@ class ParticleSolver:
 
         Y, U = self._y, self._u
         if colliders is not None:
-            out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
-                                          flow_index, frame, frames, ks, dev_array)
+            out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, [table],
+                                          dev_array(flow_index, wp.int32), frame, frames, ks, dev_array)
             return None if record is None else out
         self._run(kernels.integrate_run, self.num_groups, [
             self._params, table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
@@ -200,10 +200,13 @@ class ParticleSolver:
             self._cubics, frames, state_out.x, state_out.v])
         return None if record is None else frames.numpy()[:len(ks)]
 
-    def _integrate_contact(self, state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
-                           flow_index, frame, frames, ks, dev_array):
+    def _integrate_contact(self, state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, flows,
+                           step_flow, frame, frames, ks, dev_array, kernel=None):
         """:meth:`integrate` with contacts (the integrate_run_contact kernel, the broad phase from
-        sim.jiggle.colliders.Colliders.active)."""
+        sim.jiggle.colliders.Colliders.active). flows : the kernel's flow arguments after the packed
+        model ([table], or the keyed rows and reaches); step_flow : each step's device index into them
+        (K,), or the keyed row bases (K, G); kernel : None for integrate_run_contact, or the keyed one
+        (sim/jiggle/keyed_kernels.py)."""
         from sim.jiggle import contact_kernels as ck
         m, dev, cm = self.model, self.model.device, colliders.model
         if colliders.control.track.num_knots != control.track.num_knots or \
@@ -238,14 +241,14 @@ class ParticleSolver:
         cc = colliders.control
         floor = cm.floor if cm.floor is not None else NO_FLOOR
         Y, U = self._y, self._u
-        self._run(ck.integrate_run_contact, self.num_groups, [
-            self._params, table, m.wp_adj_offsets, self._edges, self._gravity, self._groups, group_muscles,
+        self._run(kernel or ck.integrate_run_contact, self.num_groups, [
+            self._params, *flows, m.wp_adj_offsets, self._edges, self._gravity, self._groups, group_muscles,
             muscle_offsets, cm.wp_radius, float(floor), float(cm.friction), int(cm.num_capsules),
             int(len(m.group_offsets) - 1), act_offsets, act_ids,
             control.pos, control.vel_start, control.vel_end, cc.pos, cc.vel_start, cc.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
-            dev_array(h_kick.astype(np.float32), float), dev_array(flow_index, wp.int32), dev_array(frame, wp.int32),
+            dev_array(h_kick.astype(np.float32), float), step_flow, dev_array(frame, wp.int32),
             float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
             self._cubics, ea, eb, eva, evb, record, dirty, frames, records, state_out.x, state_out.v])
         self.contact_records = records.numpy()[:len(ks)]

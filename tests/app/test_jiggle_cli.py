@@ -94,8 +94,10 @@ def _scene(tmp_path, jiggle: str) -> str:
 
 
 @pytest.mark.parametrize("argv, what", [
-    (["--blend", "1.5"], "--blend must be in [0, 1], got '1.5'"),
-    (["--jiggle", "-1"], "--jiggle must be in [0, 1], got '-1'"),
+    (["--blend", "1.5"], "argument --blend: blend must be in [0, 1], got 1.5"),
+    (["--jiggle", "-1"], "argument --jiggle: strength must be in [0, 1], got -1"),
+    (["--damping", "*_fat=[[0,0.3],[0,0.2]]"], "argument --damping: *_fat=[[0,0.3],[0,0.2]]: damping key times must "
+                                               "increase"),
     (["--substeps", "0"], "--substeps must be at least 1, got '0'"),
     (["--every", "0"], "--every must be at least 1"),
 ])
@@ -125,7 +127,7 @@ def test_unknown_muscle_in_scene_names_it_and_lists_the_rig(capsys, tmp_path):
                          "--out", str(tmp_path))
     assert code == 2, err
     line = err.strip().splitlines()[-1]
-    assert "scene.toml: jiggle.muscles: the rig has no muscle 'belly_fatt'" in line
+    assert "scene.toml:5: jiggle.muscles.belly_fatt: the rig has no muscle 'belly_fatt'" in line
     assert "belly_fat," in line and "left_biceps" in line
 
 

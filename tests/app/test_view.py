@@ -303,3 +303,17 @@ def test_slider_resimulates_and_the_saved_scene_bakes_the_same(viewer, browser, 
     assert np.array_equal(again.skin_final, new)                # bit for bit: the bake of the tuned value
     assert np.array_equal(again.muscle_cvs_dynamic, viewer.pb.cvs_dynamic)
     os.remove(scene)
+
+
+@pytest.mark.slow
+def test_a_bake_with_keyed_parameters_plays_but_is_not_tuned(tmp_path):
+    """A slider sets one number per muscle: a bake whose strength is keyed over time plays, and the Tune
+    panel says why it is off, rather than flattening the keys."""
+    import json
+
+    from sim.app.view.tuning import NotTunable, Tuner
+    out = tmp_path / "keyed"
+    assert main(["-q", "demo", "--out", str(out), "--end", "0.3", "--formats", "npz", "--resolution", "3000",
+                 "--no-render", "--strength", "belly_fat=[[0, 1], [0.2, 0.3]]"]) == 0
+    with pytest.raises(NotTunable, match="keys jiggle parameters over time \\(belly_fat\\)"):
+        Tuner(json.loads((out / "bake.json").read_text()))

@@ -436,3 +436,58 @@ def test_a_foreign_partial_folder_is_not_removed(capsys, tmp_path):
                        "--formats", "npz", "--frames", "20")
     assert code == 2 and ".partial" in err
     assert (tmp_path / ".partial" / "mine.txt").read_text() == "mine"
+
+
+KEYED = ("--strength", "biceps=[[0,1],[0.5,0.3]]", "--frequency", "*=smooth:[[0,5],[1.5,9]]",
+         "--goal-scale", "b*=[[0,1],[1,1.3]]")
+
+
+def test_a_keyed_bake_resumes_bit_for_bit(capsys, tmp_path, monkeypatch):
+    """Keyed strength, frequency and goal scale (issue 23): Ctrl-C in chunk 2, --resume, equal to an unbroken
+    keyed bake bit for bit; bake.json records the curves; the keys change the motion."""
+    from sim.bake import baker as bake_mod
+    whole = tmp_path / "whole"
+    bake_arm(capsys, whole, *KEYED, "--formats", "npz", "--frames", "60")
+    real = bake_mod.Baker.chunk
+
+    def chunk(self, c, state):
+        if c == 2:
+            raise KeyboardInterrupt
+        return real(self, c, state)
+    monkeypatch.setattr(bake_mod.Baker, "chunk", chunk)
+    code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path / "cut"), "--fps", "60", "--chunk", "16",
+                         *KEYED, "--formats", "npz", "--frames", "60")
+    assert code == 130, err
+    monkeypatch.setattr(bake_mod.Baker, "chunk", real)
+    bake_arm(capsys, tmp_path / "cut", *KEYED, "--formats", "npz", "--frames", "60", "--resume")
+    same_bake(tmp_path / "cut", whole)
+    muscle = json.loads((whole / "bake.json").read_text())["params"]["muscles"]["biceps"]
+    assert muscle["strength"] == {"times": [0.0, 0.5], "values": [1.0, 0.3], "interpolation": "linear"}
+    assert muscle["frequency"]["interpolation"] == "smooth" and muscle["goal_scale"]["values"] == [1.0, 1.3]
+    bake_arm(capsys, tmp_path / "plain", "--formats", "npz", "--frames", "60")
+    a, b = read_npz(whole / "bake.npz"), read_npz(tmp_path / "plain" / "bake.npz")
+    assert np.abs(a.muscle_cvs_dynamic - b.muscle_cvs_dynamic).max() > 1e-3
+
+
+def test_a_keyed_constant_bakes_as_the_plain_number(capsys, tmp_path):
+    bake_arm(capsys, tmp_path / "a", "--jiggle", "biceps=[[0,0.6],[9,0.6]]", "--damping", "[[0,0.4],[1,0.4]]",
+             "--formats", "npz", "--frames", "40")
+    bake_arm(capsys, tmp_path / "b", "--jiggle", "0.6", "--damping", "0.4", "--formats", "npz", "--frames", "40")
+    da, db = read_npz(tmp_path / "a" / "bake.npz"), read_npz(tmp_path / "b" / "bake.npz")
+    for k in KEYS:
+        np.testing.assert_array_equal(getattr(da, k), getattr(db, k), err_msg=k)
+
+
+@pytest.mark.parametrize("argv, what", [
+    (["--damping", "tail=0.3"], "--damping tail=0.3: the rig has no muscle 'tail'; its muscles are biceps"),
+    (["--jiggle", "*_fat=[[0,1],[2,0.2]]"], "--jiggle *_fat=[[0,1],[2,0.2]]: the glob '*_fat' matches no muscle"),
+    (["--frequency", "biceps=[[0,5],[1,-2]]"], "argument --frequency: biceps=[[0,5],[1,-2]]: frequency must be in "
+                                               "(0, inf) Hz, got -2 at t = 1 s (key 2)"),
+])
+def test_bad_keyed_flags_exit_2_naming_the_flag(capsys, tmp_path, argv, what):
+    try:                                   # a bad value stops argparse (SystemExit), a bad name the bake
+        code, out, err = run(capsys, "bake", ARM, "--out", str(tmp_path), "--frames", "4", *argv)
+    except SystemExit as e:
+        code, err = e.code, capsys.readouterr().err
+    assert code == 2 and what in err, err
+    assert "Traceback" not in err

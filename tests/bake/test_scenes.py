@@ -159,7 +159,7 @@ def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
     assert out.damping_ratio == 0.9 and out.frequency_hz == jiggles[0].frequency_hz
     np.testing.assert_allclose(out.blend(np.array([0.5])), [0.5])
     p = _jiggle_scene(tmp_path, "[jiggle.muscles.tricep]\nblend = 0.5\n[jiggle.muscles.biceps]\nblend = 0.5\n")
-    with pytest.raises(InputError, match=r"j.toml: jiggle.muscles: the rig has no muscle 'tricep'; its muscles are biceps"):
+    with pytest.raises(InputError, match=r"j.toml:\d+: jiggle.muscles.tricep: the rig has no muscle 'tricep'; its muscles are biceps"):
         load_scene(p).apply_jiggle(jiggles)
 
 
@@ -204,3 +204,45 @@ def test_motion_file_takes_environment_variables(tmp_path, monkeypatch):
     monkeypatch.setenv("MY_ASSETS", str(tmp_path / "elsewhere"))
     with pytest.raises(InputError, match=r"s.toml:2: motion.file: motion file .*elsewhere/motions/jj.toml not found"):
         load_scene(p)
+
+
+def _fake_jiggles(names):
+    from sim.jiggle.params import MuscleJiggle, section_goals
+    return [MuscleJiggle(n, 7.0, 0.5, section_goals(0.9, 0.4), 1000.0) for n in names]
+
+
+def test_keyed_parameters_and_globs_in_a_scene(tmp_path):
+    """Curves (linear, smooth), globs (an exact name beats a glob, a later glob an earlier one) and the global
+    strength under the muscles' own tables (issue 23)."""
+    from sim.jiggle.keyed import Curve
+    p = _jiggle_scene(tmp_path, '[jiggle]\nstrength = [[0.0, 1.0], [2.0, 0.5]]\n'
+                                '[jiggle.muscles."*_fat"]\ndamping = 0.2\nstrength = 0.8\n'
+                                'goal_scale = {keys = [[0.0, 1.0], [1.0, 0.5]], interpolation = "smooth"}\n'
+                                '[jiggle.muscles.belly_fat]\nstrength = [[0.0, 1.0], [1.0, 1.0]]\n'
+                                '[jiggle.muscles."belly_*"]\ndamping = 0.4\nfrequency = [[0.0, 3.0], [1.0, 6.0]]\n')
+    scene = load_scene(p)
+    assert isinstance(scene.jiggle.strength, Curve)
+    belly, glute, biceps = scene.apply_jiggle(_fake_jiggles(["belly_fat", "glute_fat", "biceps"]))
+    assert belly.strength == 1.0 and belly.damping_ratio == 0.4 and isinstance(belly.frequency_hz, Curve)
+    assert glute.strength == 0.8 and glute.damping_ratio == 0.2 and glute.goal_scale.interpolation == "smooth"
+    assert biceps.strength == scene.jiggle.strength and biceps.damping_ratio == 0.5
+
+
+@pytest.mark.parametrize("text, match", [
+    ('[jiggle.muscles."*_fat"]\nstrength = [[0.0, 1.0], [0.0, 0.5]]\n',
+     r"j.toml:5: jiggle.muscles.\*_fat.strength: strength key times must increase"),
+    ('[jiggle.muscles."*_fat"]\ngoal_scale = [[0.0, 1.0], [1.0, -0.5]]\n',
+     r"j.toml:5: jiggle.muscles.\*_fat.goal_scale: goal_scale must be in \[0, inf\), got -0.5 at t = 1 s"),
+    ('[jiggle]\nstrength = [[0.0, 1.0], [1.0, 2.0]]\n', r"j.toml:5: jiggle.strength: jiggle strength must be in"),
+    ('[jiggle.muscles.belly_fat]\nfrequency = {keys = [[0, 1]], interpolation = "cubic"}\n',
+     r"j.toml:5: jiggle.muscles.belly_fat.frequency: interpolation must be one of linear, smooth"),
+])
+def test_bad_keys_in_a_scene_name_file_line_and_key(tmp_path, text, match):
+    with pytest.raises(InputError, match=match):
+        load_scene(_jiggle_scene(tmp_path, text))
+
+
+def test_a_glob_matching_no_muscle_names_its_table(tmp_path):
+    p = _jiggle_scene(tmp_path, '[jiggle.muscles."left_*"]\ndamping = 0.2\n')
+    with pytest.raises(InputError, match=r"j.toml:4: jiggle.muscles.left_\*: the glob 'left_\*' matches no muscle"):
+        load_scene(p).apply_jiggle(_fake_jiggles(["belly_fat"]))

@@ -264,3 +264,65 @@ def test_bad_collider_input_is_named():
     with pytest.raises(InputError, match="true or false"):
         from sim.jiggle.params import JiggleSettings
         JiggleSettings(collisions="yes")
+
+
+def test_skin_count_culls_nothing_it_should_count():
+    """SkinCheck.count (clusters' reach from their centres -> candidate capsules -> per-vertex tests) equals
+    the NumPy reference's count, with one cluster per part riding moving joints, without centres, and with
+    vertex_clusters' small clusters, on random skins where some parts lie far from every capsule (culled)
+    and some overlap them."""
+    from sim.jiggle.colliders import SkinCheck, vertex_clusters
+    rng = np.random.default_rng(7)
+    T, V, C = 4, 900, 5
+    ends = rng.normal(scale=0.3, size=(C, 2, 3))
+    caps = BoneCapsules(joint=np.zeros(C), child=np.full(C, -1), local=ends, radius=rng.uniform(0.05, 0.15, C),
+                        names=list("abcde"), parents=np.array([-1, 0, 0]))
+    part = rng.integers(0, 3, V)
+    offsets, flat = np.array([0, 3, 5, 5]), np.array([0, 2, 4, 1, 3])     # part 2 is checked against nothing
+    # joint 0 still; joints 1 and 2 move; part 1's vertices far off in the last frames (culled)
+    world = np.repeat(np.eye(4)[None, None], T, axis=0).repeat(3, axis=1)
+    world[:, 1, :3, 3] = np.linspace(0.0, 3.0, T)[:, None] * [1.0, 0.0, 0.0]
+    world[:, 2, :3, 3] = [0.0, 0.5, 0.0]
+    centre_local = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    skin = rng.normal(scale=0.3, size=(T, V, 3)) + world[:, :, :3, 3][:, part]
+    ref = skin_inside_numpy(np.repeat(ends[None], T, axis=0), caps.radius, skin, part, offsets, flat).sum(axis=1)
+    assert ref.min() > 0
+    bind = np.repeat(np.eye(4)[None], 3, axis=0)
+    clusters = vertex_clusters(part, skin[0] - world[0, :, :3, 3][part], bind, size=0.2)
+    assert len(clusters[1]) > 10
+    for cluster, centre in ((part, centre_local), (None, None), clusters):
+        check = SkinCheck(caps, part, offsets, flat, cluster, centre)
+        np.testing.assert_array_equal(check.count(world, skin), ref)
+        np.testing.assert_array_equal(check.inside(world, skin).sum(axis=1), ref)
+
+
+def test_broad_phase_boxes_hold_the_goal_curves():
+    """group_boxes per block of knot intervals (strided reductions) against a brute-force hull: each block's
+    box is the box of its groups' knot positions at both ends of every interval, grown by the largest
+    |velocity| x (longest interval) / 3, and it holds the goal curves sampled densely (the Hermite cubic lies
+    in the hull of its Bezier control points)."""
+    from types import SimpleNamespace
+
+    from sim.jiggle.colliders import group_boxes
+    from sim.jiggle.goal_track import hermite
+    rng = np.random.default_rng(11)
+    S, N = 30, 12
+    starts = np.array([0, 5, 9])
+    tr = SimpleNamespace(times=np.cumsum(rng.uniform(0.01, 0.02, S)), pos=rng.normal(size=(S, N, 3)),
+                         vel_start=rng.normal(size=(S - 1, N, 3)), vel_end=rng.normal(size=(S - 1, N, 3)))
+    for block in (1, 3, 8):
+        lo, hi = group_boxes(tr, starts, block)
+        assert lo.shape == (-(-(S - 1) // block), 3, 3)
+        for b in range(len(lo)):
+            j0, j1 = b * block, min((b + 1) * block, S - 1)
+            H = np.diff(tr.times)[j0:j1].max() / 3
+            for g, (a, e) in enumerate(zip(starts, [5, 9, N])):
+                speed = np.maximum(abs(tr.vel_start[j0:j1, a:e]), abs(tr.vel_end[j0:j1, a:e])).max(axis=(0, 1)) * H
+                np.testing.assert_allclose(lo[b, g], tr.pos[j0:j1 + 1, a:e].min(axis=(0, 1)) - speed)
+                np.testing.assert_allclose(hi[b, g], tr.pos[j0:j1 + 1, a:e].max(axis=(0, 1)) + speed)
+                for j in range(j0, j1):
+                    h = tr.times[j + 1] - tr.times[j]
+                    for s in np.linspace(0.0, h, 7):
+                        p, _, _, _ = hermite(tr.pos[j, a:e], tr.pos[j + 1, a:e], tr.vel_start[j, a:e],
+                                             tr.vel_end[j, a:e], h, s)
+                        assert np.all(p >= lo[b, g] - 1e-12) and np.all(p <= hi[b, g] + 1e-12)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import sys
 
-from sim.app.args import bake_options, clip_options, map_options, template_option
+from sim.app.args import bake_options, clip_options, keyed_request, map_options, template_option
 from sim.app.loading import body_overrides
 
 
@@ -22,9 +22,9 @@ def bake_request(args):
         scene=getattr(args, "scene", None), clip=getattr(args, "clip", None), skeleton=getattr(args, "skeleton", None),
         animation=getattr(args, "animation", None), scale=getattr(args, "scale", None),
         tpose=getattr(args, "tpose", "auto"), character=getattr(args, "character", None),
-        template=getattr(args, "template", None), fps=args.fps, substeps=args.substeps, blend=args.blend,
-        jiggle=args.jiggle, gravity=getattr(args, "gravity", None), preroll=getattr(args, "preroll", None),
-        collisions=getattr(args, "collisions", None),
+        template=getattr(args, "template", None), fps=args.fps, substeps=args.substeps, **keyed_request(args),
+        gravity=getattr(args, "gravity", None), preroll=getattr(args, "preroll", None),
+        collisions=getattr(args, "collisions", None), device=getattr(args, "device", None),
         start=args.start, end=args.end, frames=args.frames, drive=args.drive,
         formats=formats, chunk=args.chunk, body=MappingProxyType(body), influences=args.influences,
         skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),

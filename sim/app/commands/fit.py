@@ -66,6 +66,14 @@ def write_maps(mus, maps, out_dir: str) -> dict:
     return {"painted": glb, "maps": str(npz)}
 
 
+def fit_capsules(mus):
+    """The bone capsules a bake of this musculature collides with (sim.jiggle.colliders.collider_model: the
+    character's capsules shrunk inside the muscles over each bone), or None when it has none."""
+    from sim.jiggle.colliders import collider_model
+    caps = collider_model(mus.rig, mus.character).capsules
+    return caps if caps.count else None
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -84,7 +92,7 @@ def run(args) -> int:
         reach = np.max(np.stack(list(maps.influence.values())), axis=0) if maps.influence else \
             np.zeros(character.num_vertices)
         shown = {"jiggle map (0 dark: none, 1 bright)": maps.jiggle, "shell regions (max over muscles)": reach}
-    files = write_fit_outputs(mus, args.out, png, json_path, maps=shown)
+    files = write_fit_outputs(mus, args.out, png, json_path, maps=shown, capsules=fit_capsules(mus))
     if maps is not None:
         files.update(write_maps(mus, maps, os.path.dirname(args.out) or "."))
     rig = mus.rig

@@ -12,13 +12,14 @@ from sim.app.args import (
     clip_options,
     collision_option,
     count,
+    keyed_options,
+    keyed_request,
     map_options,
     mesh_options,
     muscle_skin_options,
     non_negative,
     positive,
     template_option,
-    unit_interval,
 )
 from sim.app.loading import generated_character, load_clip, retarget_onto_character
 
@@ -121,13 +122,21 @@ def run(args) -> int:
     job = simulate_job(args)
     scene = job.scene
     settings = scene.jiggle if scene is not None and scene.jiggle is not None else JiggleSettings()
-    given = {"substeps": args.substeps, "strength": args.jiggle, "preroll": args.preroll,
-             "blend": None if args.blend is None else BlendCurve.constant(args.blend),
+    keyed = keyed_request(args)
+    given = {"substeps": args.substeps, "strength": keyed["jiggle"], "preroll": args.preroll,
+             "blend": None if keyed["blend"] is None else BlendCurve.parse(keyed["blend"], "--blend"),
              "gravity": True if args.gravity else None, "collisions": getattr(args, "collisions", None)}
     settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
-    jiggles = job.jiggles
-    if args.blend is not None:    # --blend is every muscle's, over the scene's own curves
+    jiggles = job.jiggles         # the scene's [jiggle] strength and tables applied (Scene.apply_jiggle)
+    if keyed["blend"] is not None:    # --blend is every muscle's, over the scene's own curves
         jiggles = [replace(j, blend=None) for j in jiggles]
+    if keyed["jiggle"] is not None:   # --strength: every muscle's, over the scene's
+        jiggles = [replace(j, strength=settings.strength) for j in jiggles]
+    if keyed["muscles"]:              # then NAME=VALUE entries, names and globs
+        from sim.bake.scene import apply_entries
+        jiggles = apply_entries(jiggles, keyed["muscles"])
+    # every muscle's strength is resolved above: jiggle_rig must not put the global one over the entries
+    settings = replace(settings, strength=None)
     fps = args.fps or job.fps or SIMULATE_FPS
     times = simulate_times(args, job.duration, fps)
     rig = job.rig
@@ -201,14 +210,10 @@ def add_parser(sub) -> None:
     p.add_argument("--end", type=non_negative("--end"), metavar="E", help="last output time, seconds (default: the "
                    "motion's end)")
     p.add_argument("--frames", type=count("--frames"), metavar="N", help="only the first N output frames")
-    g = p.add_argument_group("jiggle (over the scene's [jiggle] section)")
+    keyed_options(p)
+    g = p.add_argument_group("jiggle solver (over the scene's [jiggle] section)")
     g.add_argument("--substeps", type=count("--substeps"), metavar="N", help="integration steps per output frame "
                    "(default: 4; the solver splits further where it must)")
-    g.add_argument("--jiggle", type=unit_interval("--jiggle"), metavar="J", help="jiggle strength in [0, 1] of "
-                   "every muscle: 0 glues the muscles to their static shape, the jiggle's size grows with J "
-                   "(default: each muscle's, 1)")
-    g.add_argument("--blend", type=unit_interval("--blend"), metavar="B", help="static_dyn_blend in [0, 1] of every "
-                   "muscle: 0 static, 1 dynamic (default: the scene's curves, else 1)")
     g.add_argument("--gravity", action="store_true", help="let the muscles sag under gravity below their static shape")
     collision_option(g)
     g.add_argument("--preroll", type=non_negative("--preroll"), metavar="S", help="start at rest at the bind pose S "

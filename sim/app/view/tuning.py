@@ -211,6 +211,14 @@ class Tuner:
         params = summary.get("params") if isinstance(summary, dict) else None
         if not isinstance(params, dict):
             raise NotTunable("bake.json has no parameters")
+        # a slider sets one number per muscle; keys over time are edited in the scene (or on the command line)
+        muscles = params.get("muscles") if isinstance(params.get("muscles"), dict) else {}
+        keyed = sorted(name for name, m in muscles.items() if isinstance(m, dict) and any(
+            isinstance(m.get(k), dict) for k in ("strength", "frequency", "damping", "goal_scale")))
+        if keyed:
+            raise NotTunable(f"this bake keys jiggle parameters over time ({', '.join(keyed[:4])}"
+                             f"{' ...' if len(keyed) > 4 else ''}); the sliders set constants: edit the keys in "
+                             "the scene, or tune a bake without keys")
         req = request_from_params(params)
         t = time.perf_counter()
         rigs: dict = {}

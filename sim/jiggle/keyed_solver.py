@@ -1,0 +1,147 @@
+"""The particle solver with keyed goal springs (sim/jiggle/keyed.py): ParticleSolver whose one-launch run reads
+each step's goal flow and reach for its knot interval (sim/jiggle/keyed_kernels.py). A model with no keyed
+muscle runs ParticleSolver's own integrate, so an unkeyed bake is unchanged bit for bit and in speed.
+
+Cost: one 5x5 matrix exponential per distinct (stiffness, damping, step length) of the keyed particles on
+each knot interval of a run (sim.jiggle.keyed.goal_flow_batch, vectorised), and the keyed rows uploaded
+once per run. With colliders the run is keyed_kernels.integrate_run_contact_keyed (the contacts of
+sim/jiggle/contact_kernels.py after each step; the broad phase uses the model's reach, that of the largest
+strength key, so it never misses a keyed muscle's reach).
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from rig.base.errors import InputError
+from sim.jiggle import keyed_kernels
+from sim.jiggle import particle_kernels as kernels
+from sim.jiggle.goal_flow import flow_numpy, goal_flow
+from sim.jiggle.goal_track import hermite
+from sim.jiggle.keyed import Schedule
+from sim.jiggle.solver import ParticleSolver, _check_steps, kick_numpy, within_reach_numpy
+
+
+class KeyedSolver(ParticleSolver):
+    """ParticleSolver for a model whose muscles' goal springs may be keyed.
+
+    model : the ParticleModel, built from the reference values (sim.jiggle.keyed.reference_values).
+    jiggles : one MuscleJiggle per muscle of the model (numbers or sim.jiggle.keyed.Curve).
+    """
+
+    def __init__(self, model, jiggles):
+        super().__init__(model)
+        self.schedule = Schedule(model, jiggles, self._groups.numpy())
+        self._plain_reach = np.minimum(np.asarray(model.reach, dtype=np.float64), np.finfo(np.float32).max)
+
+    def model_at(self, t: float):
+        """The model with the keyed goal springs at time t (for a start's or a restart's equilibrium)."""
+        return self.schedule.model_at(t)
+
+    def integrate(self, state_in, state_out, control, grid, record=None, colliders=None):
+        """ParticleSolver.integrate with each step's goal springs those of its knot interval."""
+        if self.schedule.empty:
+            return super().integrate(state_in, state_out, control, grid, record=record, colliders=colliders)
+        m, dev = self.model, self.model.device
+        grid = np.asarray(grid, dtype=np.float64)
+        ks = np.zeros(0, np.int64) if record is None else np.asarray(record, dtype=np.int64).reshape(-1)
+        K = len(grid) - 1
+        if len(ks) and (ks.min() < 1 or ks.max() > K or np.any(np.diff(ks) <= 0)):
+            raise InputError(f"recorded steps must be increasing indices in 1..{K}, got {ks.tolist()}", field="record")
+        if m.num_particles == 0 or K < 1:
+            return None if record is None else np.zeros((len(ks), m.num_particles, 3), np.float32)
+        seg, s0, H = _check_steps(control.track, grid)
+        dts = np.diff(grid)
+        h_kick = 0.5 * dts
+        h_kick[1:] += 0.5 * dts[:-1]
+        rows, reach, base = self._rows(control.track.times, seg, dts)
+        frame = np.full(K, -1, np.int32)
+        frame[ks - 1] = np.arange(len(ks), dtype=np.int32)
+        frames = wp.empty((max(len(ks), 1), m.num_particles), dtype=wp.vec3, device=dev)
+
+        def dev_array(a, dtype):
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
+
+        if colliders is not None:
+            out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick,
+                                          [dev_array(rows, kernels.flow_row), dev_array(reach, float)],
+                                          dev_array(base, wp.int32), frame, frames, ks, dev_array,
+                                          kernel=keyed_kernels.integrate_run_contact_keyed)
+            return None if record is None else out
+        Y, U = self._y, self._u
+        self._run(keyed_kernels.integrate_run_keyed, self.num_groups, [
+            self._params, dev_array(rows, kernels.flow_row), dev_array(reach, float), m.wp_adj_offsets, self._edges,
+            self._gravity, self._groups, control.pos, control.vel_start, control.vel_end,
+            dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
+            dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
+            dev_array(h_kick.astype(np.float32), float), dev_array(base, wp.int32), dev_array(frame, wp.int32),
+            float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
+            self._cubics, frames, state_out.x, state_out.v])
+        return None if record is None else frames.numpy()[:len(ks)]
+
+    def _rows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray):
+        """(rows (R, 10) float32, reach (R,) float32, base (K, G) int32) of a run: the plain flow table (one
+        block of N rows per distinct step length, as ParticleSolver.integrate's) then the keyed blocks (one of
+        P rows per distinct (knot interval, step length), sim.jiggle.keyed.Schedule.flows); the rows of thread
+        group g at step k start at base[k, g] (minus the group's first particle)."""
+        m, sc = self.model, self.schedule
+        N, G = m.num_particles, self.num_groups
+        uniq, inverse = np.unique(np.round(dts, 12), return_inverse=True)
+        plain = np.stack([self.flow(float(h))[0] for h in uniq])                           # (F, N, 10)
+        coeffs, kreach, block = sc.flows(times, seg, dts)                                    # (B, P, 10)
+        F, B, P = len(uniq), len(coeffs), len(sc.particles)
+        rows = np.concatenate([plain.reshape(F * N, -1), coeffs.reshape(B * P, -1)]).astype(np.float32)
+        reach = np.concatenate([np.tile(self._plain_reach, F),
+                                np.minimum(kreach, np.finfo(np.float32).max).reshape(-1)]).astype(np.float32)
+        base = np.repeat((inverse.reshape(-1) * N)[:, None], G, axis=1).astype(np.int64)   # (K, G)
+        to = sc.thread_offsets
+        for tg, start in zip(sc.keyed_threads, sc.thread_start):
+            base[:, tg] = F * N + block * P + start - to[tg]
+        if rows.shape[0] >= 2 ** 31:
+            raise InputError("a keyed run needs more flow rows than a launch can index; use a smaller --chunk",
+                             field="chunk")
+        return rows, reach, base.astype(np.int32)
+
+
+def make_solver(model, jiggles) -> ParticleSolver:
+    """The solver of a model built from `jiggles` (one MuscleJiggle per muscle): a KeyedSolver when any
+    muscle's goal springs are keyed, else the plain ParticleSolver."""
+    if any(getattr(j, "keyed", None) for j in jiggles):
+        return KeyedSolver(model, jiggles)
+    return ParticleSolver(model)
+
+
+def integrate_keyed_numpy(model, schedule: Schedule, track, x: np.ndarray, v: np.ndarray,
+                          grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The NumPy reference of the keyed one-launch run (sim.jiggle.solver.integrate_numpy with each step's
+    goal flow and reach those of its knot interval): (x, v) (N, 3) float64 at grid[-1] from x, v at grid[0]."""
+    grid = np.asarray(grid, dtype=np.float64)
+    dts = np.diff(grid)
+    seg, s0s, _ = _check_steps(track, grid)
+    coeffs, reaches, block = schedule.flows(track.times, seg, dts)
+    mu = model.drag[:, None]
+    p = schedule.particles
+
+    def goal(j, s):
+        return hermite(track.pos[j], track.pos[j + 1], track.vel_start[j], track.vel_end[j],
+                       track.times[j + 1] - track.times[j], s)
+
+    g, gv, _, _ = goal(seg[0], s0s[0])
+    y, u = x - g, v - gv
+    h_kick = 0.5 * dts[0]
+    for k in range(len(dts)):
+        j, s0, h = int(seg[k]), float(s0s[k]), float(dts[k])
+        _, gv, gacc, gjerk = goal(j, s0)
+        u = kick_numpy(model, y, u, h_kick)
+        fl = goal_flow(model.goal_k, model.goal_c + model.drag, round(h, 12))
+        fl[p] = coeffs[block[k]]
+        reach = np.array(model.reach, dtype=np.float64)
+        reach[p] = reaches[block[k]]
+        b0 = model.gravity_vector - gacc - mu * gv
+        b1 = -gjerk - mu * gacc
+        b2 = -0.5 * mu * gjerk
+        y, u = within_reach_numpy(reach, *flow_numpy(fl, y, u, b0, b1, b2))
+        h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
+    g1, gv1, _, _ = goal(seg[-1], s0s[-1] + dts[-1])
+    u = kick_numpy(model, y, u, 0.5 * dts[-1])
+    return g1 + y, gv1 + u
