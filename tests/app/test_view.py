@@ -317,3 +317,37 @@ def test_a_bake_with_keyed_parameters_plays_but_is_not_tuned(tmp_path):
                  "--no-render", "--strength", "belly_fat=[[0, 1], [0.2, 0.3]]"]) == 0
     with pytest.raises(NotTunable, match="keys jiggle parameters over time \\(belly_fat\\)"):
         Tuner(json.loads((out / "bake.json").read_text()))
+
+
+@pytest.mark.slow
+def test_the_painted_jiggle_map_is_shown_on_the_skin(tmp_path):
+    """A character with a painted jiggle map (a sidecar beside it): once the setup is rebuilt, the page
+    offers the map, and with it on the skin is drawn in bands of the map's values."""
+    import shutil
+
+    from conftest import asset
+
+    from rig.character.load import load_character
+    from rig.character.painted_maps import PaintedMaps, save_maps
+    from sim.app.commands.view import open_viewer
+    glb = tmp_path / "hero.glb"
+    shutil.copy(asset("characters/CesiumMan.glb"), glb)
+    V = load_character(str(glb)).num_vertices
+    painted = np.linspace(0.0, 1.0, V).astype(np.float32)               # every band has vertices
+    save_maps(tmp_path / "hero.jiggle_map.npz", PaintedMaps(jiggle=painted), V)
+    out = tmp_path / "bake"
+    assert main(["-q", "bake", "--character", str(glb), "--clip", str(asset("mocap/cmu_bvh/02_03.bvh")),
+                 "--out", str(out), "--end", "0.3", "--formats", "npz"]) == 0
+    page = open_viewer(str(out), port=0, paused=True, tune=True, log=lambda s: None)
+    try:
+        assert page.wait_tuner(), page.tune_error
+        assert np.array_equal(page.jiggle_map, painted) and not page.g_map.disabled
+        assert "painted jiggle map" in page.g_map_note.content
+        page.g_map.value = True
+        page.draw(3)
+        assert sum(h is not None for h in page._map_handles) >= 8 and not page.h_dynamic.visible
+        page.g_map.value = False
+        page.draw(3)
+        assert page.h_dynamic.visible and all(h is None or not h.visible for h in page._map_handles)
+    finally:
+        page.stop()

@@ -40,6 +40,8 @@ MUSCLE_COLOUR = {"muscle": (190, 70, 60), "fat": (235, 195, 90)}
 SELECTED_COLOUR = (40, 200, 255)
 BONE_COLOUR = (235, 235, 245)
 SKIN_MODES = ("dynamic", "static", "side by side", "overlaid")
+MAP_BANDS, MAP_CMAP = 10, "viridis"
+"""The painted jiggle map in 10 bands of viridis over [0, 1] (fit.png's map panel uses viridis too)."""
 SPEEDS = ("0.25", "0.5", "1", "2")
 FREQUENCY_RANGE = (0.5, 20.0)
 """Hz: the frequency slider's range."""
@@ -90,8 +92,12 @@ class ViewerPage:
         self._pending: Tuning | None = None
         self._busy = False
         self._band_handles: list = []
+        self._map_handles: list = []
+        self.jiggle_map: np.ndarray | None = None
+        """(V,) the character's painted jiggle map (rig.character.painted_maps), once the setup is rebuilt."""
         self._region_handle = None
         self._colours = band_colours(HEAT_BANDS)
+        self._map_colours = band_colours(MAP_BANDS, MAP_CMAP)
         self._build_scene()
         self._build_gui(paused)
         self.draw(0)
@@ -206,10 +212,12 @@ class ViewerPage:
             self.g_mode = gui.add_dropdown("skin", SKIN_MODES, initial_value="dynamic")
             self.g_heat = gui.add_checkbox("heat map", initial_value=False)
             self.g_heat_bar = gui.add_html(self._heat_bar_html(), visible=False)
+            self.g_map = gui.add_checkbox("painted jiggle map", initial_value=False, disabled=True)
+            self.g_map_note = gui.add_markdown("*the character's painted maps are known once the setup is rebuilt*")
             self.g_muscles = gui.add_checkbox("muscles", initial_value=False)
             self.g_skeleton = gui.add_checkbox("skeleton", initial_value=False)
             self.g_opacity = gui.add_slider("skin opacity", min=0.1, max=1.0, step=0.05, initial_value=1.0)
-        for h in (self.g_mode, self.g_heat, self.g_skeleton, self.g_opacity):
+        for h in (self.g_mode, self.g_heat, self.g_map, self.g_skeleton, self.g_opacity):
             h.on_update(lambda _: self.redraw())
         self.g_muscles.on_update(self._muscles_toggled)
 
@@ -288,12 +296,15 @@ class ViewerPage:
             show_final = mode != "static"
             final = pb.skin(k, "final")
             heat_on = heat and show_final
-            self.h_dynamic.visible = show_final and not heat_on
-            if show_final and not heat_on:
+            map_on = bool(self.g_map.value) and self.jiggle_map is not None and show_final and not heat_on
+            self.h_dynamic.visible = show_final and not heat_on and not map_on
+            if show_final and not heat_on and not map_on:
                 self.h_dynamic.vertices = final
                 see_through = min(opacity, 0.6) if mode == "overlaid" else opacity
                 self.h_dynamic.opacity = None if see_through >= 1.0 else see_through
             self._draw_heat(k, final if heat_on else None, opacity)
+            self._map_handles = self._draw_bands("/skin/map", self.jiggle_map, 1.0, self._map_colours,
+                                                 final if map_on else None, opacity, self._map_handles)
             show_static = mode in ("static", "side by side", "overlaid")
             self.h_static.visible = show_static
             if show_static:
@@ -313,26 +324,31 @@ class ViewerPage:
         self.frame_shown = k
 
     def _draw_heat(self, k: int, final: np.ndarray | None, opacity: float) -> None:
-        sc = self.server.scene
-        if final is None:
-            for h in self._band_handles:
+        self._band_handles = self._draw_bands("/skin/heat", self.pb.displacement_mm[k], self.pb.heat_top_mm,
+                                              self._colours, final, opacity, self._band_handles)
+
+    def _draw_bands(self, name: str, values: np.ndarray | None, top: float, colours: np.ndarray,
+                    skin: np.ndarray | None, opacity: float, old: list) -> list:
+        """The skin (V, 3) coloured by per-vertex `values` (V,) over [0, top] in len(colours) bands, as one
+        mesh per band under `name`; hidden (skin None) or redrawn, replacing the handles `old`."""
+        if skin is None or values is None:
+            for h in old:
                 if h is not None:
                     h.visible = False
-            return
-        bands = heat_bands(self.pb.displacement_mm[k], self.pb.faces, self.pb.heat_top_mm, HEAT_BANDS)
+            return old
         handles = []
-        for b, band in enumerate(bands):
+        for b, band in enumerate(heat_bands(values, self.pb.faces, top, len(colours))):
             if band is None:
                 handles.append(None)
                 continue
             ids, local = band
-            handles.append(sc.add_mesh_simple(f"/skin/heat/band{b}", final[ids], local,
-                                              color=tuple(int(c) for c in self._colours[b]), side="double",
-                                              opacity=None if opacity >= 1.0 else opacity))
-        for b, h in enumerate(self._band_handles):
-            if h is not None and handles[b] is None:
+            handles.append(self.server.scene.add_mesh_simple(
+                f"{name}/band{b}", skin[ids], local, color=tuple(int(c) for c in colours[b]), side="double",
+                opacity=None if opacity >= 1.0 else opacity))
+        for b, h in enumerate(old):
+            if h is not None and (b >= len(handles) or handles[b] is None):
                 h.remove()
-        self._band_handles = handles
+        return handles
 
     def _draw_muscles(self, k: int, which: str) -> None:
         on = bool(self.g_muscles.value)
@@ -444,6 +460,18 @@ class ViewerPage:
                 self.g_t_muscle.value = info.name            # the Tune panel follows
         self.redraw()
 
+    def _show_maps(self, maps) -> None:
+        """Offer the character's painted jiggle map (rig.character.painted_maps.PaintedMaps or None)."""
+        jiggle = None if maps is None else maps.jiggle
+        if jiggle is not None and len(jiggle) == self.pb.V:
+            self.jiggle_map = np.asarray(jiggle, np.float64)
+            self.g_map.disabled = False
+            self.g_map_note.content = (f"painted jiggle map ({html.escape(maps.source or 'the character')}): "
+                                       "dark 0 shows no jiggle, bright 1 all of it")
+        else:
+            self.g_map_note.content = ("*no painted jiggle map on this character (`jiggle fit` writes one to "
+                                       "paint)*")
+
     # ------------------------------------------------------------------ tuning
     def _set_tune_status(self, text: str) -> None:
         self.g_tune_status.content = text
@@ -467,6 +495,7 @@ class ViewerPage:
             kids = np.flatnonzero(parents >= 0)
             self.bones = np.stack([parents[kids], kids], axis=1)
         self.base = {j.name: j for j in tuner.jiggles}
+        self._show_maps(getattr(ch, "maps", None))
         self.tuner = tuner
         for h in self._tune_controls:
             h.disabled = False

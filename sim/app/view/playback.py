@@ -36,10 +36,10 @@ QUALITY_ROWS = (("final", "folded_edges", "folded edges", "{:.0f}"), ("final", "
 """(skin, measure, label, format) of the per-frame skin-quality numbers shown (metrics.json, `jiggle compare`)."""
 
 
-def band_colours(bands: int = HEAT_BANDS) -> np.ndarray:
-    """(bands, 3) uint8 RGB: CMAP at the middle of each band."""
+def band_colours(bands: int = HEAT_BANDS, cmap: str = CMAP) -> np.ndarray:
+    """(bands, 3) uint8 RGB: the colour map `cmap` (default the report's, CMAP) at the middle of each band."""
     from matplotlib import colormaps
-    rgba = colormaps[CMAP]((np.arange(bands) + 0.5) / bands)
+    rgba = colormaps[cmap]((np.arange(bands) + 0.5) / bands)
     return np.round(255 * rgba[:, :3]).astype(np.uint8)
 
 
