@@ -324,6 +324,24 @@ def integrate_run_contact(
             v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
 
 
+@wp.func
+def from_axis(x: wp.vec3, a: wp.vec3, b: wp.vec3):
+    """x less its closest point on the segment a-b."""
+    ab = b - a
+    L2 = wp.dot(ab, ab)
+    s = float(0.0)
+    if L2 > 0.0:
+        s = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
+    return x - (a + s * ab)
+
+
+@wp.func
+def inside_capsule(x: wp.vec3, a: wp.vec3, b: wp.vec3, r: float):
+    """x strictly inside the capsule of axis a-b and radius r."""
+    d = from_axis(x, a, b)
+    return wp.dot(d, d) < r * r
+
+
 @wp.kernel
 def skin_inside(
     # model: capsules and, per vertex part, the capsules it is checked against (CSR)
@@ -341,29 +359,9 @@ def skin_inside(
     hit = int(0)
     for e in range(part_offsets[p], part_offsets[p + 1]):
         c = part_capsule[e]
-        a = ends[t, 2 * c]
-        ab = ends[t, 2 * c + 1] - a
-        L2 = wp.dot(ab, ab)
-        s = float(0.0)
-        if L2 > 0.0:
-            s = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
-        r = cap_radius[c]
-        d = x - (a + s * ab)
-        if wp.dot(d, d) < r * r:
+        if inside_capsule(x, ends[t, 2 * c], ends[t, 2 * c + 1], cap_radius[c]):
             hit = 1
     inside_out[t, i] = hit
-
-
-@wp.func
-def inside_capsule(x: wp.vec3, a: wp.vec3, b: wp.vec3, r: float):
-    """x strictly inside the capsule of axis a-b and radius r (skin_inside's arithmetic)."""
-    ab = b - a
-    L2 = wp.dot(ab, ab)
-    s = float(0.0)
-    if L2 > 0.0:
-        s = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
-    d = x - (a + s * ab)
-    return wp.dot(d, d) < r * r
 
 
 @wp.kernel
@@ -400,13 +398,7 @@ def skin_inside_clusters(
         n = int(0)
         for e in range(e0, e1):
             c = part_capsule[e]
-            a = ends[t, 2 * c]
-            ab = ends[t, 2 * c + 1] - a
-            L2 = wp.dot(ab, ab)
-            s = float(0.0)
-            if L2 > 0.0:
-                s = wp.clamp(wp.dot(x0 - a, ab) / L2, 0.0, 1.0)
-            d = x0 - (a + s * ab)
+            d = from_axis(x0, ends[t, 2 * c], ends[t, 2 * c + 1])
             lim = reach + cap_radius[c]
             if wp.dot(d, d) <= lim * lim:
                 cand[t, k, n] = c

@@ -42,26 +42,12 @@ class KeyedSolver(ParticleSolver):
         """ParticleSolver.integrate with each step's goal springs those of its knot interval."""
         if self.schedule.empty:
             return super().integrate(state_in, state_out, control, grid, record=record, colliders=colliders)
-        m, dev = self.model, self.model.device
-        grid = np.asarray(grid, dtype=np.float64)
-        ks = np.zeros(0, np.int64) if record is None else np.asarray(record, dtype=np.int64).reshape(-1)
-        K = len(grid) - 1
-        if len(ks) and (ks.min() < 1 or ks.max() > K or np.any(np.diff(ks) <= 0)):
-            raise InputError(f"recorded steps must be increasing indices in 1..{K}, got {ks.tolist()}", field="record")
-        if m.num_particles == 0 or K < 1:
-            return None if record is None else np.zeros((len(ks), m.num_particles, 3), np.float32)
-        seg, s0, H = _check_steps(control.track, grid)
-        dts = np.diff(grid)
-        h_kick = 0.5 * dts
-        h_kick[1:] += 0.5 * dts[:-1]
+        m = self.model
+        run = self._run_steps(control, grid, record)
+        if isinstance(run, np.ndarray) or run is None:
+            return run
+        ks, seg, s0, H, dts, h_kick, frame, frames, dev_array = run
         rows, reach, base = self._rows(control.track.times, seg, dts)
-        frame = np.full(K, -1, np.int32)
-        frame[ks - 1] = np.arange(len(ks), dtype=np.int32)
-        frames = wp.empty((max(len(ks), 1), m.num_particles), dtype=wp.vec3, device=dev)
-
-        def dev_array(a, dtype):
-            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
-
         if colliders is not None:
             out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick,
                                           [dev_array(rows, kernels.flow_row), dev_array(reach, float)],

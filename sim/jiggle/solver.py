@@ -145,6 +145,31 @@ class ParticleSolver:
             table = self._tables[table_key] = wp.array(coeffs, dtype=kernels.flow_row, device=self.model.device)
         return table, np.array([index[k] for k in keys], dtype=np.int32)[inverse.reshape(-1)]
 
+    def _run_steps(self, control: GoalControl, grid: np.ndarray, record):
+        """What a run of the steps `grid` (K + 1,) needs on the host: (ks, seg, s0, H, dts, h_kick, frame,
+        frames, dev_array); or its result when there is nothing to step (None, or zero frames (R, N, 3)).
+        InputError for recorded steps that are not increasing indices in 1..K."""
+        m, dev = self.model, self.model.device
+        grid = np.asarray(grid, dtype=np.float64)
+        ks = np.zeros(0, np.int64) if record is None else np.asarray(record, dtype=np.int64).reshape(-1)
+        K = len(grid) - 1
+        if len(ks) and (ks.min() < 1 or ks.max() > K or np.any(np.diff(ks) <= 0)):
+            raise InputError(f"recorded steps must be increasing indices in 1..{K}, got {ks.tolist()}", field="record")
+        if m.num_particles == 0 or K < 1:
+            return None if record is None else np.zeros((len(ks), m.num_particles, 3), np.float32)
+        seg, s0, H = _check_steps(control.track, grid)
+        dts = np.diff(grid)
+        # the kick before step k: its own opening half, plus the previous step's closing half
+        h_kick = 0.5 * dts
+        h_kick[1:] += 0.5 * dts[:-1]
+        frame = np.full(K, -1, np.int32)
+        frame[ks - 1] = np.arange(len(ks), dtype=np.int32)
+        frames = wp.empty((max(len(ks), 1), m.num_particles), dtype=wp.vec3, device=dev)
+
+        def dev_array(a, dtype):
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
+        return ks, seg, s0, H, dts, h_kick, frame, frames, dev_array
+
     def integrate(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl,
                   grid: np.ndarray, record=None, colliders=None) -> np.ndarray | None:
         """Advance state_in from grid[0] through the steps between the times grid (K + 1,) into state_out,
@@ -164,27 +189,12 @@ class ParticleSolver:
             impulse N s, hit id; see sim.jiggle.colliders.muscle_contacts). Where nothing touches, the
             positions are those of a run without colliders bit for bit.
         """
-        m, dev = self.model, self.model.device
-        grid = np.asarray(grid, dtype=np.float64)
-        ks = np.zeros(0, np.int64) if record is None else np.asarray(record, dtype=np.int64).reshape(-1)
-        K = len(grid) - 1
-        if len(ks) and (ks.min() < 1 or ks.max() > K or np.any(np.diff(ks) <= 0)):
-            raise InputError(f"recorded steps must be increasing indices in 1..{K}, got {ks.tolist()}", field="record")
-        if m.num_particles == 0 or K < 1:
-            return None if record is None else np.zeros((len(ks), m.num_particles, 3), np.float32)
-        seg, s0, H = _check_steps(control.track, grid)
-        dts = np.diff(grid)
-        # the kick before step k: its own opening half, plus the previous step's closing half
-        h_kick = 0.5 * dts
-        h_kick[1:] += 0.5 * dts[:-1]
+        m = self.model
+        run = self._run_steps(control, grid, record)
+        if isinstance(run, np.ndarray) or run is None:
+            return run
+        ks, seg, s0, H, dts, h_kick, frame, frames, dev_array = run
         table, flow_index = self._flow_table(dts)
-        frame = np.full(K, -1, np.int32)
-        frame[ks - 1] = np.arange(len(ks), dtype=np.int32)
-        frames = wp.empty((max(len(ks), 1), m.num_particles), dtype=wp.vec3, device=dev)
-
-        def dev_array(a, dtype):
-            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
-
         Y, U = self._y, self._u
         if colliders is not None:
             out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, [table],
