@@ -197,6 +197,7 @@ def skin_table(clips: list[tuple[str, str | None]], frames: int, characters: lis
                          "mean_static": float(st.mean()), "mean_final": float(fi.mean()),
                          "worst_static_frame": int(st.argmax()), "worst_final_frame": int(fi.argmax()),
                          "frames_final_above_static": int((fi > st).sum()),
+                         "max_kept_out": si.get("max_kept_out"), "max_pull_mm": si.get("max_pull_mm"),
                          "contact_frames": c.get("frames_in_contact"),
                          "max_penetration_mm": c.get("max_penetration_mm")})
     return rows
@@ -238,10 +239,12 @@ def main() -> None:
     rows = skin_table(clips, args.clip_frames, characters) if clips else []
     if rows:
         print("\n| clip | character | frames | skin inside, static: max / mean per frame | final: max / mean | "
-              "frames final > static | contact frames | max penetration mm |\n|---|---|---|---|---|---|---|---|")
+              "frames final > static | pulled back: vertices (max per frame) / longest mm | contact frames | "
+              "max penetration mm |\n|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             print(f"| {r['clip']} | {r['character']} | {r['frames']} | {r['max_static']} / {r['mean_static']:.1f} | "
                   f"{r['max_final']} / {r['mean_final']:.1f} | {r['frames_final_above_static']} | "
+                  f"{r['max_kept_out']} / {r['max_pull_mm']} | "
                   f"{r['contact_frames']} | {r['max_penetration_mm']} |")
     print(json.dumps({"demo": d, "grid": g, "skin_table": rows}, indent=1))
 

@@ -48,6 +48,8 @@ INSIDE_FRACTION = 0.9
 """A capsule's radius is at most this fraction of the distance from its axis to the nearest skin vertex."""
 AXIS_SAMPLES = 17
 """Points along a capsule's axis where that distance is measured."""
+MIN_MODEL_RADIUS = 0.005
+"""metres: a model's geom whose radius would shrink below this to stay inside the skin is dropped."""
 LEAF_PERCENTILE = 98.0
 """A leaf bone's capsule ends where this share of its skin vertices lies behind it along the bone."""
 
@@ -177,8 +179,61 @@ def _leaf_end(own: np.ndarray, a: np.ndarray, b: np.ndarray, r: float) -> np.nda
     return a + ab * max(reach, 0.5 * MIN_LENGTH) / L
 
 
-def capsules_from_geoms(joint, ends_local, radius, names, parents) -> BoneCapsules:
+def capsules_from_geoms(joint, ends_local, radius, names, parents, child=None) -> BoneCapsules:
     """Capsules given as they are (e.g. a MuJoCo model's own capsule geoms): joint (C,), ends_local
-    (C, 2, 3) metres in the joint's bind frame, radius (C,) metres, names (C,), the skeleton's parents (J,)."""
-    return BoneCapsules(joint=np.asarray(joint), child=np.full(len(joint), -1), local=ends_local,
-                        radius=np.asarray(radius), names=tuple(names), parents=parents)
+    (C, 2, 3) metres in the joint's bind frame, radius (C,) metres, names (C,), the skeleton's parents (J,),
+    child (C,) the joint at each segment's far end (None: -1, none)."""
+    return BoneCapsules(joint=np.asarray(joint), child=np.full(len(joint), -1) if child is None else np.asarray(child),
+                        local=ends_local, radius=np.asarray(radius), names=tuple(names), parents=parents)
+
+
+def model_capsules(character, joint, local, radius, names, fallback: BoneCapsules | None = None) -> BoneCapsules:
+    """A MuJoCo model's own capsule geoms (sim.drive.skeleton.capsule_geoms: joint (C,), local (C, 2, 3)
+    metres in the joint's frame, radius (C,) metres, names) as the capsules of `character`, kept inside its
+    skin: a geom is dropped when the middle of its axis lies outside the skin (the nearest rest vertex's
+    normal points toward it) or its radius would shrink below MIN_MODEL_RADIUS; the others keep their axis
+    and take at most INSIDE_FRACTION of the distance from the inside part of their axis to the skin (a
+    model's capsules are sized for its own body, not this character's). A joint none of whose geoms is
+    kept gets the capsules `fallback` (the character's bone capsules, :func:`bone_capsules`) has for it:
+    the model's geoms where they exist. Each kept geom's far end is matched to the joint's child that lies
+    along it (for the chain rules of sim/jiggle/colliders.py)."""
+    from scipy.spatial import cKDTree
+    bind = np.asarray(character.bind_world, dtype=np.float64)
+    parents = np.asarray(character.parents)
+    verts = np.asarray(character.vertices, dtype=np.float64)
+    normals = np.asarray(character.normals, dtype=np.float64)
+    tree = cKDTree(verts)
+    joint = np.asarray(joint, dtype=np.int64)
+    local = np.asarray(local, dtype=np.float64).reshape(-1, 2, 3)
+    out = {"joint": [], "child": [], "local": [], "radius": [], "names": []}
+    for c in range(len(joint)):
+        j = int(joint[c])
+        ends = local[c] if np.linalg.norm(local[c, 0]) <= np.linalg.norm(local[c, 1]) else local[c, ::-1]
+        a, b = (bind[j, :3, :3] @ ends.T).T + bind[j, :3, 3]            # a: the end nearer the joint
+        pts = a + np.linspace(0.0, 1.0, AXIS_SAMPLES)[:, None] * (b - a)
+        d, idx = tree.query(pts)
+        outside = np.einsum("ij,ij->i", pts - verts[idx], normals[idx]) > 0.0
+        if outside[AXIS_SAMPLES // 2] or outside.all():
+            continue
+        r = min(float(radius[c]), INSIDE_FRACTION * float(d[~outside].min()))
+        if r < MIN_MODEL_RADIUS:
+            continue
+        kids = np.flatnonzero(parents == j)
+        child = -1
+        if len(kids) and np.linalg.norm(b - a) > 0:
+            far = np.linalg.norm(bind[kids, :3, 3] - b, axis=1)
+            k = int(np.argmin(far))
+            if far[k] <= r + 0.5 * np.linalg.norm(bind[kids[k], :3, 3] - bind[j, :3, 3]):
+                child = int(kids[k])
+        for key, v in (("joint", j), ("child", child), ("local", ends), ("radius", r), ("names", names[c])):
+            out[key].append(v)
+    if fallback is not None:
+        have = set(out["joint"])
+        for c in range(fallback.count):
+            if int(fallback.joint[c]) not in have:
+                for key, v in (("joint", fallback.joint[c]), ("child", fallback.child[c]), ("local", fallback.local[c]),
+                               ("radius", fallback.radius[c]), ("names", fallback.names[c])):
+                    out[key].append(v)
+    return BoneCapsules(joint=np.array(out["joint"], np.int32), child=np.array(out["child"], np.int32),
+                        local=np.array(out["local"], np.float64).reshape(-1, 2, 3),
+                        radius=np.array(out["radius"], np.float64), names=tuple(out["names"]), parents=parents)

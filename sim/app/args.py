@@ -239,10 +239,17 @@ def keyed_request(args) -> dict:
 
 def collision_option(g) -> None:
     """--collisions / --no-collisions: the particles collide with other body parts' bone capsules and the floor."""
-    from sim.jiggle.params import JiggleSettings
+    from sim.jiggle.params import COLLIDERS, JiggleSettings
     g.add_argument("--collisions", action=argparse.BooleanOptionalAction, default=None,
                    help="the muscles' particles collide with the bone capsules of other body parts and with the floor "
                    f"(default: the scene's, else {'on' if JiggleSettings().collisions else 'off'})")
+    g.add_argument("--colliders", choices=COLLIDERS, default=None,
+                   help="the capsules they collide with: bone (fitted inside the character's skin around each bone) or "
+                   "model (the MuJoCo model's own capsule geoms, kept inside the skin) (default: the scene's, else "
+                   f"{JiggleSettings().colliders})")
+    g.add_argument("--muscle-collisions", action=argparse.BooleanOptionalAction, default=None,
+                   help="the particles of muscles of different body parts collide with each other too (slower: one "
+                   "launch per step) (default: the scene's, else off)")
 
 
 def template_option(g) -> None:

@@ -215,7 +215,8 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None
     panels = [("segmentation", views[0] if long else "front")] + [(view, view) for view in views]
     # the painted maps (rig.character.painted_maps), each a panel of the skin coloured 0 (dark) to 1 (bright)
     panels += [(title, views[0] if long else "front") for title in (maps or {})]
-    CAPSULES = "bone capsules (collisions)"
+    model = any(not n.startswith("bone:") and ">" not in n for n in capsules.names) if capsules is not None else False
+    CAPSULES = "MuJoCo model's capsules (collisions)" if model else "bone capsules (collisions)"
     extra = len(maps or {})
     if capsules is not None and capsules.count:
         panels.append((CAPSULES, views[0] if long else "front"))

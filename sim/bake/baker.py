@@ -165,9 +165,12 @@ class Baker:
             arrays = {k: v for k, v in out.items() if k != "finish"}
             if smooth:
                 arrays["skin_lbs"] = smooth[0]
-            if self.skin_check is not None:             # skin vertices inside another part's capsule, per frame
-                arrays["inside_static"] = self.skin_check.count(world, skin_static, s.settings.device).astype(np.int32)
-                arrays["inside_final"] = self.skin_check.count(world, skin_final, s.settings.device).astype(np.int32)
+            if self.skin_check is not None:
+                # the jiggle keeps the final skin out of other parts' capsules the static skin is not in (in
+                # place, before anything is written), and both skins' vertices inside are counted per frame
+                kept = self.skin_check.keep_out(world, skin_static, skin_final, s.settings.device)
+                arrays["inside_static"], arrays["inside_final"] = kept["static"], kept["final"]
+                arrays["skin_kept_out"], arrays["skin_pulled_m"] = kept["kept"], kept["pulled_m"]
             return {**arrays, "skin_static": skin_static, "skin_final": skin_final}
         if self.defer:
             out["finish"] = finish
@@ -444,9 +447,11 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     return summary
 
 
-CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final")
+CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final", "skin_kept_out",
+                "skin_pulled_m")
 """Per-frame arrays of a bake with collisions a chunk's marker keeps for bake.json: per muscle the deepest
-contact (m), what it hit, the summed impulse (N s); the skin vertices inside another part's capsule."""
+contact (m), what it hit, the summed impulse (N s); the skin vertices inside another part's capsule; the
+final skin's vertices pulled back out of one and the longest pull-back (m)."""
 
 
 def _resumed_contacts(out_dir: str, done: int) -> dict:
@@ -486,6 +491,13 @@ def _contacts_json(setup: BakeSetup, baker: Baker, parts: dict) -> dict:
                               "max_static": int(inside_s.max()) if T else 0,
                               "max_final": int(inside_f.max()) if T else 0,
                               "frames_final_above_static": int((inside_f > inside_s).sum())}
+        kept, pulled = cat("skin_kept_out", (0,)), cat("skin_pulled_m", (0,))
+        if len(kept) == T:                      # older partial bakes resumed have no pull-back records
+            out["skin_inside"].update({
+                "kept_out": kept.astype(int).tolist(), "max_kept_out": int(kept.max()) if T else 0,
+                "max_pull_mm": round(1000.0 * float(pulled.max()), 4) if T else 0.0,
+                "method": "final vertices the jiggle took into another part's capsule are pulled back along "
+                          "their jiggle to its surface (sim.jiggle.colliders.SkinCheck.keep_out)"})
     return out
 
 

@@ -42,6 +42,8 @@ Layout (paths relative to the scene file)::
     cut_ratio = 8.0
     cut_jump = 0.1                # metres
     collisions = true             # particles collide with other body parts' bone capsules and the floor
+    colliders = "bone"            # which capsules: "bone" (fitted to the skin) or "model" (the MuJoCo model's geoms)
+    muscle_collisions = false     # particles of muscles of different body parts collide with each other too
     [jiggle.muscles.belly_fat]    # per muscle, keys of sim.jiggle.params.OVERRIDES
     damping = 0.3
     blend = [[0.0, 0.0], [0.5, 1.0]]
@@ -79,10 +81,10 @@ from rig.base.errors import InputError
 from rig.base.tomlfile import read_toml
 from rig.motion.clip import Clip
 from sim.jiggle.keyed import parse_curve
-from sim.jiggle.params import OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
+from sim.jiggle.params import COLLIDERS, OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
 
 _JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump",
-                    "collisions")
+                    "collisions", "colliders", "muscle_collisions")
 _BODY = ("resolution", "belly", "chest", "glutes", "upper_arms")
 _CHARACTER = {"file", "skin", "unit", "template", "influences", "skinning", "method", "mush", *_BODY}
 _KNOWN = {"name": None, "builtin": None,
@@ -425,9 +427,15 @@ def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
                 raise InputError(message, p, line, field=where) from None
             kw[k] = v
             continue
-        elif k in ("gravity", "collisions"):
+        elif k in ("gravity", "collisions", "muscle_collisions"):
             if not isinstance(v, bool):
                 raise InputError(f"expected true or false, found {v!r}", p, line, field=where)
+        elif k == "colliders":
+            if v not in COLLIDERS:
+                raise InputError(f"expected one of {', '.join(map(repr, COLLIDERS))}, found {v!r}", p, line,
+                                 field=where)
+            kw[k] = v
+            continue
         elif k == "substeps":
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_SUBSTEPS:
                 raise InputError(f"expected a whole number >= 1 (at most {MAX_SUBSTEPS}), found {v!r}", p, line,

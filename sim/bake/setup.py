@@ -45,8 +45,8 @@ class BakeRequest:
     character : skinned glTF/GLB (the clip is retargeted onto it), over the scene's [character] file.
     template : muscle template, a built-in name or a .toml/.xml path.
     fps, substeps, blend (static_dyn_blend of every muscle), jiggle (strength J of every muscle; blend and
-    jiggle are numbers or sim.jiggle.keyed.Curve), gravity (bool), preroll (seconds), collisions (bool): over
-    the scene's [jiggle].
+    jiggle are numbers or sim.jiggle.keyed.Curve), gravity (bool), preroll (seconds), collisions (bool),
+    colliders ("bone", "model"), muscle_collisions (bool): over the scene's [jiggle].
     muscles : per-muscle entries from the command line, (pattern, {OVERRIDES key: value}, flag text) in the
         order given (pattern a muscle name or a glob), over the scene's tables (sim.bake.scene.apply_entries).
     start, end : seconds of the clip. frames : only the first N output frames.
@@ -74,6 +74,8 @@ class BakeRequest:
     gravity: bool | None = None
     preroll: float | None = None
     collisions: bool | None = None
+    colliders: str | None = None
+    muscle_collisions: bool | None = None
     device: str | None = None
     start: float | None = None
     end: float | None = None
@@ -342,14 +344,28 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     if skin.rig.pose_shapes is not None:
         params["pose_shapes"] = [{"muscle": sh.muscle, "joint": sh.joint, "angles_deg": list(sh.angles),
                                   "scales": [list(r) for r in sh.scales]} for sh in skin.rig.pose_shapes.shapes]
-    floor = None
+    floor = capsules = None
     if settings.collisions:
         floor = _floor(character, drive, world_at, knots)
-        params["collisions"] = {"capsules": "bone", "floor_m": round(floor, 6)}
+        params["collisions"] = {"capsules": settings.colliders, "floor_m": round(floor, 6)}
+        if settings.colliders == "model":
+            capsules = _model_capsules(clip, character, log)
+            params["collisions"]["model_geoms"] = sum(not n.startswith(("bone:",)) for n in capsules.names)
     return BakeSetup(name=scene.name if scene is not None else source.name, skin=skin, jiggles=tuple(jiggles),
                      settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
-                     chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor)
+                     chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
+                     capsules=capsules)
+
+
+def _model_capsules(clip, character, log):
+    """The capsules of --colliders model (sim.drive.skeleton.model_capsules), logged."""
+    from sim.drive.skeleton import model_capsules
+    caps, geoms = model_capsules(clip, character)
+    kept = sum(not n.startswith("bone:") for n in caps.names)
+    log(f"colliders: {kept} of the MuJoCo model's {geoms} capsule geoms inside the skin, "
+        f"{caps.count - kept} bone capsules where a joint has none")
+    return caps
 
 
 def _floor(character, drive: str, world_at, knots: np.ndarray) -> float:
@@ -380,6 +396,9 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
     fps = float(req.fps or scene.fps or BAKE_FPS)
     times = output_times(FLEX_DURATION, fps, req.start, req.end, req.frames)
     settings, jiggles = _settings(req, scene, jiggles)
+    if settings.collisions and settings.colliders == "model":
+        raise InputError(f"the built-in scene {scene.builtin!r} has no MuJoCo model, so no geoms to collide with; "
+                         "use --colliders bone", field="--colliders")
     knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, fps))
     log(f"built-in scene {scene.builtin}: {arm.character.num_vertices} vertices, {arm.rig.M} muscle")
     floor = _floor(arm.character, "kinematic", arm.world_at, knots) if settings.collisions else None
@@ -442,7 +461,8 @@ def _settings(req: BakeRequest, scene, jiggles):
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
     given = {"substeps": req.substeps, "strength": req.jiggle, "gravity": req.gravity, "preroll": req.preroll,
-             "collisions": req.collisions, "device": None if req.device is None else warp_device(req.device),
+             "collisions": req.collisions, "colliders": req.colliders, "muscle_collisions": req.muscle_collisions,
+             "device": None if req.device is None else warp_device(req.device),
              "blend": None if req.blend is None else BlendCurve.parse(req.blend, "--blend")}
     settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
     if req.blend is not None:

@@ -230,3 +230,53 @@ def body_poses(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray, bod
         rot[i] = data.xquat[bodies]
         pos[i] = data.xpos[bodies]
     return rot, pos
+
+
+def capsule_geoms(model: mujoco.MjModel, body_ids: np.ndarray) -> dict:
+    """The capsule (and sphere) geoms of a MuJoCo model on the bodies `body_ids` (J,) (body of each clip
+    joint), in each body's own frame, as collision capsules: {"joint": (C,) int, the clip joint whose body
+    carries it; "local": (C, 2, 3) metres, the ends of its segment in the body frame (a sphere's two ends
+    coincide); "radius": (C,) metres; "names": the geoms' names}. The world transform MuJoCo gives a body
+    is its joint's (Skeleton.world), so world @ local puts a geom where the model has it in any pose.
+    Other geom types (boxes, meshes, the floor plane) are left out."""
+    joint_of = {int(b): j for j, b in enumerate(np.asarray(body_ids))}
+    joint, local, radius, names = [], [], [], []
+    for g in range(model.ngeom):
+        kind = int(model.geom_type[g])
+        if kind not in (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_SPHERE)):
+            continue
+        j = joint_of.get(int(model.geom_bodyid[g]))
+        if j is None:
+            continue
+        R = np.empty(9)
+        mujoco.mju_quat2Mat(R, model.geom_quat[g])
+        axis = R.reshape(3, 3)[:, 2]
+        half = float(model.geom_size[g, 1]) if kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE) else 0.0
+        c = np.asarray(model.geom_pos[g], dtype=np.float64)
+        joint.append(j)
+        local.append([c - half * axis, c + half * axis])
+        radius.append(float(model.geom_size[g, 0]))
+        names.append(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}")
+    return {"joint": np.array(joint, np.int64), "local": np.array(local, np.float64).reshape(-1, 2, 3),
+            "radius": np.array(radius, np.float64), "names": tuple(names)}
+
+
+def model_capsules(clip: Clip, character):
+    """(capsules, G): the collision capsules of --colliders model, the capsule geoms of the MuJoCo model
+    that drives `clip`'s skeleton (:func:`build_mjcf`'s: the kinematic and the physics drive build the same
+    geoms) kept inside `character`'s skin, its bone capsules (named "bone:...") where a joint has none
+    (rig.character.capsules.model_capsules); G the model's capsule geoms. The clip's joints must be the
+    character's (a clip retargeted onto it, or its own skeleton)."""
+    from dataclasses import replace
+
+    from rig.base.errors import InputError
+    from rig.character.capsules import bone_capsules
+    from rig.character.capsules import model_capsules as kept_inside
+    sk = Skeleton(clip)
+    if len(sk.body_ids) != character.num_joints:
+        raise InputError(f"the MuJoCo model has {len(sk.body_ids)} bodies for the clip's joints, the character "
+                         f"{character.num_joints} joints; use --colliders bone", field="--colliders")
+    g = capsule_geoms(sk.model, sk.body_ids)
+    bone = bone_capsules(character)
+    bone = replace(bone, names=tuple(f"bone:{n}" for n in bone.names))
+    return kept_inside(character, g["joint"], g["local"], g["radius"], g["names"], fallback=bone), len(g["names"])

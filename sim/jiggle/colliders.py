@@ -443,6 +443,41 @@ class SkinCheck:
         return out.numpy()
 
 
+    def keep_out(self, world: np.ndarray, static: np.ndarray, final: np.ndarray,
+                 device: str = "cpu") -> dict:
+        """The final skin kept out of the capsules its static skin is not in: a final vertex (T, V, 3) float32
+        metres, changed in place, that the jiggle took inside a capsule of its part's list is pulled back along
+        final - static to just before the capsule (sim/jiggle/contact_kernels.py: skin_keep_out_clusters);
+        skin the animation itself puts inside stays. Returns per frame (T,) "static" and "final" (the counts
+        of :meth:`count`, taken after the pull-back: final <= static in every frame), "kept" (vertices pulled
+        back) and "pulled_m" (the longest pull-back, metres). world (T, J, 4, 4). One launch."""
+        from sim.jiggle import contact_kernels as ck
+        T = len(final)
+        out = {"static": np.zeros(T, np.int32), "final": np.zeros(T, np.int32), "kept": np.zeros(T, np.int32),
+               "pulled_m": np.zeros(T, np.float32)}
+        if self.capsules.count == 0 or T == 0 or len(self.part_capsule) == 0:
+            return out
+        if not (isinstance(final, np.ndarray) and final.dtype == np.float32 and final.flags.c_contiguous):
+            raise TypeError("keep_out changes the final skin in place: a C-contiguous float32 array")
+        model = self._model(device)
+        K = len(self.cluster_part)
+        ends = wp.array(self.capsules.ends(world).reshape(T, -1, 3).astype(np.float32), dtype=wp.vec3, device=device)
+        centres = wp.array(self.centres(world), dtype=wp.vec3, device=device)
+        s = wp.array(np.ascontiguousarray(static, dtype=np.float32), dtype=wp.vec3, device=device, copy=False)
+        f = wp.array(final, dtype=wp.vec3, device=device, copy=False)      # on the CPU: the caller's array
+        cand = wp.empty((T, K, int(np.diff(self.part_offsets).max())), dtype=wp.int32, device=device)
+        counts = [wp.zeros(T, dtype=wp.int32, device=device) for _ in range(3)]
+        pulled = wp.zeros(T, dtype=float, device=device)
+        wp.launch(ck.skin_keep_out_clusters, dim=(T, K), device=device, inputs=[*model, ends, centres, s, f, cand],
+                  outputs=[*counts, pulled])
+        if f.device.is_cuda or f.ptr != final.ctypes.data:
+            final[...] = f.numpy()
+        for key, a in zip(("static", "final", "kept"), counts):
+            out[key] = a.numpy()
+        out["pulled_m"] = pulled.numpy()
+        return out
+
+
 CLUSTER_SIZE = 0.06
 """metres: the skin check's clusters are a part's vertices in one cube of this size at rest."""
 
@@ -539,6 +574,43 @@ def skin_inside_numpy(ends: np.ndarray, radius: np.ndarray, skin: np.ndarray, pa
     for j in range(len(part_offsets) - 1):
         mask[j, part_capsule[part_offsets[j]:part_offsets[j + 1]]] = True
     return (inside & mask[part][None]).any(axis=2)
+
+
+def keep_out_numpy(ends: np.ndarray, radius: np.ndarray, static: np.ndarray, final: np.ndarray, part: np.ndarray,
+                   part_offsets: np.ndarray, part_capsule: np.ndarray, passes: int = 4) -> np.ndarray:
+    """NumPy reference of SkinCheck.keep_out in float64: the final skin (T, V, 3) with each vertex inside a
+    capsule of its part's list that its static vertex is not inside moved back along final - static onto
+    that capsule's surface (the first one the segment enters; again for up to `passes` capsules, then the
+    static vertex). ends (T, C, 2, 3), radius (C,)."""
+    ends = np.asarray(ends, dtype=np.float64).reshape(len(final), -1, 2, 3)
+    out = np.array(final, dtype=np.float64)
+    static = np.asarray(static, dtype=np.float64)
+
+    def dist(x, a, b):
+        return segment_distance(x[None], a, b)[0][0]
+    for t in range(len(out)):
+        for v in range(out.shape[1]):
+            p = part[v]
+            caps = part_capsule[part_offsets[p]:part_offsets[p + 1]]
+            s = static[t, v]
+            f = out[t, v]
+            for _ in range(passes + 1):
+                bad = [c for c in caps if dist(f, *ends[t, c]) < radius[c] <= dist(s, *ends[t, c])]
+                if not bad:
+                    break
+                if _ == passes:
+                    f = s
+                    break
+                us = []
+                for c in bad:      # the root of |x(u) - axis| = r on [0, 1]: distance falls then rises (convex)
+                    lo, hi = 0.0, 1.0
+                    for _i in range(60):
+                        mid = 0.5 * (lo + hi)
+                        lo, hi = (lo, mid) if dist(s + mid * (f - s), *ends[t, c]) < radius[c] else (mid, hi)
+                    us.append(lo)
+                f = s + min(us) * (f - s)
+            out[t, v] = f
+    return out
 
 
 # ------------------------------------------------------------------------------ NumPy references

@@ -414,3 +414,130 @@ def skin_inside_clusters(
                         break
             if inside > 0:
                 wp.atomic_add(count_out, t, inside)
+
+
+KEEP_OUT_PASSES = 4
+"""Pull-backs per vertex (a pulled-back vertex may lie in a third capsule the segment crossed; then the
+vertex is pulled back again, and after this many passes it is put on its static position)."""
+KEEP_OUT_BISECTIONS = 24
+"""Bisection steps of a pull-back: the entry point along static -> final to 2^-24 of the segment."""
+
+
+@wp.func
+def first_outside(s: wp.vec3, f: wp.vec3, a: wp.vec3, b: wp.vec3, r: float):
+    """The parameter u in [0, 1) of the last point s + u (f - s) found outside the capsule a-b, r before
+    the segment enters it (s outside, f inside: the distance to the axis is convex along the segment, so
+    the inside part is one interval and bisection finds its start)."""
+    lo = float(0.0)
+    hi = float(1.0)
+    d = f - s
+    for _ in range(KEEP_OUT_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        if inside_capsule(s + mid * d, a, b, r):
+            hi = mid
+        else:
+            lo = mid
+    return lo
+
+
+@wp.kernel
+def skin_keep_out_clusters(
+    # model: as skin_inside_clusters
+    cluster_offsets: wp.array(dtype=wp.int32), cluster_vertex: wp.array(dtype=wp.int32),
+    cluster_part: wp.array(dtype=wp.int32), part_offsets: wp.array(dtype=wp.int32),
+    part_capsule: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
+    # in: capsule ends (T, 2C), the clusters' centres (T, K), the static skin (T, V)
+    ends: wp.array2d(dtype=wp.vec3), centres: wp.array2d(dtype=wp.vec3), skin_static: wp.array2d(dtype=wp.vec3),
+    # in and out: the final skin (T, V), its vertices pulled back where the jiggle took them into a capsule
+    skin_final: wp.array2d(dtype=wp.vec3),
+    # scratch: the candidate capsules of each thread (T, K, L)
+    cand: wp.array3d(dtype=wp.int32),
+    # out (zeroed by the caller): per frame the static and final vertices inside a capsule of their part's
+    # list, the final vertices pulled back, and the longest pull-back (metres)
+    static_out: wp.array(dtype=wp.int32), final_out: wp.array(dtype=wp.int32), kept_out: wp.array(dtype=wp.int32),
+    pulled_out: wp.array(dtype=float),
+):
+    """The skin's side of the contacts, a thread per (frame t, cluster k) as skin_inside_clusters: a final
+    vertex inside a capsule of its part's list that its static vertex is not inside is pulled back along
+    its jiggle (final - static) to just before the point where that segment enters the capsule. The
+    jiggle then never takes the skin into another part's capsule; skin the animation itself puts inside
+    (the static skin) stays as it is. Then both skins are counted as skin_inside_clusters counts them, so
+    per frame the final count is at most the static one (a final vertex inside c has its static vertex
+    inside c). The candidates come from the cluster's reach over both skins (the segment between a static
+    and a final vertex lies within the larger of their distances from the centre)."""
+    t, k = wp.tid()
+    p = int(cluster_part[k])
+    e0 = int(part_offsets[p])
+    e1 = int(part_offsets[p + 1])
+    if e1 > e0:
+        v0 = int(cluster_offsets[k])
+        v1 = int(cluster_offsets[k + 1])
+        x0 = centres[t, k]
+        reach2 = float(0.0)
+        for j in range(v0, v1):
+            i = cluster_vertex[j]
+            d0 = skin_static[t, i] - x0
+            d1 = skin_final[t, i] - x0
+            reach2 = wp.max(reach2, wp.max(wp.dot(d0, d0), wp.dot(d1, d1)))
+        reach = wp.sqrt(reach2)
+        n = int(0)
+        for e in range(e0, e1):
+            c = part_capsule[e]
+            d = from_axis(x0, ends[t, 2 * c], ends[t, 2 * c + 1])
+            lim = reach + cap_radius[c]
+            if wp.dot(d, d) <= lim * lim:
+                cand[t, k, n] = c
+                n += 1
+        if n > 0:
+            n_static = int(0)
+            n_final = int(0)
+            n_kept = int(0)
+            pulled = float(0.0)
+            for j in range(v0, v1):
+                i = cluster_vertex[j]
+                s = skin_static[t, i]
+                f0 = skin_final[t, i]
+                f = f0
+                for _ in range(KEEP_OUT_PASSES):
+                    u = float(2.0)
+                    for q in range(n):
+                        c = cand[t, k, q]
+                        a = ends[t, 2 * c]
+                        b = ends[t, 2 * c + 1]
+                        r = cap_radius[c]
+                        if inside_capsule(f, a, b, r) and not inside_capsule(s, a, b, r):
+                            u = wp.min(u, first_outside(s, f, a, b, r))
+                    if u > 1.0:
+                        break
+                    f = s + u * (f - s)
+                for q in range(n):                  # still inside after the passes: the static vertex
+                    c = cand[t, k, q]
+                    a = ends[t, 2 * c]
+                    b = ends[t, 2 * c + 1]
+                    r = cap_radius[c]
+                    if inside_capsule(f, a, b, r) and not inside_capsule(s, a, b, r):
+                        f = s
+                if f[0] != f0[0] or f[1] != f0[1] or f[2] != f0[2]:
+                    skin_final[t, i] = f
+                    n_kept += 1
+                    pulled = wp.max(pulled, wp.length(f0 - f))
+                s_in = int(0)
+                f_in = int(0)
+                for q in range(n):
+                    c = cand[t, k, q]
+                    a = ends[t, 2 * c]
+                    b = ends[t, 2 * c + 1]
+                    r = cap_radius[c]
+                    if inside_capsule(s, a, b, r):
+                        s_in = 1
+                    if inside_capsule(f, a, b, r):
+                        f_in = 1
+                n_static += s_in
+                n_final += f_in
+            if n_static > 0:
+                wp.atomic_add(static_out, t, n_static)
+            if n_final > 0:
+                wp.atomic_add(final_out, t, n_final)
+            if n_kept > 0:
+                wp.atomic_add(kept_out, t, n_kept)
+                wp.atomic_max(pulled_out, t, pulled)

@@ -271,6 +271,10 @@ def override(mj: MuscleJiggle, values: dict, where: str | None = None) -> Muscle
         raise InputError(message, field=f"{where}.{key}") from None
 
 
+COLLIDERS = ("bone", "model")
+"""JiggleSettings.colliders: the capsules the particles collide with."""
+
+
 @dataclass(frozen=True)
 class JiggleSettings:
     """Settings of one simulation run.
@@ -293,6 +297,11 @@ class JiggleSettings:
         particles are glued through it and restart at their goals.
     collisions : the particles collide with the bone capsules of other body parts and the floor
         (sim/jiggle/colliders.py).
+    colliders : which capsules: "bone" (fitted to the character's skin around each bone,
+        rig/character/capsules.py) or "model" (the MuJoCo model's own capsule geoms that drives the
+        skeleton, kept inside the skin; bones without one keep their bone capsule).
+    muscle_collisions : the particles of muscles of different body parts also collide with each other
+        (sim/jiggle/tissue_contacts.py; off by default: it steps the particles one launch per step).
     device : Warp device.
     """
 
@@ -305,11 +314,17 @@ class JiggleSettings:
     cut_ratio: float = 8.0
     cut_jump: float = 0.1
     collisions: bool = True
+    colliders: str = "bone"
+    muscle_collisions: bool = False
     device: str = "cpu"
 
     def __post_init__(self):
-        if not isinstance(self.collisions, (bool, np.bool_)):
-            raise InputError(f"expected true or false, got {self.collisions!r}", field="collisions")
+        for f in ("collisions", "muscle_collisions"):
+            if not isinstance(getattr(self, f), (bool, np.bool_)):
+                raise InputError(f"expected true or false, got {getattr(self, f)!r}", field=f)
+        if self.colliders not in COLLIDERS:
+            raise InputError(f"expected one of {', '.join(map(repr, COLLIDERS))}, got {self.colliders!r}",
+                             field="colliders")
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, (int, np.integer)) or self.substeps < 1:
             raise InputError(f"expected an integer >= 1, got {self.substeps!r}", field="substeps")
         for f, lo, strict in (("goal_rate", 0.0, True), ("preroll", 0.0, False), ("cut_ratio", 1.0, True),

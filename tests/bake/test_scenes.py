@@ -170,8 +170,10 @@ def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
     ("[jiggle]\ngravity = 1\n", r"jiggle.gravity: expected true or false"),
     ("[jiggle]\ncollisions = \"yes\"\n", r"j.toml:5: jiggle.collisions: expected true or false, found 'yes'"),
     ("[jiggle]\npreroll = -1.0\n", r"jiggle.preroll: expected seconds >= 0"),
-    ("[jiggle]\nwobble = 1\n", r"j.toml:5: jiggle.wobble: unknown key; expected one of blend, collisions, cut_jump, cut_ratio, "
-                                 r"goal_rate, gravity, muscles, preroll, strength, substeps"),
+    ("[jiggle]\nwobble = 1\n", r"j.toml:5: jiggle.wobble: unknown key; expected one of blend, colliders, collisions, cut_jump, "
+                                 r"cut_ratio, goal_rate, gravity, muscle_collisions, muscles, preroll, strength, substeps"),
+    ("[jiggle]\ncolliders = \"geoms\"\n", r"j.toml:5: jiggle.colliders: expected one of 'bone', 'model', found 'geoms'"),
+    ("[jiggle]\nmuscle_collisions = 1\n", r"j.toml:5: jiggle.muscle_collisions: expected true or false, found 1"),
     ("[jiggle.muscles.belly_fat]\nblend = [[0.0, -0.5]]\n", r"j.toml:5: jiggle.muscles.belly_fat.blend: blend must be in"),
     ("[jiggle.muscles.belly_fat]\ndamping = -0.1\n", r"j.toml:5: jiggle.muscles.belly_fat.damping: damping "
                                                        r"must be >= 0"),

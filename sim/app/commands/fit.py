@@ -66,11 +66,16 @@ def write_maps(mus, maps, out_dir: str) -> dict:
     return {"painted": glb, "maps": str(npz)}
 
 
-def fit_capsules(mus):
-    """The bone capsules a bake of this musculature collides with (sim.jiggle.colliders.collider_model: the
-    character's capsules shrunk inside the muscles over each bone), or None when it has none."""
+def fit_capsules(mus, colliders: str = "bone"):
+    """The capsules a bake of this musculature collides with (sim.jiggle.colliders.collider_model: the
+    character's bone capsules, or with colliders "model" the capsule geoms of the MuJoCo model of its own
+    skeleton kept inside its skin, each shrunk inside the muscles over its bone), or None when it has none."""
     from sim.jiggle.colliders import collider_model
-    caps = collider_model(mus.rig, mus.character).capsules
+    given = None
+    if colliders == "model" and mus.character.skeleton is not None:
+        from sim.drive.skeleton import model_capsules
+        given, _ = model_capsules(mus.character.skeleton, mus.character)
+    caps = collider_model(mus.rig, mus.character, capsules=given).capsules
     return caps if caps.count else None
 
 
@@ -92,7 +97,7 @@ def run(args) -> int:
         reach = np.max(np.stack(list(maps.influence.values())), axis=0) if maps.influence else \
             np.zeros(character.num_vertices)
         shown = {"jiggle map (0 dark: none, 1 bright)": maps.jiggle, "shell regions (max over muscles)": reach}
-    files = write_fit_outputs(mus, args.out, png, json_path, maps=shown, capsules=fit_capsules(mus))
+    files = write_fit_outputs(mus, args.out, png, json_path, maps=shown, capsules=fit_capsules(mus, args.colliders))
     if maps is not None:
         files.update(write_maps(mus, maps, os.path.dirname(args.out) or "."))
     rig = mus.rig
@@ -139,5 +144,8 @@ def add_parser(sub) -> None:
                    "(<stem>.painted.glb with _JIGGLE and _SHELL_<MUSCLE> vertex attributes, <stem>.jiggle_map.npz)")
     p.add_argument("--jiggle-attribute", metavar="ATTR", help="the glTF vertex attribute the jiggle map is read "
                    "from: _JIGGLE (default), another '_NAME', or a vertex colour's channel such as COLOR_0.r")
+    p.add_argument("--colliders", choices=["bone", "model"], default="bone",
+                   help="the capsules drawn in fit.png and listed in the JSON: bone (fitted inside the skin) or model "
+                   "(the MuJoCo model's own capsule geoms, kept inside the skin) (default: bone)")
     character_options(p)
     p.set_defaults(func=run)

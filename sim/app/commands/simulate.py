@@ -43,6 +43,7 @@ class SimulateJob:
     skin: Callable
     source: dict
     character: object = None
+    clip: object = None
 
 
 def simulate_job(args) -> SimulateJob:
@@ -97,7 +98,7 @@ def simulate_job(args) -> SimulateJob:
         name=scene.name if scene is not None else clip.name, rig=rig, jiggles=jiggles,
         world_at=lambda t: transforms(*clip.world(*clip.sample(t))), duration=clip.duration,
         fps=scene.fps if scene is not None else None, scene=scene,
-        skin=skin,
+        skin=skin, clip=clip,
         source={"scene": scene.path if scene is not None else None, "clip": clip.source or args.clip,
                 "character": args.character or "generated body", "template": mus.template.name},
         character=character)
@@ -125,7 +126,8 @@ def run(args) -> int:
     keyed = keyed_request(args)
     given = {"substeps": args.substeps, "strength": keyed["jiggle"], "preroll": args.preroll,
              "blend": None if keyed["blend"] is None else BlendCurve.parse(keyed["blend"], "--blend"),
-             "gravity": True if args.gravity else None, "collisions": getattr(args, "collisions", None)}
+             "gravity": True if args.gravity else None, "collisions": getattr(args, "collisions", None),
+             "colliders": getattr(args, "colliders", None), "muscle_collisions": getattr(args, "muscle_collisions", None)}
     settings = replace(settings, **{k: v for k, v in given.items() if v is not None})
     jiggles = job.jiggles         # the scene's [jiggle] strength and tables applied (Scene.apply_jiggle)
     if keyed["blend"] is not None:    # --blend is every muscle's, over the scene's own curves
@@ -146,7 +148,14 @@ def run(args) -> int:
         from sim.jiggle.secondary import DEFAULT_GOAL_RATE
         ts = np.linspace(times[0], times[-1], max(2, int((times[-1] - times[0]) * DEFAULT_GOAL_RATE) + 1))
         floor = rest_floor(job.character, float(np.min(np.asarray(job.world_at(ts))[..., 2, 3])))
-        colliders = collider_model(rig, job.character, floor=floor, device=settings.device)
+        given = None
+        if settings.colliders == "model":
+            if job.clip is None:
+                raise InputError("the built-in simple arm has no MuJoCo model, so no geoms to collide with; use "
+                                 "--colliders bone", field="--colliders")
+            from sim.drive.skeleton import model_capsules
+            given, _ = model_capsules(job.clip, job.character)
+        colliders = collider_model(rig, job.character, capsules=given, floor=floor, device=settings.device)
     t0 = time.perf_counter()
     result = jiggle_rig(rig, jiggles, job.world_at, times, settings, colliders=colliders)
     sim_s = time.perf_counter() - t0

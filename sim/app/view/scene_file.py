@@ -191,6 +191,10 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
                    "cut_ratio": float(st.cut_ratio), "cut_jump": float(st.cut_jump)})
     if getattr(st, "collisions", False) or "collisions" in jiggle:
         jiggle["collisions"] = bool(getattr(st, "collisions", False))
+    if st.colliders != "bone" or "colliders" in jiggle:
+        jiggle["colliders"] = st.colliders
+    if st.muscle_collisions or "muscle_collisions" in jiggle:
+        jiggle["muscle_collisions"] = bool(st.muscle_collisions)
     tables = {n: dict(t) for n, t in (orig_jiggle.get("muscles") or {}).items() if isinstance(t, dict)}
     by_name = {j.name: j for j in setup.jiggles}
     if st.strength is not None:             # the bake's global strength (scene or --jiggle): over every muscle's

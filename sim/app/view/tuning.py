@@ -130,6 +130,9 @@ def request_from_params(params: dict) -> BakeRequest:
         common = dict(fps=float(params["fps"]), start=float(params["start_s"]), end=float(params["end_s"]),
                       frames=int(params["frames"]), substeps=int(settings["substeps"]),
                       gravity=bool(settings["gravity"]), preroll=float(settings["preroll"]),
+                      collisions=bool(settings.get("collisions", False)),
+                      colliders=settings.get("colliders", "bone"),
+                      muscle_collisions=bool(settings.get("muscle_collisions", False)),
                       jiggle=None if settings.get("strength") is None else float(settings["strength"]),
                       skinning=params["skinning"]["deformer"], method=params["skinning"]["method"],
                       mush=params["skinning"]["mush"], chunk=int(params["chunk"]), formats=("npz",))
