@@ -415,9 +415,10 @@ def collision_metrics(contacts: dict, times: np.ndarray) -> dict:
     friction, colliders (count); pairs: per (muscle, what it hit) the frames in contact, the deepest
     penetration (mm) and the summed impulse (N s), deepest first; skin_inside: per skin (static, final) the
     most and the mean skin vertices of one body part inside another part's capsule per frame, the frames
-    where the final skin has more than the static, and the worst frame of the final skin; per_frame: T values
-    each of max_penetration_mm, impulse_Ns, muscle and hit (the deepest contact's), skin_inside_static and
-    skin_inside_final. A per-frame list whose length is not T (a bake cut short) is left out."""
+    where the final skin has more than the static, the worst frame of the final skin, and the final vertices the
+    jiggle took into a capsule that were pulled back (frames, most in a frame, the longest pull in mm); per_frame:
+    T values each of max_penetration_mm, impulse_Ns, muscle and hit (the deepest contact's), skin_inside_static,
+    skin_inside_final and skin_pulled_back. A per-frame list whose length is not T (a bake cut short) is left out."""
     T = len(times)
     per = contacts.get("per_frame") if isinstance(contacts.get("per_frame"), dict) else {}
     out = {"method": contacts.get("method"), "friction": contacts.get("friction"), "floor_m": contacts.get("floor_m"),
@@ -440,6 +441,12 @@ def collision_metrics(contacts: dict, times: np.ndarray) -> dict:
             "worst_final_frame": int(np.argmax(f)) if T else None}
         out["per_frame"]["skin_inside_static"] = s.tolist()
         out["per_frame"]["skin_inside_final"] = f.tolist()
+        if isinstance(si.get("kept_out"), list) and len(si["kept_out"]) == T:
+            k = np.asarray(si["kept_out"], np.int64)
+            out["skin_inside"].update({"pulled_back_frames": int((k > 0).sum()), "max_pulled_back": int(k.max()),
+                                       "max_pull_mm": float(si.get("max_pull_mm") or 0.0),
+                                       "pull_back": si.get("method")})
+            out["per_frame"]["skin_pulled_back"] = k.tolist()
     return out
 
 

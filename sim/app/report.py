@@ -125,6 +125,10 @@ def _collision_section(c: dict, files: dict) -> list[str]:
                      f"static: max {_e(si.get('max_static'))}, mean {_num(si.get('mean_static'))}; final: max "
                      f"{_e(si.get('max_final'))}, mean {_num(si.get('mean_final'))} {verdict}; final above static in "
                      f"{_e(si.get('frames_final_above_static'))} frames"))
+        if "max_pulled_back" in si:
+            rows.append(("final skin pulled back out of a capsule",
+                         f"{_e(si.get('pulled_back_frames'))} frames, at most {_e(si.get('max_pulled_back'))} vertices "
+                         f"in a frame, by at most {_num(si.get('max_pull_mm'), '.3g')} mm (along their jiggle)"))
     parts = ["<h2>Collisions</h2>", _kv(rows)]
     if "contacts_plot" in files:
         parts.append(f'<img alt="contacts per frame" src="{data_uri(files["contacts_plot"])}">')

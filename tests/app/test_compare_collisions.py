@@ -40,7 +40,8 @@ def contacts(frames: int = T) -> dict:
             "per_frame": {"time_s": list(np.arange(frames) / 30.0), "max_penetration_mm": depth.tolist(),
                           "muscle": muscle, "hit": hit, "impulse_Ns": (depth * 0.004).tolist()},
             "skin_inside": {"static": [4] * frames, "final": final, "max_static": 4, "max_final": 4,
-                            "frames_final_above_static": 0}}
+                            "frames_final_above_static": 0, "kept_out": [0] * 20 + [2] + [0] * (frames - 21),
+                            "max_kept_out": 2, "max_pull_mm": 0.8, "method": "pulled back"}}
 
 
 def test_collisions_reach_metrics_plot_and_report(tmp_path):
@@ -57,10 +58,13 @@ def test_collisions_reach_metrics_plot_and_report(tmp_path):
     assert si["max_static"] == si["max_final"] == 4 and si["frames_final_above_static"] == 0
     assert si["mean_final"] == pytest.approx(4 - 2 / T) and pf["skin_inside_final"][30] == 3
     assert [p["muscle"] for p in c["pairs"]] == ["belly_fat", "biceps_l"]
+    assert si["pulled_back_frames"] == 1 and si["max_pulled_back"] == 2 and si["max_pull_mm"] == 0.8
+    assert pf["skin_pulled_back"][20] == 2 and len(pf["skin_pulled_back"]) == T
     with open(result["files"]["contacts_plot"], "rb") as fh:
         assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
     page = (tmp_path / "report.html").read_text()
     assert "<h2>Collisions</h2>" in page and "LeftHip&gt;LeftKnee" in page and "frames in contact" in page
+    assert "pulled back out of a capsule" in page and "by at most 0.8 mm" in page
     assert json.loads((tmp_path / "compare.json").read_text())["files"].count("contacts.png") == 1
 
 
