@@ -53,6 +53,7 @@ from sim.jiggle.colliders import collider_model, contact_summary, muscle_contact
 from sim.jiggle.keyed_solver import make_solver
 from sim.jiggle.particles import muscle_model
 from sim.jiggle.simulate import TIME_EPS, goals, simulate
+from sim.jiggle.tissue_contacts import tissue_contact_model
 
 PARTIAL = ".partial"
 MANIFEST = "manifest.json"
@@ -101,6 +102,10 @@ class Baker:
             self.colliders = collider_model(s.rig, s.character, capsules=s.capsules, floor=s.floor,
                                             device=s.settings.device)
             self.skin_check = skin_check(s.character, self.colliders.capsules)
+        self.tissue = None
+        if self.colliders is not None and s.settings.muscle_collisions and self.model is not None:
+            # the particles of muscles of different body parts collide with each other too (one launch per step)
+            self.tissue = tissue_contact_model(s.rig, self.model, device=s.settings.device)
 
     def chunk(self, c: int, state) -> dict:
         """Arrays of chunk c (see the module), going on from `state` ((x, v) of the particles at the
@@ -132,7 +137,7 @@ class Baker:
                 sink = {}
                 dyn, new_state = simulate(self.model, track, times[a:f1], s.settings, solver=self.solver,
                                           preroll=None if c == 0 else 0.0, start=state if c > 0 else None,
-                                          colliders=colliders, contacts=sink)
+                                          colliders=colliders, contacts=sink, tissue=self.tissue)
                 dyn = dyn[1:] if c > 0 else dyn
                 if colliders is not None:
                     per = muscle_contacts(sink["records"][1:] if c > 0 else sink["records"], rig.cv_offsets)
@@ -481,10 +486,19 @@ def _contacts_json(setup: BakeSetup, baker: Baker, parts: dict) -> dict:
            "friction": cm.friction, "floor_m": cm.floor, "colliders": list(cm.names),
            "capsule_radius_mm": [round(1000.0 * float(r), 3) for r in cm.capsules.radius],
            "pairs_checked": int(len(cm.pair_capsule)), "pairs_touching_at_rest": int(cm.excluded_rest.sum())}
+    names = cm.names
+    if baker.tissue is not None:            # hit ids past the floor: the particles of another muscle
+        tm = baker.tissue
+        names = tm.hit_names(cm.names)
+        out["muscle_collisions"] = {
+            "method": "particle against particle of muscles of different bones, a Jacobi projection with friction "
+                      "after every step (sim/jiggle/tissue_contacts.py)",
+            "muscle_pairs": int(np.triu(tm.mask, 1).sum()), "share": tm.share,
+            "largest_radius_mm": round(1000.0 * float(np.max(tm.radius)), 3) if tm.num_particles else 0.0}
     depth = cat("contact_depth", (0, M))
     if len(depth) == T:
         out.update(contact_summary(depth, cat("contact_hit", (0, M)).astype(np.int64), cat("contact_impulse", (0, M)),
-                                   setup.rig.names, cm.names, setup.times))
+                                   setup.rig.names, names, setup.times))
     inside_s, inside_f = cat("inside_static", (0,)), cat("inside_final", (0,))
     if len(inside_s) == T:
         out["skin_inside"] = {"static": inside_s.astype(int).tolist(), "final": inside_f.astype(int).tolist(),

@@ -28,6 +28,7 @@ from sim.jiggle.keyed_solver import make_solver
 from sim.jiggle.params import CVS, JiggleSettings, MuscleJiggle
 from sim.jiggle.particles import muscle_model
 from sim.jiggle.simulate import TIME_EPS, goals, merge_times, simulate
+from sim.jiggle.tissue_contacts import tissue_contact_model
 
 DEFAULT_GOAL_RATE = 120.0
 
@@ -40,7 +41,8 @@ class JiggleResult:
     what the skin deformers get). curve : (T, M, 5, 3) static action curves. blend : (T, M).
     knots : (S,) goal knot times. cuts : (C,) seconds, the starts of cut intervals.
     names : (M,) muscles. cv_offsets : (M + 1,). jiggles : the MuscleJiggle used. settings.
-    contacts : with colliders, {"depth", "hit", "impulse"} (T, M) each (sim.jiggle.colliders.muscle_contacts).
+    contacts : with colliders or tissue contacts, {"depth", "hit", "impulse"} (T, M) each
+        (sim.jiggle.colliders.muscle_contacts).
     """
 
     times: np.ndarray
@@ -80,7 +82,7 @@ def knot_times(out_times: np.ndarray, goal_rate: float) -> np.ndarray:
 
 def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndarray], np.ndarray],
                times: np.ndarray, settings: JiggleSettings = JiggleSettings(), *, cuts=None,
-               colliders=None) -> JiggleResult:
+               colliders=None, tissue=None) -> JiggleResult:
     """Simulate every muscle of `rig` (rig.muscle.model.MuscleRig) over a motion.
 
     world_at : times (K,) seconds -> joint world transforms (K, J, 4, 4) in the rig's joint order,
@@ -90,6 +92,10 @@ def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndar
     colliders : None, or a sim.jiggle.colliders.ColliderModel of the rig's muscles: the particles collide
         with its capsules (moving with world_at's joints) and floor; the result's `contacts` then holds
         the per-frame, per-muscle contacts (sim.jiggle.colliders.muscle_contacts).
+    tissue : None; True, or a sim.jiggle.tissue_contacts.TissueContactModel of the rig's muscles: the muscles
+        of different body parts also collide with each other's particles (True: the model
+        sim.jiggle.tissue_contacts.tissue_contact_model builds); `contacts` then holds those too (hit ids
+        C + 1 + muscle, C the capsules; TissueContactModel.hit_names).
     """
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     if len(times) == 0 or not np.isfinite(times).all() or np.any(np.diff(times) <= 0):
@@ -112,10 +118,13 @@ def jiggle_rig(rig, jiggles: Sequence[MuscleJiggle], world_at: Callable[[np.ndar
     if needs_simulation(weights):                                                 # sim.jiggle: particles
         model = muscle_model(rig, jiggles, settings.device, gravity=settings.gravity)
         moving = None if colliders is None else colliders.at(knots, world, track.cut)
+        if tissue is True:
+            tissue = tissue_contact_model(rig, model)
         sink = {}
         solver = make_solver(model, jiggles)             # keyed: sim/jiggle/keyed_solver.py
-        dyn, _ = simulate(model, track, times, settings, solver=solver, colliders=moving, contacts=sink)
-        if colliders is not None:
+        dyn, _ = simulate(model, track, times, settings, solver=solver, colliders=moving, contacts=sink,
+                          tissue=tissue or None)
+        if "records" in sink:
             contacts = muscle_contacts(sink["records"], rig.cv_offsets)
     else:
         dyn = st.copy()

@@ -30,6 +30,7 @@ from sim.jiggle.goal_track import GoalTrack, build_track
 from sim.jiggle.params import JiggleSettings
 from sim.jiggle.particles import GRAVITY, ParticleModel
 from sim.jiggle.solver import ParticleSolver, within_reach_numpy
+from sim.jiggle.tissue_contacts import integrate_tissue
 
 TIME_EPS = 1e-9
 
@@ -134,7 +135,7 @@ def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: flo
 
 def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps: int = 4,
         preroll: float = 0.0, solver: ParticleSolver | None = None, *, start=None,
-        return_state: bool = False, colliders=None, contacts: dict | None = None):
+        return_state: bool = False, colliders=None, contacts: dict | None = None, tissue=None):
     """Particle positions (T, N, 3) float64 at out_times (T,) seconds, increasing, inside the track.
 
     substeps : steps per output interval (more where knots or the spring limit need them).
@@ -146,8 +147,12 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     return_state : also return the (x, v) float32 state at out_times[-1]: ``(positions, (x, v))``.
     colliders : None, or sim.jiggle.colliders.Colliders on the track's knots: the particles collide with
         its capsules and floor (during a preroll the capsules hold the first knot's pose).
-    contacts : a dict that, with colliders, receives "records": (T, N, 3) float32 contact records per
-        output frame (depth m, impulse N s, hit id; zeros and -1 at the first frame and through cuts).
+    contacts : a dict that, with colliders (or tissue), receives "records": (T, N, 3) float32 contact records
+        per output frame (depth m, impulse N s, hit id; zeros and -1 at the first frame and through cuts).
+    tissue : None, or a sim.jiggle.tissue_contacts.TissueContactModel of the model's particles: the muscles of
+        different body parts collide with each other's particles, a contact pass after every step
+        (sim.jiggle.tissue_contacts.integrate_tissue; hit ids C + 1 + muscle in the records, which `contacts`
+        then receives with or without colliders). None: the one-launch run, as before.
     """
     out_times = np.asarray(out_times, dtype=np.float64)
     if out_times.ndim != 1 or len(out_times) == 0 or np.any(np.diff(out_times) <= 0):
@@ -195,7 +200,7 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         restart(model, solver, state, control, t0)
     out = np.empty((len(out_times), model.num_particles, 3))
     records = None
-    if colliders is not None:
+    if colliders is not None or tissue is not None:
         records = np.zeros((len(out_times), model.num_particles, 3), np.float32)
         records[..., 2] = -1.0
         if contacts is not None:
@@ -233,7 +238,11 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         e = int(later[0]) if len(later) else len(grid) - 1
         # the cut-free stretch grid[g..e] in one launch, its output frames read back once
         ks = np.flatnonzero(is_out[g + 1:e + 1]) + 1
-        frames = solver.integrate(state, nxt, control, grid[g:e + 1], record=ks, colliders=colliders)
+        if tissue is None:
+            frames = solver.integrate(state, nxt, control, grid[g:e + 1], record=ks, colliders=colliders)
+        else:
+            frames = integrate_tissue(solver, state, nxt, control, grid[g:e + 1], record=ks, colliders=colliders,
+                                      tissue=tissue)
         if len(ks):
             save(wanted[g + ks], frames)
             if records is not None:
@@ -255,10 +264,10 @@ def goals(rig, knots: np.ndarray, static_cvs: np.ndarray, settings: JiggleSettin
 
 def simulate(model: ParticleModel, track: GoalTrack, times: np.ndarray, settings: JiggleSettings, *,
              solver: ParticleSolver | None = None, preroll: float | None = None, start=None, colliders=None,
-             contacts: dict | None = None):
+             contacts: dict | None = None, tissue=None):
     """Dynamic CVs (T, N, 3) float64 metres at times (T,) seconds, and the (x, v) float32 particle
     state at times[-1]: :func:`run` with the settings' substeps and preroll (`preroll` overrides it;
-    a run going on from `start` has none). colliders, contacts : as :func:`run`."""
+    a run going on from `start` has none). colliders, contacts, tissue : as :func:`run`."""
     preroll = settings.preroll if preroll is None else preroll
     return run(model, track, times, settings.substeps, preroll, solver, start=start, return_state=True,
-               colliders=colliders, contacts=contacts)
+               colliders=colliders, contacts=contacts, tissue=tissue)

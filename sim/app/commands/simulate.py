@@ -157,7 +157,8 @@ def run(args) -> int:
             given, _ = model_capsules(job.clip, job.character)
         colliders = collider_model(rig, job.character, capsules=given, floor=floor, device=settings.device)
     t0 = time.perf_counter()
-    result = jiggle_rig(rig, jiggles, job.world_at, times, settings, colliders=colliders)
+    result = jiggle_rig(rig, jiggles, job.world_at, times, settings, colliders=colliders,
+                        tissue=bool(settings.collisions and settings.muscle_collisions) or None)
     sim_s = time.perf_counter() - t0
     skin = None
     if not args.no_render:
