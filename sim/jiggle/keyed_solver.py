@@ -65,6 +65,14 @@ class KeyedSolver(ParticleSolver):
             self._cubics, frames, state_out.x, state_out.v])
         return None if record is None else frames.numpy()[:len(ks)]
 
+    def _contact_flows(self, control, seg: np.ndarray, dts: np.ndarray, dev_array):
+        """ParticleSolver._contact_flows with each step's goal springs those of its knot interval."""
+        if self.schedule.empty:
+            return super()._contact_flows(control, seg, dts, dev_array)
+        rows, reach, base = self._rows(control.track.times, seg, dts)
+        return ([dev_array(rows, kernels.flow_row), dev_array(reach, float)], dev_array(base, wp.int32),
+                keyed_kernels.integrate_run_contact_keyed)
+
     def _rows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray):
         """(rows (R, 10) float32, reach (R,) float32, base (K, G) int32) of a run: the plain flow table (one
         block of N rows per distinct step length, as ParticleSolver.integrate's) then the keyed blocks (one of

@@ -210,13 +210,27 @@ class ParticleSolver:
             self._cubics, frames, state_out.x, state_out.v])
         return None if record is None else frames.numpy()[:len(ks)]
 
+    def _contact_flows(self, control: GoalControl, seg: np.ndarray, dts: np.ndarray, dev_array):
+        """(flows, step_flow, kernel) of a run with contacts: the kernel's flow arguments, each step's index into
+        them on the device, the run kernel (the keyed solver gives its own, sim/jiggle/keyed_solver.py)."""
+        from sim.jiggle import contact_kernels as ck
+        table, flow_index = self._flow_table(dts)
+        return [table], dev_array(flow_index, wp.int32), ck.integrate_run_contact
+
+    def step_plan(self, control: GoalControl, grid: np.ndarray, colliders) -> "StepPlan":
+        """The steps grid (K + 1,) of a cut-free stretch with `colliders` prepared once on the device (the same
+        arrays :meth:`integrate` would upload), to be launched one step at a time (:class:`StepPlan`): what a
+        pass between steps needs (sim/jiggle/tissue_contacts.py) without the host work of K calls of
+        :meth:`integrate`. A step equals :meth:`integrate` over that one step bit for bit."""
+        return StepPlan(self, control, grid, colliders)
+
     def _integrate_contact(self, state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, flows,
-                           step_flow, frame, frames, ks, dev_array, kernel=None):
+                           step_flow, frame, frames, ks, dev_array, kernel=None, plan: bool = False):
         """:meth:`integrate` with contacts (the integrate_run_contact kernel, the broad phase from
         sim.jiggle.colliders.Colliders.active). flows : the kernel's flow arguments after the packed
         model ([table], or the keyed rows and reaches); step_flow : each step's device index into them
         (K,), or the keyed row bases (K, G); kernel : None for integrate_run_contact, or the keyed one
-        (sim/jiggle/keyed_kernels.py)."""
+        (sim/jiggle/keyed_kernels.py). plan : return (kernel, args, records) without launching (StepPlan)."""
         from sim.jiggle import contact_kernels as ck
         m, dev, cm = self.model, self.model.device, colliders.model
         if colliders.control.track.num_knots != control.track.num_knots or \
@@ -251,7 +265,7 @@ class ParticleSolver:
         cc = colliders.control
         floor = cm.floor if cm.floor is not None else NO_FLOOR
         Y, U = self._y, self._u
-        self._run(kernel or ck.integrate_run_contact, self.num_groups, [
+        args = [
             self._params, *flows, m.wp_adj_offsets, self._edges, self._gravity, self._groups, group_muscles,
             muscle_offsets, cm.wp_radius, float(floor), float(cm.friction), int(cm.num_capsules),
             int(len(m.group_offsets) - 1), act_offsets, act_ids,
@@ -259,8 +273,11 @@ class ParticleSolver:
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
             dev_array(h_kick.astype(np.float32), float), step_flow, dev_array(frame, wp.int32),
-            float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
-            self._cubics, ea, eb, eva, evb, record, dirty, frames, records, state_out.x, state_out.v])
+            float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), *_xv(state_in), Y[0], U[0], Y[1], U[1],
+            self._cubics, ea, eb, eva, evb, record, dirty, frames, records, *_xv(state_out)]
+        if plan:
+            return kernel or ck.integrate_run_contact, args, record
+        self._run(kernel or ck.integrate_run_contact, self.num_groups, args)
         self.contact_records = records.numpy()[:len(ks)]
         return frames.numpy()[:len(ks)] if len(ks) else np.zeros((0, m.num_particles, 3), np.float32)
 
@@ -329,6 +346,74 @@ class ParticleSolver:
                   inputs=[control.pos, control.vel_start, control.vel_end, j, float(track.times[j + 1] - track.times[j]),
                           float(t - track.times[j])],
                   outputs=[state.x, state.v])
+
+
+def _xv(state) -> tuple:
+    """(x, v) of a ParticleState, (None, None) for a plan's placeholder."""
+    return (None, None) if state is None else (state.x, state.v)
+
+
+class StepPlan:
+    """A cut-free stretch of steps with colliders, prepared once (ParticleSolver.step_plan): the run kernel's
+    arguments for all K steps on the device; :meth:`step` launches step k alone, its arrays views of those.
+
+    A launch over one step opens with its own half kick and closes with its own (the steps' kicks are not
+    merged, as K calls of ParticleSolver.step), and equals ParticleSolver.integrate over [grid[k],
+    grid[k + 1]] bit for bit. After a step, :attr:`record` (N,) vec3 holds each particle's capsule / floor
+    contact of that step (depth m, impulse N s, hit id; -1 none) on the device."""
+
+    # indices of the per-step arguments in the contact kernels' argument lists, counted from the end
+    _STEPS = 26                      # step_seg .. step_frame (7), s_end, h_end, x, v, then 15 scratch and outputs
+    _X_IN, _V_IN = -17, -16
+    _X_OUT, _V_OUT = -2, -1
+
+    def __init__(self, solver: ParticleSolver, control: GoalControl, grid: np.ndarray, colliders):
+        self.solver = solver
+        grid = np.asarray(grid, dtype=np.float64)
+        self.K = len(grid) - 1
+        run = solver._run_steps(control, grid, None)
+        if run is None:
+            self.kernel = None
+            return
+        ks, seg, s0, H, dts, h_kick, frame, frames, dev_array = run
+        flows, step_flow, kernel = solver._contact_flows(control, seg, dts, dev_array)
+        # one step a launch: each opens with its own half kick; no frames written (state_out holds the positions)
+        opening = (0.5 * dts).astype(np.float32)
+        self.kernel, self.args, self.record = solver._integrate_contact(
+            None, None, control, colliders, seg, s0, H, dts, opening, flows, step_flow,
+            np.full(len(dts), -1, np.int32), frames, ks, dev_array, kernel=kernel, plan=True)
+        first = len(self.args) - self._STEPS
+        self._first = first
+        full = self.args[first:first + 7]                            # seg, H, s0, h, kick, flow, frame (K, ...)
+        # the launch reads one-step arrays, filled per step: on the CPU through their NumPy views (a wp.array
+        # view per step and argument costs ~25 us of Python), elsewhere by a device copy of the step's row
+        self._full = full
+        self._one = [wp.empty((1,) + tuple(a.shape[1:]), dtype=a.dtype, device=a.device) for a in full]
+        self._cpu = all(a.device.is_cpu for a in full)
+        if self._cpu:
+            self._host = [a.numpy() for a in full]
+            self._views = [o.numpy() for o in self._one]
+        for i, o in enumerate(self._one):
+            self.args[first + i] = o
+        self._ends = [(float(a + h), float(0.5 * h)) for a, h in zip(s0, dts)]
+
+    def step(self, k: int, state_in, state_out) -> None:
+        """Step k (0..K - 1) from state_in into state_out (two different ParticleStates), one launch."""
+        if self.kernel is None:
+            return
+        if self._cpu:
+            for view, host in zip(self._views, self._host):
+                view[0] = host[k]
+        else:
+            for one, a in zip(self._one, self._full):
+                row = one.size
+                wp.copy(one, a, src_offset=k * row, count=row)
+        args = self.args
+        f = self._first
+        args[f + 7], args[f + 8] = self._ends[k]
+        args[self._X_IN], args[self._V_IN] = state_in.x, state_in.v
+        args[self._X_OUT], args[self._V_OUT] = state_out.x, state_out.v
+        self.solver._run(self.kernel, self.solver.num_groups, args)
 
 
 # ---------------------------------------------------------------------------------- NumPy reference

@@ -33,12 +33,13 @@ by the contact pass on all particles; with contacts off the run is the one-launc
 Hit ids extend the colliders': a capsule c in 0..C-1, C the floor, C + 1 + m the particles of muscle m
 (:meth:`TissueContactModel.hit_names`).
 
-Cost (benchmarks/bench_tissue_contacts.py, 2-core CPU): per step a launch of the solver over that step
-(its start and end work, done once per run in the one-launch run, now every step, plus the per-call
-Python of ParticleSolver.integrate), two small broad-phase launches (a thread per muscle), the hash grid's
-build when some muscle is near another it may touch, and the contact kernel. On the demo (28 muscles, no
-tissue contact) the option makes the simulate stage ~5-8x slower, most of it the stepping one step a
-launch; on 40 pads pressing on each other every frame ~15x, most of it the contact kernel.
+Cost (benchmarks/bench_tissue_contacts.py, 2-core CPU): per step one launch of the solver's run kernel
+over that step (with colliders, ParticleSolver.step_plan: the stretch's step arrays go to the device once,
+a step costs a launch; the kernel then forms the offsets and closes the kick every step, work the one-launch
+run does once), two small broad-phase launches (a thread per muscle), the hash grid's build when some muscle
+is near another it may touch, and the contact kernel. On the demo (28 muscles, no tissue contact) the option
+makes the simulate stage ~2.7x slower; on 40 pads pressing on each other every frame ~12x, most of it the
+contact kernel (every particle in contact, every step).
 """
 from __future__ import annotations
 
@@ -299,26 +300,34 @@ def integrate_tissue(solver, state_in, state_out, control, grid: np.ndarray, rec
     recorded = np.zeros(K + 1, bool)
     recorded[ks] = True
     hit_base = float((colliders.model.num_capsules if colliders is not None else 0) + 1)
-    one = np.ones(1, np.int64)
     if colliders is None and not sc.caps_clean:
         tp.caps.assign(tp.none)
     sc.caps_clean = colliders is None
     src, fresh, r = state_in, True, 0
     launches = tp.launches
-    for k in range(K):
-        # the step into the scratch state, then its contacts from there into state_out (the next step's start)
-        solver.integrate(src, sc.step, control, grid[k:k + 2], record=one if colliders is not None else None,
-                         colliders=colliders)
-        if colliders is not None:
-            tp.caps.assign(solver.contact_records[0])
-        tp.run(m.wp_inv_mass, sc.step.x, sc.step.v, fresh, hit_base, state_out.x, state_out.v)
-        fresh = False
-        if recorded[k + 1]:
-            frames[r] = state_out.x.numpy()
-            records[r] = tp.acc.numpy()
-            r += 1
-            fresh = True
-        src = state_out
+    # with colliders the stretch's step arrays go to the device once and each step is one launch of the run
+    # kernel over views of them (equal to solver.integrate over the step bit for bit, without its host work)
+    plan = solver.step_plan(control, grid, colliders) if colliders is not None else None
+    none_caps = tp.caps
+    if plan is not None and plan.kernel is not None:
+        tp.caps = plan.record               # the step's capsule / floor records, read by the pass on the device
+    try:
+        for k in range(K):
+            # the step into the scratch state, then its contacts from there into state_out (the next step's start)
+            if plan is not None:
+                plan.step(k, src, sc.step)
+            else:
+                solver.integrate(src, sc.step, control, grid[k:k + 2], record=None, colliders=None)
+            tp.run(m.wp_inv_mass, sc.step.x, sc.step.v, fresh, hit_base, state_out.x, state_out.v)
+            fresh = False
+            if recorded[k + 1]:
+                frames[r] = state_out.x.numpy()
+                records[r] = tp.acc.numpy()
+                r += 1
+                fresh = True
+            src = state_out
+    finally:
+        tp.caps = none_caps
     solver.launches += tp.launches - launches
     solver.contact_records = records
     return None if record is None else frames

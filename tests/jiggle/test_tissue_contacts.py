@@ -353,3 +353,37 @@ def test_a_fitted_arm_flexing():
     assert c["depth"][:, 0].max() > 0 and c["depth"][:, 1].max() > 0
     assert {names[h] for h in c["hit"][c["depth"][:, 0] > 0, 0]} == {"brachio"}
     assert {names[h] for h in c["hit"][c["depth"][:, 1] > 0, 1]} == {"biceps"}
+
+
+@pytest.mark.parametrize("keyed", [False, True])
+def test_a_step_plan_step_is_integrate_over_that_step(keyed):
+    """ParticleSolver.step_plan (the stretch's arrays on the device once, one launch per step over views of
+    them; what integrate_tissue steps with when there are colliders) equals solver.integrate over
+    [grid[k], grid[k + 1]] bit for bit, step after step, positions, velocities and the step's capsule
+    records, for the plain and the keyed solver."""
+    from sim.jiggle.simulate import step_times
+    jig = [replace(JIGGLE, name="A", frequency_hz=parse_curve([[0, 3.0], [0.5, 5.0]], "frequency")),
+           replace(JIGGLE, name="B")] if keyed else None
+    model, track, tissue = press_scene(jiggles=jig)
+    solver = KeyedSolver(model, jig) if keyed else ParticleSolver(model)
+    cm = ColliderModel.from_pairs(under_the_pads(), np.ones((2, 1), bool), floor=-0.2)
+    col = cm.on_track(track.times, np.repeat(cm.capsules.local.reshape(1, -1, 3), track.num_knots, axis=0))
+    control = track.to_device()
+    grid = step_times(TIMES[:40], track.times, 4, solver.max_step)
+    plan = solver.step_plan(control, grid, col)
+    a_in, a_out, b_in, b_out = (model.state() for _ in range(4))
+    x0 = track.sample(0.0)[0]
+    a_in.assign(x0, np.zeros_like(x0))
+    b_in.assign(x0, np.zeros_like(x0))
+    touched = 0
+    for k in range(len(grid) - 1):
+        plan.step(k, a_in, a_out)
+        rec_a = plan.record.numpy().copy()           # on the CPU numpy() is a view the next launch rewrites
+        solver.integrate(b_in, b_out, control, grid[k:k + 2], record=[1], colliders=col)
+        np.testing.assert_array_equal(a_out.x.numpy(), b_out.x.numpy(), err_msg=f"step {k}")
+        np.testing.assert_array_equal(a_out.v.numpy(), b_out.v.numpy(), err_msg=f"step {k}")
+        np.testing.assert_array_equal(rec_a, solver.contact_records[0], err_msg=f"step {k}")
+        touched += int((rec_a[:, 2] >= 0).sum())
+        a_in, a_out = a_out, a_in
+        b_in, b_out = b_out, b_in
+    assert touched > 0
