@@ -187,7 +187,8 @@ def capsules_from_geoms(joint, ends_local, radius, names, parents, child=None) -
                         local=ends_local, radius=np.asarray(radius), names=tuple(names), parents=parents)
 
 
-def model_capsules(character, joint, local, radius, names, fallback: BoneCapsules | None = None) -> BoneCapsules:
+def model_capsules(character, joint, local, radius, names,
+                   fallback: BoneCapsules | None = None) -> tuple[BoneCapsules, int]:
     """A MuJoCo model's own capsule geoms (sim.drive.skeleton.capsule_geoms: joint (C,), local (C, 2, 3)
     metres in the joint's frame, radius (C,) metres, names) as the capsules of `character`, kept inside its
     skin: a geom is dropped when the middle of its axis lies outside the skin (the nearest rest vertex's
@@ -196,7 +197,8 @@ def model_capsules(character, joint, local, radius, names, fallback: BoneCapsule
     model's capsules are sized for its own body, not this character's). A joint none of whose geoms is
     kept gets the capsules `fallback` (the character's bone capsules, :func:`bone_capsules`) has for it:
     the model's geoms where they exist. Each kept geom's far end is matched to the joint's child that lies
-    along it (for the chain rules of sim/jiggle/colliders.py)."""
+    along it (for the chain rules of sim/jiggle/colliders.py). Returns (capsules, kept): the kept geoms
+    first, then the fallback's."""
     from scipy.spatial import cKDTree
     bind = np.asarray(character.bind_world, dtype=np.float64)
     parents = np.asarray(character.parents)
@@ -227,6 +229,7 @@ def model_capsules(character, joint, local, radius, names, fallback: BoneCapsule
                 child = int(kids[k])
         for key, v in (("joint", j), ("child", child), ("local", ends), ("radius", r), ("names", names[c])):
             out[key].append(v)
+    kept = len(out["joint"])
     if fallback is not None:
         have = set(out["joint"])
         for c in range(fallback.count):
@@ -236,4 +239,5 @@ def model_capsules(character, joint, local, radius, names, fallback: BoneCapsule
                     out[key].append(v)
     return BoneCapsules(joint=np.array(out["joint"], np.int32), child=np.array(out["child"], np.int32),
                         local=np.array(out["local"], np.float64).reshape(-1, 2, 3),
-                        radius=np.array(out["radius"], np.float64), names=tuple(out["names"]), parents=parents)
+                        radius=np.array(out["radius"], np.float64), names=tuple(out["names"]),
+                        parents=parents), kept

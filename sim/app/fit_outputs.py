@@ -149,11 +149,12 @@ def capsule_meshes(capsules, bind_world: np.ndarray) -> list:
 
 
 def write_fit_outputs(mus: Musculature, toml_path: str | None, png_path: str | None,
-                      json_path: str | None = None, maps: dict | None = None, capsules=None) -> dict:
+                      json_path: str | None = None, maps: dict | None = None, capsules=None,
+                      capsules_title: str = "bone capsules (collisions)") -> dict:
     """Write whichever of muscles TOML, PNG and JSON paths are given (atomically); returns {kind: path}.
     maps: {panel title: (V,) values in [0, 1]} drawn as extra panels of the PNG (the painted maps).
-    capsules: the bone capsules the particles collide with (rig.character.capsules.BoneCapsules), drawn in
-    a panel of the PNG and listed in the JSON; None: neither."""
+    capsules: the capsules the particles collide with (rig.character.capsules.BoneCapsules), drawn in a panel
+    of the PNG titled `capsules_title` and listed in the JSON; None: neither."""
     import json
     out = {}
     if toml_path:
@@ -168,13 +169,14 @@ def write_fit_outputs(mus: Musculature, toml_path: str | None, png_path: str | N
             json.dump(facts, fh, indent=1)
         out["facts"] = json_path
     if png_path:
-        render_musculature(mus, png_path, maps=maps, capsules=capsules)
+        render_musculature(mus, png_path, maps=maps, capsules=capsules, capsules_title=capsules_title)
         out["picture"] = png_path
     return out
 
 
 def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None = None, views=None,
-                       maps: dict | None = None, capsules=None) -> str:
+                       maps: dict | None = None, capsules=None,
+                       capsules_title: str = "bone capsules (collisions)") -> str:
     """PNG: the segmentation, then the skin (translucent) over coloured muscles and tendons per view.
     An upright body is drawn in a row, from the front, side and back (1800 x 800); a long one (a
     quadruped) in a 2 x 2 grid, the segmentation and the muscles from its side, then from above and
@@ -215,8 +217,7 @@ def render_musculature(mus: Musculature, path: str, size: tuple[int, int] | None
     panels = [("segmentation", views[0] if long else "front")] + [(view, view) for view in views]
     # the painted maps (rig.character.painted_maps), each a panel of the skin coloured 0 (dark) to 1 (bright)
     panels += [(title, views[0] if long else "front") for title in (maps or {})]
-    model = any(not n.startswith("bone:") and ">" not in n for n in capsules.names) if capsules is not None else False
-    CAPSULES = "MuJoCo model's capsules (collisions)" if model else "bone capsules (collisions)"
+    CAPSULES = capsules_title
     extra = len(maps or {})
     if capsules is not None and capsules.count:
         panels.append((CAPSULES, views[0] if long else "front"))

@@ -349,8 +349,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         floor = _floor(character, drive, world_at, knots)
         params["collisions"] = {"capsules": settings.colliders, "floor_m": round(floor, 6)}
         if settings.colliders == "model":
-            capsules = _model_capsules(clip, character, log)
-            params["collisions"]["model_geoms"] = sum(not n.startswith(("bone:",)) for n in capsules.names)
+            capsules, params["collisions"]["model_geoms"] = _model_capsules(clip, character, log)
     return BakeSetup(name=scene.name if scene is not None else source.name, skin=skin, jiggles=tuple(jiggles),
                      settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
@@ -359,13 +358,12 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
 
 
 def _model_capsules(clip, character, log):
-    """The capsules of --colliders model (sim.drive.skeleton.model_capsules), logged."""
+    """(capsules, geoms kept) of --colliders model (sim.drive.skeleton.model_capsules), logged."""
     from sim.drive.skeleton import model_capsules
-    caps, geoms = model_capsules(clip, character)
-    kept = sum(not n.startswith("bone:") for n in caps.names)
+    caps, geoms, kept = model_capsules(clip, character)
     log(f"colliders: {kept} of the MuJoCo model's {geoms} capsule geoms inside the skin, "
         f"{caps.count - kept} bone capsules where a joint has none")
-    return caps
+    return caps, kept
 
 
 def _floor(character, drive: str, world_at, knots: np.ndarray) -> float:

@@ -262,11 +262,12 @@ def capsule_geoms(model: mujoco.MjModel, body_ids: np.ndarray) -> dict:
 
 
 def model_capsules(clip: Clip, character):
-    """(capsules, G): the collision capsules of --colliders model, the capsule geoms of the MuJoCo model
+    """(capsules, G, kept): the collision capsules of --colliders model, the capsule geoms of the MuJoCo model
     that drives `clip`'s skeleton (:func:`build_mjcf`'s: the kinematic and the physics drive build the same
-    geoms) kept inside `character`'s skin, its bone capsules (named "bone:...") where a joint has none
-    (rig.character.capsules.model_capsules); G the model's capsule geoms. The clip's joints must be the
-    character's (a clip retargeted onto it, or its own skeleton)."""
+    geoms) kept inside `character`'s skin, then its bone capsules (named "bone:...") where a joint has none
+    (rig.character.capsules.model_capsules); G the model's capsule geoms, kept how many of them the capsules
+    hold (their first `kept`). The clip's joints must be the character's (a clip retargeted onto it, or its
+    own skeleton)."""
     from dataclasses import replace
 
     from rig.base.errors import InputError
@@ -279,4 +280,5 @@ def model_capsules(clip: Clip, character):
     g = capsule_geoms(sk.model, sk.body_ids)
     bone = bone_capsules(character)
     bone = replace(bone, names=tuple(f"bone:{n}" for n in bone.names))
-    return kept_inside(character, g["joint"], g["local"], g["radius"], g["names"], fallback=bone), len(g["names"])
+    caps, kept = kept_inside(character, g["joint"], g["local"], g["radius"], g["names"], fallback=bone)
+    return caps, len(g["names"]), kept

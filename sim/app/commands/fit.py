@@ -74,7 +74,7 @@ def fit_capsules(mus, colliders: str = "bone"):
     given = None
     if colliders == "model" and mus.character.skeleton is not None:
         from sim.drive.skeleton import model_capsules
-        given, _ = model_capsules(mus.character.skeleton, mus.character)
+        given, _, _ = model_capsules(mus.character.skeleton, mus.character)
     caps = collider_model(mus.rig, mus.character, capsules=given).capsules
     return caps if caps.count else None
 
@@ -97,7 +97,9 @@ def run(args) -> int:
         reach = np.max(np.stack(list(maps.influence.values())), axis=0) if maps.influence else \
             np.zeros(character.num_vertices)
         shown = {"jiggle map (0 dark: none, 1 bright)": maps.jiggle, "shell regions (max over muscles)": reach}
-    files = write_fit_outputs(mus, args.out, png, json_path, maps=shown, capsules=fit_capsules(mus, args.colliders))
+    files = write_fit_outputs(mus, args.out, png, json_path, maps=shown, capsules=fit_capsules(mus, args.colliders),
+                              capsules_title=f"{'MuJoCo model' if args.colliders == 'model' else 'bone'} capsules "
+                              "(collisions)")
     if maps is not None:
         files.update(write_maps(mus, maps, os.path.dirname(args.out) or "."))
     rig = mus.rig

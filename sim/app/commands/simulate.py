@@ -154,7 +154,7 @@ def run(args) -> int:
                 raise InputError("the built-in simple arm has no MuJoCo model, so no geoms to collide with; use "
                                  "--colliders bone", field="--colliders")
             from sim.drive.skeleton import model_capsules
-            given, _ = model_capsules(job.clip, job.character)
+            given, _, _ = model_capsules(job.clip, job.character)
         colliders = collider_model(rig, job.character, capsules=given, floor=floor, device=settings.device)
     t0 = time.perf_counter()
     result = jiggle_rig(rig, jiggles, job.world_at, times, settings, colliders=colliders,
