@@ -109,7 +109,8 @@ def test_bad_options_exit_2(capsys, tmp_path, argv, what):
 
 
 @pytest.mark.parametrize("jiggle, what", [
-    ("substep = 2", "scene.toml:5: jiggle.substep: unknown key; expected one of blend, collisions, cut_jump"),
+    ("substep = 2", "scene.toml:5: jiggle.substep: unknown key; expected one of blend, colliders, collisions, "
+                    "cut_jump"),
     ("blend = [[0.0, 0.0], [1.0, 1.5]]", "scene.toml:5: jiggle.blend: blend must be in [0, 1], got 1.5 at t = 1 s"),
     ("[jiggle.muscles.belly_fat]\ndensity = -900.0", "jiggle.muscles.belly_fat.density: density must be > 0"),
     ("[jiggle.muscles.belly_fat]\ndampin = 0.3", "scene.toml:6: jiggle.muscles.belly_fat.dampin: unknown key; "
