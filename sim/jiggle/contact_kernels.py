@@ -364,6 +364,23 @@ def skin_inside(
     inside_out[t, i] = hit
 
 
+@wp.func
+def near_capsules(t: int, k: int, x0: wp.vec3, reach: float, e0: int, e1: int,
+                  part_capsule: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
+                  ends: wp.array2d(dtype=wp.vec3), cand: wp.array3d(dtype=wp.int32)):
+    """How many of the capsules part_capsule[e0:e1] have their axis within reach + radius of a cluster's
+    centre x0 in frame t, listed in cand[t, k, :n]: the only ones a vertex within reach of x0 can be inside."""
+    n = int(0)
+    for e in range(e0, e1):
+        c = part_capsule[e]
+        d = from_axis(x0, ends[t, 2 * c], ends[t, 2 * c + 1])
+        lim = reach + cap_radius[c]
+        if wp.dot(d, d) <= lim * lim:
+            cand[t, k, n] = c
+            n += 1
+    return n
+
+
 @wp.kernel
 def skin_inside_clusters(
     # model: clusters (CSR over the vertices sorted by cluster), each cluster's part, the parts' capsule lists
@@ -395,14 +412,7 @@ def skin_inside_clusters(
             d0 = skin[t, cluster_vertex[j]] - x0
             reach2 = wp.max(reach2, wp.dot(d0, d0))
         reach = wp.sqrt(reach2)
-        n = int(0)
-        for e in range(e0, e1):
-            c = part_capsule[e]
-            d = from_axis(x0, ends[t, 2 * c], ends[t, 2 * c + 1])
-            lim = reach + cap_radius[c]
-            if wp.dot(d, d) <= lim * lim:
-                cand[t, k, n] = c
-                n += 1
+        n = near_capsules(t, k, x0, reach, e0, e1, part_capsule, cap_radius, ends, cand)
         if n > 0:
             inside = int(0)
             for j in range(v0, v1):
@@ -480,14 +490,7 @@ def skin_keep_out_clusters(
             d1 = skin_final[t, i] - x0
             reach2 = wp.max(reach2, wp.max(wp.dot(d0, d0), wp.dot(d1, d1)))
         reach = wp.sqrt(reach2)
-        n = int(0)
-        for e in range(e0, e1):
-            c = part_capsule[e]
-            d = from_axis(x0, ends[t, 2 * c], ends[t, 2 * c + 1])
-            lim = reach + cap_radius[c]
-            if wp.dot(d, d) <= lim * lim:
-                cand[t, k, n] = c
-                n += 1
+        n = near_capsules(t, k, x0, reach, e0, e1, part_capsule, cap_radius, ends, cand)
         if n > 0:
             n_static = int(0)
             n_final = int(0)

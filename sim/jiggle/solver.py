@@ -321,17 +321,7 @@ class ParticleSolver:
         """Launch `kernel` over `dim` threads with `args` (inputs then outputs). The launch is recorded
         once and only the arguments that changed since the last call are packed again (packing all
         of them costs more than the kernel on a small model)."""
-        rec = self._recorded.get(kernel.key)
-        if rec is None:
-            launch = wp.launch(kernel, dim=dim, inputs=args, device=self.model.device, record_cmd=True)
-            self._recorded[kernel.key] = rec = (launch, list(args))
-        else:
-            launch, last = rec
-            for i, a in enumerate(args):
-                if a is not last[i] and not (type(a) in (int, float) and a == last[i]):
-                    launch.set_param_at_index(i, a)
-                    last[i] = a
-        rec[0].launch()
+        recorded_launch(self._recorded, kernel, dim, args, self.model.device)
         self.launches += 1
 
     def glue(self, state: ParticleState, control: GoalControl, t: float) -> None:
@@ -348,8 +338,25 @@ class ParticleSolver:
                   outputs=[state.x, state.v])
 
 
+def recorded_launch(recorded: dict, kernel, dim: int, args: list, device) -> None:
+    """Launch `kernel` over `dim` threads with `args` (inputs then outputs), recorded in `recorded` (by
+    kernel) the first time; later only the arguments that changed since the last call are packed again
+    (packing all of them costs more than the kernel on a small model)."""
+    rec = recorded.get(kernel.key)
+    if rec is None:
+        launch = wp.launch(kernel, dim=dim, inputs=args, device=device, record_cmd=True)
+        recorded[kernel.key] = rec = (launch, list(args))
+    else:
+        launch, last = rec
+        for i, a in enumerate(args):
+            if a is not last[i] and not (type(a) in (int, float) and a == last[i]):
+                launch.set_param_at_index(i, a)
+                last[i] = a
+    rec[0].launch()
+
+
 def _xv(state) -> tuple:
-    """(x, v) of a ParticleState, (None, None) for a plan's placeholder."""
+    """(x, v) of a ParticleState; (None, None) while a StepPlan is built (each step sets its states)."""
     return (None, None) if state is None else (state.x, state.v)
 
 

@@ -55,6 +55,7 @@ from rig.base.frozen import frozen_array
 from sim.jiggle import tissue_contact_kernels as kernels
 from sim.jiggle.colliders import FRICTION
 from sim.jiggle.params import CVS, RING
+from sim.jiggle.solver import recorded_launch
 
 SHARE = 0.5
 """A pair of particles closer than r_i + r_j at bind touches at this fraction of its bind distance."""
@@ -219,18 +220,8 @@ class TissuePass:
             x_out, v_out, self.acc])
 
     def _launch(self, kernel, dim: int, args: list) -> None:
-        """Launch `kernel`, recorded once; only changed arguments packed again (as ParticleSolver._run)."""
-        rec = self._recorded.get(kernel.key)
-        if rec is None:
-            launch = wp.launch(kernel, dim=dim, inputs=args, device=self.tissue.device, record_cmd=True)
-            self._recorded[kernel.key] = rec = (launch, list(args))
-        else:
-            launch, last = rec
-            for i, a in enumerate(args):
-                if a is not last[i] and not (type(a) in (int, float) and a == last[i]):
-                    launch.set_param_at_index(i, a)
-                    last[i] = a
-        rec[0].launch()
+        """Launch `kernel`, recorded once; only changed arguments packed again (sim.jiggle.solver.recorded_launch)."""
+        recorded_launch(self._recorded, kernel, dim, args, self.tissue.device)
         self.launches += 1
 
 
