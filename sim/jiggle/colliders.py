@@ -424,24 +424,10 @@ class SkinCheck:
 
     def count(self, world: np.ndarray, skin: np.ndarray, device: str = "cpu") -> np.ndarray:
         """(T,) int32: vertices inside another part's capsule per frame, world (T, J, 4, 4), skin (T, V, 3)
-        metres; equal to inside(world, skin).sum(axis=1) (one launch of
-        sim/jiggle/contact_kernels.py: skin_inside_clusters)."""
-        from sim.jiggle import contact_kernels as ck
+        metres; equal to inside(world, skin).sum(axis=1). :meth:`keep_out`'s launch with the skin as both the
+        static and the final skin (nothing is then pulled back)."""
         skin = np.ascontiguousarray(skin, dtype=np.float32)
-        T, V = skin.shape[:2]
-        if self.capsules.count == 0 or T == 0 or len(self.part_capsule) == 0:
-            return np.zeros(T, np.int32)
-        model = self._model(device)
-        K = len(self.cluster_part)
-        ends = wp.array(self.capsules.ends(world).reshape(T, -1, 3).astype(np.float32), dtype=wp.vec3, device=device)
-        centres = wp.array(self.centres(world), dtype=wp.vec3, device=device)
-        x = wp.array(skin, dtype=wp.vec3, device=device, copy=False)     # on the CPU: a view, no copy
-        cand = wp.empty((T, K, int(np.diff(self.part_offsets).max())), dtype=wp.int32, device=device)
-        out = wp.zeros(T, dtype=wp.int32, device=device)
-        wp.launch(ck.skin_inside_clusters, dim=(T, K), device=device, inputs=[*model, ends, centres, x, cand],
-                  outputs=[out])
-        return out.numpy()
-
+        return self.keep_out(world, skin, skin.copy(), device)["static"]
 
     def keep_out(self, world: np.ndarray, static: np.ndarray, final: np.ndarray,
                  device: str = "cpu") -> dict:

@@ -32,7 +32,8 @@ test, the rest a box test per capsule before the exact one (contact_pass).
 The skin check (skin vertices of one body part inside another part's capsule, every frame) is one
 launch over (frame, cluster of a part's vertices, a few centimetres across, riding the part's joint):
 the cluster's reach from its centre, the capsules of its part's list within reach of it (most clusters
-have none), the cluster's vertices against those only (skin_inside_clusters); skin_inside is the plain
+have none), the cluster's vertices against those only (skin_keep_out_clusters, which also pulls the final
+skin's vertices back out of capsules the jiggle took them into); skin_inside is the plain
 per-vertex test over the part's whole list, its reference.
 """
 from __future__ import annotations
@@ -381,51 +382,6 @@ def near_capsules(t: int, k: int, x0: wp.vec3, reach: float, e0: int, e1: int,
     return n
 
 
-@wp.kernel
-def skin_inside_clusters(
-    # model: clusters (CSR over the vertices sorted by cluster), each cluster's part, the parts' capsule lists
-    cluster_offsets: wp.array(dtype=wp.int32), cluster_vertex: wp.array(dtype=wp.int32),
-    cluster_part: wp.array(dtype=wp.int32), part_offsets: wp.array(dtype=wp.int32),
-    part_capsule: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
-    # in: capsule ends (T, 2C), the clusters' centres (T, K), the skin (T, V)
-    ends: wp.array2d(dtype=wp.vec3), centres: wp.array2d(dtype=wp.vec3), skin: wp.array2d(dtype=wp.vec3),
-    # scratch: the candidate capsules of each thread (T, K, L)
-    cand: wp.array3d(dtype=wp.int32),
-    # out: per frame the vertices inside a capsule of their part's list (zeroed by the caller)
-    count_out: wp.array(dtype=wp.int32),
-):
-    """:func:`skin_inside` counted per frame, a thread per (frame t, cluster k): the cluster's reach from its
-    centre (its vertices' largest distance), the capsules of its part's list whose axis comes within reach +
-    radius of the centre (a vertex inside a capsule is within its radius of the axis and within reach of the
-    centre, so no other capsule can hold one), then the cluster's vertices against those only (most
-    clusters have none: one pass of distances)."""
-    t, k = wp.tid()
-    p = int(cluster_part[k])
-    e0 = int(part_offsets[p])
-    e1 = int(part_offsets[p + 1])
-    if e1 > e0:
-        v0 = int(cluster_offsets[k])
-        v1 = int(cluster_offsets[k + 1])
-        x0 = centres[t, k]
-        reach2 = float(0.0)
-        for j in range(v0, v1):
-            d0 = skin[t, cluster_vertex[j]] - x0
-            reach2 = wp.max(reach2, wp.dot(d0, d0))
-        reach = wp.sqrt(reach2)
-        n = near_capsules(t, k, x0, reach, e0, e1, part_capsule, cap_radius, ends, cand)
-        if n > 0:
-            inside = int(0)
-            for j in range(v0, v1):
-                x = skin[t, cluster_vertex[j]]
-                for q in range(n):
-                    c = cand[t, k, q]
-                    if inside_capsule(x, ends[t, 2 * c], ends[t, 2 * c + 1], cap_radius[c]):
-                        inside += 1
-                        break
-            if inside > 0:
-                wp.atomic_add(count_out, t, inside)
-
-
 KEEP_OUT_PASSES = 4
 """Pull-backs per vertex (a pulled-back vertex may lie in a third capsule the segment crossed; then the
 vertex is pulled back again, and after this many passes it is put on its static position)."""
@@ -452,7 +408,7 @@ def first_outside(s: wp.vec3, f: wp.vec3, a: wp.vec3, b: wp.vec3, r: float):
 
 @wp.kernel
 def skin_keep_out_clusters(
-    # model: as skin_inside_clusters
+    # model: clusters (CSR over the vertices sorted by cluster), each cluster's part, the parts' capsule lists
     cluster_offsets: wp.array(dtype=wp.int32), cluster_vertex: wp.array(dtype=wp.int32),
     cluster_part: wp.array(dtype=wp.int32), part_offsets: wp.array(dtype=wp.int32),
     part_capsule: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
@@ -467,14 +423,16 @@ def skin_keep_out_clusters(
     static_out: wp.array(dtype=wp.int32), final_out: wp.array(dtype=wp.int32), kept_out: wp.array(dtype=wp.int32),
     pulled_out: wp.array(dtype=float),
 ):
-    """The skin's side of the contacts, a thread per (frame t, cluster k) as skin_inside_clusters: a final
-    vertex inside a capsule of its part's list that its static vertex is not inside is pulled back along
-    its jiggle (final - static) to just before the point where that segment enters the capsule. The
-    jiggle then never takes the skin into another part's capsule; skin the animation itself puts inside
-    (the static skin) stays as it is. Then both skins are counted as skin_inside_clusters counts them, so
-    per frame the final count is at most the static one (a final vertex inside c has its static vertex
-    inside c). The candidates come from the cluster's reach over both skins (the segment between a static
-    and a final vertex lies within the larger of their distances from the centre)."""
+    """The skin's side of the contacts, a thread per (frame t, cluster k): the cluster's reach from its centre
+    over both skins (the segment between a static and a final vertex lies within the larger of their
+    distances), the capsules of its part's list whose axis comes within reach + radius of the centre
+    (near_capsules: a vertex inside a capsule is within its radius of the axis and within reach of the
+    centre, so no other capsule can hold one; most clusters have none), then the cluster's vertices against
+    those only. A final vertex inside a capsule its static vertex is not inside is pulled back along its
+    jiggle (final - static) to just before the point where that segment enters the capsule: the jiggle
+    never takes the skin into another part's capsule, and skin the animation itself puts inside (the static
+    skin) stays. Then both skins are counted (a vertex once, whatever it is inside), so per frame the final
+    count is at most the static one (a final vertex inside c has its static vertex inside c)."""
     t, k = wp.tid()
     p = int(cluster_part[k])
     e0 = int(part_offsets[p])
