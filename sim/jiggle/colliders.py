@@ -650,10 +650,10 @@ def integrate_contact_numpy(model, colliders: ColliderModel, flow, track, cap_tr
                             grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The NumPy reference of ParticleSolver.integrate with colliders, float64: (x, v) (N, 3) at grid[-1]
     and the largest contact depth (N,) metres over the run. cap_track : the capsules' ends' GoalTrack
-    (S, 2C) on the goal track's knots; flow(h) -> (N, 10) goal_flow coefficients."""
-    from sim.jiggle.goal_flow import flow_numpy
+    (S, 2C) on the goal track's knots; flow(h) -> (N, tissue_law.ROW) tissue flow rows."""
+    from sim.jiggle import tissue_law
     from sim.jiggle.goal_track import hermite
-    from sim.jiggle.solver import _check_steps, kick_numpy, within_reach_numpy
+    from sim.jiggle.solver import _check_steps, kick_numpy
     grid = np.asarray(grid, dtype=np.float64)
     dts = np.diff(grid)
     steps = list(zip(*(a.tolist() for a in _check_steps(track, grid))))
@@ -673,7 +673,7 @@ def integrate_contact_numpy(model, colliders: ColliderModel, flow, track, cap_tr
         b0 = model.gravity_vector - gacc - mu * gv
         b1 = -gjerk - mu * gacc
         b2 = -0.5 * mu * gjerk
-        y, u = within_reach_numpy(model.reach, *flow_numpy(flow(h), y, u, b0, b1, b2))
+        y, u, _ = tissue_law.step_numpy(flow(h), y, u, b0, b1, b2, h, np.asarray(model.reach, dtype=np.float64))
         g1, gv1, _, _ = goal(track, j, s0 + h)
         ends, ends_v, _, _ = goal(cap_track, j, s0 + h)
         C = colliders.num_capsules

@@ -249,6 +249,7 @@ def integrate_run_contact(
     params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32), group_muscles: wp.array(dtype=wp.int32),
+    stops_out: wp.array(dtype=wp.int32),
     # colliders
     muscle_offsets: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
     floor: float, friction: float, num_capsules: int, num_muscles: int,
@@ -275,7 +276,7 @@ def integrate_run_contact(
     """integrate_run (sim/jiggle/particle_kernels.py) with the contacts of :func:`contact_pass` after every
     step; contacts_out[step_frame[k]] gets each particle's contact record (depth m, impulse N s, hit id:
     a capsule, num_capsules for the floor, -1 none) since the previous recorded step (filled with "none"
-    by the caller)."""
+    by the caller); stops_out as integrate_run's."""
     g = wp.tid()
     lo = int(group_offsets[g])
     hi = int(group_offsets[g + 1])
@@ -302,14 +303,14 @@ def integrate_run_contact(
         frame = int(step_frame[k])
         if k % 2 == 0:
             run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
-                     step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b)
+                     step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_b, u_b, frame, last, frames_out, x_out,
                          contacts_out)
         else:
             run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
-                     step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a)
+                     step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_a, u_a, frame, last, frames_out, x_out,

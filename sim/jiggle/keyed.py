@@ -52,6 +52,7 @@ import numpy as np
 
 from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
+from sim.jiggle import tissue_law
 
 INTERPOLATIONS = ("linear", "smooth")
 
@@ -484,7 +485,7 @@ class Schedule:
 
     def flows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The keyed rows of a run of steps: step k in knot interval seg[k] (of the track's `times`) of length
-        dts[k] seconds. Returns (coeffs (B, P, 10) float64, reach (B, P) float64, block (K,) int64): one block
+        dts[k] seconds. Returns (coeffs (B, P, tissue_law.ROW) float64 tissue flow rows, reach (B, P) float64, block (K,) int64): one block
         per distinct (interval, step length) (lengths equal to 1e-12 s share one), and each step's block."""
         times = np.asarray(times, dtype=np.float64)
         hkey = np.round(np.asarray(dts, dtype=np.float64), 12)
@@ -495,6 +496,6 @@ class Schedule:
         k, c, reach = self.at(mid)                                   # (S, P)
         P = len(self.particles)
         hh = np.repeat(pairs[:, 1], P)
-        coeffs = goal_flow_batch(k[inv_seg].reshape(-1), c[inv_seg].reshape(-1), hh).reshape(len(pairs), P, -1)
+        coeffs = tissue_law.rows(k[inv_seg].reshape(-1), c[inv_seg].reshape(-1), hh).reshape(len(pairs), P, -1)
         return coeffs, reach[inv_seg], block.reshape(-1)
 

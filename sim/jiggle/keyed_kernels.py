@@ -23,7 +23,7 @@ from sim.jiggle.particle_kernels import (
     goal_vel,
     hermite,
     segment,
-    within_reach,
+    tissue_flow,
 )
 
 wp.set_module_options({"enable_backward": False})
@@ -45,7 +45,7 @@ def run_step_keyed(
     # out
     frame: int, last: bool,
     frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
-    y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3),
+    y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3), stops_out: wp.array(dtype=wp.int32),
 ):
     """particle_kernels.run_step with the flow row and reach of particle i at rows[base + i]."""
     for i in range(lo, hi):
@@ -64,10 +64,9 @@ def run_step_keyed(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        fl = rows[base + i]
-        y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
-        u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
-        y1, u1 = within_reach(y1, u1, row_reach[base + i])
+        y1, u1, stops = tissue_flow(y0, u0, rows[base + i], b0, b1, b2, h, row_reach[base + i])
+        if stops > 0:
+            stops_out[i] = stops_out[i] + stops
         if frame >= 0 or last:
             s1 = s0 + h
             x1 = pa + s1 * (va + s1 * (c2 + s1 * c3)) + y1
@@ -84,7 +83,7 @@ def integrate_run_keyed(
     # model
     params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), row_reach: wp.array(dtype=float),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
-    group_offsets: wp.array(dtype=wp.int32),
+    group_offsets: wp.array(dtype=wp.int32), stops_out: wp.array(dtype=wp.int32),
     # goals
     pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec3), vel_end: wp.array2d(dtype=wp.vec3),
     # steps (K,): knot interval, its length H, start s0 in it, length h, kick before it, frame (-1: none);
@@ -123,10 +122,10 @@ def integrate_run_keyed(
         base = int(step_base[k, g])
         if k % 2 == 0:
             run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
-                           step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b)
+                           step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b, stops_out)
         else:
             run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
-                           step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a)
+                           step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a, stops_out)
     seg1 = int(step_seg[K - 1])
     H1 = step_H[K - 1]
     for i in range(lo, hi):
@@ -144,6 +143,7 @@ def integrate_run_contact_keyed(
     params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), row_reach: wp.array(dtype=float),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32), group_muscles: wp.array(dtype=wp.int32),
+    stops_out: wp.array(dtype=wp.int32),
     # colliders
     muscle_offsets: wp.array(dtype=wp.int32), cap_radius: wp.array(dtype=float),
     floor: float, friction: float, num_capsules: int, num_muscles: int,
@@ -195,14 +195,14 @@ def integrate_run_contact_keyed(
         base = int(step_base[k, g])
         if k % 2 == 0:
             run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
-                           step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b)
+                           step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_b, u_b, frame, last, frames_out, x_out,
                          contacts_out)
         else:
             run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
-                           step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a)
+                           step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_a, u_a, frame, last, frames_out, x_out,

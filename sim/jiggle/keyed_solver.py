@@ -16,10 +16,10 @@ import warp as wp
 from rig.base.errors import InputError
 from sim.jiggle import keyed_kernels
 from sim.jiggle import particle_kernels as kernels
-from sim.jiggle.goal_flow import flow_numpy, goal_flow
+from sim.jiggle import tissue_law
 from sim.jiggle.goal_track import hermite
 from sim.jiggle.keyed import Schedule
-from sim.jiggle.solver import ParticleSolver, _check_steps, kick_numpy, within_reach_numpy
+from sim.jiggle.solver import ParticleSolver, _check_steps, kick_numpy
 
 
 class KeyedSolver(ParticleSolver):
@@ -57,7 +57,7 @@ class KeyedSolver(ParticleSolver):
         Y, U = self._y, self._u
         self._run(keyed_kernels.integrate_run_keyed, self.num_groups, [
             self._params, dev_array(rows, kernels.flow_row), dev_array(reach, float), m.wp_adj_offsets, self._edges,
-            self._gravity, self._groups, control.pos, control.vel_start, control.vel_end,
+            self._gravity, self._groups, self.stops, control.pos, control.vel_start, control.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
             dev_array(h_kick.astype(np.float32), float), dev_array(base, wp.int32), dev_array(frame, wp.int32),
@@ -74,7 +74,7 @@ class KeyedSolver(ParticleSolver):
                 keyed_kernels.integrate_run_contact_keyed)
 
     def _rows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray):
-        """(rows (R, 10) float32, reach (R,) float32, base (K, G) int32) of a run: the plain flow table (one
+        """(rows (R, tissue_law.ROW) float32, reach (R,) float32, base (K, G) int32) of a run: the plain flow table (one
         block of N rows per distinct step length, as ParticleSolver.integrate's) then the keyed blocks (one of
         P rows per distinct (knot interval, step length), sim.jiggle.keyed.Schedule.flows); the rows of thread
         group g at step k start at base[k, g] (minus the group's first particle)."""
@@ -127,14 +127,14 @@ def integrate_keyed_numpy(model, schedule: Schedule, track, x: np.ndarray, v: np
         j, s0, h = int(seg[k]), float(s0s[k]), float(dts[k])
         _, gv, gacc, gjerk = goal(j, s0)
         u = kick_numpy(model, y, u, h_kick)
-        fl = goal_flow(model.goal_k, model.goal_c + model.drag, round(h, 12))
+        fl = tissue_law.rows(model.goal_k, model.goal_c + model.drag, round(h, 12))
         fl[p] = coeffs[block[k]]
         reach = np.array(model.reach, dtype=np.float64)
         reach[p] = reaches[block[k]]
         b0 = model.gravity_vector - gacc - mu * gv
         b1 = -gjerk - mu * gacc
         b2 = -0.5 * mu * gjerk
-        y, u = within_reach_numpy(reach, *flow_numpy(fl, y, u, b0, b1, b2))
+        y, u, _ = tissue_law.step_numpy(fl, y, u, b0, b1, b2, h, reach)
         h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
     g1, gv1, _, _ = goal(seg[-1], s0s[-1] + dts[-1])
     u = kick_numpy(model, y, u, 0.5 * dts[-1])

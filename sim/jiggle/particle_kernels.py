@@ -13,8 +13,20 @@ from __future__ import annotations
 
 import warp as wp
 
+from sim.jiggle import tissue_law
+
 # forward only: these kernels are never differentiated (no adjoint code to compile)
 wp.set_module_options({"enable_backward": False})
+
+flow_row = wp.types.vector(length=tissue_law.ROW, dtype=float)
+"""A particle's tissue flow row for one step length (sim/jiggle/tissue_law.py: rows): the exact linear flow over
+h (goal_flow.COEFFS), over h / n, n, kappa."""
+TISSUE_ONSET = wp.constant(tissue_law.ONSET)
+TISSUE_GAIN = wp.constant(tissue_law.GAIN)
+TISSUE_SLOPE = wp.constant(tissue_law.SLOPE)
+TISSUE_SAFE = wp.constant(tissue_law.SAFE)
+TISSUE_NEAR = wp.constant(tissue_law.NEAR)
+TISSUE_FAST = wp.constant(tissue_law.FAST)
 
 BLOCK_SIZE = 8
 BLOCK = wp.constant(BLOCK_SIZE)
@@ -88,24 +100,71 @@ def offsets(
 
 
 @wp.func
-def within_reach(y: wp.vec3, u: wp.vec3, reach: float):
-    """(y, u) held inside the particle's reach: an offset beyond it is projected onto the sphere of
-    radius reach and loses its outward offset velocity (an inelastic stop; sim/jiggle/particles.py)."""
-    n = wp.length(y)
-    if n <= reach:
-        return y, u
-    d = y / n
-    out = wp.dot(u, d)
-    if out > 0.0:
-        u = u - out * d
-    return d * reach, u
+def tissue_accel(y: wp.vec3, kap: float, reach: float):
+    """The tissue law's stiffening acceleration -kappa phi(|y| / reach) y (sim/jiggle/tissue_law.py)."""
+    rho = wp.length(y) / reach
+    if rho > 1.0:                                   # past the reach: the force grows on in a straight line
+        return (-kap * (TISSUE_GAIN + TISSUE_SLOPE * (rho - 1.0)) / rho) * y
+    t = wp.max(rho - TISSUE_ONSET, 0.0) / (1.0 - TISSUE_ONSET)
+    return (-kap * TISSUE_GAIN * t * t * t) * y
+
+
+@wp.func
+def hard_stop(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, reach: float, h: float):
+    """1 for a substep that ends near the limit with the outward offset speed fallen by more than half
+    and not turned back, from a fast start (sim.jiggle.tissue_law.hard_stop_numpy), else 0."""
+    n0 = wp.length(y0)
+    n1 = wp.length(y1)
+    if n1 < TISSUE_NEAR * reach or n0 <= 0.0:
+        return int(0)
+    v0 = wp.dot(u0, y0) / n0
+    v1 = wp.dot(u1, y1) / n1
+    if v0 * h > TISSUE_FAST * reach and v1 >= 0.0 and v1 < 0.5 * v0:
+        return int(1)
+    return int(0)
+
+
+@wp.func
+def tissue_flow(y0: wp.vec3, u0: wp.vec3, fl: flow_row, b0: wp.vec3, b1: wp.vec3, b2: wp.vec3, h: float,
+                reach: float):
+    """The goal part of a step of h under the tissue law (sim/jiggle/tissue_law.py): (y1, u1, hard stops) from
+    offsets (y0, u0) under the forcing b0 + b1 tau + b2 tau^2. The exact linear flow fl[0:10] while the
+    energy amplitude stays below the onset at both ends (the arithmetic of a linear model); else
+    fl[20] substeps of a half kick of the stiffening, the exact flow fl[10:20] over h / fl[20], a half kick."""
+    y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
+    u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
+    kap = fl[21]
+    stops = int(0)
+    if kap <= 0.0:
+        return y1, u1, stops
+    lim = TISSUE_SAFE * TISSUE_ONSET * reach
+    a0 = wp.dot(y0, y0) + wp.dot(u0, u0) / kap
+    a1 = wp.dot(y1, y1) + wp.dot(u1, u1) / kap
+    if wp.max(a0, a1) <= lim * lim:
+        return y1, u1, stops
+    n = int(fl[20])
+    hs = h / float(n)
+    y = y0
+    u = u0
+    for j in range(n):
+        tau = hs * float(j)
+        c0 = b0 + tau * (b1 + tau * b2)
+        c1 = b1 + (2.0 * tau) * b2
+        uk = u + (0.5 * hs) * tissue_accel(y, kap, reach)
+        yn = fl[10] * y + fl[11] * uk + fl[14] * c0 + fl[15] * c1 + fl[16] * b2
+        un = fl[12] * y + fl[13] * uk + fl[17] * c0 + fl[18] * c1 + fl[19] * b2
+        un = un + (0.5 * hs) * tissue_accel(yn, kap, reach)
+        stops += hard_stop(y, u, yn, un, reach, hs)
+        y = yn
+        u = un
+    return y, u, stops
 
 
 @wp.kernel
 def kick_drift(
     # model
     inv_mass: wp.array(dtype=float), drag: wp.array(dtype=float), reach: wp.array(dtype=float),
-    flow: wp.array2d(dtype=float),
+    flow: wp.array(dtype=flow_row),
     adj_offsets: wp.array(dtype=wp.int32), adj_index: wp.array(dtype=wp.int32),
     adj_k: wp.array(dtype=float), adj_c: wp.array(dtype=float), gravity: wp.vec3,
     # goals
@@ -115,10 +174,12 @@ def kick_drift(
     y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3),
     # out
     x_out: wp.array(dtype=wp.vec3), y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3),
+    stops_out: wp.array(dtype=wp.int32),
 ):
     """Kick of the springs over h_kick at s0 (h/2 opening a step; the previous step's closing half kick
-    plus this one's opening half between two steps), then the exact goal flow over h, held within each
-    particle's reach: x_out and the offsets at s0 + h (u_out before any closing kick)."""
+    plus this one's opening half between two steps), then the goal part over h under the tissue law
+    (tissue_flow): x_out and the offsets at s0 + h (u_out before any closing kick); each particle's hard
+    stops added to stops_out."""
     t = wp.tid()
     for i in range(t * BLOCK, wp.min(t * BLOCK + BLOCK, y.shape[0])):
         pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
@@ -133,9 +194,9 @@ def kick_drift(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        y1 = flow[i, 0] * y0 + flow[i, 1] * u0 + flow[i, 4] * b0 + flow[i, 5] * b1 + flow[i, 6] * b2
-        u1 = flow[i, 2] * y0 + flow[i, 3] * u0 + flow[i, 7] * b0 + flow[i, 8] * b1 + flow[i, 9] * b2
-        y1, u1 = within_reach(y1, u1, reach[i])
+        y1, u1, stops = tissue_flow(y0, u0, flow[i], b0, b1, b2, h, reach[i])
+        if stops > 0:
+            stops_out[i] = stops_out[i] + stops
         s1 = s0 + h
         x_out[i] = pa + s1 * (va + s1 * (c2 + s1 * c3)) + y1
         y_out[i] = y1
@@ -180,8 +241,6 @@ def glue(
 # ------------------------------------------------------------------------------ a whole run, one launch
 # The run's data is packed so that each particle and each of its springs is one load (the CPU pays
 # for every index's address arithmetic, as much as for the float operations themselves).
-flow_row = wp.types.vector(length=10, dtype=float)
-"""A particle's exact-flow coefficients for one step length (sim/jiggle/goal_flow.py: COEFFS)."""
 cubic = wp.types.vector(length=12, dtype=float)
 """A particle's goal on one knot interval: pa, va, c2, c3 (g(s) = pa + va s + c2 s^2 + c3 s^3)."""
 
@@ -222,7 +281,7 @@ def run_step(
     # out: frame `frame` of frames_out (none when < 0), x_out when `last`
     frame: int, last: bool,
     frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
-    y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3),
+    y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3), stops_out: wp.array(dtype=wp.int32),
 ):
     """:func:`kick_drift` on the particles lo:hi with flow coefficients flows[f]: the same float32
     operations in the same order (the one-launch run equals the per-step launches bit for bit)."""
@@ -242,10 +301,9 @@ def run_step(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        fl = flows[f, i]
-        y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
-        u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
-        y1, u1 = within_reach(y1, u1, pr[2])
+        y1, u1, stops = tissue_flow(y0, u0, flows[f, i], b0, b1, b2, h, pr[2])
+        if stops > 0:
+            stops_out[i] = stops_out[i] + stops
         if frame >= 0 or last:                      # positions only where someone reads them
             s1 = s0 + h
             x1 = pa + s1 * (va + s1 * (c2 + s1 * c3)) + y1
@@ -278,6 +336,7 @@ def integrate_run(
     u_b: wp.array(dtype=wp.vec3), cubics: wp.array(dtype=cubic),
     # out
     frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3), v_out: wp.array(dtype=wp.vec3),
+    stops_out: wp.array(dtype=wp.int32),
 ):
     """All K steps of a cut-free run (:func:`offsets`, K x :func:`kick_drift`, :func:`kick`) for the
     particles of group tid (no spring leaves a group, so a group steps alone): each step reads only the
@@ -303,10 +362,10 @@ def integrate_run(
         last = k == K - 1
         if k % 2 == 0:
             run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
-                     step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b)
+                     step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b, stops_out)
         else:
             run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
-                     step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a)
+                     step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a, stops_out)
     seg1 = int(step_seg[K - 1])
     H1 = step_H[K - 1]
     for i in range(lo, hi):

@@ -29,7 +29,8 @@ from rig.base.errors import InputError
 from sim.jiggle.goal_track import GoalTrack, build_track
 from sim.jiggle.params import JiggleSettings
 from sim.jiggle.particles import GRAVITY, ParticleModel
-from sim.jiggle.solver import ParticleSolver, within_reach_numpy
+from sim.jiggle import tissue_law
+from sim.jiggle.solver import ParticleSolver
 from sim.jiggle.tissue_contacts import integrate_tissue
 
 TIME_EPS = 1e-9
@@ -121,7 +122,7 @@ def start_motion(track: GoalTrack, t0: float, window: float = START_WINDOW) -> t
 
 def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: float) -> None:
     """Put the particles on their goals at time t as a run starts (and restarts after a cut): at the
-    quasi-static offset of the goals' fitted acceleration (and gravity), within their reach, with their
+    quasi-static offset of the goals' fitted acceleration (and gravity) under the tissue law, with their
     fitted velocity (start_motion); glued particles exactly on their goals, moving with them. A solver of
     keyed parameters (sim/jiggle/keyed_solver.py) gives the model's goal springs at t (`model_at`)."""
     if hasattr(solver, "model_at"):
@@ -129,7 +130,7 @@ def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: flo
     solver.glue(state, control, t)
     x, v = state.numpy()
     vel, acc = start_motion(control.track, t)
-    y, _ = within_reach_numpy(model.reach, equilibrium(model, acc), np.zeros((model.num_particles, 3)))
+    y = tissue_law.equilibrium_numpy(equilibrium(model, acc), model.goal_k, np.asarray(model.reach, dtype=np.float64))
     state.assign(x + y, np.where(model.glued[:, None], v, vel))
 
 

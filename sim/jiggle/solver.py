@@ -33,7 +33,7 @@ import warp as wp
 
 from rig.base.errors import InputError
 from sim.jiggle import particle_kernels as kernels
-from sim.jiggle.goal_flow import flow_numpy, goal_flow
+from sim.jiggle import tissue_law
 from sim.jiggle.goal_track import GoalControl, GoalTrack, hermite
 from sim.jiggle.particles import ParticleModel, ParticleState
 
@@ -106,6 +106,9 @@ class ParticleSolver:
         self.num_groups = len(groups) - 1
         """threads of a one-launch run (:meth:`integrate`): groups of particles no spring leaves."""
         self._groups = wp.array(groups.astype(np.int32), dtype=wp.int32, device=dev)
+        self.stops = wp.zeros(n, dtype=wp.int32, device=dev)
+        """(N,) int32 on the device: each particle's hard stops so far (sim/jiggle/tissue_law.py: substeps that end
+        near the reach with the outward speed more than halved from a fast start; the tissue law makes none)."""
         self.launches = 0
         """kernel launches so far: every one (glue, the runs of :meth:`integrate`, the steps of
         :meth:`integrate_steps`)."""
@@ -116,13 +119,14 @@ class ParticleSolver:
         """seconds: the longest step the spring kicks take (inf without springs)."""
 
     def flow(self, h: float) -> tuple[np.ndarray, wp.array]:
-        """Exact goal-flow coefficients (N, 10) for step h: float64 NumPy and float32 device copies."""
+        """Tissue flow rows (N, tissue_law.ROW) for step h (sim.jiggle.tissue_law.rows: the exact goal flow over h and
+        over the sub-stepped path's h / n, n, kappa): float64 NumPy and float32 device copies."""
         key = round(float(h), 12)
         if key not in self._flows:
             if len(self._flows) > 64:          # uneven steps (odd frame rates): keep the cache small
                 self._flows.clear()
-            c = goal_flow(self.model.goal_k, self.model.goal_c + self.model.drag, key)
-            self._flows[key] = (c, wp.array(c.astype(np.float32), dtype=float, device=self.model.device))
+            c = tissue_law.rows(self.model.goal_k, self.model.goal_c + self.model.drag, key)
+            self._flows[key] = (c, wp.array(c.astype(np.float32), dtype=kernels.flow_row, device=self.model.device))
         return self._flows[key]
 
     def step(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl, t: float,
@@ -207,8 +211,12 @@ class ParticleSolver:
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
             dev_array(h_kick.astype(np.float32), float), dev_array(flow_index, wp.int32), dev_array(frame, wp.int32),
             float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
-            self._cubics, frames, state_out.x, state_out.v])
+            self._cubics, frames, state_out.x, state_out.v, self.stops])
         return None if record is None else frames.numpy()[:len(ks)]
+
+    def hard_stops(self) -> np.ndarray:
+        """(N,) int64: each particle's hard stops since the solver was made (see :attr:`stops`)."""
+        return self.stops.numpy().astype(np.int64)
 
     def _contact_flows(self, control: GoalControl, seg: np.ndarray, dts: np.ndarray, dev_array):
         """(flows, step_flow, kernel) of a run with contacts: the kernel's flow arguments, each step's index into
@@ -267,7 +275,7 @@ class ParticleSolver:
         Y, U = self._y, self._u
         args = [
             self._params, *flows, m.wp_adj_offsets, self._edges, self._gravity, self._groups, group_muscles,
-            muscle_offsets, cm.wp_radius, float(floor), float(cm.friction), int(cm.num_capsules),
+            self.stops, muscle_offsets, cm.wp_radius, float(floor), float(cm.friction), int(cm.num_capsules),
             int(len(m.group_offsets) - 1), act_offsets, act_ids,
             control.pos, control.vel_start, control.vel_end, cc.pos, cc.vel_start, cc.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
@@ -306,7 +314,8 @@ class ParticleSolver:
             self._run(kernels.kick_drift, dim, [m.wp_inv_mass, m.wp_drag, m.wp_reach, flow, m.wp_adj_offsets,
                                                 m.wp_adj_index, m.wp_adj_k, m.wp_adj_c, self._gravity, control.pos,
                                                 control.vel_start, control.vel_end, seg, float(H), float(s0),
-                                                float(h), float(h_kick), Y[0], U, state_out.x, Y[1], U_pre])
+                                                float(h), float(h_kick), Y[0], U, state_out.x, Y[1], U_pre,
+                                                self.stops])
             Y.reverse()
             U, U_pre = U_pre, U
             if on_step is not None:
@@ -446,25 +455,11 @@ def kick_numpy(model: ParticleModel, y: np.ndarray, u: np.ndarray, h: float) -> 
     return (u * (1.0 - d) + h * inv_m[:, None] * f) / (1.0 + d)
 
 
-def within_reach_numpy(reach: np.ndarray, y: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The kernels' within_reach: offsets y (N, 3) beyond reach (N,) projected onto it, their outward
-    offset velocity u dropped."""
-    n = np.linalg.norm(y, axis=1)
-    over = n > reach
-    if not over.any():
-        return y, u
-    d = y[over] / n[over, None]
-    out = np.maximum(np.sum(u[over] * d, axis=1), 0.0)
-    y, u = y.copy(), u.copy()
-    y[over] = d * reach[over, None]
-    u[over] -= out[:, None] * d
-    return y, u
-
-
 def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray, v: np.ndarray,
                     grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The NumPy reference of ParticleSolver.integrate in float64 (merged kicks between steps):
-    (x, v) (N, 3) at grid[-1] from x, v at grid[0]. flow(h) -> (N, 10) goal_flow coefficients."""
+    (x, v) (N, 3) at grid[-1] from x, v at grid[0]. flow(h) -> (N, tissue_law.ROW) tissue flow rows
+    (ParticleSolver.flow(h)[0]); the goal part of each step is sim.jiggle.tissue_law.step_numpy."""
     grid = np.asarray(grid, dtype=np.float64)
     dts = np.diff(grid)
     steps = list(zip(*(a.tolist() for a in _check_steps(track, grid))))
@@ -484,7 +479,7 @@ def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray,
         b0 = model.gravity_vector - gacc - mu * gv
         b1 = -gjerk - mu * gacc
         b2 = -0.5 * mu * gjerk
-        y, u = within_reach_numpy(model.reach, *flow_numpy(flow(h), y, u, b0, b1, b2))
+        y, u, _ = tissue_law.step_numpy(flow(h), y, u, b0, b1, b2, h, np.asarray(model.reach, dtype=np.float64))
         h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)
     j, s0, _ = steps[-1]
     g1, gv1, _, _ = goal(j, s0 + dts[-1])
@@ -495,5 +490,5 @@ def integrate_numpy(model: ParticleModel, flow, track: GoalTrack, x: np.ndarray,
 def step_numpy(model: ParticleModel, flow: np.ndarray, track: GoalTrack, x: np.ndarray, v: np.ndarray,
                t: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The NumPy reference of ParticleSolver.step in float64: (x, v) (N, 3) at t + dt.
-    flow : (N, 10) goal_flow coefficients for dt."""
+    flow : (N, tissue_law.ROW) tissue flow rows for dt."""
     return integrate_numpy(model, lambda h: flow, track, x, v, np.array([t, t + dt]))

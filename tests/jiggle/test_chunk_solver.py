@@ -78,8 +78,8 @@ def many_muscles(n=5, seed=11, reach=True):
 
 
 def test_one_launch_equals_the_per_step_launches_on_many_muscles():
-    """Five muscles of random jiggles, goals jerked around (the reach binds), uneven steps across
-    knots, a start off the goals."""
+    """Five muscles of random jiggles, goals jerked around (the tissue law's sub-stepped path taken, past the
+    reach on the hardest jerks), uneven steps across knots, a start off the goals."""
     b, rest, rng = many_muscles()
     model = b.finalize(gravity=True)
     assert ParticleSolver(model).num_groups == 5
@@ -91,7 +91,7 @@ def test_one_launch_equals_the_per_step_launches_on_many_muscles():
     res = both_paths(model, track, grid, x0, v0)
     assert_bit_equal(res)
     off = np.stack([np.linalg.norm(x - track.sample(t)[0], axis=1) for x, t in zip(res[0][0], grid[1:])])
-    assert (np.abs(off - model.reach) < 1e-6).any()                                  # the reach binds
+    assert (off > model.reach).any()                                     # the stiffening (and past the reach) runs
 
 
 def test_a_spring_across_muscles_merges_their_groups():

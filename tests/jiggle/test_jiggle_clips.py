@@ -207,8 +207,9 @@ def test_spliced_teleport_resets_the_particles_to_their_goals(cut_scene, jump):
 def test_without_cut_detection_the_teleport_flings_the_particles(cut_scene):
     """The same 5 m splice with cut detection off (cuts all False) and no reach (max_offset inf): the
     goals sweep 5 m in 1/120 s on the C1 curve and the particles, held by soft springs, are left metres
-    behind, far beyond BOUND_M: the two tests above can fail. With their default reach they stop at it
-    (within a muscle's few radii), still far from where they belong, so the cut is what saves the jump."""
+    behind, far beyond BOUND_M: the two tests above can fail. With their default reach the tissue law
+    stiffens them, but a goal sweeping at 600 m/s flings them past BOUND_M all the same (a law of forces
+    cannot stop that within centimetres, and must not remove the velocity): the cut is what saves the jump."""
     mus, jiggles, world_at, times = cut_scene
     held_by_reach = jiggles
     reach = max(j.reach for j in jiggles)
@@ -224,4 +225,4 @@ def test_without_cut_detection_the_teleport_flings_the_particles(cut_scene):
     assert d[k].max() > 2 * BOUND_M
     held = jiggle_rig(mus.rig, held_by_reach, spliced(world_at, 5.0), times, JiggleSettings(),
                       cuts=np.zeros(len(knots) - 1, bool))
-    assert offsets(held).max() <= reach + 1e-5
+    assert reach < BOUND_M < offsets(held).max() < d.max()
