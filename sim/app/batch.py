@@ -359,9 +359,14 @@ def _figures(metrics: dict) -> dict:
     skin, peak = metrics.get("skin") or {}, metrics.get("peak") or {}
     muscles = metrics.get("muscles") or {}
     top = next(iter(muscles.items()), (None, {}))          # listed largest peak first
+    limits = metrics.get("limits") or {}
     targets = (metrics.get("skin_quality") or {}).get("targets") or {}
     return {"peak_skin_mm": skin.get("max_mm"), "peak_frame": peak.get("frame"), "peak_time_s": peak.get("time_s"),
             "peak_muscle": top[0], "peak_muscle_mm": top[1].get("peak_mm"),
+            "near_limit_pct": None if limits.get("near_limit_fraction_all") is None
+            else 100.0 * limits["near_limit_fraction_all"],
+            "near_limit_muscle": (limits.get("worst") or {}).get("muscle"),
+            "hard_stops": limits.get("hard_stops_total"),
             "quality": {k: {"value": t.get("value"), "limit": t.get("limit"), "pass": t.get("pass")}
                         for k, t in targets.items()}}
 
@@ -487,7 +492,9 @@ def _read_record(folder: str) -> dict | None:
 # ---------------------------------------------------------------------------------------- index
 COLUMNS = (("job", "name", "s"), ("status", "status", "s"), ("frames", "frames", "n"), ("time (s)", "time_s", "n"),
            ("set-up (s)", "setup_s", "n"), ("bake (s)", "bake_s", "n"), ("peak skin (mm)", "peak_skin_mm", "n"),
-           ("peak muscle (mm)", "peak_muscle_mm", "n"), ("muscle", "peak_muscle", "s"))
+           ("peak muscle (mm)", "peak_muscle_mm", "n"), ("muscle", "peak_muscle", "s"),
+           ("near limit (%)", "near_limit_pct", "n"), ("most near limit", "near_limit_muscle", "s"),
+           ("hard stops", "hard_stops", "n"))
 QUALITY = (("final folds", "final_folded_edges"), ("folds / LBS", "folds_added_over_lbs"),
            ("torn edges", "torn_edges"), ("gradient p99.9", "gradient_p999"))
 """compare's skin quality targets (sim.app.skin_quality.check_targets), one column each."""

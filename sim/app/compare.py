@@ -60,6 +60,10 @@ MIN_CYCLES = 2
 cannot be told from a drift, so the frequency is then None ("too short to resolve")."""
 TOP = 8
 """Muscles labelled in the plots (the largest peaks)."""
+NEAR_LIMIT = 0.9
+"""A CV at >= this fraction of its reach is near its limit (sim.jiggle.tissue_law.NEAR)."""
+NEAR_LIMIT_FLAG = 0.05
+"""The report flags a muscle near its limit in more than this fraction of the frames."""
 
 
 
@@ -108,7 +112,8 @@ def read_params(text: str, names) -> tuple[dict, list[dict]]:
         kind = entry.get("kind")
         # bake.json names them frequency and damping (the scene's keys); older bakes frequency_hz, damping_ratio.
         # A keyed value (a curve) is no one number: None
-        muscles.append({"mass_kg": _number(entry.get("mass_kg")),
+        muscles.append({"mass_kg": _number(entry.get("mass_kg")), "reach_m": _number(entry.get("reach_m")),
+                        "strength": _number(entry.get("strength"), strict=False),
                         "frequency_hz": _number(entry.get("frequency", entry.get("frequency_hz"))),
                         "damping_ratio": _number(entry.get("damping", entry.get("damping_ratio")), strict=False),
                         "kind": kind if isinstance(kind, str) else None})
@@ -244,6 +249,28 @@ def muscle_spectrum(d: np.ndarray, offsets: np.ndarray, fps: float) -> tuple[np.
     return freqs, amp
 
 
+def limit_fraction(d: np.ndarray, offsets: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(T, M) each muscle's largest CV offset per frame as a fraction of its reach (0 where the reach is
+    unknown or none). d : (T, N, 3) metres, CV offsets; reach : (M,) metres (nan: none)."""
+    rho = np.zeros((d.shape[0], len(offsets) - 1))
+    amp = muscle_amplitude(d, offsets)
+    ok = np.isfinite(reach) & (reach > 0)
+    rho[:, ok] = amp[:, ok] / reach[ok]
+    return rho
+
+
+def limit_advice(name: str, p: dict) -> str:
+    """What to change for a muscle that spends too long near its limit (the scene's keys)."""
+    z, j = p.get("damping_ratio"), p.get("strength")
+    tips = []
+    if z is not None and z < 0.5:
+        tips.append(f"raise its damping (now {z:g}) so each swing loses more")
+    if j is not None and j > 0:
+        tips.append(f"lower its strength (now {j:g}: the swing scales with it)")
+    tips.append("or raise max_offset if this tissue may move further")
+    return f"[jiggle.muscles.{name}]: " + "; ".join(tips)
+
+
 def dominant_frequency(freqs: np.ndarray, amp: np.ndarray, frames: int, moving: bool) -> float | None:
     """Hz of the largest peak of one spectrum amp (K,), refined by a parabola through the log
     amplitudes of the peak bin and its neighbours; None when the muscle does not move, the clip has
@@ -262,7 +289,7 @@ def dominant_frequency(freqs: np.ndarray, amp: np.ndarray, frames: int, moving: 
 
 
 # ---------------------------------------------------------------------------------------- analysis
-def analyse(data: BakeData) -> dict:
+def analyse(data: BakeData, tissue: dict | None = None) -> dict:
     """Everything compare measures, before anything is written. Keys (arrays float64 unless said):
 
     params, per_muscle : read_params of the bake's params.
@@ -282,6 +309,10 @@ def analyse(data: BakeData) -> dict:
     amp = muscle_amplitude(d, offsets)
     freqs, spectrum = muscle_spectrum(d, offsets, data.fps)
     peaks = amp.max(axis=0)
+    reach = np.array([np.nan if p["reach_m"] is None else p["reach_m"] for p in per_muscle])
+    rho = limit_fraction(d, offsets, reach)
+    tissue = tissue if isinstance(tissue, dict) else {}
+    stops = tissue.get("hard_stops") if isinstance(tissue.get("hard_stops"), dict) else {}
     dominant = [dominant_frequency(freqs, spectrum[:, m], T, bool(peaks[m] > STILL)) for m in range(len(names))]
     # masses: all muscles in J only when every muscle has one, so the energy plot has one unit
     per_kg = any(p["mass_kg"] is None for p in per_muscle)
@@ -308,10 +339,40 @@ def analyse(data: BakeData) -> dict:
             "mass_kg": p["mass_kg"], "frequency_hz": p["frequency_hz"], "damping_ratio": p["damping_ratio"],
             "energy_frequency_hz": omega_src[m][1] if omega_src[m][0] else None,
             "energy_frequency_from": omega_src[m][0],
+            "reach_mm": 1e3 * reach[m] if np.isfinite(reach[m]) else None,
+            "peak_reach_fraction": float(rho[:, m].max()) if np.isfinite(reach[m]) and T else None,
+            "near_limit_fraction": float((rho[:, m] >= NEAR_LIMIT).mean()) if np.isfinite(reach[m]) and T else None,
+            "hard_stops": int(stops[names[m]]) if isinstance(stops.get(names[m]), int) else None,
         }
+    limits = limit_summary(names, per_muscle, rho, reach, stops)
     return {"params": params, "per_muscle": per_muscle, "disp": disp, "skin": skin, "peak": peak,
             "skin_arrays": arrays, "amplitude": amp, "freqs": freqs, "spectrum": spectrum, "dominant_hz": dominant,
-            "energy": energy, "energy_unit": energy_unit, "order": order, "muscles": muscles}
+            "energy": energy, "energy_unit": energy_unit, "order": order, "muscles": muscles, "limits": limits}
+
+
+def limit_summary(names, per_muscle, rho: np.ndarray, reach: np.ndarray, stops: dict) -> dict:
+    """metrics.json's "limits": how much of the clip the muscles spend near their reach (rho (T, M) of
+    :func:`limit_fraction`), the hard stops of bake.json's "tissue", and a flag with advice for each muscle
+    near its limit in more than NEAR_LIMIT_FLAG of the frames."""
+    has = np.isfinite(reach)
+    near = rho[:, has] >= NEAR_LIMIT
+    flags = []
+    for m in np.flatnonzero(has):
+        frac = float((rho[:, m] >= NEAR_LIMIT).mean()) if len(rho) else 0.0
+        if frac > NEAR_LIMIT_FLAG:
+            flags.append({"muscle": names[m], "near_limit_fraction": frac, "advice": limit_advice(names[m], per_muscle[m])})
+    flags.sort(key=lambda f: -f["near_limit_fraction"])
+    total = sum(int(v) for v in stops.values() if isinstance(v, int)) if stops else None
+    return {"near": NEAR_LIMIT, "flag_above": NEAR_LIMIT_FLAG,
+            "rule": f"a muscle is near its limit in a frame when one of its CVs is at >= {NEAR_LIMIT:g} x its reach "
+                    "(reach_m in bake.json; the bake's blended CVs)",
+            "near_limit_fraction_all": float(near.mean()) if near.size else None,
+            "muscles_near_limit": int(near.any(axis=0).sum()) if near.size else 0,
+            "muscles_with_reach": int(has.sum()),
+            "worst": dict(zip(("muscle", "near_limit_fraction"),
+                              max(((names[m], float((rho[:, m] >= NEAR_LIMIT).mean())) for m in np.flatnonzero(has)),
+                                  key=lambda x: x[1], default=(None, None)))),
+            "hard_stops_total": total, "flags": flags}
 
 
 # ---------------------------------------------------------------------------------------- plots
@@ -396,15 +457,15 @@ def plot_displacement(path, times, arrays, peak_frame, title=""):
 
 
 # ---------------------------------------------------------------------------------------- collisions
-def read_contacts(out_dir: str) -> dict | None:
+def read_contacts(out_dir: str, key: str = "contacts") -> dict | None:
     """The "contacts" of OUT_DIR/bake.json (a bake with collisions, sim.bake.baker), or None: no bake.json,
-    an unreadable one, or a bake without collisions."""
+    an unreadable one, or a bake without collisions. key: another section ("tissue": the hard stops)."""
     try:
         with open(os.path.join(out_dir, SUMMARY), encoding="utf-8") as fh:
             summary = json.load(fh)
     except (OSError, ValueError):
         return None
-    contacts = summary.get("contacts") if isinstance(summary, dict) else None
+    contacts = summary.get(key) if isinstance(summary, dict) else None
     return contacts if isinstance(contacts, dict) else None
 
 
@@ -513,7 +574,8 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     timings["read_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    an = analyse(data)
+    tissue = read_contacts(out_dir, "tissue")
+    an = analyse(data, tissue)
     T, V = data.skin_static.shape[:2]
     times, names, params = data.times, list(data.muscle_names), an["params"]
     skin, peak, arrays, order = an["skin"], an["peak"], an["skin_arrays"], an["order"]
@@ -592,6 +654,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         "settle_rule": f"amplitude below {SETTLE_FRACTION:g} x its peak for {SETTLE_WINDOW:g} s (or to the "
                        "end), seconds after the peak; null: never",
         "muscles": an["muscles"],
+        "limits": {**an["limits"], "hard_stop_rule": (tissue or {}).get("hard_stop_rule")},
         "video": video_info,
         "files": {k: os.path.basename(v) for k, v in files.items()},
         "timings_s": timings,

@@ -58,16 +58,48 @@ def _kv(rows) -> str:
 
 def _muscle_table(muscles: dict, energy_unit: str) -> str:
     head = ("muscle", "kind", "peak (mm)", "at (s)", "RMS (mm)", f"peak energy ({energy_unit})",
-            f"mean energy ({energy_unit})", "dominant (Hz)", "set (Hz)", "damping", "settle (s)")
+            f"mean energy ({energy_unit})", "dominant (Hz)", "set (Hz)", "damping", "settle (s)",
+            "peak / reach", "near limit (% frames)", "hard stops")
     rows = []
     for name, m in muscles.items():        # metrics.json lists them largest peak first
         cells = [_e(name), _e(m.get("kind")), _num(m.get("peak_mm")), _num(m.get("peak_time_s"), ".3f"),
                  _num(m.get("rms_mm")), _num(m.get("peak_energy_j"), ".3g"), _num(m.get("mean_energy_j"), ".3g"),
                  _num(m.get("dominant_hz")), _num(m.get("frequency_hz")), _num(m.get("damping_ratio")),
-                 "never" if m.get("settle_s") is None and m.get("peak_mm") else _num(m.get("settle_s"), ".3f")]
+                 "never" if m.get("settle_s") is None and m.get("peak_mm") else _num(m.get("settle_s"), ".3f"),
+                 _num(m.get("peak_reach_fraction")),
+                 _num(None if m.get("near_limit_fraction") is None else 100.0 * m["near_limit_fraction"], ".1f"),
+                 _e(m.get("hard_stops")) if m.get("hard_stops") is not None else _num(None)]
         rows.append("<tr>" + "".join(f"<td>{c}</td>" if i < 2 else f'<td class="n">{c}</td>'
                                      for i, c in enumerate(cells)) + "</tr>")
     return ("<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
+
+
+def _limits_section(lim: dict) -> list[str]:
+    """Near the limit: how much of the clip the muscles spend near their reach, the hard stops, and a flag
+    with advice per muscle above the threshold."""
+    if not lim or lim.get("muscles_with_reach", 0) == 0:
+        return []
+    frac = lim.get("near_limit_fraction_all")
+    worst = lim.get("worst") or {}
+    rows = [("near the limit, all muscles and frames", f"{_num(None if frac is None else 100.0 * frac, '.2f')} %"),
+            ("muscles near their limit at some frame", f"{_e(lim.get('muscles_near_limit'))} of "
+                                                       f"{_e(lim.get('muscles_with_reach'))}"),
+            ("most often", f"{_e(worst.get('muscle'))}: "
+                           f"{_num(None if worst.get('near_limit_fraction') is None else 100.0 * worst['near_limit_fraction'], '.1f')} % of frames"),
+            ("hard stops", _e(lim.get("hard_stops_total")) if lim.get("hard_stops_total") is not None else "not recorded")]
+    parts = ["<h2>Near the limit</h2>", _kv(rows),
+             f'<p class="note">{_e(lim.get("rule"))}. hard stop: {_e(lim.get("hard_stop_rule"))}.</p>']
+    flags = lim.get("flags") or []
+    if flags:
+        items = "".join(f"<li><b>FLAG</b> {_e(f.get('muscle'))} is near its limit in "
+                        f"{_num(100.0 * f.get('near_limit_fraction', 0.0), '.1f')} % of frames (more than "
+                        f"{_num(100.0 * lim.get('flag_above', 0.05), 'g')} %): {_e(f.get('advice'))}</li>"
+                        for f in flags)
+        parts.append(f"<ul>{items}</ul>")
+    else:
+        parts.append(f'<p>pass: no muscle is near its limit in more than '
+                     f'{_num(100.0 * lim.get("flag_above", 0.05), "g")} % of frames.</p>')
+    return parts
 
 
 def _quality_section(q: dict, files: dict) -> list[str]:
@@ -179,6 +211,7 @@ def render_report(metrics: dict, files: dict) -> str:
     parts += _quality_section(m.get("skin_quality") or {}, files)
     parts += _collision_section(m.get("collisions") or {}, files)
     unit = m.get("energy_unit", "J")
+    parts += _limits_section(m.get("limits") or {})
     parts += ["<h2>Muscles</h2>", _muscle_table(m.get("muscles") or {}, unit),
               f'<p class="note">amplitude: {_e(m.get("amplitude"))}. energy ({_e(unit)}): {_e(m.get("energy"))}. '
               f'frequency: {_e(m.get("frequency_method"))}; resolution {_num(m.get("frequency_resolution_hz"), ".3g")} '

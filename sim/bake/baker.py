@@ -132,6 +132,7 @@ class Baker:
             if self.model is None:
                 dyn = st
             else:
+                stops_before = self.solver.hard_stops()
                 track = goals(rig, kt, static.cvs, s.settings)
                 colliders = None if self.colliders is None else self.colliders.at(kt, world_k, track.cut)
                 sink = {}
@@ -144,6 +145,10 @@ class Baker:
                     contacts = {"contact_depth": per["depth"].astype(np.float32),
                                 "contact_hit": per["hit"].astype(np.int32),
                                 "contact_impulse": per["impulse"].astype(np.float32)}
+                # the tissue law's hard stops in this chunk, per muscle (sim/jiggle/tissue_law.py: it makes none)
+                stops = self.solver.hard_stops() - stops_before
+                contacts["hard_stops"] = np.add.reduceat(stops, rig.cv_offsets[:-1]).astype(np.int64) \
+                    if len(stops) else np.zeros(rig.M, np.int64)
             cvs = blend(st, dyn, self.blend[f0:f1])
         with self._timed("skin_s"):
             # reuse: the skins of chunk c live in buffers chunk c + 2 writes again; the bake finishes and writes
@@ -445,6 +450,8 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         worker.shutdown(wait=True)
         writer.close()
     summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
+    if baker.model is not None:
+        summary["tissue"] = _tissue_json(setup, contact_parts)
     if baker.colliders is not None:
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
     _write_json(os.path.join(out_dir, SUMMARY), summary)
@@ -453,10 +460,29 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
 
 
 CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final", "skin_kept_out",
-                "skin_pulled_m")
-"""Per-frame arrays of a bake with collisions a chunk's marker keeps for bake.json: per muscle the deepest
-contact (m), what it hit, the summed impulse (N s); the skin vertices inside another part's capsule; the
-final skin's vertices pulled back out of one and the longest pull-back (m)."""
+                "skin_pulled_m", "hard_stops")
+"""Arrays a chunk's marker keeps for bake.json: with collisions, per frame and muscle the deepest contact (m),
+what it hit, the summed impulse (N s); the skin vertices inside another part's capsule; the final skin's
+vertices pulled back out of one and the longest pull-back (m); and with a simulation, the chunk's hard stops
+per muscle (M,)."""
+
+
+def _tissue_json(setup: BakeSetup, parts: dict) -> dict:
+    """bake.json's "tissue": the tissue law's constants and the hard stops per muscle over the whole bake (a
+    resumed bake adds its earlier chunks' from their markers)."""
+    from sim.jiggle import tissue_law
+    M = setup.rig.M
+    stops = np.zeros(M, np.int64)
+    for c in sorted(parts):
+        if "hard_stops" in parts[c] and len(parts[c]["hard_stops"]) == M:
+            stops += parts[c]["hard_stops"].astype(np.int64)
+    return {"law": "goal spring stiffening from onset x reach (cubic), straight on past the reach; no projection "
+                   "(sim/jiggle/tissue_law.py)",
+            "onset": tissue_law.ONSET, "gain": tissue_law.GAIN, "near": tissue_law.NEAR,
+            "hard_stop_rule": f"a substep ending at >= {tissue_law.NEAR:g} x reach whose outward offset speed fell by more "
+                              f"than half without turning back, from a speed covering {tissue_law.FAST:g} x reach in "
+                              "the substep",
+            "hard_stops": {n: int(k) for n, k in zip(setup.rig.names, stops)}, "hard_stops_total": int(stops.sum())}
 
 
 def _resumed_contacts(out_dir: str, done: int) -> dict:

@@ -55,7 +55,7 @@ from sim.jiggle.keyed import PARAMETERS, Curve, muscle_curves, parse_curve, refe
 
 CVS = 40
 SECTIONS, RING = 5, 8
-MAX_OFFSET_RADII = {"muscle": 1.0, "fat": 2.0}
+MAX_OFFSET_RADII = {"muscle": 1.5, "fat": 2.5}
 KEYABLE = {p.attribute: p.name for p in PARAMETERS.values() if p.attribute not in (None, "blend")}
 """MuscleJiggle attributes that may hold a Curve -> the parameter's documented name."""
 """A CV's reach at strength 1, in its muscle's mean rest radii, per kind (see the module)."""

@@ -324,3 +324,42 @@ def test_skin_quality_finds_a_planted_dent(tmp_path):
     assert t["folds_added_over_lbs"]["worst_frame"] == k and t["folds_added_over_lbs"]["value"] > 1.1
     assert (tmp_path / "quality.png").is_file()
     assert "Skin quality" in (tmp_path / "report.html").read_text() and "FAIL" in (tmp_path / "report.html").read_text()
+
+
+def test_near_limit_fraction_hard_stops_and_the_flag(tmp_path):
+    """The synthetic muscles given reaches: biceps_l (4 mm swing) with a reach of 4.2 mm sits at >= 90% of
+    it exactly where |sin| >= 0.9 / (4 / 4.2) (its largest CV carries the whole amplitude); belly_fat (10 mm)
+    with a 50 mm reach never comes near. bake.json's tissue hard stops reach metrics.json; the report flags
+    biceps_l (more than 5% of frames) with advice naming its scene table, and not belly_fat."""
+    data, _ = known_bake()
+    params = json.loads(data.params)
+    params["muscles"]["biceps_l"].update(reach_m=0.0042, strength=0.5)
+    params["muscles"]["belly_fat"].update(reach_m=0.05, strength=0.5)
+    from dataclasses import replace
+    data = replace(data, params=json.dumps(params))
+    write_npz(data, tmp_path / "bake.npz")
+    (tmp_path / "bake.json").write_text(json.dumps({"tissue": {"hard_stops": {"biceps_l": 3, "belly_fat": 0},
+                                                               "hard_stop_rule": "test rule"}}))
+    m = compare(str(tmp_path), render=False)["metrics"]
+    t = np.arange(T) / FPS
+    expect = float((0.004 * np.abs(np.sin(2 * np.pi * MUSCLES["biceps_l"][0] * t)) >= 0.9 * 0.0042).mean())
+    bic, fat = m["muscles"]["biceps_l"], m["muscles"]["belly_fat"]
+    assert expect > 0.05
+    assert bic["near_limit_fraction"] == pytest.approx(expect, abs=1.5 / T)
+    sampled = 0.004 * np.abs(np.sin(2 * np.pi * MUSCLES["biceps_l"][0] * t)).max()
+    assert bic["peak_reach_fraction"] == pytest.approx(sampled / 0.0042, rel=1e-5)
+    assert fat["near_limit_fraction"] == 0.0 and fat["peak_reach_fraction"] < 0.25
+    assert bic["hard_stops"] == 3 and fat["hard_stops"] == 0
+    lim = m["limits"]
+    assert lim["hard_stops_total"] == 3 and lim["hard_stop_rule"] == "test rule"
+    assert lim["near_limit_fraction_all"] == pytest.approx(bic["near_limit_fraction"] / 2)
+    assert [f["muscle"] for f in lim["flags"]] == ["biceps_l"]
+    assert "jiggle.muscles.biceps_l" in lim["flags"][0]["advice"] and "damping" in lim["flags"][0]["advice"]
+    html = (tmp_path / "report.html").read_text()
+    assert "Near the limit" in html and "FLAG" in html and "biceps_l is near its limit" in html
+
+
+def test_a_bake_without_reaches_has_no_limit_flags(baked):
+    m = baked[3]["metrics"]
+    assert m["limits"]["muscles_with_reach"] == 0 and m["limits"]["flags"] == []
+    assert all(x["near_limit_fraction"] is None and x["hard_stops"] is None for x in m["muscles"].values())
