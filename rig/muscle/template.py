@@ -205,7 +205,7 @@ class Jiggle:
 # sways visibly longer (a softer fat, 2.8 Hz at goal 0.15, swung 15 cm off a running body).
 # Densities: skeletal muscle about 1060 kg/m^3, adipose tissue about 900. Neighbour springs as stiff
 # as the goal springs carry a wobble along the muscle as a wave.
-MUSCLE_JIGGLE = Jiggle(frequency_hz=7.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0,
+MUSCLE_JIGGLE = Jiggle(frequency_hz=11.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0,
                        spring_frequency_hz=7.0, spring_damping_ratio=0.3)
 FAT_JIGGLE = Jiggle(frequency_hz=4.0, damping_ratio=0.3, goal_tendon=0.9, goal_belly=0.3, density=900.0,
                     spring_frequency_hz=4.0, spring_damping_ratio=0.2)

@@ -246,7 +246,7 @@ def contact_pass(
 @wp.kernel
 def integrate_run_contact(
     # model
-    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row),
+    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32), group_muscles: wp.array(dtype=wp.int32),
     stops_out: wp.array(dtype=wp.int32),
@@ -302,14 +302,14 @@ def integrate_run_contact(
         s1 = step_s0[k] + step_h[k]
         frame = int(step_frame[k])
         if k % 2 == 0:
-            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step(lo, hi, params, flows, levels, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
                      step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_b, u_b, frame, last, frames_out, x_out,
                          contacts_out)
         else:
-            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step(lo, hi, params, flows, levels, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
                      step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,

@@ -36,7 +36,8 @@ NONE_HIT = wp.constant(NO_HIT)
 def run_step_keyed(
     lo: int, hi: int,
     # model: per particle (1 / mass, drag, reach: unused, the rows carry it)
-    params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), row_reach: wp.array(dtype=float), base: int,
+    params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
+    row_reach: wp.array(dtype=float), base: int,
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     # goals: the cubics of the step's knot interval
     cubics: wp.array(dtype=cubic), s0: float, h: float, h_kick: float,
@@ -47,7 +48,8 @@ def run_step_keyed(
     frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
     y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3), stops_out: wp.array(dtype=wp.int32),
 ):
-    """particle_kernels.run_step with the flow row and reach of particle i at rows[base + i]."""
+    """particle_kernels.run_step with the flow row, tissue levels and reach of particle i at rows[base + i],
+    levels[0, :, base + i], row_reach[base + i]."""
     for i in range(lo, hi):
         cu = cubics[i]
         pa = wp.vec3(cu[0], cu[1], cu[2])
@@ -64,7 +66,7 @@ def run_step_keyed(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        y1, u1, stops = tissue_flow(y0, u0, rows[base + i], b0, b1, b2, h, row_reach[base + i])
+        y1, u1, stops = tissue_flow(y0, u0, rows[base + i], levels, 0, base + i, b0, b1, b2, h, row_reach[base + i])
         if stops > 0:
             stops_out[i] = stops_out[i] + stops
         if frame >= 0 or last:
@@ -81,7 +83,8 @@ def run_step_keyed(
 @wp.kernel
 def integrate_run_keyed(
     # model
-    params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), row_reach: wp.array(dtype=float),
+    params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
+    row_reach: wp.array(dtype=float),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32), stops_out: wp.array(dtype=wp.int32),
     # goals
@@ -121,10 +124,10 @@ def integrate_run_keyed(
         last = k == K - 1
         base = int(step_base[k, g])
         if k % 2 == 0:
-            run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b, stops_out)
         else:
-            run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a, stops_out)
     seg1 = int(step_seg[K - 1])
     H1 = step_H[K - 1]
@@ -140,7 +143,8 @@ def integrate_run_keyed(
 @wp.kernel
 def integrate_run_contact_keyed(
     # model
-    params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), row_reach: wp.array(dtype=float),
+    params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
+    row_reach: wp.array(dtype=float),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32), group_muscles: wp.array(dtype=wp.int32),
     stops_out: wp.array(dtype=wp.int32),
@@ -194,14 +198,14 @@ def integrate_run_contact_keyed(
         frame = int(step_frame[k])
         base = int(step_base[k, g])
         if k % 2 == 0:
-            run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_b, u_b, frame, last, frames_out, x_out,
                          contacts_out)
         else:
-            run_step_keyed(lo, hi, params, rows, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,

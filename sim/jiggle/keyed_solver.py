@@ -47,16 +47,18 @@ class KeyedSolver(ParticleSolver):
         if isinstance(run, np.ndarray) or run is None:
             return run
         ks, seg, s0, H, dts, h_kick, frame, frames, dev_array = run
-        rows, reach, base = self._rows(control.track.times, seg, dts)
+        rows, levels, reach, base = self._rows(control.track.times, seg, dts)
         if colliders is not None:
             out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick,
-                                          [dev_array(rows, kernels.flow_row), dev_array(reach, float)],
+                                          [dev_array(rows, kernels.flow_row), dev_array(levels, kernels.flow_row),
+                                           dev_array(reach, float)],
                                           dev_array(base, wp.int32), frame, frames, ks, dev_array,
                                           kernel=keyed_kernels.integrate_run_contact_keyed)
             return None if record is None else out
         Y, U = self._y, self._u
         self._run(keyed_kernels.integrate_run_keyed, self.num_groups, [
-            self._params, dev_array(rows, kernels.flow_row), dev_array(reach, float), m.wp_adj_offsets, self._edges,
+            self._params, dev_array(rows, kernels.flow_row), dev_array(levels, kernels.flow_row),
+            dev_array(reach, float), m.wp_adj_offsets, self._edges,
             self._gravity, self._groups, self.stops, control.pos, control.vel_start, control.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
@@ -69,12 +71,14 @@ class KeyedSolver(ParticleSolver):
         """ParticleSolver._contact_flows with each step's goal springs those of its knot interval."""
         if self.schedule.empty:
             return super()._contact_flows(control, seg, dts, dev_array)
-        rows, reach, base = self._rows(control.track.times, seg, dts)
-        return ([dev_array(rows, kernels.flow_row), dev_array(reach, float)], dev_array(base, wp.int32),
+        rows, levels, reach, base = self._rows(control.track.times, seg, dts)
+        return ([dev_array(rows, kernels.flow_row), dev_array(levels, kernels.flow_row), dev_array(reach, float)],
+                dev_array(base, wp.int32),
                 keyed_kernels.integrate_run_contact_keyed)
 
     def _rows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray):
-        """(rows (R, tissue_law.ROW) float32, reach (R,) float32, base (K, G) int32) of a run: the plain flow table (one
+        """(rows (R, 10) float32, levels (1, tissue_law.LEVELS + 1, R, 10) float32, reach (R,) float32, base (K, G)
+        int32) of a run (rows and levels: sim.jiggle.tissue_law.split of the tissue rows): the plain flow table (one
         block of N rows per distinct step length, as ParticleSolver.integrate's) then the keyed blocks (one of
         P rows per distinct (knot interval, step length), sim.jiggle.keyed.Schedule.flows); the rows of thread
         group g at step k start at base[k, g] (minus the group's first particle)."""
@@ -84,7 +88,8 @@ class KeyedSolver(ParticleSolver):
         plain = np.stack([self.flow(float(h))[0] for h in uniq])                           # (F, N, 10)
         coeffs, kreach, block = sc.flows(times, seg, dts)                                    # (B, P, 10)
         F, B, P = len(uniq), len(coeffs), len(sc.particles)
-        rows = np.concatenate([plain.reshape(F * N, -1), coeffs.reshape(B * P, -1)]).astype(np.float32)
+        rows, levels = tissue_law.split(np.concatenate([plain.reshape(F * N, -1), coeffs.reshape(B * P, -1)]))
+        levels = np.ascontiguousarray(levels.transpose(1, 0, 2))[None]                      # (1, L + 1, R, 10)
         reach = np.concatenate([np.tile(self._plain_reach, F),
                                 np.minimum(kreach, np.finfo(np.float32).max).reshape(-1)]).astype(np.float32)
         base = np.repeat((inverse.reshape(-1) * N)[:, None], G, axis=1).astype(np.int64)   # (K, G)
@@ -94,7 +99,7 @@ class KeyedSolver(ParticleSolver):
         if rows.shape[0] >= 2 ** 31:
             raise InputError("a keyed run needs more flow rows than a launch can index; use a smaller --chunk",
                              field="chunk")
-        return rows, reach, base.astype(np.int32)
+        return rows, levels, reach, base.astype(np.int32)
 
 
 def make_solver(model, jiggles) -> ParticleSolver:

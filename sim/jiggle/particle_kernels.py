@@ -18,15 +18,19 @@ from sim.jiggle import tissue_law
 # forward only: these kernels are never differentiated (no adjoint code to compile)
 wp.set_module_options({"enable_backward": False})
 
-flow_row = wp.types.vector(length=tissue_law.ROW, dtype=float)
-"""A particle's tissue flow row for one step length (sim/jiggle/tissue_law.py: rows): the exact linear flow over
-h (goal_flow.COEFFS), over h / n, n, kappa."""
+flow_row = wp.types.vector(length=10, dtype=float)
+"""A particle's exact-flow coefficients for one step length (sim/jiggle/goal_flow.py: COEFFS). The tissue law's
+levels are rows too (sim/jiggle/tissue_law.py: split): per step length and particle LEVELS + 1 of them, level
+0 holding kappa in its first float, level j the exact flow over h / 2^j."""
 TISSUE_ONSET = wp.constant(tissue_law.ONSET)
 TISSUE_GAIN = wp.constant(tissue_law.GAIN)
 TISSUE_SLOPE = wp.constant(tissue_law.SLOPE)
 TISSUE_SAFE = wp.constant(tissue_law.SAFE)
 TISSUE_NEAR = wp.constant(tissue_law.NEAR)
 TISSUE_FAST = wp.constant(tissue_law.FAST)
+TISSUE_SUB_OMEGA = wp.constant(tissue_law.SUB_OMEGA)
+TISSUE_LEVELS = wp.constant(tissue_law.LEVELS)
+TISSUE_STABLE = wp.constant(tissue_law.STABLE)
 
 BLOCK_SIZE = 8
 BLOCK = wp.constant(BLOCK_SIZE)
@@ -102,10 +106,14 @@ def offsets(
 @wp.func
 def tissue_accel(y: wp.vec3, kap: float, reach: float):
     """The tissue law's stiffening acceleration -kappa phi(|y| / reach) y (sim/jiggle/tissue_law.py)."""
-    rho = wp.length(y) / reach
+    r2 = wp.dot(y, y)
+    on = TISSUE_ONSET * reach
+    if r2 <= on * on:                               # the linear range: nothing (no square root)
+        return wp.vec3(0.0)
+    rho = wp.sqrt(r2) / reach
     if rho > 1.0:                                   # past the reach: the force grows on in a straight line
         return (-kap * (TISSUE_GAIN + TISSUE_SLOPE * (rho - 1.0)) / rho) * y
-    t = wp.max(rho - TISSUE_ONSET, 0.0) / (1.0 - TISSUE_ONSET)
+    t = (rho - TISSUE_ONSET) / (1.0 - TISSUE_ONSET)
     return (-kap * TISSUE_GAIN * t * t * t) * y
 
 
@@ -113,9 +121,12 @@ def tissue_accel(y: wp.vec3, kap: float, reach: float):
 def hard_stop(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, reach: float, h: float):
     """1 for a substep that ends near the limit with the outward offset speed fallen by more than half
     and not turned back, from a fast start (sim.jiggle.tissue_law.hard_stop_numpy), else 0."""
+    near = TISSUE_NEAR * reach
+    if wp.dot(y1, y1) < near * near:
+        return int(0)
     n0 = wp.length(y0)
     n1 = wp.length(y1)
-    if n1 < TISSUE_NEAR * reach or n0 <= 0.0:
+    if n0 <= 0.0:
         return int(0)
     v0 = wp.dot(u0, y0) / n0
     v1 = wp.dot(u1, y1) / n1
@@ -125,34 +136,76 @@ def hard_stop(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, reach: float, 
 
 
 @wp.func
-def tissue_flow(y0: wp.vec3, u0: wp.vec3, fl: flow_row, b0: wp.vec3, b1: wp.vec3, b2: wp.vec3, h: float,
-                reach: float):
+def tissue_tangent(rho: float):
+    """(rho phi)'(rho) of the tissue law (sim.jiggle.tissue_law.tangent), rho clamped to the reach."""
+    r = wp.min(rho, 1.0)
+    t = wp.max(r - TISSUE_ONSET, 0.0) / (1.0 - TISSUE_ONSET)
+    return TISSUE_GAIN * (t * t * t + r * 3.0 * t * t / (1.0 - TISSUE_ONSET))
+
+
+@wp.func
+def tissue_flow(y0: wp.vec3, u0: wp.vec3, fl: flow_row, levels: wp.array3d(dtype=flow_row), f: int, i: int,
+                b0: wp.vec3, b1: wp.vec3, b2: wp.vec3, h: float, reach: float):
     """The goal part of a step of h under the tissue law (sim/jiggle/tissue_law.py): (y1, u1, hard stops) from
-    offsets (y0, u0) under the forcing b0 + b1 tau + b2 tau^2. The exact linear flow fl[0:10] while the
-    energy amplitude stays below the onset at both ends (the arithmetic of a linear model); else
-    fl[20] substeps of a half kick of the stiffening, the exact flow fl[10:20] over h / fl[20], a half kick."""
+    offsets (y0, u0) under the forcing b0 + b1 tau + b2 tau^2. The exact linear flow fl while the offset stays
+    below the onset (the arithmetic of a linear model; levels not read); else 2^j substeps of a half kick of
+    the stiffening, the exact flow levels[f, j, i] over h / 2^j, a half kick (kappa: levels[f, 0, i][0])."""
     y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
     u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
-    kap = fl[21]
     stops = int(0)
+    # the offset bound of the step, |y| at the larger end plus a quarter step at the larger end speed, below the
+    # onset: sqrt(a) + sqrt(v) <= lim, tested squared (a square root only near the onset)
+    a = wp.max(wp.dot(y0, y0), wp.dot(y1, y1))
+    q = 0.25 * h
+    v = q * q * wp.max(wp.dot(u0, u0), wp.dot(u1, u1))
+    lim = TISSUE_SAFE * TISSUE_ONSET * reach
+    if a + v <= 0.5 * lim * lim:                    # (sqrt(a) + sqrt(v))^2 <= 2 (a + v): surely below
+        return y1, u1, stops
+    if wp.sqrt(a) + wp.sqrt(v) <= lim:
+        return y1, u1, stops
+    l0 = levels[f, 0, i]
+    kap = l0[0]
     if kap <= 0.0:
         return y1, u1, stops
-    lim = TISSUE_SAFE * TISSUE_ONSET * reach
-    a0 = wp.dot(y0, y0) + wp.dot(u0, u0) / kap
-    a1 = wp.dot(y1, y1) + wp.dot(u1, u1) / kap
-    if wp.max(a0, a1) <= lim * lim:
-        return y1, u1, stops
-    n = int(fl[20])
+    # the level from the particle's energy per unit mass and reach^2 (sim.jiggle.tissue_law.thresholds): a free
+    # swing keeps it, so one swing keeps one level
+    rho = wp.length(y0) / reach
+    tt = wp.max(rho - TISSUE_ONSET, 0.0) / (1.0 - TISSUE_ONSET)
+    past = wp.max(rho - 1.0, 0.0)
+    tt = wp.min(tt, 1.0)
+    pot = TISSUE_GAIN * (1.0 - TISSUE_ONSET) * (TISSUE_ONSET * tt * tt * tt * tt / 4.0 +
+                                                (1.0 - TISSUE_ONSET) * tt * tt * tt * tt * tt / 5.0) + \
+        TISSUE_GAIN * past + 0.5 * TISSUE_SLOPE * past * past
+    e = 0.5 * wp.dot(u0, u0) / (reach * reach) + 0.5 * l0[1] * rho * rho + kap * pot
+    j = int(0)
+    m = float(1.0)
+    for q in range(TISSUE_LEVELS):
+        if l0[2 + q] <= e:
+            m = 2.0 * m
+            j += 1
+    if j == 0:                                      # one substep: the linear flow of the kicked velocity is
+        uk = (0.5 * h) * tissue_accel(y0, kap, reach)   # the step's linear flow plus the flow of the kick
+        yn = y1 + fl[1] * uk
+        un = u1 + fl[3] * uk
+        un = un + (0.5 * h) * tissue_accel(yn, kap, reach)
+        stops += hard_stop(y0, u0, yn, un, reach, h)
+        return yn, un, stops
+    sub = levels[f, j, i]
+    n = int(m)                                      # 2^j
     hs = h / float(n)
+    # a particle whose stiffening outruns even the finest level (a goal weight near 1 driven far past its reach)
+    # stiffens only as much as the substeps resolve: never unstable
+    if j == TISSUE_LEVELS:
+        kap = wp.min(kap, TISSUE_STABLE * TISSUE_STABLE / (hs * hs * TISSUE_SLOPE))
     y = y0
     u = u0
-    for j in range(n):
-        tau = hs * float(j)
+    for q in range(n):
+        tau = hs * float(q)
         c0 = b0 + tau * (b1 + tau * b2)
         c1 = b1 + (2.0 * tau) * b2
         uk = u + (0.5 * hs) * tissue_accel(y, kap, reach)
-        yn = fl[10] * y + fl[11] * uk + fl[14] * c0 + fl[15] * c1 + fl[16] * b2
-        un = fl[12] * y + fl[13] * uk + fl[17] * c0 + fl[18] * c1 + fl[19] * b2
+        yn = sub[0] * y + sub[1] * uk + sub[4] * c0 + sub[5] * c1 + sub[6] * b2
+        un = sub[2] * y + sub[3] * uk + sub[7] * c0 + sub[8] * c1 + sub[9] * b2
         un = un + (0.5 * hs) * tissue_accel(yn, kap, reach)
         stops += hard_stop(y, u, yn, un, reach, hs)
         y = yn
@@ -164,7 +217,7 @@ def tissue_flow(y0: wp.vec3, u0: wp.vec3, fl: flow_row, b0: wp.vec3, b1: wp.vec3
 def kick_drift(
     # model
     inv_mass: wp.array(dtype=float), drag: wp.array(dtype=float), reach: wp.array(dtype=float),
-    flow: wp.array(dtype=flow_row),
+    flow: wp.array(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
     adj_offsets: wp.array(dtype=wp.int32), adj_index: wp.array(dtype=wp.int32),
     adj_k: wp.array(dtype=float), adj_c: wp.array(dtype=float), gravity: wp.vec3,
     # goals
@@ -194,7 +247,7 @@ def kick_drift(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        y1, u1, stops = tissue_flow(y0, u0, flow[i], b0, b1, b2, h, reach[i])
+        y1, u1, stops = tissue_flow(y0, u0, flow[i], levels, 0, i, b0, b1, b2, h, reach[i])
         if stops > 0:
             stops_out[i] = stops_out[i] + stops
         s1 = s0 + h
@@ -272,7 +325,7 @@ def edge_kick(i: int, h: float, inv_mass: float, adj_offsets: wp.array(dtype=wp.
 def run_step(
     lo: int, hi: int,
     # model: per particle (1 / mass, drag, reach)
-    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row), f: int,
+    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row), levels: wp.array3d(dtype=flow_row), f: int,
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     # goals: the cubics of the step's knot interval
     cubics: wp.array(dtype=cubic), s0: float, h: float, h_kick: float,
@@ -301,7 +354,7 @@ def run_step(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        y1, u1, stops = tissue_flow(y0, u0, flows[f, i], b0, b1, b2, h, pr[2])
+        y1, u1, stops = tissue_flow(y0, u0, flows[f, i], levels, f, i, b0, b1, b2, h, pr[2])
         if stops > 0:
             stops_out[i] = stops_out[i] + stops
         if frame >= 0 or last:                      # positions only where someone reads them
@@ -318,7 +371,7 @@ def run_step(
 @wp.kernel
 def integrate_run(
     # model
-    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row),
+    params: wp.array(dtype=wp.vec3), flows: wp.array2d(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32),
     # goals
@@ -361,10 +414,10 @@ def integrate_run(
                 cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
         last = k == K - 1
         if k % 2 == 0:
-            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step(lo, hi, params, flows, levels, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
                      step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b, stops_out)
         else:
-            run_step(lo, hi, params, flows, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step(lo, hi, params, flows, levels, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
                      step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a, stops_out)
     seg1 = int(step_seg[K - 1])
     H1 = step_H[K - 1]

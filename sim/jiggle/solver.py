@@ -118,15 +118,20 @@ class ParticleSolver:
                             STEP_OMEGA / gamma if gamma > 0 else math.inf)
         """seconds: the longest step the spring kicks take (inf without springs)."""
 
-    def flow(self, h: float) -> tuple[np.ndarray, wp.array]:
-        """Tissue flow rows (N, tissue_law.ROW) for step h (sim.jiggle.tissue_law.rows: the exact goal flow over h and
-        over the sub-stepped path's h / n, n, kappa): float64 NumPy and float32 device copies."""
+    def flow(self, h: float) -> tuple[np.ndarray, tuple[wp.array, wp.array]]:
+        """Tissue rows (N, tissue_law.ROW) float64 for step h (sim.jiggle.tissue_law.rows: the exact goal flow over
+        h, kappa, the flows over h / 2^j), and their float32 device copies as the kernels read them: the flows
+        over h (N,) and the levels (1, LEVELS + 1, N) (sim.jiggle.tissue_law.split)."""
         key = round(float(h), 12)
         if key not in self._flows:
             if len(self._flows) > 64:          # uneven steps (odd frame rates): keep the cache small
                 self._flows.clear()
             c = tissue_law.rows(self.model.goal_k, self.model.goal_c + self.model.drag, key)
-            self._flows[key] = (c, wp.array(c.astype(np.float32), dtype=kernels.flow_row, device=self.model.device))
+            lin, lev = tissue_law.split(c)
+            dev = self.model.device
+            self._flows[key] = (c, (wp.array(lin, dtype=kernels.flow_row, device=dev),
+                                    wp.array(np.ascontiguousarray(lev.transpose(1, 0, 2))[None],
+                                             dtype=kernels.flow_row, device=dev)))
         return self._flows[key]
 
     def step(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl, t: float,
@@ -134,9 +139,10 @@ class ParticleSolver:
         """Advance state_in at time t by dt seconds into state_out (two different states)."""
         self.integrate(state_in, state_out, control, np.array([t, t + dt]))
 
-    def _flow_table(self, dts: np.ndarray) -> tuple[wp.array, np.ndarray]:
-        """The flow coefficients of the distinct step lengths among dts (K,) seconds, stacked on the
-        device (F, N) of 10 float32 as :meth:`flow` gives them, and each step's index in it (K,) int32."""
+    def _flow_table(self, dts: np.ndarray) -> tuple[list, np.ndarray]:
+        """The tissue rows of the distinct step lengths among dts (K,) seconds on the device, [flows (F, N),
+        levels (F, LEVELS + 1, N)] of flow rows (float32, as :meth:`flow` gives them), and each step's index
+        f in them (K,) int32."""
         uniq, inverse = np.unique(dts, return_inverse=True)
         keys = [round(float(h), 12) for h in uniq]                 # flow()'s key: lengths equal to 1e-12 s share it
         index = {k: f for f, k in enumerate(dict.fromkeys(keys))}
@@ -145,8 +151,11 @@ class ParticleSolver:
         if table is None:
             if len(self._tables) > 16:
                 self._tables.clear()
-            coeffs = np.stack([self.flow(k)[0] for k in table_key]).astype(np.float32)
-            table = self._tables[table_key] = wp.array(coeffs, dtype=kernels.flow_row, device=self.model.device)
+            lin, lev = tissue_law.split(np.stack([self.flow(k)[0] for k in table_key]))      # (F, N, ..)
+            dev = self.model.device
+            table = self._tables[table_key] = [
+                wp.array(lin, dtype=kernels.flow_row, device=dev),
+                wp.array(np.ascontiguousarray(lev.transpose(0, 2, 1, 3)), dtype=kernels.flow_row, device=dev)]
         return table, np.array([index[k] for k in keys], dtype=np.int32)[inverse.reshape(-1)]
 
     def _run_steps(self, control: GoalControl, grid: np.ndarray, record):
@@ -201,11 +210,11 @@ class ParticleSolver:
         table, flow_index = self._flow_table(dts)
         Y, U = self._y, self._u
         if colliders is not None:
-            out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, [table],
+            out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
                                           dev_array(flow_index, wp.int32), frame, frames, ks, dev_array)
             return None if record is None else out
         self._run(kernels.integrate_run, self.num_groups, [
-            self._params, table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
+            self._params, *table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
             control.pos, control.vel_start, control.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
@@ -223,7 +232,7 @@ class ParticleSolver:
         them on the device, the run kernel (the keyed solver gives its own, sim/jiggle/keyed_solver.py)."""
         from sim.jiggle import contact_kernels as ck
         table, flow_index = self._flow_table(dts)
-        return [table], dev_array(flow_index, wp.int32), ck.integrate_run_contact
+        return table, dev_array(flow_index, wp.int32), ck.integrate_run_contact
 
     def step_plan(self, control: GoalControl, grid: np.ndarray, colliders) -> "StepPlan":
         """The steps grid (K + 1,) of a cut-free stretch with `colliders` prepared once on the device (the same
@@ -236,7 +245,7 @@ class ParticleSolver:
                            step_flow, frame, frames, ks, dev_array, kernel=None, plan: bool = False):
         """:meth:`integrate` with contacts (the integrate_run_contact kernel, the broad phase from
         sim.jiggle.colliders.Colliders.active). flows : the kernel's flow arguments after the packed
-        model ([table], or the keyed rows and reaches); step_flow : each step's device index into them
+        model ([flows, levels], or the keyed rows, levels and reaches); step_flow : each step's device index into them
         (K,), or the keyed row bases (K, G); kernel : None for integrate_run_contact, or the keyed one
         (sim/jiggle/keyed_kernels.py). plan : return (kernel, args, records) without launching (StepPlan)."""
         from sim.jiggle import contact_kernels as ck
@@ -309,9 +318,9 @@ class ParticleSolver:
                                          state_in.x, state_in.v, Y[0], U])
         h_kick = 0.5 * dts[0]
         for k, ((seg, s0, H), h) in enumerate(zip(steps, dts)):
-            _, flow = self.flow(h)
+            _, (flow, levels) = self.flow(h)
             # offsets (Y[0], U) at s0 -> (Y[1], U_pre) at s0 + h; U is free again after this launch
-            self._run(kernels.kick_drift, dim, [m.wp_inv_mass, m.wp_drag, m.wp_reach, flow, m.wp_adj_offsets,
+            self._run(kernels.kick_drift, dim, [m.wp_inv_mass, m.wp_drag, m.wp_reach, flow, levels, m.wp_adj_offsets,
                                                 m.wp_adj_index, m.wp_adj_k, m.wp_adj_c, self._gravity, control.pos,
                                                 control.vel_start, control.vel_end, seg, float(H), float(s0),
                                                 float(h), float(h_kick), Y[0], U, state_out.x, Y[1], U_pre,

@@ -24,16 +24,19 @@ so a swing that the linear spring would carry to 1, 2 or 3 reaches turns back at
 (GAIN = 32, undamped): the reach is where the tissue is very stiff, not a wall. There is no projection and
 no velocity removed: the energy a swing brings is stored and given back, and damping only takes it away.
 
-Integration (sim/jiggle/solver.py, sim/jiggle/particle_kernels.py: tissue_flow): a step whose linear flow keeps the offset's
-energy amplitude sqrt(|y|^2 + |u|^2 / kappa) below SAFE x ONSET x R at both ends is the exact linear flow,
-the same arithmetic as a model without the law; otherwise the particle's goal part of the step is split
-into n equal substeps, each a half kick of the stiffening force, the exact linear flow over h / n, and
-another half kick (Strang splitting: symmetric, second order, symplectic without damping), with n the
-smallest power of two that keeps the stiffest frequency at the reach, sqrt(k + kappa (phi + rho phi')(1)),
-times h / n at most SUB_OMEGA. The neighbour springs' kicks around it are unchanged.
+Integration (sim/jiggle/solver.py, sim/jiggle/particle_kernels.py: tissue_flow): a step whose offset stays
+below SAFE x ONSET x R (the larger end plus a quarter step at the larger end speed: :func:`bound`) is the exact
+linear flow, the same arithmetic as a model without the law. Otherwise the particle's goal part of
+the step is split into n = 2^j equal substeps, each a half kick of the stiffening, the exact linear flow over
+h / n and another half kick (Strang splitting: symmetric, second order, symplectic without damping); n is
+the smallest power of two (at most 2^LEVELS) for which the stiffening's fastest frequency in the particle's
+swing, sqrt(kappa (rho phi)'(rho_max)) with rho_max its turning point for the particle's energy, times h / n
+is at most SUB_OMEGA (the linear part needs no substeps: its flow is exact; :func:`thresholds`).
+The neighbour springs' kicks around it are unchanged.
 
-The flow rows the kernels read (ROW floats per particle and step length): the exact flow over h
-(goal_flow.COEFFS), the exact flow over h / n, n, kappa.
+The rows the kernels read, per particle and step length (:func:`rows`, ROW floats): the exact linear flow over
+h (goal_flow.COEFFS); kappa, k and the energies from which each level is needed (:func:`thresholds`); the exact
+flow over h / 2^j for j = 1..LEVELS.
 """
 from __future__ import annotations
 
@@ -43,25 +46,31 @@ import numpy as np
 
 from sim.jiggle.goal_flow import COEFFS, flow_numpy
 
-ONSET = 0.3
+ONSET = 0.5
 """rho below which the goal spring is exactly linear (the fraction of the reach)."""
-GAIN = 32.0
+GAIN = 64.0
 """A: phi at the reach (the stiffening force there is GAIN x kappa R, against k R of the linear spring)."""
 K_FLOOR = (2.0 * math.pi * 3.0) ** 2
 """1/s^2: the smallest stiffening scale kappa, that of a 3 Hz spring: how stiff tissue is near its reach is
 the tissue's, not the goal weight's (an artist's choice of how loosely a CV follows), so soft goals still stiffen."""
-SAFE = 0.9
-"""A step takes the sub-stepped path once its energy amplitude passes SAFE x ONSET x R."""
-SUB_OMEGA = 0.1
+SAFE = 1.0
+"""A step takes the sub-stepped path once its offset bound passes SAFE x ONSET x R."""
+SUB_OMEGA = 0.25
 """The largest stiffest-frequency x substep of the sub-stepped path (stability ends at 2)."""
-MAX_SUBSTEPS = 256
+LEVELS = 6
+"""The sub-stepped path takes at most 2^LEVELS substeps a step."""
+STABLE = 1.0
+"""The stiffening's largest frequency x substep at the finest level: a particle stiffer than it resolves (a goal
+weight near 1 driven far past its reach) has its kappa lowered to it in those substeps, so the split stays
+stable (below the finest level the energy thresholds keep the substeps within SUB_OMEGA)."""
 NEAR = 0.9
 """rho from which a particle is "near its limit" (compare's near-limit fraction and the hard stops)."""
 FAST = 0.1
 """A hard stop: a substep that ends near the limit in which the outward offset speed falls by more than
 half without turning back, from a speed that would have covered FAST x R in the substep."""
-ROW = 2 * COEFFS + 2
-"""floats per particle in a tissue flow row: flow(h), flow(h / n), n, kappa."""
+ROW = 2 * COEFFS + COEFFS * LEVELS
+"""floats per particle in a tissue row: flow(h); kappa, k, the LEVELS energy thresholds (padded to COEFFS);
+flow(h / 2^j) for j = 1..LEVELS."""
 
 
 SLOPE = GAIN * (1.0 + 3.0 / (1.0 - ONSET))
@@ -111,39 +120,77 @@ def kappa(k: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(k), np.maximum(k, K_FLOOR), 0.0)
 
 
-def substeps(k: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """(n,) int: the sub-stepped path's n for stiffness k (1/s^2) and step h (seconds): a power of two,
-    SUB_OMEGA >= sqrt(k + kappa tangent(1)) h / n, at most MAX_SUBSTEPS."""
-    k = np.asarray(k, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        w = np.sqrt(np.where(np.isfinite(k), k + kappa(k) * float(tangent(1.0)), 0.0)) * np.asarray(h)
-    n = np.exp2(np.ceil(np.log2(np.maximum(w / SUB_OMEGA, 1.0))))
-    return np.minimum(n, MAX_SUBSTEPS).astype(np.int64)
+def thresholds(k: np.ndarray, h) -> np.ndarray:
+    """(n, LEVELS) the energies per unit mass and reach^2 (1/s^2) from which the sub-stepped path takes 2^j
+    substeps (column j - 1), for stiffness k (n,) 1/s^2 and step h seconds (a number or (n,)): level j is
+    needed once the stiffening's frequency at the swing's turning point, sqrt(kappa (rho phi)'(rho_max)),
+    times h exceeds SUB_OMEGA 2^(j - 1); rho_max is where the linear and stiffening potentials hold the
+    particle's energy. Chosen from the energy, which a free swing keeps, the level holds through a whole
+    swing, so the sub-stepped path stays a symplectic map (a level chosen from the position would change
+    within a swing and let the energy drift). inf: never needed."""
+    k = np.asarray(k, dtype=np.float64).reshape(-1)
+    hh = np.broadcast_to(np.asarray(h, dtype=np.float64).reshape(-1), k.shape)
+    kap = kappa(k)
+    rho = np.linspace(ONSET, 1.0, 4097)
+    tan = tangent(rho)                                                  # increasing from 0 to SLOPE
+    out = np.full((len(k), LEVELS), np.inf)
+    free = np.isfinite(k) & (kap > 0)
+    for j in range(1, LEVELS + 1):
+        need = np.zeros(len(k))
+        with np.errstate(divide="ignore"):                 # h = 0 (knots 1e-12 s apart): no level is needed
+            need[free] = (SUB_OMEGA * 2.0 ** (j - 1) / hh[free]) ** 2 / kap[free]   # the tangent that needs level j
+        r = np.interp(need, tan, rho)
+        e = 0.5 * np.where(free, k, 0.0) * r ** 2 + kap * potential(r)
+        out[:, j - 1] = np.where(free & (need <= SLOPE), e, np.inf)
+    return out
+
+
+def level(row: np.ndarray, y: np.ndarray, u: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(n,) int: the sub-stepped path's j (2^j substeps) of particles at offsets y, u (n, 3), from their
+    energy per unit mass and reach^2 against the row's thresholds (the kernels' tissue_level)."""
+    row = np.asarray(row, dtype=np.float64)
+    kap, k = row[:, COEFFS], row[:, COEFFS + 1]
+    rho = np.linalg.norm(y, axis=1) / reach
+    e = 0.5 * np.sum(u * u, axis=1) / reach ** 2 + 0.5 * k * rho ** 2 + kap * potential(rho)
+    return np.sum(row[:, COEFFS + 2:COEFFS + 2 + LEVELS] <= e[:, None], axis=1)
 
 
 def rows(k: np.ndarray, c: np.ndarray, h) -> np.ndarray:
-    """(n, ROW) float64 tissue flow rows for stiffness k (n,) 1/s^2 (inf: glued), damping c (n,) 1/s and
-    step h seconds: a number (goal_flow.goal_flow per distinct (k, c, n)) or one per row
-    (keyed.goal_flow_batch)."""
+    """(n, ROW) float64 tissue rows for stiffness k (n,) 1/s^2 (inf: glued), damping c (n,) 1/s and step h
+    seconds: a number (goal_flow.goal_flow per distinct (k, c)) or one per row (keyed.goal_flow_batch)."""
     from sim.jiggle.goal_flow import goal_flow
     from sim.jiggle.keyed import goal_flow_batch
     k = np.asarray(k, dtype=np.float64).reshape(-1)
     c = np.asarray(c, dtype=np.float64).reshape(-1)
-    out = np.empty((len(k), ROW))
-    if np.ndim(h) == 0:
-        out[:, :COEFFS] = goal_flow(k, c, float(h))
-        n = substeps(k, float(h))
-        for m in np.unique(n):
-            sel = n == m
-            out[sel, COEFFS:2 * COEFFS] = goal_flow(k[sel], c[sel], float(h) / float(m))
-    else:
-        hh = np.asarray(h, dtype=np.float64).reshape(-1)
-        out[:, :COEFFS] = goal_flow_batch(k, c, hh)
-        n = substeps(k, hh)
-        out[:, COEFFS:2 * COEFFS] = goal_flow_batch(k, c, hh / n)
-    out[:, 2 * COEFFS] = n
-    out[:, 2 * COEFFS + 1] = kappa(k)
+    out = np.zeros((len(k), ROW))
+    scalar = np.ndim(h) == 0
+    hh = float(h) if scalar else np.asarray(h, dtype=np.float64).reshape(-1)
+    flow = (lambda s: goal_flow(k, c, hh / s)) if scalar else (lambda s: goal_flow_batch(k, c, hh / s))  # noqa: E731
+    out[:, :COEFFS] = flow(1.0)
+    out[:, COEFFS] = kappa(k)
+    out[:, COEFFS + 1] = np.where(np.isfinite(k), k, 0.0)
+    out[:, COEFFS + 2:COEFFS + 2 + LEVELS] = np.minimum(thresholds(k, hh), np.finfo(np.float32).max)
+    base = 2 * COEFFS
+    for j in range(1, LEVELS + 1):
+        out[:, base + COEFFS * (j - 1):base + COEFFS * j] = flow(float(2 ** j))
     return out
+
+
+def split(rows_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(linear (..., COEFFS), levels (..., LEVELS + 1, COEFFS)) float32 of tissue rows (..., ROW): what the
+    kernels read, the exact flow over h, and per level j the flow over h / 2^j (level 0: kappa, k and the
+    LEVELS energy thresholds)."""
+    r = np.asarray(rows_, dtype=np.float64)
+    lin = r[..., :COEFFS]
+    lev = r[..., COEFFS:].reshape(r.shape[:-1] + (LEVELS + 1, COEFFS))
+    return np.ascontiguousarray(lin, dtype=np.float32), np.ascontiguousarray(lev, dtype=np.float32)
+
+
+def bound(y0, u0, y1, u1, h: float) -> np.ndarray:
+    """(n,) metres: the largest offset a step (y0, u0) -> (y1, u1) of h seconds may reach, as the kernels'
+    tissue_flow bounds it: the larger end plus a quarter step at the larger end speed."""
+    return np.maximum(np.linalg.norm(y0, axis=1), np.linalg.norm(y1, axis=1)) + \
+        0.25 * h * np.maximum(np.linalg.norm(u0, axis=1), np.linalg.norm(u1, axis=1))
 
 
 # ------------------------------------------------------------------------------ the NumPy reference
@@ -156,30 +203,32 @@ def accel_numpy(y: np.ndarray, kap: np.ndarray, reach: np.ndarray) -> np.ndarray
 
 def step_numpy(row: np.ndarray, y: np.ndarray, u: np.ndarray, b0, b1, b2, h: float, reach: np.ndarray):
     """The kernels' tissue_flow in float64: (y, u, stops) after the goal part of a step of h seconds from
-    offsets y, u (n, 3) under forcing b0 + b1 tau + b2 tau^2 ((n, 3) each); row (n, ROW), reach (n,) metres
-    (inf: no limit); stops (n,) int, the hard stops of :func:`hard_stop_numpy`."""
+    offsets y, u (n, 3) under forcing b0 + b1 tau + b2 tau^2 ((n, 3) each); row (n, ROW) tissue rows, reach
+    (n,) metres (inf: no limit); stops (n,) int, the hard stops of :func:`hard_stop_numpy`."""
     row = np.asarray(row, dtype=np.float64)
+    y, u = np.asarray(y, dtype=np.float64), np.asarray(u, dtype=np.float64)
     b0, b1, b2 = (np.broadcast_to(np.asarray(b, dtype=np.float64), y.shape) for b in (b0, b1, b2))
     y1, u1 = flow_numpy(row[:, :COEFFS], y, u, b0, b1, b2)
-    kap = row[:, 2 * COEFFS + 1]
+    kap = row[:, COEFFS]
     stops = np.zeros(len(y), np.int64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lim = (SAFE * ONSET * reach) ** 2
-        amp = lambda a, b: np.sum(a * a, axis=1) + np.where(kap > 0, np.sum(b * b, axis=1) / kap, 0.0)  # noqa: E731
-        sub = (kap > 0) & np.isfinite(reach) & (np.maximum(amp(y, u), amp(y1, u1)) > lim)
+    big = bound(y, u, y1, u1, h)
+    with np.errstate(invalid="ignore"):
+        sub = (kap > 0) & np.isfinite(reach) & (big > SAFE * ONSET * reach)
     for i in np.flatnonzero(sub):
-        n = int(row[i, 2 * COEFFS])
+        j = int(level(row[i:i + 1], y[i:i + 1], u[i:i + 1], reach[i:i + 1])[0])
+        n = 2 ** j
         hs = h / n
+        kap_i = np.minimum(kap[i:i + 1], STABLE ** 2 / (hs * hs * SLOPE)) if j == LEVELS else kap[i:i + 1]
         ys, us = y[i:i + 1], u[i:i + 1]
-        fl = row[i:i + 1, COEFFS:2 * COEFFS]
-        for j in range(n):
-            tau = hs * j
+        fl = row[i:i + 1, :COEFFS] if j == 0 else row[i:i + 1, 2 * COEFFS + COEFFS * (j - 1):2 * COEFFS + COEFFS * j]
+        for m in range(n):
+            tau = hs * m
             c0 = b0[i] + tau * (b1[i] + tau * b2[i])
             c1 = b1[i] + 2.0 * tau * b2[i]
             u_in = us
-            us = us + 0.5 * hs * accel_numpy(ys, kap[i:i + 1], reach[i:i + 1])
+            us = us + 0.5 * hs * accel_numpy(ys, kap_i, reach[i:i + 1])
             yn, un = flow_numpy(fl, ys, us, c0[None], c1[None], b2[i][None])
-            un = un + 0.5 * hs * accel_numpy(yn, kap[i:i + 1], reach[i:i + 1])
+            un = un + 0.5 * hs * accel_numpy(yn, kap_i, reach[i:i + 1])
             stops[i] += int(hard_stop_numpy(ys, u_in, yn, un, reach[i:i + 1], hs)[0])
             ys, us = yn, un
         y1[i], u1[i] = ys[0], us[0]

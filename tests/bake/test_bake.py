@@ -62,7 +62,7 @@ def test_bake_writes_every_cache_and_the_arm_jiggles(arm_bake):
     move = np.linalg.norm(d.skin_final - d.skin_static, axis=2).max(axis=1)
     cv = np.linalg.norm(d.muscle_cvs_dynamic - d.muscle_cvs_static, axis=2).max(axis=1)
     assert move[0] < 1e-6 and cv[0] < 1e-6               # starts settled on the static shape
-    assert cv.max() > 5e-3 and move.max() > 2e-3         # the biceps overshoots by mm, the skin follows
+    assert cv.max() > 3e-3 and move.max() > 1e-3         # the biceps overshoots by mm, the skin follows
     params = json.loads(d.params)
     assert params["muscles"]["biceps"]["mass_kg"] > 0 and params["fps"] == 60.0
     summary = json.loads((arm_bake / "bake.json").read_text())

@@ -66,7 +66,8 @@ def test_phi_is_zero_below_the_onset_smooth_and_growing():
     # the potential's derivative is the force (rho phi), continuous at the onset and the reach
     np.testing.assert_allclose(np.gradient(tissue_law.potential(rho), rho)[1:-1], f[1:-1], atol=2e-3)
     at = np.searchsorted(rho, 1.0)
-    assert abs(f[at + 1] - f[at - 1]) < 0.2
+    step = rho[1] - rho[0]
+    assert abs(f[at + 1] - f[at - 1]) < 3 * tissue_law.SLOPE * step          # no jump at the reach
 
 
 def test_small_offsets_move_exactly_as_the_linear_spring():
@@ -156,7 +157,7 @@ def test_hard_stop_detector_finds_a_wall_and_not_a_smooth_turn():
     assert wall.all()
     w = 2 * np.pi * 6.0
     model = single_particles([w], [0.0])
-    t, y, v, solver = ring(model, np.zeros((1, 3)), np.array([[2.0 * R * w, 0, 0]]), 0.2, fps=2000.0)
+    t, y, v, solver = ring(model, np.zeros((1, 3)), np.array([[2.5 * R * w, 0, 0]]), 0.2, fps=2000.0)
     hs = t[1] - t[0]
     stops = tissue_law.hard_stop_numpy(y[:-1, 0], v[:-1, 0], y[1:, 0], v[1:, 0], np.full(len(y) - 1, R), hs)
     assert np.abs(y[:, 0, 0]).max() > 0.85 * R and not stops.any() and solver.hard_stops().sum() == 0
@@ -197,7 +198,7 @@ def test_frame_rate_independent_in_the_stiffening():
     b.add_muscles(rest, [5e-5], jig)
     model = b.finalize()
     knots = np.arange(0, 121) / 120.0
-    swing = 0.15 * np.clip(np.sin(2 * np.pi * 1.5 * knots), -0.5, 0.5)[:, None, None] * np.array([1.0, 0.3, 0])
+    swing = 0.12 * np.sin(2 * np.pi * 1.5 * knots)[:, None, None] * np.array([1.0, 0.3, 0])
     track = build_track(knots, rest[None] + swing)
     settings = JiggleSettings()
     outs = {}
@@ -207,5 +208,5 @@ def test_frame_rate_independent_in_the_stiffening():
     g24 = np.stack([track.sample(tt)[0] for tt in np.arange(0, int(24 * 0.95)) / 24])
     d24, d120 = outs[24] - g24, outs[120][::5][:len(g24)] - g24
     peak = np.linalg.norm(d120, axis=2).max()
-    assert peak > tissue_law.ONSET * 0.02 * 1.5                    # in the stiffening
+    assert peak > 1.2 * tissue_law.ONSET * model.reach.max()       # well into the stiffening
     assert np.abs(d24 - d120).max() <= 0.02 * peak
