@@ -200,11 +200,26 @@ class Jiggle:
             object.__setattr__(self, f.name, float(getattr(self, f.name)))
 
 
-# Muscle: a stiff goal spring in the 6-8 Hz range and half-critical damping, so a belly wobbles a
-# few times after a landing; fat: slower (4 Hz), more loosely held and less damped, as soft tissue
-# sways visibly longer (a softer fat, 2.8 Hz at goal 0.15, swung 15 cm off a running body).
-# Densities: skeletal muscle about 1060 kg/m^3, adipose tissue about 900. Neighbour springs as stiff
-# as the goal springs carry a wobble along the muscle as a wave.
+# Where the defaults come from (sim/jiggle/tissue_law.py says what the reach and the stiffening are):
+# - Muscle frequency 10-12 Hz (11 by default; 10 for the big leg and hip muscles, 12 for the small forearm and
+#   calf muscles, in the templates): measured free vibrations of relaxed human muscle lie at 7-18 Hz -- the
+#   relaxed forearm (brachioradialis) 7-13 Hz (Gallasch & Kenner, "Characterisation of arm microvibration
+#   recorded on an accelerometer", 1997), superficial muscles tapped at rest 12-18 Hz (MyotonPRO reference
+#   ranges), the rectus femoris ~10 Hz in isometric extension (Humphries et al. 2004, J Sports Sci Med
+#   3:16-22) -- and rise with muscle force and shortening (Wakeling & Nigg 2001, J Appl Physiol 90:412-420).
+# - Muscle damping ratio 0.5: relaxed muscle rings with a log decrement of 1.0-1.6 (zeta 0.16-0.25, MyotonPRO
+#   ranges); contraction raises the damping (Wakeling & Nigg 2001; Wakeling, Nigg & Rozitis 2002, J Appl
+#   Physiol 93:1093-1103, where muscle activity damps the soft-tissue resonance), and a moving character's
+#   muscles are active.
+# - Fat 4 Hz, damping 0.3: slower and less damped than muscle, as loosely held tissue sways visibly longer
+#   (a softer fat, 2.8 Hz at goal 0.15, swung 15 cm off a running body). No free-vibration measurement of
+#   abdominal or gluteal fat was found; 4 Hz keeps the fat below the muscles' measured range and near the
+#   2-14 Hz of voluntary movement, so it answers the motion itself.
+# - Densities: skeletal muscle about 1060 kg/m^3, adipose tissue about 900. Neighbour springs carry a wobble
+#   along the muscle as a wave (muscle 7 Hz, fat 4 Hz).
+# - Reach (sim/jiggle/params.py MAX_OFFSET_RADII): 1.5 mean radii for a muscle, 2.5 for fat, times the
+#   strength; the tissue law is linear to half of it, so walks, runs, jumps and dances stay in the linear
+#   range in 99% of the frames on the shared clips (benchmarks/bench_tissue.py).
 MUSCLE_JIGGLE = Jiggle(frequency_hz=11.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0,
                        spring_frequency_hz=7.0, spring_damping_ratio=0.3)
 FAT_JIGGLE = Jiggle(frequency_hz=4.0, damping_ratio=0.3, goal_tendon=0.9, goal_belly=0.3, density=900.0,

@@ -9,6 +9,8 @@ metrics.json's "files" name what was written):
 metrics.json      the numbers below, strict JSON (no NaN: a missing value is null), units in key names
 displacement.npz  per-vertex skin displacement: max_m (V,) and rms_m (V,) float32 metres, over time
 amplitude.png     per-muscle jiggle amplitude over time (the largest 8 labelled, the rest grey)
+limits.png        per-muscle largest offset over its reach over time, the tissue law's onset and the
+                  near-limit line marked (muscles with a reach only)
 energy.png        per-muscle jiggle energy over time
 spectrum.png      per-muscle amplitude spectrum, the dominant frequency marked
 displacement.png  the skin's largest and RMS displacement per frame, and a histogram over vertices
@@ -347,7 +349,8 @@ def analyse(data: BakeData, tissue: dict | None = None) -> dict:
     limits = limit_summary(names, per_muscle, rho, reach, stops)
     return {"params": params, "per_muscle": per_muscle, "disp": disp, "skin": skin, "peak": peak,
             "skin_arrays": arrays, "amplitude": amp, "freqs": freqs, "spectrum": spectrum, "dominant_hz": dominant,
-            "energy": energy, "energy_unit": energy_unit, "order": order, "muscles": muscles, "limits": limits}
+            "energy": energy, "energy_unit": energy_unit, "order": order, "muscles": muscles, "limits": limits,
+            "reach_fraction": rho}
 
 
 def limit_summary(names, per_muscle, rho: np.ndarray, reach: np.ndarray, stops: dict) -> dict:
@@ -400,6 +403,23 @@ def plot_amplitude(path, times, amp, names, order, top=TOP, title=""):
     _curves(ax, times, 1e3 * amp, names, order, top)
     ax.set_ylabel("jiggle amplitude (mm)\nmax |dynamic - static| CV")
     ax.set_title(title or "muscle jiggle amplitude")
+    return save_figure(fig, path)
+
+
+def plot_limits(path, times, rho, names, order, top=TOP, title=""):
+    """limits.png: each muscle's largest CV offset over its reach (T, M) over time, the tissue law's onset
+    (linear below it) and the near-limit line marked; the muscles nearest their reach labelled."""
+    from sim.jiggle.tissue_law import ONSET
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(10, 4))
+    _curves(ax, times, rho, names, order, top)
+    for level, label, style in ((ONSET, "linear below", ":"), (NEAR_LIMIT, "near the limit", "--")):
+        ax.axhline(level, color="k", lw=0.8, ls=style)
+        ax.annotate(label, (times[0] if len(times) else 0.0, level), xytext=(2, 2), textcoords="offset points",
+                    fontsize=8, color="k")
+    ax.set_ylim(0.0, max(1.05, float(rho.max()) * 1.05) if rho.size else 1.05)
+    ax.set_ylabel("offset / reach\nlargest CV")
+    ax.set_title(title or "how near each muscle comes to its reach (the tissue law stiffens above the dotted line)")
     return save_figure(fig, path)
 
 
@@ -596,6 +616,10 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         np.savez_compressed(fh, max_m=arrays["max_m"].astype(np.float32), rms_m=arrays["rms_m"].astype(np.float32))
     files["displacement"] = out("displacement.npz")
     files["amplitude"] = plot_amplitude(out("amplitude.png"), times, amp, names, order)
+    rho = an["reach_fraction"]
+    if an["limits"]["muscles_with_reach"]:
+        by_rho = [int(i) for i in np.argsort(-rho.max(axis=0), kind="stable")] if rho.size else []
+        files["limits_plot"] = plot_limits(out("limits.png"), times, rho, names, by_rho)
     by_energy = [int(i) for i in np.argsort(-energy.max(axis=0), kind="stable")]
     files["energy"] = plot_energy(out("energy.png"), times, energy, names, by_energy, energy_unit)
     files["spectrum"] = plot_spectrum(out("spectrum.png"), an["freqs"], an["spectrum"], names, order, dominant)

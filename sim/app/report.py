@@ -16,8 +16,8 @@ import os
 from rig.base.atomic import atomic_path
 
 MIME = {".png": "image/png", ".gif": "image/gif", ".mp4": "video/mp4"}
-PLOTS = (("amplitude", "Jiggle amplitude"), ("energy", "Jiggle energy"), ("spectrum", "Spectrum"),
-         ("displacement_plot", "Skin displacement"))
+PLOTS = (("amplitude", "Jiggle amplitude"), ("limits_plot", "Offset over reach: how near each muscle comes to its limit"),
+         ("energy", "Jiggle energy"), ("spectrum", "Spectrum"), ("displacement_plot", "Skin displacement"))
 
 CSS = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }

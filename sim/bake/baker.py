@@ -236,7 +236,7 @@ def cache_paths(out_dir: str, formats) -> dict:
     return {f: os.path.join(out_dir, CACHE_NAMES[f]) for f in formats}
 
 
-COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "energy.png", "spectrum.png",
+COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "limits.png", "energy.png", "spectrum.png",
                  "displacement.png", "quality.png", "contacts.png", "peak.png", "quality_closeups.png", "clip.mp4",
                  "clip.gif", "report.html")
 """The names `jiggle compare` writes beside a bake (sim/app/compare.py) when they are free."""

@@ -162,7 +162,9 @@ class Colliders:
         # boxes per BROAD_BLOCK intervals: the kernel's per-step cull (sim/jiggle/contact_kernels.py) makes
         # them tight again, so a coarser host phase only costs a few more per-muscle box tests per step
         mlo, mhi = group_boxes(track, offs[:-1], BROAD_BLOCK)               # (B, M, 3)
-        reach = np.maximum.reduceat(np.where(particles.glued, 0.0, particles.reach), offs[:-1])
+        from sim.jiggle.tissue_law import BROAD
+        # the tissue law turns particles back before their reach; BROAD reaches cover the violent exceptions
+        reach = BROAD * np.maximum.reduceat(np.where(particles.glued, 0.0, particles.reach), offs[:-1])
         grow = (reach + cm.margin + 1e-4)[None, :, None]                    # inf reach: always near
         mlo, mhi = mlo - grow, mhi + grow
         near = np.zeros((len(mlo), M, C + 1), bool)

@@ -3,16 +3,16 @@ run of the particle solver (sim/jiggle/particle_kernels.py: integrate_run), and 
 inside capsules (sim/jiggle/colliders.py launches them; the NumPy references are
 sim/jiggle/colliders.py: contact_numpy, integrate_contact_numpy and skin_inside_numpy).
 
-Contact is a projection with friction, done after each step's exact goal flow and reach limit, on
+Contact is a projection with friction, done after each step's goal flow (the tissue law), on
 the step's end positions: a particle found inside a capsule (or below the floor) is put back on its
 surface along the normal, its velocity relative to the surface loses its inward normal part (an
-inelastic stop, like the reach limit's) and its tangential part is slowed by Coulomb friction
+inelastic stop: a surface, unlike the tissue's reach, is a wall) and its tangential part is slowed by Coulomb friction
 (|dv_t| <= mu |dv_n|). Why a projection rather than a stiff penalty spring: the goal flow is exact
 for any step, and the only explicit parts are the neighbour springs, kept stable by the solver's
 step limit; a penalty stiff enough to hold a fat pad against a landing (tens of g) would need a step
 limit of its own, ~10x smaller, and would let the pad sink in by (m a / k) whatever the step; a
 projection never lets a particle end a step inside, costs nothing when nothing touches, and is the
-same kind of constraint as the reach the solver already keeps. The floor is a half-space, so nothing
+right thing for a bone or the floor, which do not give. The floor is a half-space, so nothing
 tunnels through it at any speed or step.
 
 The capsules move with their joints: their two ends are a second goal track on the same knots as the
@@ -21,8 +21,8 @@ any step's end is the same arithmetic as a goal's.
 
 Broad phase, per muscle and block of BROAD_BLOCK knot intervals, on the host before the launch
 (sim/jiggle/colliders.py: Colliders.active): the box of the muscle's goal curves over the block (the
-hull of their Bezier control points), grown by the muscle's reach (a particle ends every flow within it
-of its goal) and its largest capsule radius (a push out of one capsule moves a particle at most that
+hull of their Bezier control points), grown by tissue_law.BROAD x the muscle's reach (the tissue law turns
+particles back before their reach) and its largest capsule radius (a push out of one capsule moves a particle at most that
 far), against each candidate capsule's box over the block grown by its radius; the floor when the box
 reaches below it. A muscle's candidates (capsules of bones that are not its own chain, not touched at
 rest) are listed once. A muscle nothing is near costs one lookup per step. In the kernel, per step, the

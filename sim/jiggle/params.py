@@ -25,9 +25,10 @@ knobs, all in continuous time so that nothing depends on the frame rate or the s
 - Reach: how far a CV may swing from its static place, ``J x max_offset`` (metres): tissue does
   not stretch without end, and a soft goal driven hard (a fat pad of goal weight 0.1 on a landing)
   would otherwise swing several of its own thicknesses (issue 18 measured glute fat 7.6 cm past a pad
-  1.8 cm thick). The default max_offset is MAX_OFFSET_RADII[kind] x the muscle's mean rest radius: one
-  radius for a muscle (1.5-2 cm on a human's limbs), two for fat; like the jiggle's size, the reach
-  scales with J. The solver holds each particle inside its reach (sim/jiggle/solver.py).
+  1.8 cm thick). The default max_offset is MAX_OFFSET_RADII[kind] x the muscle's mean rest radius: 1.5
+  radii for a muscle, 2.5 for fat; like the jiggle's size, the reach scales with J. The goal spring is
+  linear to half the reach and stiffens smoothly beyond (sim/jiggle/tissue_law.py): the tissue slows
+  down as it nears its reach and turns back, as tissue does, instead of stopping dead at a wall.
 
 Goal weights default from the template's tendon and belly values: sections (end, bulge, middle,
 bulge, end) get (tendon, mean, belly, mean, tendon); painted weights (one per CV) replace them.
@@ -56,9 +57,9 @@ from sim.jiggle.keyed import PARAMETERS, Curve, muscle_curves, parse_curve, refe
 CVS = 40
 SECTIONS, RING = 5, 8
 MAX_OFFSET_RADII = {"muscle": 1.5, "fat": 2.5}
+"""A CV's reach at strength 1, in its muscle's mean rest radii, per kind (see the module)."""
 KEYABLE = {p.attribute: p.name for p in PARAMETERS.values() if p.attribute not in (None, "blend")}
 """MuscleJiggle attributes that may hold a Curve -> the parameter's documented name."""
-"""A CV's reach at strength 1, in its muscle's mean rest radii, per kind (see the module)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,8 +103,8 @@ class MuscleJiggle:
     springs). spring_damping_ratio : >= 0. friction : >= 0, 1/s.
     goal : (40,) goal weights in [0, 1], one per CV (rig.muscle.model order: section-major, 8 per ring).
     blend : the muscle's static_dyn_blend curve, or None for the global one.
-    max_offset : metres > 0 (inf: none), how far a CV may move from its goal at strength 1; at strength
-        J the reach is J x max_offset (`reach`).
+    max_offset : metres > 0 (inf: none), the reach at strength 1 (the tissue law stiffens toward it); at
+        strength J the reach is J x max_offset (`reach`).
     """
 
     name: str

@@ -21,9 +21,9 @@ Forces (per particle i, offset y_i = x_i - g_i from the goal g_i, u_i = y_i'):
   model linear, and conserves momentum (equal and opposite forces);
 - gravity m_i g (when on).
 
-Reach: each particle stays within `reach` (metres; inf: anywhere) of its goal; the solver projects an
-offset that would leave it back onto the sphere and drops the offset velocity's outward part (an
-inelastic stop, sim/jiggle/solver.py). sim/jiggle/params.py says how far tissue may go.
+Reach: `reach` (metres; inf: no limit) is where the tissue law (sim/jiggle/tissue_law.py) makes the goal
+spring very stiff: linear to half of it, stiffening smoothly beyond, so a particle slows down and turns
+back before it; no projection, no velocity removed. sim/jiggle/params.py says how far tissue may go.
 
 Springs of a muscle (built by :meth:`ParticleBuilder.add_muscles`): each CV to its two nearest
 neighbours at rest (the thesis), plus the structural ones the two nearest alone miss: around every
@@ -69,7 +69,8 @@ class ParticleModel:
     """The frozen particle model (NumPy arrays read-only; `wp_*` their float32/int32 device copies).
 
     mass : (N,) kg. goal_k : (N,) 1/s^2 (inf: glued). goal_c : (N,) 1/s. drag : (N,) 1/s.
-    reach : (N,) metres (inf: no limit), how far a particle may move from its goal.
+    reach : (N,) metres (inf: no limit), where the tissue law (sim/jiggle/tissue_law.py) has stiffened the goal
+        spring to GAIN times its linear force.
     glued : (N,) bool. rest : (N, 3) metres, positions at bind.
     springs : (E, 2) int64 particle pairs i < j. spring_k : (E,) N/m. spring_c : (E,) N s/m.
     adj_offsets : (N + 1,) CSR rows of each particle's springs; adj_index : (2E,) the other particle;
@@ -147,12 +148,13 @@ class ParticleModel:
         return math.sqrt(bound[0]), bound[1]
 
     def energy(self, x: np.ndarray, v: np.ndarray, goal: np.ndarray, goal_vel: np.ndarray) -> float:
-        """Joules in the goal frame: kinetic of the offsets' velocities, goal-spring and neighbour-spring
-        potential (glued particles and gravity excluded). x, v, goal, goal_vel : (N, 3)."""
+        """Joules in the goal frame: kinetic of the offsets' velocities, goal-spring potential under the tissue
+        law (sim.jiggle.tissue_law.energy_numpy) and neighbour-spring potential (glued particles and gravity
+        excluded). x, v, goal, goal_vel : (N, 3)."""
+        from sim.jiggle.tissue_law import energy_numpy
         y, u = x - goal, v - goal_vel
         free = ~self.glued
-        e = 0.5 * np.sum(self.mass[free] * np.sum(u[free] ** 2, axis=1))
-        e += 0.5 * np.sum(self.mass[free] * self.goal_k[free] * np.sum(y[free] ** 2, axis=1))
+        e = float(np.sum((self.mass * energy_numpy(y, u, self.goal_k, np.asarray(self.reach, dtype=np.float64)))[free]))
         if self.num_springs:
             d = y[self.springs[:, 0]] - y[self.springs[:, 1]]
             e += 0.5 * np.sum(self.spring_k * np.sum(d * d, axis=1))

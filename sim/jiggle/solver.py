@@ -5,9 +5,9 @@ A step of length h from time t (it must lie inside one knot interval of the goal
 1. half kick of the neighbour springs (on the offsets) at t;
 2. exact flow of every particle's goal spring, damping, friction, gravity and the goal's own motion
    over h (sim/jiggle/goal_flow.py): exact for any h, so the goal springs are never the reason to take
-   small steps, however stiff (goal weights near 1) or however long the frame; then each offset is
-   held within its particle's reach (an inelastic stop: projected onto the sphere, the outward offset
-   velocity dropped);
+   small steps, however stiff (goal weights near 1) or however long the frame; a particle past half its
+   reach, where the tissue law stiffens the goal spring (sim/jiggle/tissue_law.py), takes this part in
+   2^j substeps of its own, each the stiffening's half kicks around the exact flow over h / 2^j;
 3. half kick of the springs at t + h.
 
 This is the splitting of the impulse (r-RESPA) family with an exact inner flow: symmetric and, for

@@ -68,6 +68,10 @@ NEAR = 0.9
 FAST = 0.1
 """A hard stop: a substep that ends near the limit in which the outward offset speed falls by more than
 half without turning back, from a speed that would have covered FAST x R in the substep."""
+BROAD = 1.5
+"""Reaches from its goal within which the contacts' broad phase looks for a particle (sim/jiggle/colliders.py):
+the law turns a swing that the linear spring would carry to 4 reaches back at 1.0 R; 1.5 R takes a goal
+jerked faster still (a teleport, which cut detection glues through)."""
 ROW = 2 * COEFFS + COEFFS * LEVELS
 """floats per particle in a tissue row: flow(h); kappa, k, the LEVELS energy thresholds (padded to COEFFS);
 flow(h / 2^j) for j = 1..LEVELS."""

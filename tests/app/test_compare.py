@@ -357,9 +357,11 @@ def test_near_limit_fraction_hard_stops_and_the_flag(tmp_path):
     assert "jiggle.muscles.biceps_l" in lim["flags"][0]["advice"] and "damping" in lim["flags"][0]["advice"]
     html = (tmp_path / "report.html").read_text()
     assert "Near the limit" in html and "FLAG" in html and "biceps_l is near its limit" in html
+    assert (tmp_path / "limits.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "Offset over reach" in html
 
 
 def test_a_bake_without_reaches_has_no_limit_flags(baked):
     m = baked[3]["metrics"]
+    assert not (baked[0] / "limits.png").exists()
     assert m["limits"]["muscles_with_reach"] == 0 and m["limits"]["flags"] == []
     assert all(x["near_limit_fraction"] is None and x["hard_stops"] is None for x in m["muscles"].values())
