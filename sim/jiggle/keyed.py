@@ -53,6 +53,7 @@ import numpy as np
 from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
 from sim.jiggle import tissue_law
+from sim.jiggle.goal_flow import expm_batch, goal_flow_batch  # noqa: F401 - here before, still importable
 
 INTERPOLATIONS = ("linear", "smooth")
 
@@ -300,70 +301,6 @@ def resolve_tables(entries: Sequence[tuple], names: Sequence[str]) -> dict:
         for n in hit:
             for k, v in table.items():
                 out.setdefault(n, {})[k] = (v, where)
-    return out
-
-
-# --------------------------------------------------------------------------------------- batched expm
-_PADE13 = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
-           129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0, 40840800.0,
-           960960.0, 16380.0, 182.0, 1.0)
-_THETA13 = 5.371920351148152
-
-
-def expm_batch(a: np.ndarray) -> np.ndarray:
-    """exp of each matrix of a (n, d, d) float64: scaling and squaring with the degree 13 Pade
-    approximant (Higham 2005, the s chosen per matrix from its 1-norm), vectorised over the batch. Agrees
-    with scipy.linalg.expm to ~1e-15 relative on the goal flow's matrices (tests/jiggle/test_keyed.py)."""
-    a = np.asarray(a, dtype=np.float64)
-    n, d, _ = a.shape
-    if n == 0:
-        return a.copy()
-    norm = np.abs(a).sum(axis=1).max(axis=1)
-    s = np.maximum(0, np.ceil(np.log2(np.maximum(norm, 1e-300) / _THETA13))).astype(np.int64)
-    a = a / (2.0 ** s)[:, None, None]
-    b = _PADE13
-    eye = np.broadcast_to(np.eye(d), a.shape)
-    a2 = a @ a
-    a4 = a2 @ a2
-    a6 = a4 @ a2
-    u = a @ (a6 @ (b[13] * a6 + b[11] * a4 + b[9] * a2) + b[7] * a6 + b[5] * a4 + b[3] * a2 + b[1] * eye)
-    v = a6 @ (b[12] * a6 + b[10] * a4 + b[8] * a2) + b[6] * a6 + b[4] * a4 + b[2] * a2 + b[0] * eye
-    r = np.linalg.solve(v - u, v + u)
-    for k in range(int(s.max()) if n else 0):
-        sq = s > k
-        r[sq] = r[sq] @ r[sq]
-    return r
-
-
-def goal_flow_batch(k: np.ndarray, c: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """sim.jiggle.goal_flow.goal_flow for a (k, c, h) per row: (n, 10) float64 coefficients of the goal ODE
-    over steps h (n,) seconds for stiffness k (n,) 1/s^2 (inf: glued, all zero) and damping c (n,) 1/s."""
-    from sim.jiggle.goal_flow import COEFFS
-    k, c, h = (np.asarray(x, dtype=np.float64).reshape(-1) for x in (k, c, h))
-    out = np.zeros((len(k), COEFFS))
-    free = np.isfinite(k)
-    if not free.any():
-        return out
-    # distinct (k, c, h) rows through 1-D codes: np.unique(axis=0) sorts rows as records, ~100x slower
-    key = np.zeros(int(free.sum()), np.int64)
-    for x in (k[free], c[free], h[free]):
-        values, code = np.unique(x, return_inverse=True)
-        key = key * len(values) + code.reshape(-1)
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    trip = np.stack([k[free], c[free], h[free]], axis=1)[first]
-    n = len(trip)
-    a = np.zeros((n, 5, 5))
-    a[:, 0, 1] = 1.0
-    a[:, 1, 0] = -trip[:, 0]
-    a[:, 1, 1] = -trip[:, 1]
-    a[:, 1, 2] = 1.0
-    a[:, 2, 3] = 1.0
-    a[:, 3, 4] = 1.0
-    f = expm_batch(a * trip[:, 2, None, None])
-    coeffs = np.empty((n, COEFFS))
-    coeffs[:, 0:4] = f[:, 0:2, 0:2].reshape(n, 4)
-    coeffs[:, 4:10] = (f[:, 0:2, 2:5] * np.array([1.0, 1.0, 2.0])).reshape(n, 6)
-    out[free] = coeffs[inverse.reshape(-1)]
     return out
 
 

@@ -3,7 +3,7 @@ each step's goal flow and reach for its knot interval (sim/jiggle/keyed_kernels.
 muscle runs ParticleSolver's own integrate, so an unkeyed bake is unchanged bit for bit and in speed.
 
 Cost: one 5x5 matrix exponential per distinct (stiffness, damping, step length) of the keyed particles on
-each knot interval of a run (sim.jiggle.keyed.goal_flow_batch, vectorised), and the keyed rows uploaded
+each knot interval of a run (sim.jiggle.goal_flow.goal_flow_batch, vectorised), and the keyed rows uploaded
 once per run. With colliders the run is keyed_kernels.integrate_run_contact_keyed (the contacts of
 sim/jiggle/contact_kernels.py after each step; the broad phase uses the model's reach, that of the largest
 strength key, so it never misses a keyed muscle's reach).

@@ -28,7 +28,6 @@ TISSUE_SLOPE = wp.constant(tissue_law.SLOPE)
 TISSUE_SAFE = wp.constant(tissue_law.SAFE)
 TISSUE_NEAR = wp.constant(tissue_law.NEAR)
 TISSUE_FAST = wp.constant(tissue_law.FAST)
-TISSUE_SUB_OMEGA = wp.constant(tissue_law.SUB_OMEGA)
 TISSUE_LEVELS = wp.constant(tissue_law.LEVELS)
 TISSUE_STABLE = wp.constant(tissue_law.STABLE)
 
@@ -133,14 +132,6 @@ def hard_stop(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, reach: float, 
     if v0 * h > TISSUE_FAST * reach and v1 >= 0.0 and v1 < 0.5 * v0:
         return int(1)
     return int(0)
-
-
-@wp.func
-def tissue_tangent(rho: float):
-    """(rho phi)'(rho) of the tissue law (sim.jiggle.tissue_law.tangent), rho clamped to the reach."""
-    r = wp.min(rho, 1.0)
-    t = wp.max(r - TISSUE_ONSET, 0.0) / (1.0 - TISSUE_ONSET)
-    return TISSUE_GAIN * (t * t * t + r * 3.0 * t * t / (1.0 - TISSUE_ONSET))
 
 
 @wp.func

@@ -20,8 +20,9 @@ onset: the force is C^2) and without end. Its potential per unit mass is
 
     U(r) = k r^2 / 2 + kappa R^2 Phi(rho),   Phi(rho) = A (1 - ONSET) (ONSET T^4 / 4 + (1 - ONSET) T^5 / 5)
 
-so a swing that the linear spring would carry to 1, 2 or 3 reaches turns back at 0.67, 0.85 and 0.96 R
-(GAIN = 32, undamped): the reach is where the tissue is very stiff, not a wall. There is no projection and
+(T = min(t, 1); past the reach Phi grows by A (rho - 1) + A' (rho - 1)^2 / 2), so a swing that the linear
+spring would carry to 1, 2, 3 or 4 reaches turns back at 0.73, 0.86, 0.94 and 1.0 R (kappa = k, undamped):
+the reach is where the tissue is very stiff, not a wall. There is no projection and
 no velocity removed: the energy a swing brings is stored and given back, and damping only takes it away.
 
 Integration (sim/jiggle/solver.py, sim/jiggle/particle_kernels.py: tissue_flow): a step whose offset stays
@@ -161,9 +162,8 @@ def level(row: np.ndarray, y: np.ndarray, u: np.ndarray, reach: np.ndarray) -> n
 
 def rows(k: np.ndarray, c: np.ndarray, h) -> np.ndarray:
     """(n, ROW) float64 tissue rows for stiffness k (n,) 1/s^2 (inf: glued), damping c (n,) 1/s and step h
-    seconds: a number (goal_flow.goal_flow per distinct (k, c)) or one per row (keyed.goal_flow_batch)."""
-    from sim.jiggle.goal_flow import goal_flow
-    from sim.jiggle.keyed import goal_flow_batch
+    seconds: a number (goal_flow.goal_flow per distinct (k, c)) or one per row (goal_flow.goal_flow_batch)."""
+    from sim.jiggle.goal_flow import goal_flow, goal_flow_batch
     k = np.asarray(k, dtype=np.float64).reshape(-1)
     c = np.asarray(c, dtype=np.float64).reshape(-1)
     out = np.zeros((len(k), ROW))
