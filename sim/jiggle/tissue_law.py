@@ -241,14 +241,15 @@ def step_numpy(row: np.ndarray, y: np.ndarray, u: np.ndarray, b0, b1, b2, h: flo
 
 def hard_stop_numpy(y0, u0, y1, u1, reach, h) -> np.ndarray:
     """(n,) bool: substeps (y0, u0) -> (y1, u1) of h seconds that end near the limit (|y1| >= NEAR R) with
-    the outward offset speed fallen by more than half and not turned back, from a speed that would have
+    the outward offset speed fallen by more than half and not turned back (by more than 1% of it: a wall
+    leaves it at 0, to round-off), from a speed that would have
     covered FAST x R in the substep: the signature of a wall (a smooth turn, resolved by the substeps,
     takes many substeps to lose half its speed)."""
     n0, n1 = np.linalg.norm(y0, axis=1), np.linalg.norm(y1, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         v0 = np.where(n0 > 0, np.sum(u0 * y0, axis=1) / n0, 0.0)
         v1 = np.where(n1 > 0, np.sum(u1 * y1, axis=1) / n1, 0.0)
-    return (n1 >= NEAR * reach) & (v0 * h > FAST * reach) & (v1 >= 0.0) & (v1 < 0.5 * v0)
+    return (n1 >= NEAR * reach) & (v0 * h > FAST * reach) & (v1 >= -0.01 * v0) & (v1 < 0.5 * v0)
 
 
 def equilibrium_numpy(y_lin: np.ndarray, k: np.ndarray, reach: np.ndarray) -> np.ndarray:

@@ -113,7 +113,11 @@ def test_interrupted_bake_resumes_to_the_same_caches(capsys, tmp_path, arm_bake,
     assert "3 of 6 chunks already baked" in err
     same_bake(tmp_path, arm_bake)
     assert (tmp_path / "bake.pc2").read_bytes() == (arm_bake / "bake.pc2").read_bytes()
-    assert json.loads((tmp_path / "bake.json").read_text())["resumed_after_chunks"] == 3
+    summary = json.loads((tmp_path / "bake.json").read_text())
+    assert summary["resumed_after_chunks"] == 3
+    # the tissue law's hard stops: per muscle over all chunks, the first three read back from their markers
+    assert summary["tissue"] == json.loads((arm_bake / "bake.json").read_text())["tissue"]
+    assert summary["tissue"]["hard_stops"] == {"biceps": 0} and summary["tissue"]["hard_stops_total"] == 0
 
 
 @pytest.mark.slow

@@ -11,8 +11,9 @@ import math
 
 import numpy as np
 import pytest
+import warp as wp
 
-from sim.jiggle import tissue_law
+from sim.jiggle import particle_kernels, tissue_law
 from sim.jiggle.goal_track import build_track
 from sim.jiggle.params import JiggleSettings, MuscleJiggle
 from sim.jiggle.particles import ParticleBuilder
@@ -210,3 +211,42 @@ def test_frame_rate_independent_in_the_stiffening():
     peak = np.linalg.norm(d120, axis=2).max()
     assert peak > 1.2 * tissue_law.ONSET * model.reach.max()       # well into the stiffening
     assert np.abs(d24 - d120).max() <= 0.02 * peak
+
+
+@wp.kernel
+def _probe(y0: wp.array(dtype=wp.vec3), u0: wp.array(dtype=wp.vec3), y1: wp.array(dtype=wp.vec3),
+           u1: wp.array(dtype=wp.vec3), reach: wp.array(dtype=float), kap: float, h: float,
+           accel_out: wp.array(dtype=wp.vec3), stop_out: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    accel_out[i] = particle_kernels.tissue_accel(y0[i], kap, reach[i])
+    stop_out[i] = particle_kernels.hard_stop(y0[i], u0[i], y1[i], u1[i], reach[i], h)
+
+
+def test_tissue_accel_and_hard_stop_kernels_match_the_numpy_reference():
+    """The kernels' tissue_accel (linear range, stiffening, past the reach) and hard_stop (walls made by a
+    projection, smooth turns, slow or reversing particles) against tissue_law's NumPy reference."""
+    rng = np.random.default_rng(3)
+    n = 4000
+    reach = rng.uniform(0.005, 0.05, n)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    rho0 = rng.uniform(0.0, 1.6, n)
+    y0 = d * (rho0 * reach)[:, None]
+    u0 = d * rng.uniform(-3, 6, n)[:, None] + rng.normal(scale=0.3, size=(n, 3))
+    h = 1e-3
+    wall = rng.random(n) < 0.3                       # the old stop: onto the reach, outward velocity dropped
+    y1 = np.where(wall[:, None], d * reach[:, None], y0 + h * u0)
+    u1 = np.where(wall[:, None], u0 - np.maximum(np.sum(u0 * d, axis=1), 0)[:, None] * d, u0 * rng.uniform(-1, 1, (n, 1)))
+    kap = 2500.0
+    arrs = [wp.array(a.astype(np.float32), dtype=wp.vec3) for a in (y0, u0, y1, u1)]
+    acc = wp.zeros(n, dtype=wp.vec3)
+    stop = wp.zeros(n, dtype=wp.int32)
+    wp.launch(_probe, dim=n, inputs=[*arrs, wp.array(reach.astype(np.float32)), kap, h], outputs=[acc, stop])
+    f32 = [a.astype(np.float32).astype(np.float64) for a in (y0, u0, y1, u1)]
+    ref = tissue_law.accel_numpy(f32[0], np.full(n, kap), reach.astype(np.float32).astype(np.float64))
+    np.testing.assert_allclose(acc.numpy(), ref, rtol=2e-4, atol=1e-6 * kap * reach.max())
+    assert (np.linalg.norm(ref, axis=1) == 0).sum() > 0.2 * n and (rho0 > 1).sum() > 0.2 * n
+    stops = tissue_law.hard_stop_numpy(*f32, reach.astype(np.float32).astype(np.float64), h)
+    got = stop.numpy().astype(bool)
+    assert stops.sum() > 100 and (got == stops).mean() > 0.999        # float32 edge cases aside
+    assert got[wall & (np.sum(u0 * d, axis=1) * h > 0.1 * reach)].all()
