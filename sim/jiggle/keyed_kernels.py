@@ -23,7 +23,8 @@ from sim.jiggle.particle_kernels import (
     goal_vel,
     hermite,
     segment,
-    tissue_flow,
+    tissue_near,
+    tissue_substeps,
 )
 
 wp.set_module_options({"enable_backward": False})
@@ -66,7 +67,13 @@ def run_step_keyed(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        y1, u1, stops = tissue_flow(y0, u0, rows[base + i], levels, 0, base + i, b0, b1, b2, h, row_reach[base + i])
+        fl = rows[base + i]
+        y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
+        u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
+        stops = int(0)
+        reach = row_reach[base + i]
+        if tissue_near(y0, u0, y1, u1, h, reach):
+            y1, u1, stops = tissue_substeps(y0, u0, y1, u1, fl, levels, 0, base + i, b0, b1, b2, h, reach)
         if stops > 0:
             stops_out[i] = stops_out[i] + stops
         if frame >= 0 or last:

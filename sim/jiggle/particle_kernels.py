@@ -135,25 +135,30 @@ def hard_stop(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, reach: float, 
 
 
 @wp.func
-def tissue_flow(y0: wp.vec3, u0: wp.vec3, fl: flow_row, levels: wp.array3d(dtype=flow_row), f: int, i: int,
-                b0: wp.vec3, b1: wp.vec3, b2: wp.vec3, h: float, reach: float):
-    """The goal part of a step of h under the tissue law (sim/jiggle/tissue_law.py): (y1, u1, hard stops) from
-    offsets (y0, u0) under the forcing b0 + b1 tau + b2 tau^2. The exact linear flow fl while the offset stays
-    below the onset (the arithmetic of a linear model; levels not read); else 2^j substeps of a half kick of
-    the stiffening, the exact flow levels[f, j, i] over h / 2^j, a half kick (kappa: levels[f, 0, i][0])."""
-    y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
-    u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
-    stops = int(0)
-    # the offset bound of the step, |y| at the larger end plus a quarter step at the larger end speed, below the
-    # onset: sqrt(a) + sqrt(v) <= lim, tested squared (a square root only near the onset)
+def tissue_near(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, h: float, reach: float):
+    """Whether a step (y0, u0) -> (y1, u1) of the linear flow over h may pass the tissue law's onset (then
+    :func:`tissue_substeps` takes it again): the larger end plus a quarter step at the larger end speed, over
+    SAFE x ONSET x reach (sim.jiggle.tissue_law.bound). Small, so the step kernels keep it inline and the
+    linear steps cost what they cost before the law."""
     a = wp.max(wp.dot(y0, y0), wp.dot(y1, y1))
     q = 0.25 * h
     v = q * q * wp.max(wp.dot(u0, u0), wp.dot(u1, u1))
     lim = TISSUE_SAFE * TISSUE_ONSET * reach
     if a + v <= 0.5 * lim * lim:                    # (sqrt(a) + sqrt(v))^2 <= 2 (a + v): surely below
-        return y1, u1, stops
-    if wp.sqrt(a) + wp.sqrt(v) <= lim:
-        return y1, u1, stops
+        return False
+    return wp.sqrt(a) + wp.sqrt(v) > lim
+
+
+@wp.func
+def tissue_substeps(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, fl: flow_row,
+                    levels: wp.array3d(dtype=flow_row), f: int, i: int, b0: wp.vec3, b1: wp.vec3, b2: wp.vec3,
+                    h: float, reach: float):
+    """The goal part of a step of h under the tissue law (sim/jiggle/tissue_law.py) for a particle that may
+    pass the onset (:func:`tissue_near`): (y, u, hard stops) from offsets (y0, u0) under the forcing
+    b0 + b1 tau + b2 tau^2, given the step's linear flow fl and its result (y1, u1): 2^j substeps of a half
+    kick of the stiffening, the exact flow levels[f, j, i] over h / 2^j, a half kick (level 0 holds kappa, k
+    and the energy thresholds of the levels)."""
+    stops = int(0)
     l0 = levels[f, 0, i]
     kap = l0[0]
     if kap <= 0.0:
@@ -222,7 +227,7 @@ def kick_drift(
 ):
     """Kick of the springs over h_kick at s0 (h/2 opening a step; the previous step's closing half kick
     plus this one's opening half between two steps), then the goal part over h under the tissue law
-    (tissue_flow): x_out and the offsets at s0 + h (u_out before any closing kick); each particle's hard
+    (tissue_near, tissue_substeps): x_out and the offsets at s0 + h (u_out before any closing kick); each particle's hard
     stops added to stops_out."""
     t = wp.tid()
     for i in range(t * BLOCK, wp.min(t * BLOCK + BLOCK, y.shape[0])):
@@ -238,7 +243,12 @@ def kick_drift(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        y1, u1, stops = tissue_flow(y0, u0, flow[i], levels, 0, i, b0, b1, b2, h, reach[i])
+        fl = flow[i]
+        y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
+        u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
+        stops = int(0)
+        if tissue_near(y0, u0, y1, u1, h, reach[i]):
+            y1, u1, stops = tissue_substeps(y0, u0, y1, u1, fl, levels, 0, i, b0, b1, b2, h, reach[i])
         if stops > 0:
             stops_out[i] = stops_out[i] + stops
         s1 = s0 + h
@@ -345,7 +355,12 @@ def run_step(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        y1, u1, stops = tissue_flow(y0, u0, flows[f, i], levels, f, i, b0, b1, b2, h, pr[2])
+        fl = flows[f, i]
+        y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
+        u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
+        stops = int(0)
+        if tissue_near(y0, u0, y1, u1, h, pr[2]):
+            y1, u1, stops = tissue_substeps(y0, u0, y1, u1, fl, levels, f, i, b0, b1, b2, h, pr[2])
         if stops > 0:
             stops_out[i] = stops_out[i] + stops
         if frame >= 0 or last:                      # positions only where someone reads them

@@ -25,7 +25,7 @@ spring would carry to 1, 2, 3 or 4 reaches turns back at 0.73, 0.86, 0.94 and 1.
 the reach is where the tissue is very stiff, not a wall. There is no projection and
 no velocity removed: the energy a swing brings is stored and given back, and damping only takes it away.
 
-Integration (sim/jiggle/solver.py, sim/jiggle/particle_kernels.py: tissue_flow): a step whose offset stays
+Integration (sim/jiggle/solver.py, sim/jiggle/particle_kernels.py: tissue_near, tissue_substeps): a step whose offset stays
 below SAFE x ONSET x R (the larger end plus a quarter step at the larger end speed: :func:`bound`) is the exact
 linear flow, the same arithmetic as a model without the law. Otherwise the particle's goal part of
 the step is split into n = 2^j equal substeps, each a half kick of the stiffening, the exact linear flow over
@@ -192,7 +192,7 @@ def split(rows_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def bound(y0, u0, y1, u1, h: float) -> np.ndarray:
     """(n,) metres: the largest offset a step (y0, u0) -> (y1, u1) of h seconds may reach, as the kernels'
-    tissue_flow bounds it: the larger end plus a quarter step at the larger end speed."""
+    tissue_near bounds it: the larger end plus a quarter step at the larger end speed."""
     return np.maximum(np.linalg.norm(y0, axis=1), np.linalg.norm(y1, axis=1)) + \
         0.25 * h * np.maximum(np.linalg.norm(u0, axis=1), np.linalg.norm(u1, axis=1))
 
@@ -206,7 +206,7 @@ def accel_numpy(y: np.ndarray, kap: np.ndarray, reach: np.ndarray) -> np.ndarray
 
 
 def step_numpy(row: np.ndarray, y: np.ndarray, u: np.ndarray, b0, b1, b2, h: float, reach: np.ndarray):
-    """The kernels' tissue_flow in float64: (y, u, stops) after the goal part of a step of h seconds from
+    """The kernels' tissue_near and tissue_substeps in float64: (y, u, stops) after the goal part of a step of h seconds from
     offsets y, u (n, 3) under forcing b0 + b1 tau + b2 tau^2 ((n, 3) each); row (n, ROW) tissue rows, reach
     (n,) metres (inf: no limit); stops (n,) int, the hard stops of :func:`hard_stop_numpy`."""
     row = np.asarray(row, dtype=np.float64)
