@@ -175,11 +175,12 @@ def ringdown() -> list[dict]:
 # ------------------------------------------------------------------------------------------------ timing
 def simulate_stage(clip=None, character=None, repeats: int = 7) -> dict:
     """The bake's simulate stage per frame (ms), collisions on, best of `repeats` after a warm-up."""
-    from sim.bake.baker import MARGIN
     from sim.bake.setup import BakeRequest, prepare
     from sim.jiggle.colliders import collider_model
     from sim.jiggle.particles import muscle_model
-    from sim.jiggle.simulate import TIME_EPS, goals, simulate
+    from sim.jiggle.simulate import goals, simulate
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from timing import chunk_spans
     from sim.jiggle.solver import ParticleSolver
     s = prepare(BakeRequest(clip=clip, character=character, formats=("npz",)))
     rig = s.rig
@@ -189,11 +190,7 @@ def simulate_stage(clip=None, character=None, repeats: int = 7) -> dict:
     world = np.asarray(s.world_at(s.knots))
     static = rig.static(world)
     chunks = []
-    for f0 in range(0, len(times), 64):
-        f1 = min(len(times), f0 + 64)
-        a = max(f0 - 1, 0)
-        ka = max(0, int(np.searchsorted(s.knots, times[a] - TIME_EPS)) - MARGIN)
-        kb = min(len(s.knots), int(np.searchsorted(s.knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
+    for a, f1, ka, kb in chunk_spans(s):
         tr = goals(rig, s.knots[ka:kb], static.cvs[ka:kb], s.settings)
         chunks.append((a, f1, tr, cm.at(s.knots[ka:kb], world[ka:kb], tr.cut)))
 

@@ -35,6 +35,9 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from timing import chunk_spans  # noqa: E402
 
 from rig.character.capsules import BoneCapsules  # noqa: E402
 from sim.jiggle.colliders import ColliderModel, collider_model  # noqa: E402
@@ -77,9 +80,7 @@ def paired(off, on, repeats: int) -> tuple[float, float]:
 
 
 def demo(frames: int, repeats: int = 3) -> dict:
-    from sim.bake.baker import MARGIN
     from sim.bake.setup import BakeRequest, prepare
-    from sim.jiggle.simulate import TIME_EPS
     s = prepare(BakeRequest(frames=frames, collisions=True))
     rig = s.rig
     model = muscle_model(rig, list(s.jiggles), "cpu", gravity=s.settings.gravity)
@@ -88,13 +89,7 @@ def demo(frames: int, repeats: int = 3) -> dict:
     times = s.times
     world = np.asarray(s.world_at(s.knots))
     static = rig.static(world)
-    chunks = []
-    for f0 in range(0, len(times), 64):
-        f1 = min(len(times), f0 + 64)
-        a = max(f0 - 1, 0)
-        ka = max(0, int(np.searchsorted(s.knots, times[a] - TIME_EPS)) - MARGIN)
-        kb = min(len(s.knots), int(np.searchsorted(s.knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
-        chunks.append((a, f1, ka, kb))
+    chunks = chunk_spans(s)
     touched = [0]
 
     def bake(on: bool):
