@@ -129,7 +129,8 @@ def hard_stop(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, reach: float, 
         return int(0)
     v0 = wp.dot(u0, y0) / n0
     v1 = wp.dot(u1, y1) / n1
-    if v0 * h > TISSUE_FAST * reach and v1 >= -0.01 * v0 and v1 < 0.5 * v0:      # turned back: not a stop
+    # a wall leaves the outward speed at 0 (to round-off): one that turned back by more than 1% of it was not stopped
+    if v0 * h > TISSUE_FAST * reach and v1 >= -0.01 * v0 and v1 < 0.5 * v0:
         return int(1)
     return int(0)
 
