@@ -155,7 +155,10 @@ def test_bakers_own_path_replays_the_bake_too(viewer, bake_dir):
 @pytest.mark.slow
 def test_ctrl_c_stops_with_130(bake_dir):
     p = subprocess.Popen([sys.executable, "-m", "jiggle", "view", str(bake_dir), "--port", "0", "--no-tune",
-                          "--paused"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                          "--paused"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, "PYTHONFAULTHANDLER": "1"},
+                         # a suite started as a background job ignores SIGINT, and its children would inherit that
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         lines = []
         while not (lines and lines[-1].startswith("jiggle view: http://127.0.0.1:")):
@@ -165,7 +168,12 @@ def test_ctrl_c_stops_with_130(bake_dir):
                 pytest.fail(f"the viewer ended ({p.returncode}) before serving: {''.join(lines)}{p.stderr.read()}")
             lines.append(line)
         p.send_signal(signal.SIGINT)
-        code = p.wait(timeout=30)
+        try:
+            code = p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            p.send_signal(signal.SIGABRT)              # faulthandler: every thread's stack into stderr
+            p.wait(timeout=30)
+            pytest.fail(f"the viewer did not stop on Ctrl-C within 30 s:\n{p.stderr.read()[-6000:]}")
         assert code == 130 and "interrupted" in p.stderr.read()
     finally:
         if p.poll() is None:
