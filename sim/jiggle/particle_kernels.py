@@ -29,6 +29,7 @@ TISSUE_SAFE = wp.constant(tissue_law.SAFE)
 TISSUE_NEAR = wp.constant(tissue_law.NEAR)
 TISSUE_FAST = wp.constant(tissue_law.FAST)
 TISSUE_LEVELS = wp.constant(tissue_law.LEVELS)
+assert tissue_law.LEVELS == 6, "tissue_substeps counts the six level thresholds one by one"
 TISSUE_STABLE = wp.constant(tissue_law.STABLE)
 
 BLOCK_SIZE = 8
@@ -174,12 +175,9 @@ def tissue_substeps(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, fl: flow
                                                 (1.0 - TISSUE_ONSET) * tt * tt * tt * tt * tt / 5.0) + \
         TISSUE_GAIN * past + 0.5 * TISSUE_SLOPE * past * past
     e = 0.5 * wp.dot(u0, u0) / (reach * reach) + 0.5 * l0[1] * rho * rho + kap * pot
-    j = int(0)
-    m = float(1.0)
-    for q in range(TISSUE_LEVELS):
-        if l0[2 + q] <= e:
-            m = 2.0 * m
-            j += 1
+    # thresholds passed (LEVELS = 6 of them, l0[2:8]), without a loop or a dynamic index
+    j = (wp.where(l0[2] <= e, 1, 0) + wp.where(l0[3] <= e, 1, 0) + wp.where(l0[4] <= e, 1, 0) +
+         wp.where(l0[5] <= e, 1, 0) + wp.where(l0[6] <= e, 1, 0) + wp.where(l0[7] <= e, 1, 0))
     if j == 0:                                      # one substep: the linear flow of the kicked velocity is
         uk = (0.5 * h) * tissue_accel(y0, kap, reach)   # the step's linear flow plus the flow of the kick
         yn = y1 + fl[1] * uk
@@ -188,7 +186,9 @@ def tissue_substeps(y0: wp.vec3, u0: wp.vec3, y1: wp.vec3, u1: wp.vec3, fl: flow
         stops += hard_stop(y0, u0, yn, un, reach, h)
         return yn, un, stops
     sub = levels[f, j, i]
-    n = int(m)                                      # 2^j
+    n = int(1)
+    for _ in range(j):
+        n = 2 * n                                   # 2^j
     hs = h / float(n)
     # a particle whose stiffening outruns even the finest level (a goal weight near 1 driven far past its reach)
     # stiffens only as much as the substeps resolve: never unstable
