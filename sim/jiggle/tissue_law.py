@@ -162,21 +162,22 @@ def level(row: np.ndarray, y: np.ndarray, u: np.ndarray, reach: np.ndarray) -> n
 
 def rows(k: np.ndarray, c: np.ndarray, h) -> np.ndarray:
     """(n, ROW) float64 tissue rows for stiffness k (n,) 1/s^2 (inf: glued), damping c (n,) 1/s and step h
-    seconds: a number (goal_flow.goal_flow per distinct (k, c)) or one per row (goal_flow.goal_flow_batch)."""
-    from sim.jiggle.goal_flow import goal_flow, goal_flow_batch
+    seconds, a number or one per row."""
+    from sim.jiggle.goal_flow import goal_flow_batch
     k = np.asarray(k, dtype=np.float64).reshape(-1)
     c = np.asarray(c, dtype=np.float64).reshape(-1)
-    out = np.zeros((len(k), ROW))
-    scalar = np.ndim(h) == 0
-    hh = float(h) if scalar else np.asarray(h, dtype=np.float64).reshape(-1)
-    flow = (lambda s: goal_flow(k, c, hh / s)) if scalar else (lambda s: goal_flow_batch(k, c, hh / s))  # noqa: E731
-    out[:, :COEFFS] = flow(1.0)
+    n = len(k)
+    out = np.zeros((n, ROW))
+    hh = np.broadcast_to(np.asarray(h, dtype=np.float64).reshape(-1), k.shape)
+    # every level's flow in one batch: goal_flow_batch computes each distinct (k, c, h) once (a few dozen)
+    scales = 2.0 ** np.arange(LEVELS + 1)
+    flows = goal_flow_batch(np.tile(k, LEVELS + 1), np.tile(c, LEVELS + 1),
+                            (hh[None, :] / scales[:, None]).reshape(-1)).reshape(LEVELS + 1, n, COEFFS)
+    out[:, :COEFFS] = flows[0]
     out[:, COEFFS] = kappa(k)
     out[:, COEFFS + 1] = np.where(np.isfinite(k), k, 0.0)
     out[:, COEFFS + 2:COEFFS + 2 + LEVELS] = np.minimum(thresholds(k, hh), np.finfo(np.float32).max)
-    base = 2 * COEFFS
-    for j in range(1, LEVELS + 1):
-        out[:, base + COEFFS * (j - 1):base + COEFFS * j] = flow(float(2 ** j))
+    out[:, 2 * COEFFS:] = flows[1:].transpose(1, 0, 2).reshape(n, LEVELS * COEFFS)
     return out
 
 
