@@ -174,6 +174,8 @@ def test_batch_bakes_the_library_equal_to_serial_bakes_and_a_broken_clip_fails_a
         r = rows[c]
         assert r["status"] == "ok" and r["frames"] == 16 and r["peak_skin_mm"] > 0, r
         assert set(r["quality"]) >= {"final_folded_edges", "torn_edges"} and r["files"]["report"] == f"{c}/report.html"
+        # the tissue law's measures reach the index: share of muscle-frames near the reach, its muscle, hard stops
+        assert 0.0 <= r["near_limit_pct"] <= 100.0 and r["near_limit_muscle"] and r["hard_stops"] == 0, r
         ref = serial(c)
         assert r["key"] == ref[1]
         assert_same_bake(out / c / "bake.npz", ref)
