@@ -10,7 +10,8 @@ CMU clip (BVH and the AMC with its ASF), and reads each bake's CVs (bake.npz) an
 reach_m): per muscle the fraction of frames in which some CV sits at >= 97% (the limit as the old inelastic
 stop held it) and >= 90% of its reach, and the hard stops bake.json's "tissue" counts. It reads only files
 every bake writes, so the same script run in an older checkout measures the code before the law (copy it
-there: `git worktree add /tmp/old REV && cp benchmarks/bench_tissue.py /tmp/old/benchmarks/`).
+there with the helper it uses: `git worktree add /tmp/old REV && cp benchmarks/bench_tissue.py benchmarks/timing.py
+/tmp/old/benchmarks/`; --baseline runs that copy).
 
 timing: the bake's simulate stage (sim.jiggle.simulate over chunks of 64 frames as sim/bake/baker.py runs
 it, collisions on as by default) per frame on the demo and on CesiumMan 02_04, the best of 7 after a
