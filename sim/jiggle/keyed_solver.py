@@ -89,7 +89,7 @@ class KeyedSolver(ParticleSolver):
         coeffs, kreach, block = sc.flows(times, seg, dts)                                    # (B, P, 10)
         F, B, P = len(uniq), len(coeffs), len(sc.particles)
         rows, levels = tissue_law.split(np.concatenate([plain.reshape(F * N, -1), coeffs.reshape(B * P, -1)]))
-        levels = np.ascontiguousarray(levels.transpose(1, 0, 2))[None]                      # (1, L + 1, R, 10)
+        levels = levels[None]                                                             # (1, L + 1, R, 10)
         reach = np.concatenate([np.tile(self._plain_reach, F),
                                 np.minimum(kreach, np.finfo(np.float32).max).reshape(-1)]).astype(np.float32)
         base = np.repeat((inverse.reshape(-1) * N)[:, None], G, axis=1).astype(np.int64)   # (K, G)

@@ -130,8 +130,7 @@ class ParticleSolver:
             lin, lev = tissue_law.split(c)
             dev = self.model.device
             self._flows[key] = (c, (wp.array(lin, dtype=kernels.flow_row, device=dev),
-                                    wp.array(np.ascontiguousarray(lev.transpose(1, 0, 2))[None],
-                                             dtype=kernels.flow_row, device=dev)))
+                                    wp.array(lev[None], dtype=kernels.flow_row, device=dev)))
         return self._flows[key]
 
     def step(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl, t: float,
@@ -155,7 +154,7 @@ class ParticleSolver:
             dev = self.model.device
             table = self._tables[table_key] = [
                 wp.array(lin, dtype=kernels.flow_row, device=dev),
-                wp.array(np.ascontiguousarray(lev.transpose(0, 2, 1, 3)), dtype=kernels.flow_row, device=dev)]
+                wp.array(lev, dtype=kernels.flow_row, device=dev)]
         return table, np.array([index[k] for k in keys], dtype=np.int32)[inverse.reshape(-1)]
 
     def _run_steps(self, control: GoalControl, grid: np.ndarray, record):

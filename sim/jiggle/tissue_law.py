@@ -182,12 +182,12 @@ def rows(k: np.ndarray, c: np.ndarray, h) -> np.ndarray:
 
 
 def split(rows_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(linear (..., COEFFS), levels (..., LEVELS + 1, COEFFS)) float32 of tissue rows (..., ROW): what the
-    kernels read, the exact flow over h, and per level j the flow over h / 2^j (level 0: kappa, k and the
-    LEVELS energy thresholds)."""
+    """What the kernels read of tissue rows (..., n, ROW), float32 in their layout: the exact flows over h
+    (..., n, COEFFS) and the levels (..., LEVELS + 1, n, COEFFS), level j the flow over h / 2^j (level 0: kappa,
+    k and the LEVELS energy thresholds)."""
     r = np.asarray(rows_, dtype=np.float64)
     lin = r[..., :COEFFS]
-    lev = r[..., COEFFS:].reshape(r.shape[:-1] + (LEVELS + 1, COEFFS))
+    lev = np.moveaxis(r[..., COEFFS:].reshape(r.shape[:-1] + (LEVELS + 1, COEFFS)), -2, -3)
     return np.ascontiguousarray(lin, dtype=np.float32), np.ascontiguousarray(lev, dtype=np.float32)
 
 
