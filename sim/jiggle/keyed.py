@@ -25,7 +25,7 @@ values; particles.py: add_muscles)::
     c = 2 zeta sqrt(k) + friction  reach = J max_offset               (inf when max_offset is)
 
 and a step of length h in interval j uses the goal flow of (k, c, h): one 5x5 matrix exponential per
-distinct (k, c, h). :func:`expm_batch` computes them all at once (vectorised scaling and squaring with
+distinct (k, c, h). :func:`sim.jiggle.goal_flow.expm_batch` computes them all at once (vectorised scaling and squaring with
 a degree 13 Pade approximant, Higham 2005): SciPy's ``expm`` loops in Python over a batch (~100 us a
 matrix), which would cost a keyed chunk a second.
 
@@ -53,7 +53,6 @@ import numpy as np
 from rig.base.errors import InputError
 from rig.base.frozen import frozen_array
 from sim.jiggle import tissue_law
-from sim.jiggle.goal_flow import expm_batch, goal_flow_batch  # noqa: F401 - here before, still importable
 
 INTERPOLATIONS = ("linear", "smooth")
 

@@ -11,12 +11,10 @@ from scipy.linalg import expm
 
 from rig.base.errors import InputError
 from rig.muscle.simple_arm import FLEX_HOLD, FLEX_RISE, FLEX_START, simple_arm
-from sim.jiggle.goal_flow import goal_flow
+from sim.jiggle.goal_flow import expm_batch, goal_flow, goal_flow_batch
 from sim.jiggle.goal_track import build_track
 from sim.jiggle.keyed import (
     Curve,
-    expm_batch,
-    goal_flow_batch,
     goal_springs,
     parse_assignment,
     parse_curve,
