@@ -132,7 +132,7 @@ class Baker:
             if self.model is None:
                 dyn = st
             else:
-                stops_before = self.solver.hard_stops()
+                self.solver.stops.zero_()                # this chunk's hard stops only
                 track = goals(rig, kt, static.cvs, s.settings)
                 colliders = None if self.colliders is None else self.colliders.at(kt, world_k, track.cut)
                 sink = {}
@@ -146,7 +146,7 @@ class Baker:
                                 "contact_hit": per["hit"].astype(np.int32),
                                 "contact_impulse": per["impulse"].astype(np.float32)}
                 # the tissue law's hard stops in this chunk, per muscle (sim/jiggle/tissue_law.py: it makes none)
-                stops = self.solver.hard_stops() - stops_before
+                stops = self.solver.hard_stops()
                 contacts["hard_stops"] = np.add.reduceat(stops, rig.cv_offsets[:-1]).astype(np.int64) \
                     if len(stops) else np.zeros(rig.M, np.int64)
             cvs = blend(st, dyn, self.blend[f0:f1])

@@ -26,10 +26,10 @@ import math
 import numpy as np
 
 from rig.base.errors import InputError
+from sim.jiggle import tissue_law
 from sim.jiggle.goal_track import GoalTrack, build_track
 from sim.jiggle.params import JiggleSettings
 from sim.jiggle.particles import GRAVITY, ParticleModel
-from sim.jiggle import tissue_law
 from sim.jiggle.solver import ParticleSolver
 from sim.jiggle.tissue_contacts import integrate_tissue
 

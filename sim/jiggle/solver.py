@@ -107,8 +107,9 @@ class ParticleSolver:
         """threads of a one-launch run (:meth:`integrate`): groups of particles no spring leaves."""
         self._groups = wp.array(groups.astype(np.int32), dtype=wp.int32, device=dev)
         self.stops = wp.zeros(n, dtype=wp.int32, device=dev)
-        """(N,) int32 on the device: each particle's hard stops so far (sim/jiggle/tissue_law.py: substeps that end
-        near the reach with the outward speed more than halved from a fast start; the tissue law makes none)."""
+        """(N,) int32 on the device: each particle's hard stops since it was made or zeroed (sim/jiggle/tissue_law.py:
+        substeps that end near the reach with the outward speed more than halved from a fast start; the tissue law
+        makes none)."""
         self.launches = 0
         """kernel launches so far: every one (glue, the runs of :meth:`integrate`, the steps of
         :meth:`integrate_steps`)."""
@@ -223,7 +224,7 @@ class ParticleSolver:
         return None if record is None else frames.numpy()[:len(ks)]
 
     def hard_stops(self) -> np.ndarray:
-        """(N,) int64: each particle's hard stops since the solver was made (see :attr:`stops`)."""
+        """(N,) int64: each particle's hard stops counted in :attr:`stops`."""
         return self.stops.numpy().astype(np.int64)
 
     def _contact_flows(self, control: GoalControl, seg: np.ndarray, dts: np.ndarray, dev_array):
