@@ -78,12 +78,12 @@ def demo(frames: int) -> dict:
     times = s.times
     world = np.asarray(s.world_at(s.knots))
     static = rig.static(world)
-    chunks = chunk_spans(s)
+    chunks = chunk_spans(s.times, s.knots)
 
     def bake(on: bool):
         solver = ParticleSolver(model)
         state = None
-        for c, (a, f1, ka, kb) in enumerate(chunks):
+        for c, (_, f1, a, ka, kb) in enumerate(chunks):
             track = goals(rig, s.knots[ka:kb], static.cvs[ka:kb], s.settings)
             col = cm.at(s.knots[ka:kb], world[ka:kb], track.cut) if on else None
             _, state = simulate(model, track, times[a:f1], s.settings, solver=solver, preroll=None if c == 0 else 0.0,

@@ -64,14 +64,13 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_jiggle import copied_model, swinging_goals  # noqa: E402
-from timing import best  # noqa: E402  (benchmarks/timing.py)
+from timing import best, chunk_spans  # noqa: E402  (benchmarks/timing.py)
 
 from rig.muscle.simple_arm import simple_arm  # noqa: E402
-from sim.bake.baker import MARGIN  # noqa: E402
 from sim.jiggle.goal_track import build_track  # noqa: E402
 from sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
 from sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times  # noqa: E402
-from sim.jiggle.simulate import TIME_EPS, simulate, step_times  # noqa: E402
+from sim.jiggle.simulate import simulate, step_times  # noqa: E402
 from sim.jiggle.solver import ParticleSolver  # noqa: E402
 
 FPS, CHUNK, COPIES, SUBSTEPS = 30, 64, 40, 4
@@ -96,11 +95,7 @@ class Chunk:
 def bake_chunks(times, knots, static, settings, solver) -> list[Chunk]:
     """The chunks of sim/bake/baker.py's Baker.chunk: frames, knots +- MARGIN, goal track, step grid."""
     out = []
-    for f0 in range(0, len(times), CHUNK):
-        f1 = min(len(times), f0 + CHUNK)
-        a = max(f0 - 1, 0)
-        ka = max(0, int(np.searchsorted(knots, times[a] - TIME_EPS)) - MARGIN)
-        kb = min(len(knots), int(np.searchsorted(knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
+    for f0, f1, a, ka, kb in chunk_spans(times, knots, CHUNK):
         track = build_track(knots[ka:kb], static[ka:kb], ratio=settings.cut_ratio, jump=settings.cut_jump)
         assert not track.cut.any(), "the swinging goals have no cut"
         out.append(Chunk(f0, f1, a, track, step_times(times[a:f1], track.times, settings.substeps,

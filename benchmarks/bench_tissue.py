@@ -191,7 +191,7 @@ def simulate_stage(clip=None, character=None, repeats: int = 7) -> dict:
     world = np.asarray(s.world_at(s.knots))
     static = rig.static(world)
     chunks = []
-    for a, f1, ka, kb in chunk_spans(s):
+    for _, f1, a, ka, kb in chunk_spans(s.times, s.knots):
         tr = goals(rig, s.knots[ka:kb], static.cvs[ka:kb], s.settings)
         chunks.append((a, f1, tr, cm.at(s.knots[ka:kb], world[ka:kb], tr.cut)))
 

@@ -89,13 +89,13 @@ def demo(frames: int, repeats: int = 3) -> dict:
     times = s.times
     world = np.asarray(s.world_at(s.knots))
     static = rig.static(world)
-    chunks = chunk_spans(s)
+    chunks = chunk_spans(s.times, s.knots)
     touched = [0]
 
     def bake(on: bool):
         solver = ParticleSolver(model)
         state = None
-        for c, (a, f1, ka, kb) in enumerate(chunks):
+        for c, (_, f1, a, ka, kb) in enumerate(chunks):
             track = goals(rig, s.knots[ka:kb], static.cvs[ka:kb], s.settings)
             col = cm.at(s.knots[ka:kb], world[ka:kb], track.cut)
             sink = {}
