@@ -1,0 +1,489 @@
+"""The bake on a GPU against the same bake on the CPU of the same machine: tests, agreement, speed; one table.
+
+    python benchmarks/gpu_check.py OUT [--device cuda] [--quick] [--only tests,agree,...]
+    benchmarks/gpu_check.sh OUT          (on a lent GPU machine: unpacks .gpu's parts first; gpu_check.md)
+
+Writes OUT/gpu_check.md (the table), OUT/gpu_check.json (every figure) and OUT/gpu_check.log (each section's
+output), and prints the table last. Each section runs in its own process with its own time limit, so a crash
+or a hang in one is a row of the table, not the end of the check. `--device cpu` runs the whole check with the
+CPU on both sides (to check the script on a machine without a GPU: the figures then compare the CPU with itself).
+
+Sections (each "ours" figure is measured with --device D and with the CPU, in one run, same machine):
+  env        Python, Warp, the devices, the GPU's name and memory, CPU cores.
+  tests      pytest of tests/bake/test_device.py: the CUDA bake against the CPU bake, resume and frame-rate
+             independence on the device (its tests skip where the device is missing, saying so).
+  agree      the demo (built-in body, jumping jacks), CesiumMan on 02_03.bvh and the 30k-vertex body baked on
+             both devices with every cache (npz, usdc, pc2): the largest difference of each cache, mm
+             (target: < 0.1 mm).
+  speed      per mesh (CesiumMan, the 30k body, a 100k body): the bake's frame loop (benchmarks/bench_bake.py's
+             bake_loop_threads: every stage, the spread in a second thread, no files) and the whole bake with its
+             caches, frames/s, against the LBS-only pipeline on the same device; the stage times per frame.
+             Targets: 30k body >= 1,000 frames/s in the loop on the GPU, >= 900 frames/s (30x real time at
+             30 fps) with caches, the loop within 3x of LBS-only on the GPU.
+  particles  particle-steps/s of the solver (the bake's particle stage, and the kernel alone) at 1,600 and at
+             1,000,000 particles (benchmarks/bench_particles.py's model, copied). Target: >= 1 G/s on the GPU.
+  batch      16 bakes of CesiumMan (150 frames each, `jiggle batch --no-report` on Dask's LocalCluster) with 16
+             worker processes sharing the device, against one worker baking them one after another.
+
+--precompile ARCH (benchmarks/gpu_pack.sh): no check; tiny CPU bakes of every case load every Warp module the
+check uses (compiling their CPU kernels into the kernel cache, WARP_CACHE_PATH), then each module is compiled
+ahead of time for sm_ARCH with Warp's NVRTC, so that a GPU machine finds them compiled.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from types import MappingProxyType
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = Path(__file__).resolve().parent
+sys.path[:0] = [str(ROOT), str(BENCH)]
+ASSETS = Path(os.environ.get("JIGGLE_ASSETS", ROOT.parent / "shared" / "assets"))
+CESIUM = ASSETS / "characters" / "CesiumMan.glb"
+CLIP = ASSETS / "mocap" / "cmu_bvh" / "02_03.bvh"
+LONG_CLIP = ASSETS / "mocap" / "cmu_bvh" / "05_02.bvh"
+"""9.4 s (281 frames at 30 fps): the speed runs' CesiumMan clip (02_03 lasts 1.5 s)"""
+DEFAULT = ROOT / "scenes" / "default.toml"
+
+SECTIONS = {"env": 60, "tests": 240, "agree": 240, "speed": 420, "particles": 240, "batch": 300}
+"""Each section's time limit, seconds (the whole check is meant to take under 8 minutes on an H100 machine)."""
+FORMATS = ("npz", "usdc", "pc2")
+AGREE_MM = 0.1
+TARGETS = {"loop_fps_30k": 1000.0, "caches_fps_30k": 900.0, "lbs_ratio": 3.0, "steps_per_s": 1e9}
+
+
+# ---------------------------------------------------------------------------------------- cases
+def cases(quick: bool, long: str | None = None) -> dict:
+    """{name: BakeRequest keywords} of the meshes the check bakes (CesiumMan only when the assets are here).
+    long : a scene file (long_scene) for the generated bodies and 05_02.bvh for CesiumMan, for the speed runs."""
+    scene = long or str(DEFAULT)
+    out = {"demo": {"scene": str(DEFAULT), "fps": 30}}
+    clip = LONG_CLIP if long and LONG_CLIP.exists() else CLIP
+    if CESIUM.exists() and clip.exists():
+        out["cesium"] = {"clip": str(clip), "character": str(CESIUM), "fps": 30}
+    out["body30k"] = {"scene": scene, "fps": 30, "body": MappingProxyType({"resolution": 30000})}
+    if not quick:
+        out["body100k"] = {"scene": scene, "fps": 30, "body": MappingProxyType({"resolution": 100000})}
+    return out
+
+
+def long_scene(folder: str, cycles: int) -> str:
+    """The demo scene with its jumping jacks looped `cycles` times (one cycle a second), written into folder."""
+    src = (ROOT / "scenes" / "motions" / "jumping_jacks.toml").read_text()
+    assert "cycles = 3" in src, "scenes/motions/jumping_jacks.toml changed: update long_scene"
+    motion = Path(folder) / "jumping_jacks_long.toml"
+    motion.write_text(src.replace("cycles = 3", f"cycles = {cycles}"))
+    scene = Path(folder) / "long.toml"
+    scene.write_text(DEFAULT.read_text().replace('file = "motions/jumping_jacks.toml"', f'file = "{motion}"'))
+    return str(scene)
+
+
+def request(kw: dict, device: str, formats=FORMATS, **more):
+    from sim.bake.setup import BakeRequest
+    return BakeRequest(**{**kw, **more}, device=device, formats=tuple(formats))
+
+
+# ---------------------------------------------------------------------------------------- sections
+def section_env(device: str, quick: bool) -> dict:
+    import numpy as np
+    import warp as wp
+    t = time.perf_counter()
+    wp.init()
+    out = {"python": platform.python_version(), "warp": wp.__version__, "numpy": np.__version__,
+           "cpu_cores": os.cpu_count(), "cpu": platform.processor() or platform.machine(),
+           "warp_init_s": round(time.perf_counter() - t, 2), "devices": [d.alias for d in wp.get_devices()],
+           "kernel_cache": wp.config.kernel_cache_dir}
+    if device != "cpu":
+        d = wp.get_device(device)
+        out.update({"gpu": d.name, "gpu_memory_gb": round(d.total_memory / 2**30, 1), "arch": d.arch,
+                    "sm_count": getattr(d, "sm_count", None)})
+        try:
+            smi = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total,clocks.max.sm",
+                                  "--format=csv,noheader"], capture_output=True, text=True, timeout=20)
+            out["nvidia_smi"] = smi.stdout.strip()
+        except (OSError, subprocess.TimeoutExpired) as e:
+            out["nvidia_smi"] = f"not run: {e}"
+    return out
+
+
+def section_tests(device: str, quick: bool, out_dir: Path) -> dict:
+    xml = out_dir / "tests.xml"
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs", "--junitxml", str(xml),
+           "tests/bake/test_device.py"]
+    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(ROOT), os.environ.get("PYTHONPATH", "")])})
+    print(r.stdout[-6000:], r.stderr[-3000:])
+    import xml.etree.ElementTree as ET
+    cases_ = []
+    if xml.exists():
+        for tc in ET.parse(xml).iter("testcase"):
+            status = "passed"
+            for tag in ("failure", "error", "skipped"):
+                el = tc.find(tag)
+                if el is not None:
+                    status = {"failure": "failed", "error": "error", "skipped": "skipped"}[tag]
+                    status += ": " + (el.get("message") or "")[:300]
+            cases_.append({"test": tc.get("name"), "status": status, "s": round(float(tc.get("time", 0)), 2)})
+    return {"exit": r.returncode, "tests": cases_}
+
+
+def _compare_caches(a: str, b: str) -> dict:
+    """Largest difference (mm) between the caches of two bake folders, per cache and key."""
+    import numpy as np
+
+    from sim.bake.caches import read_pc2
+    out = {}
+    with np.load(os.path.join(a, "bake.npz")) as za, np.load(os.path.join(b, "bake.npz")) as zb:
+        worst, key = 0.0, ""
+        for k in za.files:
+            x, y = za[k], zb[k]
+            if x.dtype.kind != "f" or x.shape != y.shape:
+                if x.shape != y.shape or (x.dtype.kind in "iub" and not np.array_equal(x, y)):
+                    out.setdefault("npz_mismatch", []).append(k)
+                continue
+            if not (np.isfinite(x).all() and np.isfinite(y).all()):
+                out.setdefault("npz_not_finite", []).append(k)
+                continue
+            d = float(np.abs(x.astype(np.float64) - y).max()) if x.size else 0.0
+            if k.startswith(("skin", "muscle_cvs", "joint_world")) and d > worst:
+                worst, key = d, k
+        out["npz_mm"], out["npz_worst_key"] = 1e3 * worst, key
+    pa, pb = read_pc2(os.path.join(a, "bake.pc2")), read_pc2(os.path.join(b, "bake.pc2"))
+    out["pc2_mm"] = 1e3 * float(np.abs(pa.points.astype(np.float64) - pb.points).max())
+    from pxr import Usd, UsdGeom
+    sa, sb = Usd.Stage.Open(os.path.join(a, "bake.usdc")), Usd.Stage.Open(os.path.join(b, "bake.usdc"))
+    worst = 0.0
+    for prim in sa.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        pa_, pb_ = UsdGeom.Mesh(prim).GetPointsAttr(), UsdGeom.Mesh(sb.GetPrimAtPath(prim.GetPath())).GetPointsAttr()
+        for t in pa_.GetTimeSamples()[::7] or [Usd.TimeCode.Default()]:
+            x, y = np.asarray(pa_.Get(t), np.float64), np.asarray(pb_.Get(t), np.float64)
+            worst = max(worst, float(np.abs(x - y).max()) if x.size else 0.0)
+    out["usdc_mm"] = 1e3 * worst
+    out["max_mm"] = max(out["npz_mm"], out["pc2_mm"], out["usdc_mm"])
+    out["ok"] = out["max_mm"] < AGREE_MM and not out.get("npz_mismatch") and not out.get("npz_not_finite")
+    return out
+
+
+def section_agree(device: str, quick: bool, out_dir: Path) -> dict:
+    from sim.bake.baker import bake
+    from sim.bake.setup import prepare
+    res = {}
+    for name, kw in cases(quick).items():
+        if name == "body100k":
+            continue
+        with tempfile.TemporaryDirectory() as tmp:
+            row = {}
+            for side, dev in (("a", "cpu"), ("b", device)):
+                folder = os.path.join(tmp, side)
+                t = time.perf_counter()
+                summary = bake(prepare(request(kw, dev)), folder)
+                row[f"{side}_s"] = round(time.perf_counter() - t, 2)
+                row["frames"], row["vertices"] = summary["frames"], summary["vertices"]
+            row.update(_compare_caches(os.path.join(tmp, "a"), os.path.join(tmp, "b")))
+        print(name, row, flush=True)
+        res[name] = row
+    return res
+
+
+def section_speed(device: str, quick: bool, out_dir: Path) -> dict:
+    from bench_bake import bake_loop, bake_loop_threads, best, lbs_loop, lbs_with_caches
+
+    from sim.bake.baker import Baker, bake
+    from sim.bake.setup import prepare
+    res = {}
+    tmp_scene = tempfile.mkdtemp()
+    for name, kw in cases(quick, long_scene(tmp_scene, 3 if quick else 10)).items():
+        if name == "demo":
+            continue
+        for dev in dict.fromkeys((device, "cpu")):
+            repeats = 1 if quick or dev == "cpu" else 3     # the CPU's figures vary little and take long
+            t = time.perf_counter()
+            setup = prepare(request(kw, dev))
+            prep = time.perf_counter() - t
+            T = len(setup.times)
+            with tempfile.TemporaryDirectory() as tmp:
+                t = time.perf_counter()
+                bake(setup, os.path.join(tmp, "warm"))                  # compiles what is not cached, imports pxr
+                warm = time.perf_counter() - t
+                lbs_with_caches(setup, tmp)
+                threaded = Baker(setup, defer=True)
+                loop = best(lambda: bake_loop_threads(threaded), repeats)
+                l_loop = best(lambda: lbs_loop(setup), repeats)
+                whole = best(lambda: bake(setup, os.path.join(tmp, "full")), repeats)
+                l_whole = best(lambda: lbs_with_caches(setup, tmp), repeats)
+                stages = bake_loop(Baker(setup, defer=False))
+            row = {"frames": T, "vertices": setup.character.num_vertices, "muscles": setup.rig.M,
+                   "setup_s": round(prep, 2), "first_bake_s": round(warm, 2),
+                   "loop_fps": T / loop, "lbs_loop_fps": T / l_loop, "loop_ratio": loop / l_loop,
+                   "caches_fps": T / whole, "lbs_caches_fps": T / l_whole, "caches_ratio": whole / l_whole,
+                   "stage_ms_per_frame": {k[:-2]: 1e3 * v / T for k, v in stages.items() if k != "write_s"}}
+            print(name, dev, json.dumps(row), flush=True)
+            res[f"{name}/{dev}"] = row
+    return res
+
+
+def section_particles(device: str, quick: bool, out_dir: Path) -> dict:
+    import numpy as np
+    import warp as wp
+    from bench_jiggle import copied_model, swinging_goals
+    from bench_particles import CHUNK, COPIES, FPS, SUBSTEPS, bake_chunks, bake_particles
+    from timing import best
+
+    from rig.muscle.simple_arm import simple_arm
+    from sim.jiggle.params import JiggleSettings
+    from sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
+    from sim.jiggle.solver import ParticleSolver
+    wp.init()
+    arm = simple_arm()
+    res = {}
+    for copies in (COPIES, 25_000):
+        for dev in dict.fromkeys(("cpu", device)):
+            # the CPU's 1M run covers fewer frames: the rates are per step
+            big = copies > COPIES
+            seconds = (0.5 if dev == "cpu" else 2.0) if big else (2.0 if quick else 6.0)
+            model, offsets = copied_model(arm, copies, dev)
+            settings = JiggleSettings(substeps=SUBSTEPS, device=dev)
+            times = np.arange(int(round(seconds * FPS)) + 1) / FPS
+            knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, FPS))
+            static = swinging_goals(arm, offsets, knots)
+            solver = ParticleSolver(model)
+            chunks = bake_chunks(times, knots, static, settings, solver)
+            n, steps = model.num_particles, sum(len(ch.grid) - 1 for ch in chunks)
+            bake_particles(model, solver, chunks, times, settings)          # warm-up
+            t_bake, _ = best(lambda: bake_particles(model, solver, chunks, times, settings),
+                             repeats=1 if big else 3, warmup=False)
+            controls = [ch.track.to_device(dev) for ch in chunks]
+            s_a, s_b = model.state(), model.state()
+
+            def integrate_all():
+                a, b = s_a, s_b
+                solver.glue(a, controls[0], chunks[0].grid[0])
+                for ctrl, ch in zip(controls, chunks):
+                    solver.integrate(a, b, ctrl, ch.grid)
+                    a, b = b, a
+                wp.synchronize_device(dev)
+            t_kernel, _ = best(integrate_all, repeats=2 if big else 5, warmup=True)
+            row = {"particles": n, "steps": steps, "frames": len(times) - 1, "chunk": CHUNK,
+                   "bake_path_steps_per_s": n * steps / t_bake, "kernel_steps_per_s": n * steps / t_kernel}
+            print(copies, dev, row, flush=True)
+            res[f"{n}/{dev}"] = row
+            del model, solver, controls, s_a, s_b
+    return res
+
+
+def section_batch(device: str, quick: bool, out_dir: Path) -> dict:
+    if not (CESIUM.exists() and CLIP.exists()):
+        return {"skipped": f"{CESIUM} or {CLIP} not found"}
+    try:
+        import distributed  # noqa: F401
+    except ImportError as e:
+        return {"skipped": f"Dask's distributed is not installed: {e}"}
+    jobs = 4 if quick else 16
+    res = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        manifest = Path(tmp) / "library.toml"
+        lines = []
+        for j in range(jobs):       # the same clip at 16 strengths: 16 bakes of one rig (each worker fits it once)
+            lines.append(f'[[job]]\nname = "j{j:02d}"\nclip = "{LONG_CLIP if LONG_CLIP.exists() else CLIP}"\nframes = 150\njiggle = {0.5 + 0.5 * j / jobs:.3f}\n')
+        manifest.write_text("\n".join(lines))
+        for dev, workers in ((device, jobs), (device, 1), ("cpu", jobs)):
+            key = f"{dev}/{workers}_workers"
+            if key in res:
+                continue
+            out = Path(tmp) / key.replace("/", "_")
+            cmd = [sys.executable, "-m", "sim.app.cli", "-q", "batch", str(manifest), "--out", str(out), "--workers",
+                   str(workers), "--no-report", "--character", str(CESIUM), "--device", dev, "--formats", "npz", "--fps", "30"]
+            t = time.perf_counter()
+            r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=280,
+                               env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])})
+            wall = time.perf_counter() - t
+            index = out / "index.json"
+            done = 0
+            if index.exists():
+                done = sum(1 for j in json.loads(index.read_text()).get("jobs", []) if j.get("status") == "ok")
+            res[key] = {"exit": r.returncode, "jobs": jobs, "done": done, "wall_s": round(wall, 2),
+                        "bakes_per_min": 60.0 * done / wall, "stderr_tail": r.stderr[-800:]}
+            print(key, res[key], flush=True)
+    return res
+
+
+# ---------------------------------------------------------------------------------------- precompile
+def precompile(arch: int, out_dir: Path) -> None:
+    """Load every Warp module the check uses with tiny CPU bakes, then compile each for sm_`arch` ahead of time."""
+    import warp as wp
+
+    from sim.bake.baker import bake
+    from sim.bake.setup import prepare
+    wp.init()
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, kw in cases(quick=True).items():
+            kw = {**kw, "frames": 8}
+            if "body" in kw:
+                kw["body"] = MappingProxyType({"resolution": 3000})
+            bake(prepare(request(kw, "cpu")), os.path.join(tmp, name))
+        bake(prepare(request({"scene": str(ROOT / "scenes" / "simple_arm.toml"), "fps": 60, "chunk": 16},
+                             "cpu")), os.path.join(tmp, "arm"))
+    import bench_jiggle  # noqa: F401  (their modules, for the particle section)
+    from sim.jiggle import particle_kernels  # noqa: F401
+    from warp._src.context import user_modules
+    done = []
+    for name, module in list(user_modules.items()):
+        try:
+            wp.compile_aot_module(module, arch=arch, use_ptx=False)
+            done.append(name)
+        except Exception as e:  # noqa: BLE001 - a module Warp cannot compile here compiles on the device
+            print(f"precompile: {name} not compiled ahead of time: {e}")
+    print(f"precompile: {len(done)} modules for sm_{arch} in {wp.config.kernel_cache_dir}")
+
+
+# ---------------------------------------------------------------------------------------- table
+def fmt(v, spec=".0f") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def table(r: dict, device: str) -> str:
+    env = r.get("env", {})
+    L = [f"# jiggle on {env.get('gpu', device)} against the CPU of the same machine",
+         "",
+         f"Machine: {env.get('gpu', device)} ({env.get('gpu_memory_gb', '-')} GB, {env.get('nvidia_smi', '')}), "
+         f"{env.get('cpu_cores')} CPU cores; Python {env.get('python')}, Warp {env.get('warp')}, NumPy {env.get('numpy')}. "
+         f"Check run in {r.get('total_s', 0):.0f} s.", ""]
+    t = r.get("tests", {})
+    if t.get("tests"):
+        L += ["## Tests (tests/bake/test_device.py)", "", "| test | result | s |", "| --- | --- | --- |"]
+        L += [f"| {c['test']} | {c['status']} | {c['s']} |" for c in t["tests"]]
+        L.append("")
+    a = r.get("agree", {})
+    if isinstance(a, dict) and a and "error" not in a:
+        L += [f"## {device} bake against the CPU bake, largest difference (target < {AGREE_MM} mm)", "",
+              f"| case | frames | vertices | npz mm | usdc mm | pc2 mm | | cpu bake s | {device} bake s |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for name, c in a.items():
+            L.append(f"| {name} | {c['frames']} | {c['vertices']} | {c['npz_mm']:.2g} ({c['npz_worst_key']}) | "
+                     f"{c['usdc_mm']:.2g} | {c['pc2_mm']:.2g} | {'ok' if c['ok'] else 'NOT ok'} | {c.get('a_s')} | "
+                     f"{c.get('b_s')} |")
+        L.append("")
+    s = r.get("speed", {})
+    if isinstance(s, dict) and s and "error" not in s:
+        L += ["## Speed: frames/s (loop: every stage, no files; caches: the whole bake writing npz + usdc + pc2)", "",
+              "| mesh | device | vertices | frames | loop fps | LBS-only loop fps | loop / LBS | caches fps | "
+              "LBS-only + caches fps | caches / LBS | per frame ms: drive, static, simulate, skin |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for key, c in s.items():
+            name, dev = key.split("/")
+            st = c["stage_ms_per_frame"]
+            L.append(f"| {name} | {dev} | {c['vertices']} | {c['frames']} | {c['loop_fps']:.0f} | {c['lbs_loop_fps']:.0f} | "
+                     f"{c['loop_ratio']:.2f}x | {c['caches_fps']:.0f} | {c['lbs_caches_fps']:.0f} | {c['caches_ratio']:.2f}x | "
+                     f"{st['drive']:.3f}, {st['static']:.3f}, {st['simulate']:.3f}, {st['skin']:.3f} |")
+        for name in ("cesium", "body30k", "body100k"):
+            c, g = s.get(f"{name}/cpu"), s.get(f"{name}/{device}")
+            if c and g and device != "cpu":
+                L.append(f"\n{name}: {device} / cpu {g['loop_fps'] / c['loop_fps']:.1f}x in the loop, "
+                         f"{g['caches_fps'] / c['caches_fps']:.1f}x with caches.")
+        g = s.get(f"body30k/{device}")
+        if g:
+            L += ["", f"Targets (30k body on {device}): loop {g['loop_fps']:.0f} frames/s (>= {TARGETS['loop_fps_30k']:.0f}: "
+                  f"{'met' if g['loop_fps'] >= TARGETS['loop_fps_30k'] else 'NOT met'}); caches {g['caches_fps']:.0f} frames/s "
+                  f"(>= {TARGETS['caches_fps_30k']:.0f}: {'met' if g['caches_fps'] >= TARGETS['caches_fps_30k'] else 'NOT met'}); "
+                  f"loop / LBS-only {g['loop_ratio']:.2f}x (<= {TARGETS['lbs_ratio']:g}x: "
+                  f"{'met' if g['loop_ratio'] <= TARGETS['lbs_ratio'] else 'NOT met'})"]
+        L.append("")
+    p = r.get("particles", {})
+    if isinstance(p, dict) and p and "error" not in p:
+        L += ["## Particles: M particle-steps/s", "", "| particles | device | steps | bake path | kernel alone |",
+              "| --- | --- | --- | --- | --- |"]
+        for key, c in p.items():
+            n, dev = key.split("/")
+            L.append(f"| {int(n):,} | {dev} | {c['steps']} | {c['bake_path_steps_per_s'] / 1e6:,.1f} | "
+                     f"{c['kernel_steps_per_s'] / 1e6:,.1f} |")
+        L.append("")
+    b = r.get("batch", {})
+    if isinstance(b, dict) and b:
+        L += ["## Batch: 16 bakes of CesiumMan (150 frames, npz) with `jiggle batch --no-report`", ""]
+        if "skipped" in b:
+            L.append(f"skipped: {b['skipped']}")
+        else:
+            L += ["| device / workers | done | wall s | bakes per minute |", "| --- | --- | --- | --- |"]
+            L += [f"| {k} | {c['done']}/{c['jobs']} | {c['wall_s']} | {c['bakes_per_min']:.1f} |" for k, c in b.items()]
+        L.append("")
+    for name in SECTIONS:
+        e = r.get(name, {})
+        if isinstance(e, dict) and "error" in e:
+            L += [f"**{name}: {e['error']}**", ""]
+    return "\n".join(L)
+
+
+# ---------------------------------------------------------------------------------------- main
+def run_section(name: str, device: str, quick: bool, out_dir: Path, log) -> dict:
+    part = out_dir / f"_{name}.json"
+    cmd = [sys.executable, __file__, str(out_dir), "--section", name, "--device", device] + (["--quick"] if quick else [])
+    t = time.perf_counter()
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=SECTIONS[name],
+                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        out, err, code = r.stdout, r.stderr, r.returncode
+    except subprocess.TimeoutExpired as e:
+        out, err, code = (e.stdout or b"").decode(errors="replace") if isinstance(e.stdout, bytes) else (e.stdout or ""), \
+            (e.stderr or b"").decode(errors="replace") if isinstance(e.stderr, bytes) else (e.stderr or ""), "timeout"
+    dt = time.perf_counter() - t
+    log.write(f"\n===== {name} ({dt:.1f} s, exit {code})\n{out}\n{err}\n")
+    log.flush()
+    print(f"gpu_check: {name} {dt:.1f} s, exit {code}", flush=True)
+    if part.exists():
+        data = json.loads(part.read_text())
+        part.unlink()
+        return data
+    return {"error": f"exit {code} after {dt:.0f} s: " + (err.strip().splitlines() or ["(no output)"])[-1][:300]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", help="folder for gpu_check.md, gpu_check.json, gpu_check.log")
+    ap.add_argument("--device", default="cuda", help="the device to check against the CPU (default cuda)")
+    ap.add_argument("--quick", action="store_true", help="fewer frames and repeats, no 100k body, 4 batch jobs")
+    ap.add_argument("--only", help="comma-separated sections (default: all): " + ", ".join(SECTIONS))
+    ap.add_argument("--section", help=argparse.SUPPRESS)
+    ap.add_argument("--precompile", type=int, metavar="ARCH", help="fill the kernel cache (gpu_pack.sh), no check")
+    args = ap.parse_args()
+    out_dir = Path(args.out).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if args.precompile:
+        precompile(args.precompile, out_dir)
+        return
+    if args.section:
+        fn = globals()[f"section_{args.section}"]
+        try:
+            data = fn(args.device, args.quick) if args.section == "env" else fn(args.device, args.quick, out_dir)
+        except Exception as e:  # noqa: BLE001 - the table says which section failed and how
+            traceback.print_exc()
+            data = {"error": f"{type(e).__name__}: {e}"[:500]}
+        (out_dir / f"_{args.section}.json").write_text(json.dumps(data, indent=1, default=float))
+        return
+    names = args.only.split(",") if args.only else list(SECTIONS)
+    unknown = [n for n in names if n not in SECTIONS]
+    if unknown:
+        ap.error(f"--only: unknown section {unknown[0]!r}; expected some of {', '.join(SECTIONS)}")
+    t0 = time.perf_counter()
+    results = {"device": args.device, "quick": args.quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    with open(out_dir / "gpu_check.log", "w") as log:
+        for name in names:
+            results[name] = run_section(name, args.device, args.quick, out_dir, log)
+    results["total_s"] = time.perf_counter() - t0
+    (out_dir / "gpu_check.json").write_text(json.dumps(results, indent=1, default=float))
+    md = table(results, args.device)
+    (out_dir / "gpu_check.md").write_text(md + "\n")
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
