@@ -197,16 +197,17 @@ def section_agree(device: str, quick: bool, out_dir: Path) -> dict:
 
 
 def section_speed(device: str, quick: bool, out_dir: Path) -> dict:
+    both = os.environ.get("JIGGLE_CHECK_SPEED_CPU", "1") != "0"     # gpu_check.py --speed-cpu-from
     from bench_bake import bake_loop, bake_loop_threads, best, lbs_loop, lbs_with_caches
 
     from sim.bake.baker import Baker, bake
     from sim.bake.setup import prepare
     res = {}
     tmp_scene = tempfile.mkdtemp()
-    for name, kw in cases(quick, long_scene(tmp_scene, 3 if quick else 10)).items():
+    for name, kw in cases(quick, long_scene(tmp_scene, 3 if quick else 5)).items():
         if name == "demo":
             continue
-        for dev in dict.fromkeys((device, "cpu")):
+        for dev in dict.fromkeys((device, "cpu") if both else (device,)):
             repeats = 1 if quick or dev == "cpu" else 3     # the CPU's figures vary little and take long
             t = time.perf_counter()
             setup = prepare(request(kw, dev))
@@ -214,9 +215,9 @@ def section_speed(device: str, quick: bool, out_dir: Path) -> dict:
             T = len(setup.times)
             with tempfile.TemporaryDirectory() as tmp:
                 t = time.perf_counter()
-                bake(setup, os.path.join(tmp, "warm"))                  # compiles what is not cached, imports pxr
+                Baker(setup, defer=False).chunk(0, None)               # compiles what is not cached
+                lbs_with_caches(setup, tmp)                            # imports pxr, opens the writers' paths
                 warm = time.perf_counter() - t
-                lbs_with_caches(setup, tmp)
                 threaded = Baker(setup, defer=True)
                 loop = best(lambda: bake_loop_threads(threaded), repeats)
                 l_loop = best(lambda: lbs_loop(setup), repeats)
@@ -224,7 +225,7 @@ def section_speed(device: str, quick: bool, out_dir: Path) -> dict:
                 l_whole = best(lambda: lbs_with_caches(setup, tmp), repeats)
                 stages = bake_loop(Baker(setup, defer=False))
             row = {"frames": T, "vertices": setup.character.num_vertices, "muscles": setup.rig.M,
-                   "setup_s": round(prep, 2), "first_bake_s": round(warm, 2),
+                   "setup_s": round(prep, 2), "warm_up_s": round(warm, 2),
                    "loop_fps": T / loop, "lbs_loop_fps": T / l_loop, "loop_ratio": loop / l_loop,
                    "caches_fps": T / whole, "lbs_caches_fps": T / l_whole, "caches_ratio": whole / l_whole,
                    "stage_ms_per_frame": {k[:-2]: 1e3 * v / T for k, v in stages.items() if k != "write_s"}}
@@ -335,7 +336,8 @@ def precompile(arch: int, out_dir: Path) -> None:
         bake(prepare(request({"scene": str(ROOT / "scenes" / "simple_arm.toml"), "fps": 60, "chunk": 16},
                              "cpu")), os.path.join(tmp, "arm"))
     import bench_jiggle  # noqa: F401  (their modules, for the particle section)
-    from sim.jiggle import particle_kernels  # noqa: F401
+    from rig.skin import smoothing_kernels  # noqa: F401  (a GPU's spread and steps: not loaded on the CPU)
+    from sim.jiggle import particle_kernels, step_kernels  # noqa: F401
     from warp._src.context import user_modules
     done = []
     for name, module in list(user_modules.items()):
@@ -375,7 +377,12 @@ def table(r: dict, device: str) -> str:
         L.append("")
     s = r.get("speed", {})
     if isinstance(s, dict) and s and "error" not in s:
-        L += ["## Speed: frames/s (loop: every stage, no files; caches: the whole bake writing npz + usdc + pc2)", "",
+        L += ["## Speed: frames/s (loop: every stage, no files; caches: the whole bake writing npz + usdc + pc2)", ""]
+        if r.get("speed_cpu_from"):
+            e = r["speed_cpu_from"]
+            L += [f"The CPU rows are from the check of {e['date']} ({e['file']}; {e['machine']}): the CPU's code did not "
+                  "change between the two runs.", ""]
+        L += [
               "| mesh | device | vertices | frames | loop fps | LBS-only loop fps | loop / LBS | caches fps | "
               "LBS-only + caches fps | caches / LBS | per frame ms: drive, static, simulate, skin |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -452,6 +459,8 @@ def main() -> None:
     ap.add_argument("--device", default="cuda", help="the device to check against the CPU (default cuda)")
     ap.add_argument("--quick", action="store_true", help="fewer frames and repeats, no 100k body, 4 batch jobs")
     ap.add_argument("--only", help="comma-separated sections (default: all): " + ", ".join(SECTIONS))
+    ap.add_argument("--speed-cpu-from", metavar="JSON", help="take the speed section's CPU rows from an earlier "
+                    "check's gpu_check.json (same kind of machine) instead of measuring them again")
     ap.add_argument("--section", help=argparse.SUPPRESS)
     ap.add_argument("--precompile", type=int, metavar="ARCH", help="fill the kernel cache (gpu_pack.sh), no check")
     args = ap.parse_args()
@@ -475,13 +484,22 @@ def main() -> None:
         ap.error(f"--only: unknown section {unknown[0]!r}; expected some of {', '.join(SECTIONS)}")
     t0 = time.perf_counter()
     results = {"device": args.device, "quick": args.quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    earlier = None
+    if args.speed_cpu_from:
+        earlier = json.loads(Path(args.speed_cpu_from).read_text())
+        os.environ["JIGGLE_CHECK_SPEED_CPU"] = "0"
+        results["speed_cpu_from"] = {"file": args.speed_cpu_from, "date": earlier.get("date"),
+                                     "machine": earlier.get("env", {}).get("nvidia_smi")}
     with open(out_dir / "gpu_check.log", "w") as log:
         for name in names:
             results[name] = run_section(name, args.device, args.quick, out_dir, log)
-    results["total_s"] = time.perf_counter() - t0
-    (out_dir / "gpu_check.json").write_text(json.dumps(results, indent=1, default=float))
-    md = table(results, args.device)
-    (out_dir / "gpu_check.md").write_text(md + "\n")
+            if name == "speed" and earlier and isinstance(results[name], dict) and "error" not in results[name]:
+                results[name].update({k: v for k, v in earlier.get("speed", {}).items() if k.endswith("/cpu")})
+            results["total_s"] = time.perf_counter() - t0
+            # after every section: a check stopped at its time limit still leaves the sections it finished
+            (out_dir / "gpu_check.json").write_text(json.dumps(results, indent=1, default=float))
+            md = table(results, args.device)
+            (out_dir / "gpu_check.md").write_text(md + "\n")
     print(md)
 
 

@@ -17,10 +17,13 @@ if [ ! -d "$SITE/site" ]; then
   cat "$PARTS"/p* | xz -d -T0 | tar -x -C "$SITE"
   echo "gpu_check: unpacked $(du -sh "$SITE" | cut -f1) in $((SECONDS - t)) s"
 fi
+# a kernel cache carried on its own (.gpu/kcache, gpu_pack.sh --kcache) is newer than the one in the parts
+if [ -d .gpu/kcache ]; then mkdir -p "$SITE/kcache" && cp -r .gpu/kcache/. "$SITE/kcache/"; fi
 export PYTHONPATH=$SITE/site:$PWD${PYTHONPATH:+:$PYTHONPATH}
 export WARP_CACHE_PATH=$SITE/kcache
 export JIGGLE_ASSETS=${JIGGLE_ASSETS:-$PWD/.gpu/assets}
-export MUJOCO_GL=${MUJOCO_GL:-egl} PYTHONUNBUFFERED=1 PYTHONDONTWRITEBYTECODE=1
+# the check renders nothing, and the machine has no libEGL (MuJoCo would load it at import)
+export MUJOCO_GL=disable PYTHONUNBUFFERED=1 PYTHONDONTWRITEBYTECODE=1
 PY=${PYTHON:-python3}
 "$PY" -c "import warp, mujoco, pxr, pyvista, embreex, trimesh, pygltflib; print('gpu_check: imports ok, warp', warp.__version__)"
 "$PY" benchmarks/gpu_check.py "$OUT" "$@"

@@ -2,6 +2,7 @@
 # Packs what benchmarks/gpu_check.sh needs on a lent GPU machine (benchmarks/gpu_check.md says how to use it).
 #
 #   benchmarks/gpu_pack.sh            # after ./dev.sh install; writes .gpu/ (git-ignored)
+#   benchmarks/gpu_pack.sh --kcache   # after a change to Warp kernels: the kernel cache alone, .gpu/kcache
 #
 # The device machine has Python 3.12, CUDA, NumPy, SciPy, Matplotlib, pytest, but no package registry and none of
 # jiggle's other dependencies. This script, here:
@@ -21,6 +22,19 @@ PY=$ROOT/.venv/bin/python
 GPU=$ROOT/.gpu
 ASSETS=${JIGGLE_ASSETS:-$ROOT/../shared/assets}
 [ -x "$PY" ] || { echo "gpu_pack: $PY not found; run ./dev.sh install first" >&2; exit 2; }
+
+kcache() {
+  # the kernel cache: CPU objects from a CPU run of the check's bakes, sm_90 cubins ahead of time
+  rm -rf "$GPU/kcache"
+  WARP_CACHE_PATH=$GPU/kcache JIGGLE_ASSETS=$GPU/assets OPENBLAS_NUM_THREADS=1 \
+    "$PY" benchmarks/gpu_check.py "$GPU/precompile" --precompile 90
+  echo "gpu_pack: kernel cache $(du -sh "$GPU/kcache" | cut -f1)"
+}
+if [ "${1:-}" = "--kcache" ]; then
+  # after a change to the kernels: only the cache, carried on its own (.gpu/kcache, ~6 MB) next to the old parts
+  kcache
+  exit 0
+fi
 
 # what a bake, the tests and `jiggle batch` import that the device's image lacks (its own list: KINDS.md)
 PKGS="warp-lang mujoco mujoco-core glfw pyopengl trimesh embreex pyvista pyvista-validation vtk scooby pooch
@@ -67,11 +81,7 @@ for f in characters/CesiumMan.glb mocap/cmu_bvh/02_03.bvh mocap/cmu_bvh/05_02.bv
   if [ -f "$ASSETS/$f" ]; then cp "$ASSETS/$f" "$GPU/assets/$f"; else echo "gpu_pack: $ASSETS/$f missing: the check skips it"; fi
 done
 
-# the kernel cache: CPU objects from a CPU run of the check's bakes, sm_90 cubins ahead of time
-rm -rf "$GPU/kcache"
-WARP_CACHE_PATH=$GPU/kcache JIGGLE_ASSETS=$GPU/assets OPENBLAS_NUM_THREADS=1 \
-  "$PY" benchmarks/gpu_check.py "$GPU/precompile" --precompile 90
-echo "gpu_pack: kernel cache $(du -sh "$GPU/kcache" | cut -f1)"
+kcache
 
 rm -rf "$GPU/parts" && mkdir -p "$GPU/parts"
 tar -C "$GPU" -cf - site kcache | xz -T0 -6 | split -b 55M -d - "$GPU/parts/p"

@@ -183,6 +183,9 @@ class MuscleSkin:
         # the batched deformers hand the spread their paired vertices' displacements: its ring 0
         paired = np.nonzero(np.diff(offsets) > 0)[0]
         assert self.spread.steps == 0 or np.array_equal(self.spread.order[:self.spread.ring_ends[0]], paired)
+        self.spread_on_device = not self.device.is_cpu
+        """pose_batch spreads on the device (SurfaceSmoothing.spread_device) and copies back finished skins:
+        a GPU's way; on the CPU the host spread (SciPy, blocks kept in the cache) is several times faster."""
 
     def _influence_table(self) -> np.ndarray | None:
         """(V, M) float32 influence maps of the character in rig order (NaN: not painted), or None;
@@ -396,14 +399,24 @@ class MuscleSkin:
             batch = ShellBatch(*arrays)
             if spread:
                 held = self._host(slot, "moved", (S, self.deformer.model.num_paired, T, 3)) if hold else None
-                out = self.deformer.launch_displace(points, batch, out=_on_device(held, self.device)).numpy()
+                out = self.deformer.launch_displace(points, batch, out=_on_device(held, self.device))
             else:
-                out = self.deformer.launch_batch(points, batch).numpy()
+                out = self.deformer.launch_batch(points, batch)
         else:
             cur, ref = self._influence_cvs(world, cvs_sets, first_frame)
-            out = self.deformer.launch_batch(points, cur, ref, displace=spread).numpy()
-            if hold:
-                out = _copy_into(self._host(slot, "moved", out.shape), out)
+            out = self.deformer.launch_batch(points, cur, ref, displace=spread)
+        if spread and self.spread_on_device:
+            # a GPU spreads on the device and hands back the finished skins (new arrays, copied in `finish`,
+            # which may run in another thread: the device keeps the order of the work)
+            skins = [self.spread.spread_device(points, out[s]) for s in range(S)]
+            self.launches += self._launch_count() - before + len(self.spread.front) * S + S
+
+            def finish():
+                return [sk.numpy() for sk in skins] + ([base] if smooth else [])
+            return finish if defer else finish()
+        out = out.numpy()
+        if hold and self.skinning != "shell":
+            out = _copy_into(self._host(slot, "moved", out.shape), out)
         # out: (S, P, T, 3) displacements with a spread, else (S, T, V, 3)
         self.launches += self._launch_count() - before
         if spread:

@@ -205,6 +205,44 @@ class SurfaceSmoothing:
             out[:, a:a + BLOCK] = y
         return out
 
+    def spread_device(self, smooth, moved):
+        """The spread on a Warp device, for a GPU (where the CPU's blocks and SciPy would mean copying the
+        displacements to the host and the skins back): smooth (T, V) wp.vec3, the smooth skin, metres;
+        moved (n0, T) wp.vec3, ring 0's displacements (the active vertices, ascending: :meth:`spread_front`'s
+        x) -> a new (T, V) wp.vec3 array on the device, smooth + the spread displacement on the computed
+        rows, smooth elsewhere. One launch per step over its front (rows within k rings) and one to add;
+        the same sums as spread_front (float32, each row's entries in stored order), to float32 rounding
+        (a GPU may fuse the product and the sum)."""
+        import warp as wp
+
+        from rig.skin import smoothing_kernels as k
+        device = smooth.device
+        T = smooth.shape[0]
+        out = wp.clone(smooth)
+        if self.steps == 0 or len(self.rows) == 0 or T == 0:
+            return out
+        fronts, order = self._device_fronts(device)
+        y = moved
+        for (indptr, indices, data), F in zip(fronts, self.front):
+            z = wp.empty((F.shape[0], T), dtype=wp.vec3, device=device)
+            wp.launch(k.front_step, dim=(F.shape[0], T), inputs=[indptr, indices, data, y], outputs=[z], device=device)
+            y = z
+        wp.launch(k.add_spread, dim=(len(self.order), T), inputs=[smooth, order, y], outputs=[out], device=device)
+        return out
+
+    def _device_fronts(self, device):
+        """Each step's front (indptr, indices, data) and `order` as Warp arrays on `device`, made once."""
+        import warp as wp
+        key = str(device)
+        cached = getattr(self, "_on_device", {})
+        if key not in cached:
+            fronts = [tuple(wp.array(a, dtype=t, device=device) for a, t in
+                            ((F.indptr.astype(np.int32), wp.int32), (F.indices.astype(np.int32), wp.int32),
+                             (F.data.astype(np.float32), wp.float32))) for F in self.front]
+            cached[key] = (fronts, wp.array(self.order.astype(np.int32), dtype=wp.int32, device=device))
+            self._on_device = cached
+        return cached[key]
+
     def workspace(self) -> np.ndarray:
         """(2, R * BLOCK) float32, uninitialised: the products of :meth:`spread_front` (`work`)."""
         return np.empty((2, len(self.rows) * BLOCK), np.float32)

@@ -107,6 +107,10 @@ class ParticleSolver:
         """threads of a one-launch run (:meth:`integrate`): groups of particles no spring leaves."""
         self._groups = wp.array(groups.astype(np.int32), dtype=wp.int32, device=dev)
         self.stops = wp.zeros(n, dtype=wp.int32, device=dev)
+        self.stepwise = not wp.get_device(dev).is_cpu
+        """Runs launch a step at a time, a thread per particle (sim/jiggle/step_kernels.py): on a GPU, where a
+        thread per group (the one-launch run) leaves it nearly idle; equal to the one-launch run (bit for bit
+        on the CPU, where the one-launch run is the faster)."""
         """(N,) int32 on the device: each particle's hard stops since it was made or zeroed (sim/jiggle/tissue_law.py:
         substeps that end near the reach with the outward speed more than halved from a fast start; the tissue law
         makes none)."""
@@ -213,7 +217,7 @@ class ParticleSolver:
             out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
                                           dev_array(flow_index, wp.int32), frame, frames, ks, dev_array)
             return None if record is None else out
-        self._run(kernels.integrate_run, self.num_groups, [
+        self._run_or_step(kernels.integrate_run, len(seg), [
             self._params, *table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
             control.pos, control.vel_start, control.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
@@ -294,7 +298,7 @@ class ParticleSolver:
             self._cubics, ea, eb, eva, evb, record, dirty, frames, records, *_xv(state_out)]
         if plan:
             return kernel or ck.integrate_run_contact, args, record
-        self._run(kernel or ck.integrate_run_contact, self.num_groups, args)
+        self._run_or_step(kernel or ck.integrate_run_contact, len(seg), args)
         self.contact_records = records.numpy()[:len(ks)]
         return frames.numpy()[:len(ks)] if len(ks) else np.zeros((0, m.num_particles, 3), np.float32)
 
@@ -334,6 +338,49 @@ class ParticleSolver:
         self._run(kernels.kick, dim, [m.wp_inv_mass, m.wp_adj_offsets, m.wp_adj_index, m.wp_adj_k, m.wp_adj_c,
                                       control.pos, control.vel_start, control.vel_end, seg, float(H),
                                       float(s0 + dts[-1]), float(0.5 * dts[-1]), Y[0], U, state_out.v])
+
+    def _run_or_step(self, kernel, K: int, args: list) -> None:
+        """A one-launch run over `args` (K steps): in one launch, or a launch per step where :attr:`stepwise`
+        (the plain and contact runs; the keyed solver's own kernels always run in one)."""
+        from sim.jiggle import contact_kernels as ck
+        if self.stepwise and kernel in (kernels.integrate_run, ck.integrate_run_contact):
+            self._run_stepwise(kernel, K, args)
+        else:
+            self._run(kernel, self.num_groups, args)
+
+    def _run_stepwise(self, kernel, K: int, args: list) -> None:
+        """A one-launch run (kernels.integrate_run or contact_kernels.integrate_run_contact over `args`) as a
+        launch per step, a thread per particle (and per muscle for the contacts): sim/jiggle/step_kernels.py,
+        the GPU's way (:attr:`stepwise`). Each kernel is recorded once per run and only its step index set
+        between launches."""
+        from sim.jiggle import contact_kernels as ck
+        from sim.jiggle import step_kernels as sk
+        m = self.model
+        N, M = m.num_particles, len(m.group_offsets) - 1
+        if kernel is kernels.integrate_run:
+            opening, steps, closing = [(sk.run_open, N)], [(sk.run_one, N)], (sk.run_close, N)
+        elif kernel is ck.integrate_run_contact:
+            opening, steps = [(sk.contact_open, N), (sk.contact_clear, M)], [(sk.contact_one, N), (sk.contact_after, M)]
+            closing = (sk.contact_close, N)
+        else:
+            raise ValueError(f"no stepwise run for {kernel.key}")
+        dev = m.device
+        recorded = {}
+        for kern, n in opening + steps + [closing]:
+            if n > 0 and kern.key not in recorded:
+                recorded[kern.key] = wp.launch(kern, dim=n, inputs=[0, *args], device=dev, record_cmd=True)
+        for kern, n in opening:
+            if n > 0:
+                recorded[kern.key].launch()
+        for k in range(K):
+            for kern, n in steps:
+                if n > 0:
+                    launch = recorded[kern.key]
+                    launch.set_param_at_index(0, k)
+                    launch.launch()
+        if N > 0:
+            recorded[closing[0].key].launch()
+        self.launches += len(opening) + K * len(steps) + 1
 
     def _run(self, kernel, dim: int, args: list) -> None:
         """Launch `kernel` over `dim` threads with `args` (inputs then outputs). The launch is recorded

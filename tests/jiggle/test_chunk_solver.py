@@ -144,3 +144,31 @@ def test_recorded_steps_are_checked(arm):
     for bad in ([0], [3, 2], [5]):
         with pytest.raises(InputError, match="recorded steps"):
             solver.integrate(a, b, track.to_device(), np.linspace(0, 0.1, 5), record=bad)
+
+
+def test_the_stepwise_run_equals_the_one_launch_run():
+    """The GPU's way (ParticleSolver.stepwise: a launch per step, a thread per particle, sim/jiggle/step_kernels.py)
+    run here on the CPU: the same positions, end state and hard-stop counts as the one-launch run, bit for bit,
+    on the jerked muscles of the test above (the tissue law's substeps taken), for an odd and an even count."""
+    b, rest, rng = many_muscles()
+    model = b.finalize(gravity=True)
+    t = np.linspace(0, 0.6, 9)
+    track = build_track(t, rest[None] + np.cumsum(rng.normal(0, 0.05, (9, 1, 3)), axis=0))
+    control = track.to_device(model.device)
+    grid = np.unique(np.concatenate([np.sort(rng.uniform(0.05, 0.55, 40)), t[1:-1], [0.05, 0.55]]))
+    x0 = track.sample(0.05)[0] + rng.normal(0, 0.003, rest.shape)
+    v0 = rng.normal(0, 0.05, rest.shape)
+    for g in (grid, grid[:-1]):
+        out = []
+        for stepwise in (False, True):
+            solver = ParticleSolver(model)
+            assert not solver.stepwise                       # the CPU's default: one launch
+            solver.stepwise = stepwise
+            a, b_ = model.state(), model.state()
+            a.assign(x0, v0)
+            xs = solver.integrate(a, b_, control, g, record=np.arange(1, len(g)))
+            assert solver.launches == (len(g) + 1 if stepwise else 1)     # open, a step each, close
+            out.append((xs, *b_.numpy(), solver.hard_stops()))
+        for u, w in zip(*out):
+            np.testing.assert_array_equal(u, w)
+        assert out[0][3].sum() >= 0 and np.abs(out[0][0][-1] - track.sample(g[-1])[0]).max() > 1e-3

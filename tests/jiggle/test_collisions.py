@@ -373,3 +373,22 @@ def test_skin_keep_out_pulls_the_jiggle_back_to_the_capsule():
     deep = [caps.radius[c] - segment_distance(final[t, v].astype(np.float64)[None], *ends[c])[0][0]
             for t, v, c in zip(*np.nonzero(~s_in & mask[part][None]))]
     assert max(deep) < 1e-6
+
+
+def test_the_stepwise_contact_run_equals_the_one_launch_run():
+    """The GPU's way with contacts (ParticleSolver.stepwise: per step a launch over the particles and one over
+    the muscles, sim/jiggle/step_kernels.py) run here on the CPU: the positions and the contact records of the
+    forward bend equal the one-launch run's bit for bit."""
+    from sim.jiggle.solver import ParticleSolver
+    model, cm, track, caps = bend_scene()
+    times = np.arange(0, 1.2 + 1e-9, 1 / 60)
+    out = []
+    for stepwise in (False, True):
+        solver = ParticleSolver(model)
+        solver.stepwise = stepwise
+        sink = {}
+        x = run(model, track, times, substeps=4, solver=solver, colliders=still(cm, track.times), contacts=sink)
+        out.append((x, sink["records"]))
+    np.testing.assert_array_equal(out[0][0], out[1][0])
+    np.testing.assert_array_equal(out[0][1], out[1][1])
+    assert (out[1][1][..., 2] == 0).any()                 # the belly hit the thigh: contacts were made

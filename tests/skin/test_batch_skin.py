@@ -491,3 +491,23 @@ def test_launches_into_given_arrays(arm, skins):
     with pytest.raises(InputError) as e:
         skin.deformer.launch_displace(points, batch, out=wp.empty((1, 2, 3), dtype=wp.vec3, device="cpu"))
     assert e.value.field == "out"
+
+
+@pytest.mark.parametrize("mode", ["shell", "influence"])
+@pytest.mark.parametrize("defer", [False, True])
+def test_the_spread_on_the_device_equals_the_host_spread(arm, mode, defer):
+    """A GPU's pose_batch (spread_on_device: the spread and the sums on the device, finished skins copied
+    back), run here on the CPU device: equal to the host spread's skins, with the smooth skin after them."""
+    world, cvs, curve, blended = sweep(arm)
+    host = MuscleSkin(arm.character, arm.rig, skinning=mode)
+    dev = MuscleSkin(arm.character, arm.rig, skinning=mode)
+    assert not host.spread_on_device and host.spread.steps > 0
+    dev.spread_on_device = True
+    want = host.pose_batch(world, [cvs, blended], [curve, curve], smooth=True)
+    got = dev.pose_batch(world, [cvs, blended], [curve, curve], smooth=True, defer=defer, reuse=True)
+    got = got() if defer else got
+    assert len(got) == 3
+    for g, w in zip(got, want):
+        assert g.shape == w.shape and g.dtype == np.float32
+        assert np.abs(g - w).max() <= TOL
+    assert np.abs(got[1] - got[0]).max() > 1e-4

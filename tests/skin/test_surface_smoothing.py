@@ -106,3 +106,27 @@ def test_spread_front_equals_the_steps_on_all_rows(steps):
     whole = SurfaceSmoothing(faces, V, steps)          # every vertex active: ring 0 is all of them
     np.testing.assert_array_equal(whole.spread_front(x), whole.smooth_rows(x))
     np.testing.assert_array_equal(whole.spread_front(x, work=whole.workspace()), whole.smooth_rows(x))
+
+
+@pytest.mark.parametrize("steps", [0, 1, 5])
+def test_the_device_spread_equals_the_host_one(steps):
+    """spread_device (the GPU's way, run here on the CPU device): the smooth skin plus the spread of ring 0's
+    displacements, on the computed rows, the smooth skin elsewhere; equal to spread_front's sums scattered
+    onto the smooth skin (bit for bit on the CPU, where nothing fuses the product and the sum)."""
+    import warp as wp
+    vertices, faces = grid()
+    V, T = len(vertices), 5
+    rng = np.random.default_rng(4)
+    active = rng.random(V) < 0.2
+    sm = SurfaceSmoothing(faces, V, steps, active)
+    n0 = int(sm.ring_ends[0])
+    smooth = rng.normal(size=(T, V, 3)).astype(np.float32)
+    moved = rng.normal(size=(n0, T, 3)).astype(np.float32)
+    d = sm.spread_front(moved.reshape(n0, 3 * T)).reshape(-1, T, 3)             # (R, T, 3) rows in order
+    want = smooth.copy()
+    if steps:
+        want[:, sm.order] = smooth[:, sm.order] + d.transpose(1, 0, 2)
+    got = sm.spread_device(wp.array(smooth, dtype=wp.vec3, device="cpu"),
+                           wp.array(moved, dtype=wp.vec3, device="cpu")).numpy()
+    np.testing.assert_array_equal(got, want)
+    assert steps == 0 or np.abs(got - smooth).max() > 0.1           # the displacement arrived
