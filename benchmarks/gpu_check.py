@@ -461,6 +461,8 @@ def main() -> None:
     ap.add_argument("--only", help="comma-separated sections (default: all): " + ", ".join(SECTIONS))
     ap.add_argument("--speed-cpu-from", metavar="JSON", help="take the speed section's CPU rows from an earlier "
                     "check's gpu_check.json (same kind of machine) instead of measuring them again")
+    ap.add_argument("--limits", metavar="NAME=S,...", help="other time limits of sections, seconds (e.g. "
+                    "speed=120,batch=60), to fit a check into what is left of a lease")
     ap.add_argument("--section", help=argparse.SUPPRESS)
     ap.add_argument("--precompile", type=int, metavar="ARCH", help="fill the kernel cache (gpu_pack.sh), no check")
     args = ap.parse_args()
@@ -478,6 +480,11 @@ def main() -> None:
             data = {"error": f"{type(e).__name__}: {e}"[:500]}
         (out_dir / f"_{args.section}.json").write_text(json.dumps(data, indent=1, default=float))
         return
+    for item in (args.limits.split(",") if args.limits else []):
+        name, _, secs = item.partition("=")
+        if name not in SECTIONS or not secs.replace(".", "", 1).isdigit():
+            ap.error(f"--limits: expected NAME=SECONDS with NAME one of {', '.join(SECTIONS)}, got {item!r}")
+        SECTIONS[name] = float(secs)
     names = args.only.split(",") if args.only else list(SECTIONS)
     unknown = [n for n in names if n not in SECTIONS]
     if unknown:
