@@ -90,6 +90,48 @@ def _rigid_place(doc: GltfDocument, skel, t: int, i: int) -> np.ndarray:
     return skel.bind_matrices[t] @ c @ world_chain(chain[::-1], loc)
 
 
+def _placed_meshes(doc: GltfDocument, skel, skin: int) -> tuple[list, list[str]]:
+    """The mesh nodes of skin `skin`'s character: ([(node, placement (4, 4), rigid tree joint or None)], names
+    of the meshes left out). A node the skin deforms is placed by glTF's skinning rule (skel.mesh_world: its
+    own transform ignored, the nodes above the skeleton's root included); a mesh hanging under a joint of
+    the tree rides it rigidly; any other mesh is left out."""
+    g = doc.gltf
+    node_to_tree = {int(n): t for t, n in enumerate(skel.nodes)}
+    placed, skipped, used_meshes = [], [], set()
+    for ni, nd in enumerate(g.nodes):
+        if nd.mesh is None or not 0 <= nd.mesh < len(g.meshes):
+            continue
+        if nd.skin == skin:
+            if nd.mesh in used_meshes:
+                continue  # the same mesh skinned twice by one skin lands in the same place
+            used_meshes.add(nd.mesh)
+            placed.append((ni, skel.mesh_world, None))
+            continue
+        rigid_joint = next((node_to_tree[a] for a in doc.ancestors(ni) if a in node_to_tree), None)
+        if nd.skin is not None or rigid_joint is None:
+            skipped.append(g.meshes[nd.mesh].name or f"mesh{nd.mesh}")
+            continue
+        placed.append((ni, _rigid_place(doc, skel, rigid_joint, ni), rigid_joint))
+    return placed, skipped
+
+
+def skin_points(path: str | os.PathLike, skin: int = 0) -> np.ndarray:
+    """(V, 3) float64: the rest positions of skin `skin`'s character as :func:`read_gltf_character` places
+    them (Z-up, the file's units read as metres, before any --unit): what `jiggle inspect` measures, so
+    that inspect and the bake read one file one way."""
+    skel = read_gltf_skeleton(path, skin)
+    doc = GltfDocument(path)
+    out = []
+    for ni, place, _ in _placed_meshes(doc, skel, skin)[0]:
+        mesh = doc.gltf.meshes[doc.gltf.nodes[ni].mesh]
+        for pi, prim in enumerate(mesh.primitives):
+            if (4 if prim.mode is None else prim.mode) not in (4, 5, 6) or getattr(prim.attributes, "POSITION", None) is None:
+                continue
+            v = doc.accessor(prim.attributes.POSITION, f"meshes[{doc.gltf.nodes[ni].mesh}].primitives[{pi}].attributes.POSITION")
+            out.append(v[:, :3] @ place[:3, :3].T + place[:3, 3])
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
 def _influence_sets(attrs) -> list[tuple[int, int]]:
     """(JOINTS_n, WEIGHTS_n) accessor pairs of a primitive, n = 0, 1, ..."""
     out, n = [], 0
@@ -128,30 +170,15 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
     for t, sj in enumerate(skel.skin_joint):
         if sj >= 0:
             tree_of_skin[sj] = t
-    node_to_tree = {int(n): t for t, n in enumerate(skel.nodes)}
 
     from rig.character.painted_maps import assemble, parse_jiggle_attribute, primitive_maps
     jiggle_attribute = parse_jiggle_attribute(jiggle_attribute)
     pos, nrm, uv, faces, jnt, wgt, parts = [], [], [], [], [], [], []
     prims, maps = [], []
     has_normals, has_uvs, offset = True, True, 0
-    skipped = []
-    used_meshes = set()
-    for ni, nd in enumerate(g.nodes):
-        if nd.mesh is None or not 0 <= nd.mesh < len(g.meshes):
-            continue
-        rigid_joint = None
-        if nd.skin == skin:
-            if nd.mesh in used_meshes:
-                continue  # the same mesh skinned twice by one skin lands in the same place
-            used_meshes.add(nd.mesh)
-            place = skel.mesh_world
-        else:
-            rigid_joint = next((node_to_tree[a] for a in doc.ancestors(ni) if a in node_to_tree), None)
-            if nd.skin is not None or rigid_joint is None:
-                skipped.append(g.meshes[nd.mesh].name or f"mesh{nd.mesh}")
-                continue
-            place = _rigid_place(doc, skel, rigid_joint, ni)
+    placed, skipped = _placed_meshes(doc, skel, skin)
+    for ni, place, rigid_joint in placed:
+        nd = g.nodes[ni]
         for pi, prim in enumerate(g.meshes[nd.mesh].primitives):
             what = f"meshes[{nd.mesh}].primitives[{pi}]"
             mode = 4 if prim.mode is None else prim.mode

@@ -86,6 +86,14 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
     elif ext in (".glb", ".gltf"):
         from rig.motion.gltf_skeleton import describe_gltf
         out = {"kind": "character", **describe_gltf(p)}
+        if out.get("skins"):
+            # the character as the bake reads it: skin 0 posed by glTF's skinning rule at its bind pose
+            from rig.character.gltf_character import skin_points
+            pts = skin_points(p, 0)
+            if len(pts):
+                out["height_m"] = round(float(np.ptp(pts[:, 2])), 4)
+                out["bounds_m"] = (pts.min(0).round(4) + 0.0).tolist() + (pts.max(0).round(4) + 0.0).tolist()
+                out["height_from"] = "skin 0 at its bind pose, by glTF's skinning rule (as bake reads it)"
         if "height_m" in out:
             out.update(unit_note(out["height_m"]))
         if out.get("skins"):

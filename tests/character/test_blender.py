@@ -165,7 +165,7 @@ def compare_with_blender(path, tmp_path, times=None) -> dict:
         assert errs[-1] < tol, f"{path} at {t} s: jiggle vs Blender {errs[-1]:.3g} m (tolerance {tol:.3g} m)"
     assert np.abs(posed - rest).max() > 0.03 * c.height, "the poses must move the skin"
     report = {"blender": info["version"], "height_m": round(c.height, 4), "rest_m": float(dist.max()),
-              "posed_m": errs, "times_s": times}
+              "posed_m": errs, "times_s": times, "blender_bounds_m": rest.min(0).tolist() + rest.max(0).tolist()}
     print(f"{Path(path).name}: {report}")
     return report
 
@@ -183,6 +183,11 @@ def test_centimetre_armature_agrees_with_blender(tmp_path, turn):
     path = gltf_reference.write_figure(tmp_path / "figure.glb", armature_turn_deg=turn, spine_scale=1.0)
     report = compare_with_blender(path, tmp_path, times=[0.0, 0.5, 1.0])
     assert report["height_m"] == pytest.approx(1.67 if turn == -90.0 else 0.28, abs=1e-3)
+    # `jiggle inspect` measures the skin Blender imports (not the mesh nodes placed by their own transforms)
+    from sim.app.describe import inspect_file
+    seen = inspect_file(str(path))
+    np.testing.assert_allclose(seen["bounds_m"], report["blender_bounds_m"], atol=1e-3)
+    assert seen["height_m"] == pytest.approx(report["blender_bounds_m"][5] - report["blender_bounds_m"][2], abs=1e-3)
 
 
 def test_written_character_agrees_with_blender(tmp_path):

@@ -210,3 +210,19 @@ def test_every_index_and_byte_range_is_checked_before_use(tmp_path, capsys, case
         code = main(argv)
         err = capsys.readouterr().err
         assert code == 2 and "Traceback" not in err and f"{field}: " in err and says in err, err
+
+
+@pytest.mark.parametrize("turn", [-90.0, 0.0])
+def test_inspect_measures_the_skin_the_bake_reads(tmp_path, capsys, turn):
+    """A centimetre skin under an armature node scaled by 0.01 (Blender's and Maya's export), a second skinned
+    mesh on a node with a transform of its own: `jiggle inspect` gives the height and bounds of the skin as
+    glTF's skinning rule places it, the character the bake reads (and the independent reference), so its unit
+    hint is about that skin; before, it placed each mesh by its node and reported 2.18 m for this 1.67 m figure."""
+    path = gltf_reference.write_figure(tmp_path / "f.glb", armature_turn_deg=turn)
+    c, _ = read(path)
+    ref = gltf_reference.skinned_vertices(path, None)
+    assert main(["inspect", str(path), "--json"]) == 0
+    seen = json.loads(capsys.readouterr().out)
+    assert seen["height_m"] == pytest.approx(c.height, abs=1e-4) == pytest.approx(np.ptp(ref[:, 2]), abs=1e-4)
+    np.testing.assert_allclose(seen["bounds_m"], np.r_[c.vertices.min(0), c.vertices.max(0)], atol=1e-4)
+    assert seen["unit"].startswith("metres") if turn == -90.0 else "unknown" not in seen["unit"]
