@@ -30,6 +30,8 @@ half-thickness, and a patch thinner than that is pushed inward so its outer side
 """
 from __future__ import annotations
 
+import dataclasses
+
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -246,7 +248,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     """Fit `template` (a Template, a built-in name or a path; "auto" or None: the built-in one of the
     skeleton's body plan, rig.motion.body_plan.template_for) to `character`.
 
-    roles : {role: joint index}; default: rig.motion.role_map.resolve_roles(character.skeleton, options.joint_map).
+    roles : {role: joint index}; default: rig.motion.role_map.resolve_roles of the body's skeleton (rig.character.body_skeleton: helper bones set aside), options.joint_map.
     front : (3,) the character's front; default: from the legs (rig.motion.role_map.facing).
 
     Template muscles whose region is empty or too small are skipped with a JiggleWarning (listed in
@@ -261,6 +263,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     """
     import trimesh
 
+    from rig.character.body_skeleton import body_skeleton, original_parents
     from rig.motion.body_plan import detect_body_plan, template_for
     from rig.motion.role_map import facing, resolve_roles
     from rig.muscle.model import MuscleSpec, build_muscle_rig
@@ -269,17 +272,25 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    # the body plan and roles are read off the body's skeleton: helper bones (IK and pole targets off a
+    # weightless root) set aside, IK-placed feet hung under their legs (rig/character/body_skeleton.py)
+    body, order = body_skeleton(character)
     if not isinstance(template, Template) and template in (None, "auto"):
-        template, plan = template_for(character.skeleton, template)
+        template, plan = template_for(body, template)
     else:
-        plan = detect_body_plan(character.skeleton)
+        plan = detect_body_plan(body)
     tpl = template if isinstance(template, Template) else load_template(template)
-    roles = resolve_roles(character.skeleton, options.joint_map) if roles is None else dict(roles)
+    if roles is None:
+        roles = {r: int(order[j]) for r, j in resolve_roles(body, options.joint_map).items()}
+    else:
+        roles = dict(roles)
+    shape = character if body is character.skeleton else \
+        dataclasses.replace(character, parents=original_parents(body, order))   # the skin's bones on that tree
     tpl = _without_optional(tpl, roles)
     check_labels(tpl, roles, character.joint_names, plan)
     pos = character.bind_positions
     front = facing(pos, roles)[0] if front is None else np.asarray(front, float) / np.linalg.norm(front)
-    seg = segment_skin(character, iterations=options.iterations, lam=options.lam, exclude=options.exclude,
+    seg = segment_skin(shape, iterations=options.iterations, lam=options.lam, exclude=options.exclude,
                        overrides=options.overrides)
     timings["segmentation"] = time.perf_counter() - t0
 
@@ -301,7 +312,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     for pair in tpl.pairs:
         p_joint, c_joint = roles[pair.parent], roles[pair.child]
         label = f"{names[p_joint]}>{names[c_joint]}"
-        chain = _chain(character.parents, p_joint, c_joint)
+        chain = _chain(shape.parents, p_joint, c_joint)
         if chain is None:
             raise InputError(f"the template bone {pair.parent}>{pair.child} does not follow the skeleton: "
                              f"{names[c_joint]!r} is not below {names[p_joint]!r}", tpl.source or None,
@@ -314,7 +325,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
         segs = seg.segments
         # a chain joint at its parent's place (CMU's LowerBack on Hips) starts no segment of its own:
         # rig.muscle.segmentation collapsed it, and its bone is the segment from the joint it collapsed into
-        starts = chain[:-1] + [_collapsed_into(character.parents, pos, j) for j in chain[:-1]]
+        starts = chain[:-1] + [_collapsed_into(shape.parents, pos, j) for j in chain[:-1]]
         on_chain = np.isin(segs.parent, starts) & np.isin(segs.child, chain[1:])
         bone = _Bone(label=label, parent=p_joint, child=c_joint, start=start, end=end,
                      frame=bone_frame(start, end, UP, front) if pair.reference == "up" else

@@ -30,6 +30,23 @@ def describe_clip(clip: Clip) -> dict:
     }
 
 
+def _body_clip(path: str) -> Clip:
+    """The skeleton a glTF character's body plan is read from, as the fit reads it (rig.character.body_skeleton:
+    helper bones off a weightless root set aside); the file's skeleton when the character cannot be read."""
+    import warnings
+
+    from rig.base.errors import JiggleWarning
+    from rig.character.body_skeleton import body_skeleton
+    from rig.character.gltf_character import read_gltf_character
+    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", JiggleWarning)
+            return body_skeleton(read_gltf_character(path))[0]
+    except InputError:
+        return read_gltf_skeleton(path).to_clip()
+
+
 def body_plan(clip: Clip) -> dict:
     """The skeleton's body plan (rig.motion.body_plan) and the template `--template auto` picks for it."""
     from rig.motion.body_plan import detect_body_plan
@@ -97,10 +114,11 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
         if "height_m" in out:
             out.update(unit_note(out["height_m"]))
         if out.get("skins"):
-            from rig.motion.gltf_skeleton import read_gltf_skeleton
-            out["body_plan"] = body_plan(read_gltf_skeleton(p).to_clip())
+            out["body_plan"] = body_plan(_body_clip(p))
         if out.get("animations"):
             out["clip"] = describe_clip(load_clip(p, animation=animation))
+            if "body_plan" in out:      # the animation moves the character's own skeleton: its body, as read above
+                out["clip"]["body_plan"] = out["body_plan"]
     elif ext in MESH_EXTENSIONS:
         out = describe_mesh(p)
     elif ext == ".xml":

@@ -220,8 +220,8 @@ def test_bad_maps_name_the_file_and_key(tmp_path, run):
     p.write_text(good.replace('spine = "Skeleton_torso_joint_2"', 'spine = "Skeleton_torso_joint_1"'))
     with pytest.raises(InputError, match="mapped to both 'hips' and 'spine'"):
         JointMap.load(p).resolve(character.joint_names)
-    with pytest.raises(InputError, match="no joint map preset named 'mixamo'.*cesiumman, cmu"):
-        JointMap.load("mixamo")
+    with pytest.raises(InputError, match="no joint map preset named 'mixamorig'.*cesiumman, cmu, humanik, mixamo"):
+        JointMap.load("mixamorig")
     with pytest.raises(InputError, match="not found"):
         JointMap.load(tmp_path / "absent.toml")
     assert set(REQUIRED) <= set(cmap.roles)

@@ -257,3 +257,49 @@ def test_no_spine_and_not_a_body():
     # a lone chain is no body
     with pytest.raises(InputError, match="give a joint map"):
         auto_roles(_tree([("a", None, (0, 0, 1)), ("b", "a", (0, 0, 0.5)), ("c", "b", (0, 0, 0))]))
+
+
+@pytest.mark.parametrize("preset", ["mixamo", "humanik", "unreal", "rigify", "vroid"])
+def test_naming_schemes_are_found_by_themselves(preset):
+    """A CMU skeleton renamed into a naming scheme people meet (Mixamo, HumanIK, Unreal's mannequin, Rigify's
+    .L/.R, VRoid's VRM humanoid; each name the scheme's first spelling, every other joint a name of no
+    scheme): resolve_roles finds that scheme's built-in map by itself and the same joints as the CMU map."""
+    clip = load_clip(asset("mocap/cmu_bvh/02_03.bvh"))
+    cmu = JointMap.load("cmu").resolve(clip.joint_names)
+    scheme = JointMap.load(preset)
+    names = [f"extra_{i}" for i in range(clip.num_joints)]
+    for role, j in cmu.items():
+        if role in scheme.roles:
+            names[j] = scheme.roles[role][0]
+    renamed = dataclasses.replace(clip, joint_names=tuple(names))
+    roles = resolve_roles(renamed)
+    assert roles == {r: j for r, j in cmu.items() if r in scheme.roles}
+    assert len(roles) >= len(REQUIRED)
+
+
+def test_ik_helper_bones_are_set_aside_to_read_the_body():
+    """RobotExpressive (CC0): its feet and knee poles hang off a weightless root bone beside the body, as game
+    rigs' IK targets do. Read as it is: one limb on the ground, no legs. The body's skeleton
+    (rig.character.body_skeleton: weightless helpers set aside, the IK-placed feet hung under their lower legs)
+    is a biped, with its own built-in map; CesiumMan's has no helpers and is read as it is."""
+    from rig.character.body_skeleton import body_skeleton, original_parents
+    from rig.character.gltf_character import read_gltf_character
+    from rig.motion.body_plan import detect_body_plan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        robot = read_gltf_character(asset("characters/RobotExpressive.glb"))
+        man = read_gltf_character(asset("characters/CesiumMan.glb"))
+    assert detect_body_plan(robot.skeleton).kind == "other"
+    body, order = body_skeleton(robot)
+    plan = detect_body_plan(body)
+    assert plan.kind == "biped" and plan.ground_limbs == 2, plan.reason
+    names = robot.joint_names
+    parents = original_parents(body, order)
+    for s in "LR":
+        assert names[parents[names.index(f"Foot.{s}")]] == f"LowerLeg.{s}"     # the foot under its leg
+        assert parents[names.index(f"PoleTarget.{s}")] == -1                    # the pole set aside
+    roles = {r: names[order[j]] for r, j in resolve_roles(body).items()}
+    assert roles["left_foot"] == "Foot.L" and roles["left_lower_leg"] == "LowerLeg.L"
+    assert roles["left_upper_arm"] == "UpperArm.L" and roles["hips"] == "Body"
+    same, identity = body_skeleton(man)
+    assert same is man.skeleton and np.array_equal(identity, np.arange(man.num_joints))

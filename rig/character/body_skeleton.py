@@ -1,0 +1,137 @@
+"""The skeleton a character's body plan and roles are read from: its own, with the helper bones set aside.
+
+Game rigs hang IK targets and pole targets, and sometimes the feet themselves, off a root bone that carries no
+skin (RobotExpressive, CC0: "Bone" holds Body, Foot.L, Foot.R, PoleTarget.L and PoleTarget.R; the legs end at
+the knees). Read as it is, such a tree has one limb on the ground (both feet part at the root, beside each
+other) and legs without feet: no template fits it. The skin says what the body is:
+
+- bones whose whole subtree carries no skin weight, hanging off the weightless joints at the top of the tree
+  (IK and pole targets, extra roots), are not part of the body: they are set aside (made roots of their own,
+  so the body's tree no longer holds them);
+- a small weighted part hanging there beside the body (a foot an IK chain places: at most a quarter of the
+  body's joints and of its skin weight) belongs where it sits: it is hung under the body's joint nearest to it
+  at rest (the foot under its lower leg).
+
+Nothing else changes: weightless bones inside the body (end joints, twist helpers) stay, and a rig whose top
+carries skin, or has one weighted child, is read as it is (the same clip object). Only the reading of the body
+plan and roles uses this tree (rig.muscle.fit); the animation still moves the skeleton the file has.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rig.motion import quat
+from rig.motion.clip import Clip
+
+SMALL_PART = 0.25
+"""A weighted part beside the body with at most this share of the body's joints and skin weight is a placed part
+(an IK foot), hung under its nearest body joint; a larger one is a body half, and the tree is left as it is."""
+
+
+def joint_weight(character) -> np.ndarray:
+    """(J,) the skin weight each joint carries, summed over the vertices."""
+    w = np.zeros(character.num_joints)
+    j = np.asarray(character.joints).ravel()
+    wt = np.asarray(character.weights, float).ravel()
+    live = j >= 0
+    np.add.at(w, j[live], wt[live])
+    return w
+
+
+def body_skeleton(character) -> tuple[Clip, np.ndarray]:
+    """(clip, order): the skeleton the body plan and roles are read from (see the module) and, for each of its
+    joints, the index of that joint in character.skeleton (roles found on `clip` map back through `order`).
+    When no helper is set aside, `clip` is character.skeleton itself and `order` the identity."""
+    clip = character.skeleton
+    J = clip.num_joints
+    parents = np.asarray(clip.parents).copy()
+    own = joint_weight(character)
+    sub = own.copy()
+    count = np.ones(J)
+    for j in range(J - 1, -1, -1):
+        if parents[j] >= 0:
+            sub[parents[j]] += sub[j]
+            count[parents[j]] += count[j]
+    kids = [[] for _ in range(J)]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            kids[p].append(j)
+    roots = [j for j in range(J) if parents[j] < 0]
+    _, pos = clip.rest_world()
+    changed = False
+    r = max(roots, key=lambda j: sub[j])               # the tree that carries the skin
+    while own[r] == 0:
+        weighted = [c for c in kids[r] if sub[c] > 0]
+        if not weighted:
+            break
+        body = max(weighted, key=lambda c: sub[c])
+        placed = [c for c in weighted if c != body]
+        if any(count[c] > SMALL_PART * count[body] or sub[c] > SMALL_PART * sub[body] for c in placed):
+            break                                       # two body halves: read the tree as it is
+        for c in kids[r]:
+            if sub[c] == 0:
+                parents[c] = -1                         # an IK or pole target: not the body
+                changed = True
+        in_body = np.zeros(J, bool)
+        stack = [body]
+        while stack:
+            k = stack.pop()
+            in_body[k] = True
+            stack.extend(kids[k])
+        cand = np.nonzero(in_body)[0]
+        for c in placed:                                # a placed part: under the body joint nearest to it
+            parents[c] = int(cand[np.argmin(np.linalg.norm(pos[cand] - pos[c], axis=1))])
+            changed = True
+        if placed:
+            break
+        r = body
+    if not changed:
+        return clip, np.arange(J)
+    return _reparented(clip, parents), _order(parents)
+
+
+def original_parents(clip: Clip, order: np.ndarray) -> np.ndarray:
+    """(J,) int32: the tree of body_skeleton's `clip` in the character's own joint indices (for the skin's
+    segmentation and the bones' chains, which index the character's joints)."""
+    out = np.full(len(order), -1, np.int32)
+    for k, p in enumerate(np.asarray(clip.parents)):
+        if p >= 0:
+            out[order[k]] = order[p]
+    return out
+
+
+def _order(parents: np.ndarray) -> np.ndarray:
+    """Joints in an order that lists parents before children (depth first, in the original order)."""
+    J = len(parents)
+    kids = [[] for _ in range(J)]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            kids[p].append(j)
+    out, stack = [], [j for j in range(J - 1, -1, -1) if parents[j] < 0]
+    while stack:
+        j = stack.pop()
+        out.append(j)
+        stack.extend(sorted(kids[j], reverse=True))
+    return np.array(out, np.int64)
+
+
+def _reparented(clip: Clip, parents: np.ndarray) -> Clip:
+    """`clip`'s rest pose (one frame) on the tree `parents`, the joints reordered so parents come first; every
+    joint keeps its rest world rotation and position, every end site its place."""
+    order = _order(parents)
+    new = np.empty(len(order), np.int64)
+    new[order] = np.arange(len(order))
+    rot, pos = clip.rest_world()
+    par = np.array([new[parents[j]] if parents[j] >= 0 else -1 for j in order], np.int32)
+    local_rot = rot[order].copy()
+    offsets = pos[order].copy()
+    for k, j in enumerate(order):
+        p = parents[j]
+        if p >= 0:
+            inv = quat.conj(rot[p])
+            local_rot[k] = quat.mul(inv, rot[j])
+            offsets[k] = quat.rotate(inv, pos[j] - pos[p])
+    return Clip(joint_names=[clip.joint_names[j] for j in order], parents=par, offsets=offsets,
+                rest_rotations=local_rot, rotations=local_rot[None], translations=offsets[None], fps=clip.fps,
+                end_parents=new[np.asarray(clip.end_parents, np.int64)], end_offsets=clip.end_offsets,
+                name=clip.name, source=clip.source, meta={**clip.meta, "body_skeleton": "helpers set aside"})
