@@ -15,6 +15,12 @@ other) and legs without feet: no template fits it. The skin says what the body i
 Nothing else changes: weightless bones inside the body (end joints, twist helpers) stay, and a rig whose top
 carries skin, or has one weighted child, is read as it is (the same clip object). Only the reading of the body
 plan and roles uses this tree (rig.muscle.fit); the animation still moves the skeleton the file has.
+
+When the joints alone still give no body plan (rig.motion.body_plan: "other"), the skin gives the bones their
+tips: each chain's last joint without an end site gets one at the farthest skin vertex it moves most. A paw
+whose last joint is the wrist then reaches the ground where its skin does (the glTF Fox's front legs end at
+b_RightHand_08, a fifth of the height up), a tail ends where its skin ends. Skeletons with a plan are read
+without them, so what they were read as does not change.
 """
 from __future__ import annotations
 
@@ -41,7 +47,8 @@ def joint_weight(character) -> np.ndarray:
 def body_skeleton(character) -> tuple[Clip, np.ndarray]:
     """(clip, order): the skeleton the body plan and roles are read from (see the module) and, for each of its
     joints, the index of that joint in character.skeleton (roles found on `clip` map back through `order`).
-    When no helper is set aside, `clip` is character.skeleton itself and `order` the identity."""
+    When no helper is set aside and the joints give a body plan, `clip` is character.skeleton itself and
+    `order` the identity."""
     clip = character.skeleton
     J = clip.num_joints
     parents = np.asarray(clip.parents).copy()
@@ -64,16 +71,16 @@ def body_skeleton(character) -> tuple[Clip, np.ndarray]:
         weighted = [c for c in kids[r] if sub[c] > 0]
         if not weighted:
             break
-        body = max(weighted, key=lambda c: sub[c])
-        placed = [c for c in weighted if c != body]
-        if any(count[c] > SMALL_PART * count[body] or sub[c] > SMALL_PART * sub[body] for c in placed):
+        main = max(weighted, key=lambda c: sub[c])
+        placed = [c for c in weighted if c != main]
+        if any(count[c] > SMALL_PART * count[main] or sub[c] > SMALL_PART * sub[main] for c in placed):
             break                                       # two body halves: read the tree as it is
         for c in kids[r]:
             if sub[c] == 0:
                 parents[c] = -1                         # an IK or pole target: not the body
                 changed = True
         in_body = np.zeros(J, bool)
-        stack = [body]
+        stack = [main]
         while stack:
             k = stack.pop()
             in_body[k] = True
@@ -84,10 +91,44 @@ def body_skeleton(character) -> tuple[Clip, np.ndarray]:
             changed = True
         if placed:
             break
-        r = body
-    if not changed:
-        return clip, np.arange(J)
-    return _reparented(clip, parents), _order(parents)
+        r = main
+    body = _reparented(clip, parents) if changed else clip
+    order = _order(parents) if changed else np.arange(J)
+    from rig.motion.body_plan import detect_body_plan
+    if detect_body_plan(body).kind == "other":
+        tipped = _skin_tips(body, order, character)
+        if tipped is not None and detect_body_plan(tipped).kind != "other":
+            return tipped, order
+    return body, order
+
+
+def _skin_tips(clip: Clip, order: np.ndarray, character) -> Clip | None:
+    """`clip` with an end site at the farthest skin vertex of each childless joint that has none (the vertices
+    each joint moves most, the character's first influence); None when no joint gets one."""
+    J = clip.num_joints
+    dominant = np.asarray(character.joints)[:, 0]
+    vertices = np.asarray(character.vertices, float)
+    new = np.empty(J, np.int64)
+    new[order] = np.arange(J)
+    has_kids = np.zeros(J, bool)
+    has_kids[np.asarray(clip.parents)[np.asarray(clip.parents) >= 0]] = True
+    has_end = np.zeros(J, bool)
+    has_end[np.asarray(clip.end_parents, np.int64)] = True
+    rot, pos = clip.rest_world()
+    ends, offsets = [], []
+    for k in np.nonzero(~has_kids & ~has_end)[0]:
+        mine = vertices[dominant == order[k]]
+        if not len(mine):
+            continue
+        far = mine[np.argmax(np.linalg.norm(mine - pos[k], axis=1))]
+        ends.append(k)
+        offsets.append(quat.rotate(quat.conj(rot[k]), far - pos[k]))
+    if not ends:
+        return None
+    import dataclasses
+    return dataclasses.replace(clip, end_parents=np.concatenate([clip.end_parents, ends]).astype(np.int32),
+                               end_offsets=np.concatenate([np.reshape(clip.end_offsets, (-1, 3)), offsets]),
+                               meta={**clip.meta, "body_skeleton": "bone tips from the skin"})
 
 
 def original_parents(clip: Clip, order: np.ndarray) -> np.ndarray:

@@ -276,30 +276,3 @@ def test_naming_schemes_are_found_by_themselves(preset):
     assert roles == {r: j for r, j in cmu.items() if r in scheme.roles}
     assert len(roles) >= len(REQUIRED)
 
-
-def test_ik_helper_bones_are_set_aside_to_read_the_body():
-    """RobotExpressive (CC0): its feet and knee poles hang off a weightless root bone beside the body, as game
-    rigs' IK targets do. Read as it is: one limb on the ground, no legs. The body's skeleton
-    (rig.character.body_skeleton: weightless helpers set aside, the IK-placed feet hung under their lower legs)
-    is a biped, with its own built-in map; CesiumMan's has no helpers and is read as it is."""
-    from rig.character.body_skeleton import body_skeleton, original_parents
-    from rig.character.gltf_character import read_gltf_character
-    from rig.motion.body_plan import detect_body_plan
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", JiggleWarning)
-        robot = read_gltf_character(asset("characters/RobotExpressive.glb"))
-        man = read_gltf_character(asset("characters/CesiumMan.glb"))
-    assert detect_body_plan(robot.skeleton).kind == "other"
-    body, order = body_skeleton(robot)
-    plan = detect_body_plan(body)
-    assert plan.kind == "biped" and plan.ground_limbs == 2, plan.reason
-    names = robot.joint_names
-    parents = original_parents(body, order)
-    for s in "LR":
-        assert names[parents[names.index(f"Foot.{s}")]] == f"LowerLeg.{s}"     # the foot under its leg
-        assert parents[names.index(f"PoleTarget.{s}")] == -1                    # the pole set aside
-    roles = {r: names[order[j]] for r, j in resolve_roles(body).items()}
-    assert roles["left_foot"] == "Foot.L" and roles["left_lower_leg"] == "LowerLeg.L"
-    assert roles["left_upper_arm"] == "UpperArm.L" and roles["hips"] == "Body"
-    same, identity = body_skeleton(man)
-    assert same is man.skeleton and np.array_equal(identity, np.arange(man.num_joints))

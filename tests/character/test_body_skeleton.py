@@ -1,0 +1,98 @@
+"""The skeleton a character's body plan and roles are read from (rig/character/body_skeleton.py): helper bones
+off a weightless root set aside, IK-placed feet hung under their legs, bone tips from the skin when the joints
+alone give no body plan; and nothing changed for a skeleton that already reads as a body."""
+from __future__ import annotations
+
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+from conftest import asset
+
+from rig.base.errors import JiggleWarning
+from rig.character.body_skeleton import body_skeleton, original_parents
+from rig.motion import quat
+from rig.motion.body_plan import detect_body_plan, quadruped_roles
+from rig.motion.clip import Clip
+from rig.motion.role_map import resolve_roles
+
+
+def test_ik_helper_bones_are_set_aside_to_read_the_body():
+    """RobotExpressive (CC0): its feet and knee poles hang off a weightless root bone beside the body, as game
+    rigs' IK targets do. Read as it is: one limb on the ground, no legs. The body's skeleton
+    (rig.character.body_skeleton: weightless helpers set aside, the IK-placed feet hung under their lower legs)
+    is a biped, with its own built-in map; CesiumMan's has no helpers and is read as it is."""
+    from rig.character.gltf_character import read_gltf_character
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        robot = read_gltf_character(asset("characters/RobotExpressive.glb"))
+        man = read_gltf_character(asset("characters/CesiumMan.glb"))
+    assert detect_body_plan(robot.skeleton).kind == "other"
+    body, order = body_skeleton(robot)
+    plan = detect_body_plan(body)
+    assert plan.kind == "biped" and plan.ground_limbs == 2, plan.reason
+    names = robot.joint_names
+    parents = original_parents(body, order)
+    for s in "LR":
+        assert names[parents[names.index(f"Foot.{s}")]] == f"LowerLeg.{s}"     # the foot under its leg
+        assert parents[names.index(f"PoleTarget.{s}")] == -1                    # the pole set aside
+    roles = {r: names[order[j]] for r, j in resolve_roles(body).items()}
+    assert roles["left_foot"] == "Foot.L" and roles["left_lower_leg"] == "LowerLeg.L"
+    assert roles["left_upper_arm"] == "UpperArm.L" and roles["hips"] == "Body"
+    same, identity = body_skeleton(man)
+    assert same is man.skeleton and np.array_equal(identity, np.arange(man.num_joints))
+
+
+def stick(names, parents, world) -> Clip:
+    """A one-frame clip of joints at world positions (Z-up metres), every rotation the identity."""
+    world = np.asarray(world, float)
+    parents = np.asarray(parents)
+    off = np.array([world[j] - (world[p] if p >= 0 else 0.0) for j, p in enumerate(parents)])
+    rot = quat.identity((len(names),))
+    return Clip(joint_names=names, parents=parents, offsets=off, rest_rotations=rot, rotations=rot[None],
+                translations=off[None], fps=30.0, name="fox-like")
+
+
+def test_paws_and_a_tail_from_the_skin_make_a_quadruped():
+    """A fox-like rig (as the glTF Fox sample is built): hind legs that end at a toe joint on the ground, front legs
+    named as arms that end at the wrist a fifth of the height up, a three-joint tail. The joints give two legs on
+    the ground and a flat spine: no plan. With the bones' tips where the skin each last joint moves reaches (the
+    paws down to the ground), it is a quadruped with a tail, and the quadruped roles find its legs."""
+    names = ["hip", "spine", "chest", "neck", "head", "tail1", "tail2", "tail3",
+             "l_upperarm", "l_forearm", "l_hand", "r_upperarm", "r_forearm", "r_hand",
+             "l_leg1", "l_leg2", "l_foot1", "l_foot2", "r_leg1", "r_leg2", "r_foot1", "r_foot2"]
+    P = {n: i for i, n in enumerate(names)}
+    parents = [-1, 0, 1, 2, 3, 0, 5, 6, 2, 8, 9, 2, 11, 12, 0, 14, 15, 16, 0, 18, 19, 20]
+    y0, y1 = 0.0, -0.45                               # hips at the back (y 0), chest at the front (y -0.45)
+    world = [(0, y0, 0.55), (0, -0.2, 0.57), (0, y1, 0.58), (0, -0.55, 0.68), (0, -0.62, 0.78),
+             (0, 0.12, 0.55), (0, 0.25, 0.50), (0, 0.37, 0.45),
+             (0.07, y1, 0.50), (0.07, y1 + 0.02, 0.33), (0.07, y1, 0.16),
+             (-0.07, y1, 0.50), (-0.07, y1 + 0.02, 0.33), (-0.07, y1, 0.16),
+             (0.07, y0, 0.50), (0.07, 0.05, 0.32), (0.07, 0.0, 0.14), (0.07, -0.03, 0.02),
+             (-0.07, y0, 0.50), (-0.07, 0.05, 0.32), (-0.07, 0.0, 0.14), (-0.07, -0.03, 0.02)]
+    clip = stick(names, parents, world)
+    assert detect_body_plan(clip).kind == "other"
+    # the skin: a few vertices around each joint, the front paws' down to the ground in front of the wrist
+    verts, owner = [], []
+    rng = np.random.default_rng(0)
+    for j, w in enumerate(world):
+        for _ in range(6):
+            verts.append(np.asarray(w) + rng.normal(0, 0.01, 3))
+            owner.append(j)
+    for hand in ("l_hand", "r_hand"):
+        x, y, _ = world[P[hand]]
+        verts += [(x, y - 0.06, 0.0), (x, y - 0.03, 0.05)]
+        owner += [P[hand]] * 2
+    verts += [(0, 0.5, 0.40)]                          # the tail's tip
+    owner += [P["tail3"]]
+    V = len(verts)
+    character = SimpleNamespace(skeleton=clip, num_joints=len(names), vertices=np.array(verts),
+                                joints=np.array(owner)[:, None], weights=np.ones((V, 1)))
+    body, order = body_skeleton(character)
+    plan = detect_body_plan(body)
+    assert plan.kind == "quadruped" and plan.tail, plan.reason
+    assert np.array_equal(order, np.arange(len(names)))          # the same joints: only bone tips were added
+    roles = {r: names[j] for r, j in quadruped_roles(body).items()}
+    assert roles["hips"] == "hip" and roles["chest"] == "chest" and roles["tail"] == "tail1"
+    assert {roles["left_front_foot"], roles["right_front_foot"]} == {"l_hand", "r_hand"}
+    assert {roles["left_hind_upper_leg"], roles["right_hind_upper_leg"]} == {"l_leg1", "r_leg1"}
