@@ -7,6 +7,7 @@ import warnings
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from conftest import asset
 
 from rig.base.errors import JiggleWarning
@@ -96,3 +97,22 @@ def test_paws_and_a_tail_from_the_skin_make_a_quadruped():
     assert roles["hips"] == "hip" and roles["chest"] == "chest" and roles["tail"] == "tail1"
     assert {roles["left_front_foot"], roles["right_front_foot"]} == {"l_hand", "r_hand"}
     assert {roles["left_hind_upper_leg"], roles["right_hind_upper_leg"]} == {"l_leg1", "r_leg1"}
+
+
+@pytest.mark.slow
+def test_robot_expressive_bakes_its_own_animation_with_no_flags(tmp_path):
+    """`jiggle bake --character RobotExpressive.glb`: its body plan read from the body, the human template fitted,
+    its own first animation baked (no --template, no map), every cache value finite."""
+    import json
+
+    from sim.app.cli import main
+    from sim.bake.caches import read_npz
+    out = tmp_path / "robot"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        assert main(["-q", "bake", "--character", str(asset("characters/RobotExpressive.glb")), "--out", str(out),
+                     "--frames", "30", "--formats", "npz"]) == 0
+    summary = json.loads((out / "bake.json").read_text())
+    assert summary["params"]["template"] == "human" and summary["muscles"] >= 15
+    d = read_npz(out / "bake.npz")
+    assert np.isfinite(d.skin_final).all() and np.abs(d.skin_final - d.skin_static).max() > 1e-4
