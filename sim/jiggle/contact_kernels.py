@@ -124,6 +124,110 @@ def capsule_contact(x: wp.vec3, v: wp.vec3, a: wp.vec3, b: wp.vec3, cap_pos: wp.
 
 
 @wp.func
+def contact_ends(
+    m: int, num_capsules: int, num_muscles: int, floor: float, cap_radius: wp.array(dtype=float),
+    active_offsets: wp.array(dtype=wp.int32), active_id: wp.array(dtype=wp.int32),
+    cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3), cap_ve: wp.array2d(dtype=wp.vec3),
+    seg: int, H: float, s1: float,
+    ends_a: wp.array(dtype=wp.vec3), ends_b: wp.array(dtype=wp.vec3), ends_va: wp.array(dtype=wp.vec3),
+    ends_vb: wp.array(dtype=wp.vec3),
+):
+    """What muscle m's contacts at s1 share: the listed capsules' ends and boxes (grown by the radius) into the
+    scratch per active entry, and (union lo, union hi, the floor's height when it is listed, else far below)."""
+    e0 = int(active_offsets[seg * num_muscles + m])
+    e1 = int(active_offsets[seg * num_muscles + m + 1])
+    ulo = wp.vec3(FAR)
+    uhi = wp.vec3(-FAR)
+    floor_live = float(-FAR)
+    for e in range(e0, e1):
+        c = active_id[e]
+        if c < num_capsules:
+            a = end_pos(cap_pos, cap_vs, cap_ve, seg, 2 * c, H, s1)
+            b = end_pos(cap_pos, cap_vs, cap_ve, seg, 2 * c + 1, H, s1)
+            r = cap_radius[c]
+            clo = wp.min(a, b) - wp.vec3(r)
+            chi = wp.max(a, b) + wp.vec3(r)
+            # the ends and the capsule's box; its ends' velocities are needed only on a contact
+            ends_a[e] = a
+            ends_b[e] = b
+            ends_va[e] = clo
+            ends_vb[e] = chi
+            ulo = wp.min(ulo, clo)
+            uhi = wp.max(uhi, chi)
+        else:
+            floor_live = floor
+    return ulo, uhi, floor_live
+
+
+@wp.func
+def contact_particle(
+    i: int, m: int, e0: int, e1: int, ulo: wp.vec3, uhi: wp.vec3, floor_live: float,
+    params: wp.array(dtype=wp.vec3), cap_radius: wp.array(dtype=float), floor: float, friction: float,
+    num_capsules: int, active_id: wp.array(dtype=wp.int32),
+    cubics: wp.array(dtype=cubic), cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3),
+    cap_ve: wp.array2d(dtype=wp.vec3), seg: int, H: float, s1: float,
+    ends_a: wp.array(dtype=wp.vec3), ends_b: wp.array(dtype=wp.vec3), ends_va: wp.array(dtype=wp.vec3),
+    ends_vb: wp.array(dtype=wp.vec3), record: wp.array(dtype=wp.vec3), dirty: wp.array(dtype=wp.int32),
+    y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3),
+    frame: int, last: bool, frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
+):
+    """Particle i (of muscle m, its listed entries e0:e1 and their union box from :func:`contact_ends`) pushed out
+    of the capsules and above the floor at s1: its offsets corrected in place, its positions rewritten where
+    read, its record kept, dirty[m] set when it touched something."""
+    inv_m = params[i][0]
+    cu = cubics[i]
+    pa = wp.vec3(cu[0], cu[1], cu[2])
+    va = wp.vec3(cu[3], cu[4], cu[5])
+    c2 = wp.vec3(cu[6], cu[7], cu[8])
+    c3 = wp.vec3(cu[9], cu[10], cu[11])
+    g1 = pa + s1 * (va + s1 * (c2 + s1 * c3))
+    x = g1 + y[i]                           # run_step's arithmetic: what it wrote
+    # a particle outside every live capsule's box and above a live floor touches nothing
+    near = x[0] >= ulo[0] and x[1] >= ulo[1] and x[2] >= ulo[2] and \
+        x[0] <= uhi[0] and x[1] <= uhi[1] and x[2] <= uhi[2]
+    if inv_m > 0.0 and (near or x[2] < floor_live):
+        g_vel = va + s1 * (2.0 * c2 + 3.0 * s1 * c3)
+        v1 = g_vel + u[i]
+        v = v1
+        deepest = float(0.0)
+        hit = float(NO_HIT)
+        for e in range(e0, e1):
+            c = active_id[e]
+            if c < num_capsules:
+                clo = ends_va[e]
+                chi = ends_vb[e]
+                # outside the capsule's box (most particles): no push
+                if x[0] >= clo[0] and x[1] >= clo[1] and x[2] >= clo[2] and \
+                        x[0] <= chi[0] and x[1] <= chi[1] and x[2] <= chi[2]:
+                    x, v, depth = capsule_contact(x, v, ends_a[e], ends_b[e], cap_pos, cap_vs, cap_ve,
+                                                  seg, c, H, s1, cap_radius[c], friction)
+                    if depth > deepest:
+                        deepest = depth
+                        hit = float(c)
+            elif x[2] < floor:
+                depth = floor - x[2]
+                x = wp.vec3(x[0], x[1], floor)
+                v = surface_velocity(v, wp.vec3(0.0), wp.vec3(0.0, 0.0, 1.0), friction)
+                if depth > deepest:
+                    deepest = depth
+                    hit = float(num_capsules)
+        if hit != NO_HIT:
+            y[i] = x - g1
+            u[i] = v - g_vel
+            if frame >= 0:
+                frames_out[frame, i] = x
+            if last:
+                x_out[i] = x
+            rec = record[i]
+            impulse = wp.length(v - v1) / inv_m
+            if deepest > rec[0]:
+                record[i] = wp.vec3(deepest, rec[1] + impulse, hit)
+            else:
+                record[i] = wp.vec3(rec[0], rec[1] + impulse, rec[2])
+            dirty[m] = 1
+
+
+@wp.func
 def contact_pass(
     m0: int, m1: int,
     # model
@@ -150,92 +254,26 @@ def contact_pass(
     hit) and written with each recorded frame (contacts_out holds "none" where a muscle has none).
 
     Per muscle and step, the listed capsules' ends at s1 and their boxes (grown by the radius) first, and
-    the union of those boxes; a particle outside the union (and above the floor, when the floor is listed)
-    touches nothing and costs one box test, the others are tested against each capsule's box before its
-    exact test, and a capsule's end velocities are evaluated only on a contact. The host's broad phase
-    lists what a muscle may reach over a block of knot intervals (sim/jiggle/colliders.py: Colliders.active),
-    these tests what each particle reaches now; they skip only what cannot touch, so the result is that of
-    testing every listed capsule."""
+    the union of those boxes (:func:`contact_ends`); a particle outside the union (and above the floor, when
+    the floor is listed) touches nothing and costs one box test, the others are tested against each capsule's
+    box before its exact test (:func:`contact_particle`), and a capsule's end velocities are evaluated only on
+    a contact. The host's broad phase lists what a muscle may reach over a block of knot intervals
+    (sim/jiggle/colliders.py: Colliders.active), these tests what each particle reaches now; they skip only
+    what cannot touch, so the result is that of testing every listed capsule. A GPU runs the same two
+    functions a muscle (then a particle) per thread (sim/jiggle/step_kernels.py)."""
     for m in range(m0, m1):
         lo_p = int(muscle_offsets[m])
         hi_p = int(muscle_offsets[m + 1])
         e0 = int(active_offsets[seg * num_muscles + m])
         e1 = int(active_offsets[seg * num_muscles + m + 1])
         if e1 > e0:
-            # the listed capsules at s1: ends and boxes, and the union of the boxes; the floor's height when
-            # it is listed (else far below)
-            ulo = wp.vec3(FAR)
-            uhi = wp.vec3(-FAR)
-            floor_live = float(-FAR)
-            for e in range(e0, e1):
-                c = active_id[e]
-                if c < num_capsules:
-                    a = end_pos(cap_pos, cap_vs, cap_ve, seg, 2 * c, H, s1)
-                    b = end_pos(cap_pos, cap_vs, cap_ve, seg, 2 * c + 1, H, s1)
-                    r = cap_radius[c]
-                    clo = wp.min(a, b) - wp.vec3(r)
-                    chi = wp.max(a, b) + wp.vec3(r)
-                    # the ends and the capsule's box; its ends' velocities are needed only on a contact
-                    ends_a[e] = a
-                    ends_b[e] = b
-                    ends_va[e] = clo
-                    ends_vb[e] = chi
-                    ulo = wp.min(ulo, clo)
-                    uhi = wp.max(uhi, chi)
-                else:
-                    floor_live = floor
+            ulo, uhi, floor_live = contact_ends(m, num_capsules, num_muscles, floor, cap_radius, active_offsets,
+                                                active_id, cap_pos, cap_vs, cap_ve, seg, H, s1, ends_a, ends_b,
+                                                ends_va, ends_vb)
             for i in range(lo_p, hi_p):
-                inv_m = params[i][0]
-                cu = cubics[i]
-                pa = wp.vec3(cu[0], cu[1], cu[2])
-                va = wp.vec3(cu[3], cu[4], cu[5])
-                c2 = wp.vec3(cu[6], cu[7], cu[8])
-                c3 = wp.vec3(cu[9], cu[10], cu[11])
-                g1 = pa + s1 * (va + s1 * (c2 + s1 * c3))
-                x = g1 + y[i]                           # run_step's arithmetic: what it wrote
-                # a particle outside every live capsule's box and above a live floor touches nothing
-                near = x[0] >= ulo[0] and x[1] >= ulo[1] and x[2] >= ulo[2] and \
-                    x[0] <= uhi[0] and x[1] <= uhi[1] and x[2] <= uhi[2]
-                if inv_m > 0.0 and (near or x[2] < floor_live):
-                    g_vel = va + s1 * (2.0 * c2 + 3.0 * s1 * c3)
-                    v1 = g_vel + u[i]
-                    v = v1
-                    deepest = float(0.0)
-                    hit = float(NO_HIT)
-                    for e in range(e0, e1):
-                        c = active_id[e]
-                        if c < num_capsules:
-                            clo = ends_va[e]
-                            chi = ends_vb[e]
-                            # outside the capsule's box (most particles): no push
-                            if x[0] >= clo[0] and x[1] >= clo[1] and x[2] >= clo[2] and \
-                                    x[0] <= chi[0] and x[1] <= chi[1] and x[2] <= chi[2]:
-                                x, v, depth = capsule_contact(x, v, ends_a[e], ends_b[e], cap_pos, cap_vs, cap_ve,
-                                                              seg, c, H, s1, cap_radius[c], friction)
-                                if depth > deepest:
-                                    deepest = depth
-                                    hit = float(c)
-                        elif x[2] < floor:
-                            depth = floor - x[2]
-                            x = wp.vec3(x[0], x[1], floor)
-                            v = surface_velocity(v, wp.vec3(0.0), wp.vec3(0.0, 0.0, 1.0), friction)
-                            if depth > deepest:
-                                deepest = depth
-                                hit = float(num_capsules)
-                    if hit != NO_HIT:
-                        y[i] = x - g1
-                        u[i] = v - g_vel
-                        if frame >= 0:
-                            frames_out[frame, i] = x
-                        if last:
-                            x_out[i] = x
-                        rec = record[i]
-                        impulse = wp.length(v - v1) / inv_m
-                        if deepest > rec[0]:
-                            record[i] = wp.vec3(deepest, rec[1] + impulse, hit)
-                        else:
-                            record[i] = wp.vec3(rec[0], rec[1] + impulse, rec[2])
-                        dirty[m] = 1
+                contact_particle(i, m, e0, e1, ulo, uhi, floor_live, params, cap_radius, floor, friction,
+                                 num_capsules, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, H, s1, ends_a,
+                                 ends_b, ends_va, ends_vb, record, dirty, y, u, frame, last, frames_out, x_out)
         if frame >= 0 and dirty[m] != 0:
             for i in range(lo_p, hi_p):
                 contacts_out[frame, i] = record[i]

@@ -217,7 +217,7 @@ class ParticleSolver:
             out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
                                           dev_array(flow_index, wp.int32), frame, frames, ks, dev_array)
             return None if record is None else out
-        self._run_or_step(kernels.integrate_run, len(seg), [
+        self._run_or_step(kernels.integrate_run, len(seg), frame, [
             self._params, *table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
             control.pos, control.vel_start, control.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
@@ -298,7 +298,7 @@ class ParticleSolver:
             self._cubics, ea, eb, eva, evb, record, dirty, frames, records, *_xv(state_out)]
         if plan:
             return kernel or ck.integrate_run_contact, args, record
-        self._run_or_step(kernel or ck.integrate_run_contact, len(seg), args)
+        self._run_or_step(kernel or ck.integrate_run_contact, len(seg), frame, args)
         self.contact_records = records.numpy()[:len(ks)]
         return frames.numpy()[:len(ks)] if len(ks) else np.zeros((0, m.num_particles, 3), np.float32)
 
@@ -339,16 +339,17 @@ class ParticleSolver:
                                       control.pos, control.vel_start, control.vel_end, seg, float(H),
                                       float(s0 + dts[-1]), float(0.5 * dts[-1]), Y[0], U, state_out.v])
 
-    def _run_or_step(self, kernel, K: int, args: list) -> None:
-        """A one-launch run over `args` (K steps): in one launch, or a launch per step where :attr:`stepwise`
-        (the plain and contact runs; the keyed solver's own kernels always run in one)."""
+    def _run_or_step(self, kernel, K: int, frame: np.ndarray, args: list) -> None:
+        """A one-launch run over `args` (K steps; frame (K,) each step's recorded frame or -1): in one launch, or
+        a launch per step where :attr:`stepwise` (the plain and contact runs; the keyed solver's own kernels
+        always run in one)."""
         from sim.jiggle import contact_kernels as ck
         if self.stepwise and kernel in (kernels.integrate_run, ck.integrate_run_contact):
-            self._run_stepwise(kernel, K, args)
+            self._run_stepwise(kernel, K, args, frame)
         else:
             self._run(kernel, self.num_groups, args)
 
-    def _run_stepwise(self, kernel, K: int, args: list) -> None:
+    def _run_stepwise(self, kernel, K: int, args: list, frame: np.ndarray) -> None:
         """A one-launch run (kernels.integrate_run or contact_kernels.integrate_run_contact over `args`) as a
         launch per step, a thread per particle (and per muscle for the contacts): sim/jiggle/step_kernels.py,
         the GPU's way (:attr:`stepwise`). Each kernel is recorded once per run and only its step index set
@@ -360,27 +361,49 @@ class ParticleSolver:
         if kernel is kernels.integrate_run:
             opening, steps, closing = [(sk.run_open, N)], [(sk.run_one, N)], (sk.run_close, N)
         elif kernel is ck.integrate_run_contact:
-            opening, steps = [(sk.contact_open, N), (sk.contact_clear, M)], [(sk.contact_one, N), (sk.contact_after, M)]
+            opening = [(sk.contact_open, N), (sk.contact_clear, M)]
+            steps = [(sk.contact_one, N), (sk.contact_gather, M), (sk.contact_each, N)]
             closing = (sk.contact_close, N)
         else:
             raise ValueError(f"no stepwise run for {kernel.key}")
         dev = m.device
+        extra = self._contact_extras() if kernel is ck.integrate_run_contact else []
+        wide = {sk.contact_gather.key, sk.contact_each.key, sk.contact_flush.key}
         recorded = {}
-        for kern, n in opening + steps + [closing]:
+        for kern, n in opening + steps + [closing] + ([(sk.contact_flush, N)] if extra else []):
             if n > 0 and kern.key not in recorded:
-                recorded[kern.key] = wp.launch(kern, dim=n, inputs=[0, *args], device=dev, record_cmd=True)
+                more = extra if kern.key in wide else []
+                recorded[kern.key] = wp.launch(kern, dim=n, inputs=[0, *args, *more], device=dev, record_cmd=True)
         for kern, n in opening:
             if n > 0:
                 recorded[kern.key].launch()
+        recorded_steps = np.asarray(frame) >= 0
         for k in range(K):
             for kern, n in steps:
                 if n > 0:
                     launch = recorded[kern.key]
                     launch.set_param_at_index(0, k)
                     launch.launch()
+            if extra and N > 0 and recorded_steps[k]:
+                launch = recorded[sk.contact_flush.key]
+                launch.set_param_at_index(0, k)
+                launch.launch()
+                self.launches += 1
         if N > 0:
             recorded[closing[0].key].launch()
         self.launches += len(opening) + K * len(steps) + 1
+
+    def _contact_extras(self) -> list:
+        """The per-particle contact kernels' own arrays: per muscle the shared union box and floor, per particle
+        its muscle (made once per solver)."""
+        if getattr(self, "_extras", None) is None:
+            m, dev = self.model, self.model.device
+            M = len(m.group_offsets) - 1
+            owner = np.repeat(np.arange(M, dtype=np.int32), np.diff(np.asarray(m.group_offsets)))
+            self._extras = [wp.zeros(max(M, 1), dtype=wp.vec3, device=dev), wp.zeros(max(M, 1), dtype=wp.vec3, device=dev),
+                            wp.zeros(max(M, 1), dtype=float, device=dev),
+                            wp.array(owner if len(owner) else np.zeros(1, np.int32), dtype=wp.int32, device=dev)]
+        return self._extras
 
     def _run(self, kernel, dim: int, args: list) -> None:
         """Launch `kernel` over `dim` threads with `args` (inputs then outputs). The launch is recorded
