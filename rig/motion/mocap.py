@@ -6,7 +6,7 @@ import os
 from rig.base.errors import InputError, require_file
 from rig.motion.clip import Clip
 
-CLIP_EXTENSIONS = (".bvh", ".amc", ".asf", ".glb", ".gltf", ".toml")
+CLIP_EXTENSIONS = (".bvh", ".amc", ".asf", ".glb", ".gltf", ".fbx", ".toml")
 
 
 def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
@@ -16,7 +16,7 @@ def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = N
 
     path : .bvh; .amc (its .asf from `skeleton`, else the one .asf beside it); .asf alone (its rest
         pose as a one-frame clip); .glb/.gltf with animations (`animation` by name or index, default
-        the first); .toml keyframes (rig.motion.keyframes, as the built-in demo motion).
+        the first); .fbx, binary 7.1+, its takes read through Blender's importer (rig.motion.fbx); .toml keyframes (rig.motion.keyframes, as the built-in demo motion).
     scale : metres per file unit for BVH (None: recognise CMU or guess, see rig.motion.bvh).
     tpose : BVH first-frame handling, "auto", "skip" or "keep".
     """
@@ -32,6 +32,10 @@ def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = N
     if ext == ".asf":
         from rig.motion.acclaim import read_asf
         return read_asf(p).rest_clip()
+    if ext == ".fbx":
+        from rig.motion.fbx import through_gltf
+        from rig.motion.gltf_anim import read_gltf_animation
+        return through_gltf(p, read_gltf_animation, animation)
     if ext in (".glb", ".gltf"):
         from rig.motion.gltf_anim import read_gltf_animation
         return read_gltf_animation(p, animation)

@@ -44,8 +44,10 @@ def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=Non
     scale : metres per unit of the character file (rig.character.character.unit_scale of its --unit),
         as the character is read with: the skeleton the clip lands on is scaled alike, so the skin and
         its bones agree."""
+    from rig.motion.fbx import fbx_to_gltf, is_fbx
     from rig.motion.gltf_skeleton import read_gltf_skeleton
-    character = scaled_skeleton(read_gltf_skeleton(character_file, skin), scale)
+    skeleton_file = fbx_to_gltf(character_file) if is_fbx(character_file) else character_file
+    character = scaled_skeleton(read_gltf_skeleton(skeleton_file, skin), scale)
     if clip_map is None and character_map is None:
         idx = same_skeleton(clip, character)
         if idx is not None:

@@ -37,7 +37,7 @@ from sim.bake.setup import BakeRequest, file_digest, jsonable, params_key
 INDEX_FORMAT = "jiggle.batch/1"
 RECORD = "batch.json"
 """Each job's record, in its own folder: status, error, figures, the request's fingerprint."""
-CLIP_SUFFIXES = (".bvh", ".amc", ".glb", ".gltf")
+CLIP_SUFFIXES = (".bvh", ".amc", ".glb", ".gltf", ".fbx")
 JOB_KEYS = {"clip": str, "name": str, "animation": (str, int), "skeleton": str, "character": str, "template": str,
             "fps": float, "start": float, "end": float, "frames": int, "jiggle": float, "blend": float}
 """Keys a manifest's [[job]] may hold, and their types; paths are relative to the manifest's folder."""
@@ -98,11 +98,12 @@ def folder_jobs(folder: str, base: BakeRequest, out_root: str | None = None,
 def _animations(path: str, log) -> list[tuple[int | None, str | None]]:
     """[(animation, label)] of a clip file: [(None, None)] for BVH and AMC (and for a glTF that cannot be
     read: its job then fails with the reader's error), one per animation of a glTF, none without."""
-    if not path.lower().endswith((".glb", ".gltf")):
+    if not path.lower().endswith((".glb", ".gltf", ".fbx")):
         return [(None, None)]
+    from rig.motion.fbx import fbx_to_gltf, is_fbx
     from rig.motion.gltf_io import GltfDocument
     try:
-        anims = GltfDocument(path).gltf.animations or []
+        anims = GltfDocument(fbx_to_gltf(path) if is_fbx(path) else path).gltf.animations or []
     except Exception:                  # noqa: BLE001 - the job reports the reader's error
         return [(None, None)]
     if not anims:

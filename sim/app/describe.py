@@ -119,13 +119,22 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
             out["clip"] = describe_clip(load_clip(p, animation=animation))
             if "body_plan" in out:      # the animation moves the character's own skeleton: its body, as read above
                 out["clip"]["body_plan"] = out["body_plan"]
+    elif ext == ".fbx":
+        from rig.motion.fbx import fbx_to_gltf, fbx_version
+        kind, version = fbx_version(p)
+        glb = fbx_to_gltf(p)
+        out = {**inspect_file(glb, animation=animation), "format": f"FBX {version / 1000:.1f} {kind} (read through "
+                                                                     f"Blender's importer, as glTF: {glb})"}
+        out.pop("file", None)
+        if not out.get("vertices") and isinstance(out.get("clip"), dict):    # a skeleton with a take: a clip
+            out = {**out["clip"], "format": out["format"]}
     elif ext in MESH_EXTENSIONS:
         out = describe_mesh(p)
     elif ext == ".xml":
         out = describe_mjcf(p)
     else:
         raise InputError(f"unknown file type {ext or '(no extension)'!r}; expected a clip (.bvh .amc .asf .glb "
-                         f".gltf), a character (.glb .gltf .obj .ply .stl) or an MJCF (.xml)", p)
+                         f".gltf .fbx), a character (.glb .gltf .fbx .obj .ply .stl) or an MJCF (.xml)", p)
     return {"file": p, **out}
 
 

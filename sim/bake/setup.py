@@ -236,7 +236,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     timings = {}
     t = time.perf_counter()
     scene = load_scene(req.scene) if req.scene is not None else None
-    own = req.character is not None and str(req.character).lower().endswith((".glb", ".gltf"))
+    own = req.character is not None and str(req.character).lower().endswith((".glb", ".gltf", ".fbx"))
     if scene is None and req.clip is None and not own:      # a glTF character alone bakes its own animation
         from sim.bake.scene import default_scene
         scene = load_scene(default_scene())
@@ -433,7 +433,7 @@ def _clip(req: BakeRequest, scene):
     character's own animation (--animation, else its first)."""
     character = req.character or (scene.character.file if scene is not None and scene.character else None)
     if req.clip is None and (scene is None or scene.clip is None) and character is not None \
-            and str(character).lower().endswith((".glb", ".gltf")):
+            and str(character).lower().endswith((".glb", ".gltf", ".fbx")):
         req = replace(req, clip=character)
     if req.clip is not None:
         from rig.motion.mocap import load_clip
