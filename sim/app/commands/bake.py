@@ -104,9 +104,10 @@ def add_parser(sub) -> None:
                                    "Command-line settings override the scene's.")
     p.add_argument("scene", nargs="?", metavar="SCENE", help="a scene TOML (scenes/*.toml); its [motion] may be left "
                    "out and given with --clip")
-    p.add_argument("--clip", metavar="FILE", help="the motion: BVH, AMC (its ASF beside it or --skeleton) or "
-                   "glTF/GLB with animations (--animation)")
-    p.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB: the clip is retargeted onto it "
+    p.add_argument("--clip", metavar="FILE", help="the motion: BVH, AMC (its ASF beside it or --skeleton), "
+                   "glTF/GLB with animations or binary FBX 7.1+ with takes (--animation; FBX is read through "
+                   "Blender's importer)")
+    p.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB or binary FBX: the clip is retargeted onto it "
                    "(default: the scene's, else a body generated around the clip's skeleton)")
     template_option(p)
     bake_options(p, "out/bake")

@@ -96,7 +96,7 @@ def add_parser(sub) -> None:
     g.add_argument("--no-render", action="store_true", help="compare without pictures (no peak-frame thumbnail)")
     g.add_argument("--no-report", action="store_true", help="no compare at all: the index has the bakes' numbers only")
     g = p.add_argument_group("character (every job's, unless its manifest entry says)")
-    g.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB the clips are retargeted onto (default: a "
+    g.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB or FBX the clips are retargeted onto (default: a "
                    "body generated around each clip's skeleton)")
     template_option(g)
     map_options(g)

@@ -98,7 +98,7 @@ def add_parser(sub) -> None:
     p.add_argument("--poses", type=count("--poses"), default=8, help="poses in the skeleton picture (default: 8)")
     p.add_argument("--no-render", action="store_true", help="skip the 3D picture (plots and data only)")
     g = p.add_argument_group("retargeting onto a character's skeleton")
-    g.add_argument("--character", metavar="FILE", help="the character to skin: a skinned glTF/GLB (the clip is "
+    g.add_argument("--character", metavar="FILE", help="the character to skin: a skinned glTF/GLB or FBX (the clip is "
                    "retargeted onto its skeleton), or an OBJ/PLY/STL/unskinned glTF mesh standing in the clip's "
                    "rest pose (automatic weights). Default: a body generated around the clip's skeleton")
     map_options(g, alias=False)
