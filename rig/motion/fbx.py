@@ -139,7 +139,9 @@ def through_gltf(path, read, *args, **kwargs):
     except InputError as e:
         raise InputError(f"{e.message} (read through Blender's importer)", p, field=e.field) from None
     if dataclasses.is_dataclass(out) and hasattr(out, "source"):
-        out = dataclasses.replace(out, source=p)
+        stem = os.path.splitext(os.path.basename(p))[0]
+        named = {"name": stem} if getattr(out, "name", None) == Path(glb).stem else {}
+        out = dataclasses.replace(out, source=p, **named)
     return out
 
 
