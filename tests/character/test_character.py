@@ -286,4 +286,6 @@ def test_not_a_mesh(tmp_path):
     with pytest.raises(InputError):
         load_character(p, skeleton=_two_bone_tube()[1])
     with pytest.raises(InputError, match="unknown character format"):
+        load_character(tmp_path / "x.abc")
+    with pytest.raises(InputError, match="not found"):          # FBX is a format now (rig/motion/fbx.py)
         load_character(tmp_path / "x.fbx")
