@@ -113,6 +113,22 @@ def bake_particles(model, solver, chunks, times, settings) -> np.ndarray:
     return out
 
 
+def kernel_pass(model, solver, chunks, device: str):
+    """A function that runs ParticleSolver.integrate over every chunk's step grid and goal track (uploaded here,
+    beforehand), chunk after chunk, nothing read back: the kernels alone."""
+    controls = [ch.track.to_device(device) for ch in chunks]
+    s_a, s_b = model.state(), model.state()
+
+    def integrate_all():
+        a, b = s_a, s_b
+        solver.glue(a, controls[0], chunks[0].grid[0])
+        for ctrl, ch in zip(controls, chunks):
+            solver.integrate(a, b, ctrl, ch.grid)
+            a, b = b, a
+        wp.synchronize_device(device)
+    return integrate_all
+
+
 def launch_count(solver):
     """The solver's launch counter when it has one (an int, or a method returning one), else None."""
     v = getattr(solver, "launches", None)
@@ -199,18 +215,7 @@ def main() -> None:
     t_bake, xs = best(lambda: bake_particles(model, solver, chunks, times, settings), repeats=repeats, warmup=False)
 
     # 2. the kernel alone
-    controls = [ch.track.to_device(args.device) for ch in chunks]
-    s_a, s_b = model.state(), model.state()
-
-    def integrate_all():
-        a, b = s_a, s_b
-        solver.glue(a, controls[0], chunks[0].grid[0])
-        for ctrl, ch in zip(controls, chunks):
-            solver.integrate(a, b, ctrl, ch.grid)
-            a, b = b, a
-        wp.synchronize_device(args.device)
-
-    t_kernel, _ = best(integrate_all, repeats=repeats, warmup=True)
+    t_kernel, _ = best(kernel_pass(model, solver, chunks, args.device), repeats=repeats, warmup=True)
 
     goals_f = swinging_goals(arm, offsets, times)                     # the goals at the output frames
     ours_off = np.linalg.norm(xs - goals_f, axis=2)

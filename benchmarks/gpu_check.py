@@ -251,7 +251,7 @@ def section_particles(device: str, quick: bool, out_dir: Path) -> dict:
     import numpy as np
     import warp as wp
     from bench_jiggle import copied_model, swinging_goals
-    from bench_particles import CHUNK, COPIES, FPS, SUBSTEPS, bake_chunks, bake_particles
+    from bench_particles import CHUNK, COPIES, FPS, SUBSTEPS, bake_chunks, bake_particles, kernel_pass
     from timing import best
 
     from rig.muscle.simple_arm import simple_arm
@@ -277,23 +277,13 @@ def section_particles(device: str, quick: bool, out_dir: Path) -> dict:
             bake_particles(model, solver, chunks, times, settings)          # warm-up
             t_bake, _ = best(lambda: bake_particles(model, solver, chunks, times, settings),
                              repeats=1 if big else 3, warmup=False)
-            controls = [ch.track.to_device(dev) for ch in chunks]
-            s_a, s_b = model.state(), model.state()
-
-            def integrate_all():
-                a, b = s_a, s_b
-                solver.glue(a, controls[0], chunks[0].grid[0])
-                for ctrl, ch in zip(controls, chunks):
-                    solver.integrate(a, b, ctrl, ch.grid)
-                    a, b = b, a
-                wp.synchronize_device(dev)
-            t_kernel, _ = best(integrate_all, repeats=2 if big else 5, warmup=True)
+            t_kernel, _ = best(kernel_pass(model, solver, chunks, dev), repeats=2 if big else 5, warmup=True)
             row = {"particles": n, "steps": steps, "frames": len(times) - 1, "chunk": CHUNK,
                    "bake_path_steps_per_s": n * steps / t_bake, "kernel_steps_per_s": n * steps / t_kernel}
             print(copies, dev, row, flush=True)
             res[f"{n}/{dev}"] = row
             keep(res)
-            del model, solver, controls, s_a, s_b
+            del model, solver
     return res
 
 

@@ -324,6 +324,41 @@ def edge_kick(i: int, h: float, inv_mass: float, adj_offsets: wp.array(dtype=wp.
 
 
 @wp.func
+def open_offsets(i: int, pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec3),
+                 vel_end: wp.array2d(dtype=wp.vec3), seg0: int, H0: float, s0: float, x: wp.array(dtype=wp.vec3),
+                 v: wp.array(dtype=wp.vec3), y: wp.array(dtype=wp.vec3), u: wp.array(dtype=wp.vec3)):
+    """A run's opening for particle i: its offsets y, u from its goal at the first step's start."""
+    pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
+    y[i] = x[i] - goal_pos(pa, pb, va, vb, H0, s0)
+    u[i] = v[i] - goal_vel(pa, pb, va, vb, H0, s0)
+
+
+@wp.func
+def set_cubic(i: int, pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec3),
+              vel_end: wp.array2d(dtype=wp.vec3), seg: int, H: float, cubics: wp.array(dtype=cubic)):
+    """Particle i's goal cubic on knot interval seg (of length H), for all the steps in it."""
+    pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
+    c2, c3 = hermite(pa, pb, va, vb, H)
+    cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
+
+
+@wp.func
+def close_velocity(i: int, K: int, params: wp.array(dtype=wp.vec3), adj_offsets: wp.array(dtype=wp.int32),
+                   edges: wp.array(dtype=Edge), pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec3),
+                   vel_end: wp.array2d(dtype=wp.vec3), seg1: int, H1: float, s_end: float, h_end: float,
+                   y_a: wp.array(dtype=wp.vec3), u_a: wp.array(dtype=wp.vec3), y_b: wp.array(dtype=wp.vec3),
+                   u_b: wp.array(dtype=wp.vec3), v_out: wp.array(dtype=wp.vec3)):
+    """A run of K steps' closing half kick for particle i: its velocity at the end (the offsets in buffer b after
+    an odd count of steps, a after an even one)."""
+    g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
+    inv_m = params[i][0]
+    if K % 2 == 1:
+        v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
+    else:
+        v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
+
+
+@wp.func
 def run_step(
     lo: int, hi: int,
     # model: per particle (1 / mass, drag, reach)
@@ -408,17 +443,13 @@ def integrate_run(
     K = step_seg.shape[0]
     seg0 = int(step_seg[0])
     for i in range(lo, hi):
-        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
-        y_a[i] = x[i] - goal_pos(pa, pb, va, vb, step_H[0], step_s0[0])
-        u_a[i] = v[i] - goal_vel(pa, pb, va, vb, step_H[0], step_s0[0])
+        open_offsets(i, pos, vel_start, vel_end, seg0, step_H[0], step_s0[0], x, v, y_a, u_a)
     for k in range(K):
         seg = int(step_seg[k])
         if k == 0 or seg != int(step_seg[wp.max(k - 1, 0)]):
             # a new knot interval: the cubics once for all its steps
             for i in range(lo, hi):
-                pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
-                c2, c3 = hermite(pa, pb, va, vb, step_H[k])
-                cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
+                set_cubic(i, pos, vel_start, vel_end, seg, step_H[k], cubics)
         last = k == K - 1
         if k % 2 == 0:
             run_step(lo, hi, params, flows, levels, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
@@ -426,12 +457,6 @@ def integrate_run(
         else:
             run_step(lo, hi, params, flows, levels, int(step_flow[k]), adj_offsets, edges, gravity, cubics, step_s0[k],
                      step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a, stops_out)
-    seg1 = int(step_seg[K - 1])
-    H1 = step_H[K - 1]
     for i in range(lo, hi):
-        g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
-        inv_m = params[i][0]
-        if K % 2 == 1:
-            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
-        else:
-            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
+        close_velocity(i, K, params, adj_offsets, edges, pos, vel_start, vel_end, int(step_seg[K - 1]), step_H[K - 1],
+                       s_end, h_end, y_a, u_a, y_b, u_b, v_out)

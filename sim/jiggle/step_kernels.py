@@ -17,17 +17,7 @@ from __future__ import annotations
 import warp as wp
 
 from sim.jiggle.contact_kernels import NO_HIT, contact_ends, contact_particle
-from sim.jiggle.particle_kernels import (
-    Edge,
-    cubic,
-    edge_kick,
-    flow_row,
-    goal_pos,
-    goal_vel,
-    hermite,
-    run_step,
-    segment,
-)
+from sim.jiggle.particle_kernels import Edge, close_velocity, cubic, flow_row, open_offsets, run_step, set_cubic
 
 wp.set_module_options({"enable_backward": False})
 
@@ -39,9 +29,7 @@ def new_cubic(pos: wp.array2d(dtype=wp.vec3), vel_start: wp.array2d(dtype=wp.vec
     """Particle i's goal cubic on step k's knot interval, when step k starts a new one (as the run's loop)."""
     seg = int(step_seg[k])
     if k == 0 or seg != int(step_seg[wp.max(k - 1, 0)]):
-        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
-        c2, c3 = hermite(pa, pb, va, vb, step_H[k])
-        cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
+        set_cubic(i, pos, vel_start, vel_end, seg, step_H[k], cubics)
 
 
 # ------------------------------------------------------------------------------------- plain runs
@@ -63,10 +51,7 @@ def run_open(
 ):
     """integrate_run's opening: particle i's offsets from its goal at the first step's start."""
     i = wp.tid()
-    seg0 = int(step_seg[0])
-    pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
-    y_a[i] = x[i] - goal_pos(pa, pb, va, vb, step_H[0], step_s0[0])
-    u_a[i] = v[i] - goal_vel(pa, pb, va, vb, step_H[0], step_s0[0])
+    open_offsets(i, pos, vel_start, vel_end, int(step_seg[0]), step_H[0], step_s0[0], x, v, y_a, u_a)
 
 
 @wp.kernel
@@ -116,14 +101,8 @@ def run_close(
     """integrate_run's closing half kick: particle i's velocity at the run's end."""
     i = wp.tid()
     K = step_seg.shape[0]
-    seg1 = int(step_seg[K - 1])
-    H1 = step_H[K - 1]
-    g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
-    inv_m = params[i][0]
-    if K % 2 == 1:
-        v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
-    else:
-        v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
+    close_velocity(i, K, params, adj_offsets, edges, pos, vel_start, vel_end, int(step_seg[K - 1]), step_H[K - 1],
+                   s_end, h_end, y_a, u_a, y_b, u_b, v_out)
 
 
 # ------------------------------------------------------------------------------------- with contacts
@@ -154,10 +133,7 @@ def contact_open(
 ):
     """integrate_run_contact's opening for particle i: offsets and an empty contact record."""
     i = wp.tid()
-    seg0 = int(step_seg[0])
-    pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
-    y_a[i] = x[i] - goal_pos(pa, pb, va, vb, step_H[0], step_s0[0])
-    u_a[i] = v[i] - goal_vel(pa, pb, va, vb, step_H[0], step_s0[0])
+    open_offsets(i, pos, vel_start, vel_end, int(step_seg[0]), step_H[0], step_s0[0], x, v, y_a, u_a)
     record[i] = wp.vec3(0.0, 0.0, NO_HIT)
 
 
@@ -379,11 +355,5 @@ def contact_close(
     """integrate_run_contact's closing half kick for particle i."""
     i = wp.tid()
     K = step_seg.shape[0]
-    seg1 = int(step_seg[K - 1])
-    H1 = step_H[K - 1]
-    g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
-    inv_m = params[i][0]
-    if K % 2 == 1:
-        v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
-    else:
-        v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
+    close_velocity(i, K, params, adj_offsets, edges, pos, vel_start, vel_end, int(step_seg[K - 1]), step_H[K - 1],
+                   s_end, h_end, y_a, u_a, y_b, u_b, v_out)
