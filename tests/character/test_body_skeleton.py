@@ -116,3 +116,37 @@ def test_robot_expressive_bakes_its_own_animation_with_no_flags(tmp_path):
     assert summary["params"]["template"] == "human" and summary["muscles"] >= 15
     d = read_npz(out / "bake.npz")
     assert np.isfinite(d.skin_final).all() and np.abs(d.skin_final - d.skin_static).max() > 1e-4
+
+
+def test_ik_targets_of_a_game_quadruped_are_set_aside():
+    """A game-asset quadruped (as an `AnimalArmature` is built): a weightless root holding the body and, beside it,
+    IK targets for the four paws and pole targets, all without skin weight and the paw targets on the ground.
+    Read as it is, six limbs reach the ground and they meet at the root; with the helpers set aside the body is
+    a quadruped and its own paws carry the legs."""
+    names = ["Root", "Body", "Spine", "Chest", "Neck", "Head",
+             "FL1", "FL2", "FL3", "FR1", "FR2", "FR3", "HL1", "HL2", "HL3", "HR1", "HR2", "HR3",
+             "IKFrontLeg.L", "IKFrontLeg.R", "IKBackLeg.L", "IKBackLeg.R", "PoleTarget.L", "PoleTarget.R"]
+    parents = [-1, 0, 1, 2, 3, 4, 3, 6, 7, 3, 9, 10, 1, 12, 13, 1, 15, 16, 0, 0, 0, 0, 0, 0]
+    world = [(0, 0, 0), (0, 0.0, 0.55), (0, -0.2, 0.57), (0, -0.45, 0.58), (0, -0.55, 0.7), (0, -0.62, 0.8),
+             (0.08, -0.45, 0.5), (0.08, -0.45, 0.28), (0.08, -0.46, 0.02),
+             (-0.08, -0.45, 0.5), (-0.08, -0.45, 0.28), (-0.08, -0.46, 0.02),
+             (0.08, 0.0, 0.5), (0.08, 0.03, 0.28), (0.08, 0.0, 0.02),
+             (-0.08, 0.0, 0.5), (-0.08, 0.03, 0.28), (-0.08, 0.0, 0.02),
+             (0.08, -0.46, 0.0), (-0.08, -0.46, 0.0), (0.08, 0.0, 0.0), (-0.08, 0.0, 0.0),
+             (0.08, -1.0, 0.3), (-0.08, -1.0, 0.3)]
+    clip = stick(names, parents, world)
+    assert detect_body_plan(clip).kind != "quadruped"
+    weighted = range(1, 18)                                         # the body's joints carry the skin
+    verts = np.array([world[j] for j in weighted for _ in range(3)]) + np.random.default_rng(1).normal(0, 0.005, (51, 3))
+    owner = np.repeat(np.array(list(weighted)), 3)
+    character = SimpleNamespace(skeleton=clip, num_joints=len(names), vertices=verts, joints=owner[:, None],
+                                weights=np.ones((len(owner), 1)))
+    body, order = body_skeleton(character)
+    plan = detect_body_plan(body)
+    assert plan.kind == "quadruped", plan.reason
+    parents_back = original_parents(body, order)
+    for helper in ("IKFrontLeg.L", "IKBackLeg.R", "PoleTarget.L"):
+        assert parents_back[names.index(helper)] == -1
+    roles = {r: names[order[j]] for r, j in quadruped_roles(body).items()}
+    assert roles["hips"] == "Body" and roles["chest"] == "Chest"
+    assert {roles["left_front_foot"], roles["right_front_foot"]} <= {"FL3", "FR3"}
