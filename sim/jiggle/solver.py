@@ -107,13 +107,14 @@ class ParticleSolver:
         """threads of a one-launch run (:meth:`integrate`): groups of particles no spring leaves."""
         self._groups = wp.array(groups.astype(np.int32), dtype=wp.int32, device=dev)
         self.stops = wp.zeros(n, dtype=wp.int32, device=dev)
+        """(N,) int32 on the device: each particle's hard stops since it was made or zeroed (sim/jiggle/tissue_law.py:
+        substeps that end near the reach with the outward speed more than halved from a fast start; the tissue law
+        makes none)."""
         self.stepwise = not wp.get_device(dev).is_cpu
         """Runs launch a step at a time, a thread per particle (sim/jiggle/step_kernels.py): on a GPU, where a
         thread per group (the one-launch run) leaves it nearly idle; equal to the one-launch run (bit for bit
         on the CPU, where the one-launch run is the faster)."""
-        """(N,) int32 on the device: each particle's hard stops since it was made or zeroed (sim/jiggle/tissue_law.py:
-        substeps that end near the reach with the outward speed more than halved from a fast start; the tissue law
-        makes none)."""
+        self._extras = None
         self.launches = 0
         """kernel launches so far: every one (glue, the runs of :meth:`integrate`, the steps of
         :meth:`integrate_steps`)."""
@@ -396,7 +397,7 @@ class ParticleSolver:
     def _contact_extras(self) -> list:
         """The per-particle contact kernels' own arrays: per muscle the shared union box and floor, per particle
         its muscle (made once per solver)."""
-        if getattr(self, "_extras", None) is None:
+        if self._extras is None:
             m, dev = self.model, self.model.device
             M = len(m.group_offsets) - 1
             owner = np.repeat(np.arange(M, dtype=np.int32), np.diff(np.asarray(m.group_offsets)))
