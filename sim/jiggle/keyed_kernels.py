@@ -16,13 +16,12 @@ import warp as wp
 from sim.jiggle.contact_kernels import NO_HIT, contact_pass
 from sim.jiggle.particle_kernels import (
     Edge,
+    close_velocity,
     cubic,
     edge_kick,
     flow_row,
-    goal_pos,
-    goal_vel,
-    hermite,
-    segment,
+    open_offsets,
+    set_cubic,
     tissue_near,
     tissue_substeps,
 )
@@ -118,16 +117,12 @@ def integrate_run_keyed(
     K = step_seg.shape[0]
     seg0 = int(step_seg[0])
     for i in range(lo, hi):
-        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
-        y_a[i] = x[i] - goal_pos(pa, pb, va, vb, step_H[0], step_s0[0])
-        u_a[i] = v[i] - goal_vel(pa, pb, va, vb, step_H[0], step_s0[0])
+        open_offsets(i, pos, vel_start, vel_end, seg0, step_H[0], step_s0[0], x, v, y_a, u_a)
     for k in range(K):
         seg = int(step_seg[k])
         if k == 0 or seg != int(step_seg[wp.max(k - 1, 0)]):
             for i in range(lo, hi):
-                pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
-                c2, c3 = hermite(pa, pb, va, vb, step_H[k])
-                cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
+                set_cubic(i, pos, vel_start, vel_end, seg, step_H[k], cubics)
         last = k == K - 1
         base = int(step_base[k, g])
         if k % 2 == 0:
@@ -136,15 +131,9 @@ def integrate_run_keyed(
         else:
             run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a, stops_out)
-    seg1 = int(step_seg[K - 1])
-    H1 = step_H[K - 1]
     for i in range(lo, hi):
-        g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
-        inv_m = params[i][0]
-        if K % 2 == 1:
-            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
-        else:
-            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
+        close_velocity(i, K, params, adj_offsets, edges, pos, vel_start, vel_end, int(step_seg[K - 1]), step_H[K - 1],
+                       s_end, h_end, y_a, u_a, y_b, u_b, v_out)
 
 
 @wp.kernel
@@ -187,9 +176,7 @@ def integrate_run_contact_keyed(
     K = step_seg.shape[0]
     seg0 = int(step_seg[0])
     for i in range(lo, hi):
-        pa, pb, va, vb = segment(pos, vel_start, vel_end, seg0, i)
-        y_a[i] = x[i] - goal_pos(pa, pb, va, vb, step_H[0], step_s0[0])
-        u_a[i] = v[i] - goal_vel(pa, pb, va, vb, step_H[0], step_s0[0])
+        open_offsets(i, pos, vel_start, vel_end, seg0, step_H[0], step_s0[0], x, v, y_a, u_a)
         record[i] = wp.vec3(0.0, 0.0, NONE_HIT)
     for m in range(m0, m1):
         dirty[m] = 0
@@ -197,9 +184,7 @@ def integrate_run_contact_keyed(
         seg = int(step_seg[k])
         if k == 0 or seg != int(step_seg[wp.max(k - 1, 0)]):
             for i in range(lo, hi):
-                pa, pb, va, vb = segment(pos, vel_start, vel_end, seg, i)
-                c2, c3 = hermite(pa, pb, va, vb, step_H[k])
-                cubics[i] = cubic(pa[0], pa[1], pa[2], va[0], va[1], va[2], c2[0], c2[1], c2[2], c3[0], c3[1], c3[2])
+                set_cubic(i, pos, vel_start, vel_end, seg, step_H[k], cubics)
         last = k == K - 1
         s1 = step_s0[k] + step_h[k]
         frame = int(step_frame[k])
@@ -218,12 +203,6 @@ def integrate_run_contact_keyed(
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_a, u_a, frame, last, frames_out, x_out,
                          contacts_out)
-    seg1 = int(step_seg[K - 1])
-    H1 = step_H[K - 1]
     for i in range(lo, hi):
-        g_vel = goal_vel(pos[seg1, i], pos[seg1 + 1, i], vel_start[seg1, i], vel_end[seg1, i], H1, s_end)
-        inv_m = params[i][0]
-        if K % 2 == 1:
-            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_b, u_b)
-        else:
-            v_out[i] = g_vel + edge_kick(i, h_end, inv_m, adj_offsets, edges, y_a, u_a)
+        close_velocity(i, K, params, adj_offsets, edges, pos, vel_start, vel_end, int(step_seg[K - 1]), step_H[K - 1],
+                       s_end, h_end, y_a, u_a, y_b, u_b, v_out)
