@@ -131,6 +131,45 @@ def _skin_tips(clip: Clip, order: np.ndarray, character) -> Clip | None:
                                meta={**clip.meta, "body_skeleton": "bone tips from the skin"})
 
 
+def placed_parts(character) -> dict[int, int]:
+    """{joint: body joint}: the small weighted parts body_skeleton hangs under a body joint (IK-placed feet), in
+    the character's own joint indices; empty for a rig read as it is."""
+    body, order = body_skeleton(character)
+    if body is character.skeleton:
+        return {}
+    now = original_parents(body, order)
+    was = np.asarray(character.parents)
+    return {int(j): int(now[j]) for j in range(len(was)) if now[j] >= 0 and now[j] != was[j]}
+
+
+def hang(clip: Clip, placed: dict[int, int], bind_world: np.ndarray) -> Clip:
+    """`clip` (on the character's own skeleton) with each placed part moved rigidly with its body joint, keeping
+    their relative transform in the bind pose `bind_world` (J, 4, 4): a retargeted clip moves the legs of an IK
+    rig, not its foot targets, so without this the feet would stay where they stood at rest."""
+    if not placed:
+        return clip
+    import dataclasses
+    bind_world = np.asarray(bind_world, float)
+    rest_r, rest_p = quat.from_matrix(bind_world[:, :3, :3]), bind_world[:, :3, 3]
+    rot, pos = clip.world()
+    rot, pos = rot.copy(), pos.copy()
+    local_r, local_t = np.array(clip.rotations), np.array(clip.translations)
+    for j, b in sorted(placed.items()):
+        inv = quat.conj(rest_r[b])
+        rel_r = quat.mul(inv, rest_r[j])
+        rel_t = quat.rotate(inv, rest_p[j] - rest_p[b])
+        rot[:, j] = quat.mul(rot[:, b], rel_r[None])
+        pos[:, j] = pos[:, b] + quat.rotate(rot[:, b], rel_t[None])
+        p = int(clip.parents[j])
+        if p < 0:
+            local_r[:, j], local_t[:, j] = rot[:, j], pos[:, j]
+        else:
+            pinv = quat.conj(rot[:, p])
+            local_r[:, j] = quat.mul(pinv, rot[:, j])
+            local_t[:, j] = quat.rotate(pinv, pos[:, j] - pos[:, p])
+    return dataclasses.replace(clip, rotations=local_r, translations=local_t)
+
+
 def original_parents(clip: Clip, order: np.ndarray) -> np.ndarray:
     """(J,) int32: the tree of body_skeleton's `clip` in the character's own joint indices (for the skin's
     segmentation and the bones' chains, which index the character's joints)."""

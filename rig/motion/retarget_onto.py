@@ -36,14 +36,17 @@ def joint_map_for(given, skeleton: Clip, option: str, owner: str) -> JointMap:
     return JointMap(roles={r: (names[j],) for r, j in roles.items()}, source="", name="found from the shape")
 
 
-def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print, scale=1.0):
+def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print, scale=1.0,
+                  follow=None):
     """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given, built-in presets, or roles
     found from the skeletons' shapes: :func:`joint_map_for`).
     A clip of the character's own skeleton (the same joints by name and parent, e.g. the character's
     own animation, or another file exported from its rig) needs no map: it is taken as it is.
     scale : metres per unit of the character file (rig.character.character.unit_scale of its --unit),
         as the character is read with: the skeleton the clip lands on is scaled alike, so the skin and
-        its bones agree."""
+        its bones agree.
+    follow : None, or a function applied to the retargeted clip (not to the character's own animation): the
+        bake hangs an IK rig's placed feet under its legs with it (rig.character.body_skeleton.hang)."""
     from rig.motion.fbx import fbx_to_gltf, is_fbx
     from rig.motion.gltf_skeleton import read_gltf_skeleton
     skeleton_file = fbx_to_gltf(character_file) if is_fbx(character_file) else character_file
@@ -56,5 +59,7 @@ def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=Non
     cmap = joint_map_for(clip_map, clip, "--clip-map", clip.source or clip.name)
     chmap = joint_map_for(character_map, character.to_clip(), "--character-map", character_file)
     out = retarget(clip, cmap, character, chmap)
+    if follow is not None:      # parts an IK rig places (its feet) ride the body joints they hang under
+        out = follow(out)
     log(f"retargeted {clip.name!r} ({cmap.name} map) onto {os.path.basename(character_file)} ({chmap.name} map)")
     return out

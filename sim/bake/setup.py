@@ -278,8 +278,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         character = body_character(clip, body, k=pick("influences", 4))
     if character_file is not None:
         from rig.motion.retarget_onto import retarget_onto
+        from rig.character.body_skeleton import hang, placed_parts
+        placed = placed_parts(character)
         clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
-                             scale=character.meta.get("unit_scale", 1.0))
+                             scale=character.meta.get("unit_scale", 1.0),
+                             follow=(lambda c: hang(c, placed, character.bind_world)) if placed else None)
     what = os.path.basename(character_file) if character_file is not None else "generated body"
     reused = "reused, " if cached is not None else ""
     log(f"character: {what}, {character.num_vertices} vertices, {character.num_joints} joints "

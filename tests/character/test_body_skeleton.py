@@ -150,3 +150,24 @@ def test_ik_targets_of_a_game_quadruped_are_set_aside():
     roles = {r: names[order[j]] for r, j in quadruped_roles(body).items()}
     assert roles["hips"] == "Body" and roles["chest"] == "Chest"
     assert {roles["left_front_foot"], roles["right_front_foot"]} <= {"FL3", "FR3"}
+
+
+@pytest.mark.slow
+def test_a_clip_retargeted_onto_an_ik_rig_carries_its_feet():
+    """A CMU walk retargeted onto RobotExpressive moves its legs; its feet hang off the root as IK targets, which
+    the walk does not move. The bake hangs them under the lower legs (rig.character.body_skeleton.hang): in every
+    frame each foot keeps its bind-pose place relative to its lower leg, and a foot goes where its leg goes."""
+    from sim.bake.setup import BakeRequest, prepare
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        setup = prepare(BakeRequest(clip=str(asset("mocap/cmu_bvh/02_03.bvh")),
+                                    character=str(asset("characters/RobotExpressive.glb")), frames=40,
+                                    formats=("npz",)), log=lambda s: None)
+    names = setup.character.joint_names
+    world = np.asarray(setup.world_at(setup.times))
+    bind = setup.character.bind_world
+    for s in "LR":
+        leg, foot = names.index(f"LowerLeg.{s}"), names.index(f"Foot.{s}")
+        rel = np.linalg.inv(bind[leg]) @ bind[foot]
+        np.testing.assert_allclose(world[:, foot], world[:, leg] @ rel, atol=1e-6)
+        assert np.ptp(world[:, foot, :3, 3], axis=0).max() > 0.1      # the feet walk
