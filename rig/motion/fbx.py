@@ -102,7 +102,11 @@ def fbx_to_gltf(path: str | os.PathLike) -> str:
     out = cache_dir() / f"{Path(p).stem}-{digest.hexdigest()[:16]}-v{CONVERTER_VERSION}.glb"
     if out.is_file() and out.stat().st_size > 0:
         return str(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot make the cache of converted FBX files {out.parent}: {e.strerror or e}; set "
+                         f"JIGGLE_CACHE to a writable folder", p) from None
     with tempfile.TemporaryDirectory(prefix="jiggle_fbx_") as tmp:
         script = os.path.join(tmp, "fbx_to_gltf.py")
         with open(script, "w", encoding="utf-8") as fh:
@@ -123,8 +127,12 @@ def fbx_to_gltf(path: str | os.PathLike) -> str:
                                           [f"exit {r.returncode}"])[-1])[:400]
             raise InputError(f"Blender's FBX importer could not read it: {reason}", p)
         part = out.with_name(out.name + f".{os.getpid()}.tmp")
-        shutil.copyfile(glb, part)
-        os.replace(part, out)
+        try:
+            shutil.copyfile(glb, part)
+            os.replace(part, out)           # atomic: a batch's workers converting one file at once both land whole
+        except OSError as e:
+            raise InputError(f"cannot write the converted FBX into {out.parent}: {e.strerror or e}; set JIGGLE_CACHE "
+                             f"to a writable folder", p) from None
     return str(out)
 
 

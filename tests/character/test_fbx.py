@@ -178,3 +178,14 @@ def test_an_fbx_character_bakes_its_own_take_with_no_flags(tmp_path):
     assert np.abs(jig(a)).max() > 1e-3                             # it does jiggle
     assert np.linalg.norm(jig(a) - jig(b), axis=2).max() < 1e-3
     assert np.linalg.norm(a.skin_final[:T] - b.skin_final[:T], axis=2).max() < 5e-3
+
+
+def test_a_cache_that_cannot_be_made_is_one_line(tmp_path, capsys, monkeypatch):
+    """JIGGLE_CACHE on a file (no folder can be made there): one line naming the FBX and what to set, exit 2."""
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("x")
+    monkeypatch.setenv("JIGGLE_CACHE", str(blocker))
+    fbx = str(asset("characters/fbx/CesiumMan_blender5.fbx"))
+    assert main(["inspect", fbx]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "JIGGLE_CACHE" in err and "CesiumMan_blender5.fbx" in err and "\n" not in err, err
