@@ -26,7 +26,7 @@ from pathlib import Path
 
 from rig.base.errors import InputError, require_file
 
-CONVERTER_VERSION = 2
+CONVERTER_VERSION = 3
 """Bump when the conversion changes: cached files of another version are made again."""
 TIMEOUT_S = 600
 SCRIPT = r'''
@@ -34,6 +34,13 @@ import sys
 import bpy
 src, out = sys.argv[-2], sys.argv[-1]
 bpy.ops.wm.read_factory_settings(use_empty=True)
+try:  # Blender 5.0's importer still sets lamp.cycles.cast_shadow, which Cycles no longer has, and stops on any
+    # file with a light; a character needs no light, so lights are read as plain point lights
+    import io_scene_fbx.import_fbx as _reader
+    _reader.blen_read_light = lambda tmpl, obj, settings: bpy.data.lights.new(
+        name=_reader.elem_name_ensure_class(obj, b"NodeAttribute"), type="POINT")
+except Exception:
+    pass
 try:
     bpy.ops.import_scene.fbx(filepath=src, anim_offset=0.0)   # FBX time t at glTF time t (the default offset is a frame)
 except Exception as e:  # the importer's own reason, one line, for the user
