@@ -284,6 +284,10 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
         roles = {r: int(order[j]) for r, j in resolve_roles(body, options.joint_map).items()}
     else:
         roles = dict(roles)
+    if "spine" not in roles and "hips" in roles and "chest" in roles:
+        # no joint between the pelvis and the chest (a game rig's two-bone trunk): the trunk's bone starts at the
+        # hips, as on CMU skeletons, whose spine joint sits at the hips' place
+        roles["spine"] = roles["hips"]
     shape = character if body is character.skeleton else \
         dataclasses.replace(character, parents=original_parents(body, order))   # the skin's bones on that tree
     tpl = _without_optional(tpl, roles)

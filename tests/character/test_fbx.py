@@ -189,3 +189,22 @@ def test_a_cache_that_cannot_be_made_is_one_line(tmp_path, capsys, monkeypatch):
     assert main(["inspect", fbx]) == 2
     err = capsys.readouterr().err.strip()
     assert "JIGGLE_CACHE" in err and "CesiumMan_blender5.fbx" in err and "\n" not in err, err
+
+
+@pytest.mark.slow
+def test_the_barbarian_bakes_its_own_take(tmp_path):
+    """Blender 2.93's FBX of a game character with a light (which stopped Blender 5's importer), IK foot controls
+    and knee poles off its root, and a two-bone trunk (no joint between the pelvis and the chest: the trunk's
+    muscles then ride hips > chest): its first take bakes with no flag, the human template fitted."""
+    import json
+
+    from sim.bake.caches import read_npz
+    out = tmp_path / "barbarian"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        assert main(["-q", "bake", "--character", str(asset("characters/fbx/blender_293_barbarian_7400_binary.fbx")),
+                     "--out", str(out), "--formats", "npz", "--frames", "30"]) == 0
+    summary = json.loads((out / "bake.json").read_text())
+    assert summary["params"]["template"] == "human" and summary["muscles"] >= 15
+    d = read_npz(out / "bake.npz")
+    assert np.isfinite(d.skin_final).all()
