@@ -39,8 +39,8 @@ try:  # Blender 5.0's importer still sets lamp.cycles.cast_shadow, which Cycles 
     import io_scene_fbx.import_fbx as _reader
     _reader.blen_read_light = lambda tmpl, obj, settings: bpy.data.lights.new(
         name=_reader.elem_name_ensure_class(obj, b"NodeAttribute"), type="POINT")
-except Exception:
-    pass
+except (ImportError, AttributeError):  # another Blender, laid out otherwise: its importer as it is
+    _reader = None
 try:
     bpy.ops.import_scene.fbx(filepath=src, anim_offset=0.0)   # FBX time t at glTF time t (the default offset is a frame)
 except Exception as e:  # the importer's own reason, one line, for the user

@@ -57,7 +57,7 @@ def device_or_skip(device: str) -> str:
 
 
 class Stop(Exception):
-    pass
+    """Raised by a progress callback to stop a bake between chunks (as a crash would)."""
 
 
 @pytest.mark.slow
