@@ -208,3 +208,34 @@ def test_the_barbarian_bakes_its_own_take(tmp_path):
     assert summary["params"]["template"] == "human" and summary["muscles"] >= 15
     d = read_npz(out / "bake.npz")
     assert np.isfinite(d.skin_final).all()
+
+
+POISON = r'''
+import sys
+import bpy
+src, out = sys.argv[-2], sys.argv[-1]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_scene.fbx(filepath=src, anim_offset=0.0)
+act = bpy.data.actions[0]
+curves = list(act.fcurves) if hasattr(act, "fcurves") else \
+    [fc for layer in act.layers for strip in layer.strips for bag in strip.channelbags for fc in bag.fcurves]
+fc = curves[len(curves) // 2]
+fc.keyframe_points[len(fc.keyframe_points) // 2].co[1] = float("nan")
+bpy.ops.export_scene.fbx(filepath=out, bake_anim=True)
+'''
+
+
+def test_an_fbx_with_a_nan_key_never_reaches_a_cache(tmp_path, capsys):
+    """CesiumMan's FBX with one animation key set to NaN by Blender and written again: the bake refuses it in one
+    line naming the file and what is wrong, exit 2, and writes no cache."""
+    from rig.motion.fbx import blender_command
+    script, poisoned = tmp_path / "poison.py", tmp_path / "nan_key.fbx"
+    script.write_text(POISON)
+    r = subprocess.run(blender_command(str(script)) + [str(asset("characters/fbx/CesiumMan_blender5.fbx")),
+                                                       str(poisoned)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0 and poisoned.exists(), r.stdout[-1500:] + r.stderr[-1500:]
+    out = tmp_path / "bake"
+    assert main(["bake", "--character", str(poisoned), "--out", str(out), "--formats", "npz"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "nan_key.fbx" in err and "\n" not in err and "Traceback" not in err, err
+    assert not (out / "bake.npz").exists()
