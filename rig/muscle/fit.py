@@ -30,11 +30,9 @@ half-thickness, and a patch thinner than that is pushed inward so its outer side
 """
 from __future__ import annotations
 
-import dataclasses
-
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -289,7 +287,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
         # hips, as on CMU skeletons, whose spine joint sits at the hips' place
         roles["spine"] = roles["hips"]
     shape = character if body is character.skeleton else \
-        dataclasses.replace(character, parents=original_parents(body, order))   # the skin's bones on that tree
+        replace(character, parents=original_parents(body, order))   # the skin's bones on that tree
     tpl = _without_optional(tpl, roles)
     check_labels(tpl, roles, character.joint_names, plan)
     pos = character.bind_positions
@@ -451,8 +449,6 @@ def _axis_inside(e: Ellipsoid, skin, bone: _Bone) -> Ellipsoid:
 def _without_optional(tpl, roles: dict):
     """`tpl` without the pairs that need a role the skeleton does not have when that role is optional
     (rig.muscle.template.OPTIONAL_ROLES: a collar bone, a toe, a tail), each left out with a JiggleWarning."""
-    from dataclasses import replace
-
     from rig.muscle.template import OPTIONAL_ROLES
     keep = []
     for pair in tpl.pairs:

@@ -136,17 +136,16 @@ def capsule_contact(x: wp.vec3, v: wp.vec3, a: wp.vec3, b: wp.vec3, cap_pos: wp.
 
 @wp.func
 def contact_ends(
-    m: int, num_capsules: int, num_muscles: int, floor: float, cap_radius: wp.array(dtype=float),
-    active_offsets: wp.array(dtype=wp.int32), active_id: wp.array(dtype=wp.int32),
+    e0: int, e1: int, num_capsules: int, floor: float, cap_radius: wp.array(dtype=float),
+    active_id: wp.array(dtype=wp.int32),
     cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3), cap_ve: wp.array2d(dtype=wp.vec3),
     seg: int, H: float, s1: float,
     ends_a: wp.array(dtype=wp.vec3), ends_b: wp.array(dtype=wp.vec3), ends_va: wp.array(dtype=wp.vec3),
     ends_vb: wp.array(dtype=wp.vec3),
 ):
-    """What muscle m's contacts at s1 share: the listed capsules' ends and boxes (grown by the radius) into the
-    scratch per active entry, and (union lo, union hi, the floor's height when it is listed, else far below)."""
-    e0 = int(active_offsets[seg * num_muscles + m])
-    e1 = int(active_offsets[seg * num_muscles + m + 1])
+    """What a muscle's contacts at s1 share, over its listed entries e0:e1: the capsules' ends and boxes (grown by
+    the radius) into the scratch per entry, and (union lo, union hi, the floor's height when it is listed, else
+    far below)."""
     ulo = wp.vec3(FAR)
     uhi = wp.vec3(-FAR)
     floor_live = float(-FAR)
@@ -278,9 +277,8 @@ def contact_pass(
         e0 = int(active_offsets[seg * num_muscles + m])
         e1 = int(active_offsets[seg * num_muscles + m + 1])
         if e1 > e0:
-            ulo, uhi, floor_live = contact_ends(m, num_capsules, num_muscles, floor, cap_radius, active_offsets,
-                                                active_id, cap_pos, cap_vs, cap_ve, seg, H, s1, ends_a, ends_b,
-                                                ends_va, ends_vb)
+            ulo, uhi, floor_live = contact_ends(e0, e1, num_capsules, floor, cap_radius, active_id, cap_pos, cap_vs,
+                                                cap_ve, seg, H, s1, ends_a, ends_b, ends_va, ends_vb)
             for i in range(lo_p, hi_p):
                 contact_particle(i, m, e0, e1, ulo, uhi, floor_live, params, cap_radius, floor, friction,
                                  num_capsules, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, H, s1, ends_a,

@@ -238,9 +238,9 @@ def contact_gather(
     e0 = int(active_offsets[seg * num_muscles + m])
     e1 = int(active_offsets[seg * num_muscles + m + 1])
     if e1 > e0:
-        ulo, uhi, floor_live = contact_ends(m, num_capsules, num_muscles, floor, cap_radius, active_offsets,
-                                            active_id, cap_pos, cap_vs, cap_ve, seg, step_H[k],
-                                            step_s0[k] + step_h[k], ends_a, ends_b, ends_va, ends_vb)
+        ulo, uhi, floor_live = contact_ends(e0, e1, num_capsules, floor, cap_radius, active_id, cap_pos, cap_vs,
+                                            cap_ve, seg, step_H[k], step_s0[k] + step_h[k], ends_a, ends_b, ends_va,
+                                            ends_vb)
         u_lo[m] = ulo
         u_hi[m] = uhi
         u_floor[m] = floor_live
