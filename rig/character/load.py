@@ -35,8 +35,8 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
                    jiggle_attribute: str | None = None) -> Character:
     """Read a character from a file.
 
-    path : a skinned .glb/.gltf or binary .fbx (7.1+, through Blender's importer: rig.motion.fbx) with its own
-        skeleton and weights, or an unskinned .glb/.gltf, .obj, .ply
+    path : a skinned .glb/.gltf or .fbx (6.1/7.x, binary or ASCII, through Blender's importer: rig.motion.fbx)
+        with its own skeleton and weights, or an unskinned .glb/.gltf, .obj, .ply
         or .stl mesh, which gets automatic weights (bone heat) from `skeleton`: a clip file (its rest
         pose), an MJCF .xml, a skinned glTF, or a Clip. An unskinned glTF with no skeleton given
         is an error that says so.
@@ -66,7 +66,7 @@ def with_sidecar_maps(character: Character, path: str | os.PathLike) -> Characte
 def _load_character(path, *, skeleton, k, unit, up, skin, jiggle_attribute) -> Character:
     p = os.fspath(path)
     ext = os.path.splitext(p)[1].lower()
-    if ext == ".fbx":           # binary FBX 7.1+, through Blender's importer (rig.motion.fbx), read as its glTF
+    if ext == ".fbx":           # FBX through Blender's importer (rig.motion.fbx), read as its glTF
         from rig.motion.fbx import through_gltf
         return through_gltf(p, _load_character, skeleton=skeleton, k=k, unit=unit, up=up, skin=skin,
                             jiggle_attribute=jiggle_attribute)

@@ -9,8 +9,12 @@ use for FBX from Maya, MotionBuilder, 3ds Max and Mixamo: it applies the file's 
 glTF that rig.character.gltf_character and rig.motion.gltf_anim read (units then come out in metres, Z-up).
 
 Blender is found as a Python that imports `bpy` (JIGGLE_BPY_PYTHON, else ./dev.sh's .venv/blender), or the
-`blender` program (JIGGLE_BLENDER_EXE, else on PATH). Blender's importer reads binary FBX 7.1 and later; an
-ASCII FBX or an FBX 6.x file is refused saying so. Converted files live in the user's cache
+`blender` program (JIGGLE_BLENDER_EXE, else on PATH). Blender's importer reads binary FBX 7.1 and later; the rest
+is brought to it as binary FBX 7.4 first (`binary_for_blender`): ASCII FBX (6.x or 7.x) read by
+rig.motion.fbx_tree, FBX 6.x (2006-2010, binary or ASCII) lifted into 7.x's object model by rig.motion.fbx_legacy.
+Checked against the authoring tools' own meshes in ufbx's test files: Maya's and 3ds Max's skinned meshes at given
+frames from their FBX 6.1 and 7.5 files, binary and ASCII, match within 3e-8 m (2e-7 of the height); FBX 5 and
+earlier are refused saying so. Converted files live in the user's cache
 (~/.cache/jiggle/fbx, JIGGLE_CACHE), named for the FBX's contents and this converter's version, written
 atomically: the user's folder is never written to.
 """
@@ -43,8 +47,9 @@ except (ImportError, AttributeError):  # another Blender, laid out otherwise: it
     _reader = None
 try:
     bpy.ops.import_scene.fbx(filepath=src, anim_offset=0.0)   # FBX time t at glTF time t (the default offset is a frame)
-except Exception as e:  # the importer's own reason, one line, for the user
-    print("JIGGLE_FBX_ERROR " + " ".join(str(e).split())[:400])
+except Exception as e:  # the importer's own reason, one line, for the user: a traceback's last line
+    lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+    print("JIGGLE_FBX_ERROR " + ((lines[-1] if "Traceback" in str(e) else " ".join(lines)) or type(e).__name__)[:400])
     sys.exit(3)
 if not bpy.data.objects:
     print("JIGGLE_FBX_ERROR the file holds no object Blender can import")
@@ -59,13 +64,19 @@ def is_fbx(path) -> bool:
 
 
 def fbx_version(path: str) -> tuple[str, int]:
-    """("binary", version) or ("ascii", 0) from the file's header; InputError for a file that is not FBX."""
+    """("binary" or "ascii", version, e.g. 7400) from the file's header (an ASCII file's FBXVersion, else its first
+    comment line, else 0); InputError for a file that is not FBX."""
+    import re
     with open(path, "rb") as fh:
-        head = fh.read(27)
+        head = fh.read(4096)
     if head.startswith(b"Kaydara FBX Binary  \x00") and len(head) >= 27:
         return "binary", int.from_bytes(head[23:27], "little")
     if head.lstrip().startswith(b";") or b"FBXHeaderExtension" in head:
-        return "ascii", 0
+        m = re.search(rb"FBXVersion:\s*(\d+)", head)
+        if m:
+            return "ascii", int(m.group(1))
+        m = re.match(rb"\s*;\s*FBX (\d+)\.(\d+)", head)
+        return "ascii", int(m.group(1)) * 1000 + int(m.group(2)) * 100 if m else 0
     raise InputError("not an FBX file (no 'Kaydara FBX Binary' header, and not FBX text)", path)
 
 
@@ -95,13 +106,7 @@ def fbx_to_gltf(path: str | os.PathLike) -> str:
     file, what failed, what to do) when Blender is missing, the file is ASCII or older than FBX 7.1, or
     Blender's importer refuses it."""
     p = require_file(path)
-    kind, version = fbx_version(p)
-    if kind == "ascii":
-        raise InputError("an ASCII FBX: Blender's importer reads binary FBX (7.1 and later); save it as binary FBX "
-                         "(or glTF) in the authoring tool", p)
-    if version < 7100:
-        raise InputError(f"FBX {version / 1000:.1f}: Blender's importer reads FBX 7.1 and later; save it as FBX 7.x "
-                         f"(or glTF) in the authoring tool", p)
+    fbx_version(p)                                  # not FBX at all: refused before anything else
     digest = hashlib.sha256()
     with open(p, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -115,6 +120,7 @@ def fbx_to_gltf(path: str | os.PathLike) -> str:
         raise InputError(f"cannot make the cache of converted FBX files {out.parent}: {e.strerror or e}; set "
                          f"JIGGLE_CACHE to a writable folder", p) from None
     with tempfile.TemporaryDirectory(prefix="jiggle_fbx_") as tmp:
+        src = binary_for_blender(p, tmp)
         script = os.path.join(tmp, "fbx_to_gltf.py")
         with open(script, "w", encoding="utf-8") as fh:
             fh.write(SCRIPT)
@@ -125,7 +131,7 @@ def fbx_to_gltf(path: str | os.PathLike) -> str:
                              "another Python with bpy); or export the character as glTF", p)
         glb = os.path.join(tmp, "out.glb")
         try:
-            r = subprocess.run(cmd + [os.path.abspath(p), glb], capture_output=True, text=True, timeout=TIMEOUT_S)
+            r = subprocess.run(cmd + [os.path.abspath(src), glb], capture_output=True, text=True, timeout=TIMEOUT_S)
         except subprocess.TimeoutExpired:
             raise InputError(f"Blender took over {TIMEOUT_S} s to import it", p) from None
         why = [ln[len("JIGGLE_FBX_ERROR "):] for ln in r.stdout.splitlines() if ln.startswith("JIGGLE_FBX_ERROR ")]
@@ -141,6 +147,32 @@ def fbx_to_gltf(path: str | os.PathLike) -> str:
             raise InputError(f"cannot write the converted FBX into {out.parent}: {e.strerror or e}; set JIGGLE_CACHE "
                              f"to a writable folder", p) from None
     return str(out)
+
+
+def binary_for_blender(path: str, tmp: str) -> str:
+    """`path` itself when Blender's importer reads it (binary FBX 7.1+); else the same scene written as binary FBX
+    7.4 into the folder `tmp`: an ASCII file's tree typed as binary (rig.motion.fbx_tree), an FBX 6.x file's tree
+    lifted into 7.x's object model first (rig.motion.fbx_legacy). Either way the file is read here first and
+    refused when it is cut short or holds NaN vertices, weights or keys (rig.motion.fbx_tree.check_finite)."""
+    from rig.motion.fbx_legacy import lift
+    from rig.motion.fbx_tree import check_finite, read_tree, write_binary
+    kind, version = fbx_version(path)
+    nodes, version, _ = read_tree(path)
+    check_finite(nodes, path)
+    if kind == "binary" and version >= 7100:
+        return path
+    if version < 6000:
+        raise InputError(f"FBX {version / 1000:.1f} (before 2006): jiggle reads FBX 6.x and 7.x, binary or ASCII; "
+                         f"save it as FBX 7.x (or glTF) in the authoring tool or Autodesk's FBX Converter", path)
+    objects = next((n for n in nodes if n.name == "Objects"), None)
+    if objects is None or not any(o.name == "Model" for o in objects.children):
+        raise InputError("the FBX file holds no models (no Objects section with a Model in it): nothing to read", path)
+    if version < 7000:
+        nodes = lift(nodes, path)
+    out = os.path.join(tmp, "in.fbx")
+    with open(out, "wb") as fh:
+        fh.write(write_binary(nodes))
+    return out
 
 
 def through_gltf(path, read, *args, **kwargs):

@@ -16,7 +16,8 @@ def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = N
 
     path : .bvh; .amc (its .asf from `skeleton`, else the one .asf beside it); .asf alone (its rest
         pose as a one-frame clip); .glb/.gltf with animations (`animation` by name or index, default
-        the first); .fbx, binary 7.1+, its takes read through Blender's importer (rig.motion.fbx); .toml keyframes (rig.motion.keyframes, as the built-in demo motion).
+        the first); .fbx (binary or ASCII, FBX 6.1 and 7.x), its takes read through Blender's importer
+        (rig.motion.fbx); .toml keyframes (rig.motion.keyframes, as the built-in demo motion).
     scale : metres per file unit for BVH (None: recognise CMU or guess, see rig.motion.bvh).
     tpose : BVH first-frame handling, "auto", "skip" or "keep".
     """

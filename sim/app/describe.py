@@ -123,8 +123,12 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
         from rig.motion.fbx import fbx_to_gltf, fbx_version
         kind, version = fbx_version(p)
         glb = fbx_to_gltf(p)
-        out = {**inspect_file(glb, animation=animation), "format": f"FBX {version / 1000:.1f} {kind} (read through "
-                                                                     f"Blender's importer, as glTF: {glb})"}
+        try:
+            read = inspect_file(glb, animation=animation)
+        except InputError as e:
+            raise InputError(f"{e.message} (read through Blender's importer)", p, field=e.field) from None
+        out = {**read, "format": f"FBX {version / 1000:.1f} {kind} (read through Blender's importer, as glTF: "
+                                 f"{glb})"}
         out.pop("file", None)
         if not out.get("vertices") and isinstance(out.get("clip"), dict):    # a skeleton with a take: a clip
             out = {**out["clip"], "format": out["format"]}

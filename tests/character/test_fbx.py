@@ -52,13 +52,22 @@ def maya_obj(path) -> np.ndarray:
     return np.column_stack([v[:, 0], -v[:, 2], v[:, 1]]) / 100.0
 
 
+@pytest.mark.parametrize("form", ["binary", "ascii"])
 @pytest.mark.parametrize("frame", [4, 9])
-def test_kenney_matches_maya_at_its_frames(frame):
+def test_kenney_matches_maya_at_its_frames(frame, form, tmp_path):
     """Maya's FBX 7.7 (centimetres, Y-up, 58 bones, one take at 24 fps) read and posed by jiggle at frame f (FBX
     time f / 24 s) is the mesh Maya exported at that frame, within 1e-4 of its height (measured: 1.2e-5 m,
     3e-6 of it): units, axes, bind pose, weights and the take all read as Maya has them. The vertices are
-    compared as point sets (the glTF Blender writes splits them at UV seams: 1029 for Maya's 804)."""
-    c, clip = read(asset("characters/fbx/maya_kenney_character_7700_binary.fbx"))
+    compared as point sets (the glTF Blender writes splits them at UV seams: 1029 for Maya's 804). The same file
+    written as ASCII FBX (the FBX SDK's layout, tests/fbx_text.py) reads the same."""
+    src = asset("characters/fbx/maya_kenney_character_7700_binary.fbx")
+    if form == "ascii":
+        from fbx_text import ascii_fbx
+        from rig.motion.fbx_tree import read_tree
+        nodes, version, _ = read_tree(str(src))
+        src = tmp_path / "kenney_ascii.fbx"
+        src.write_text(ascii_fbx(nodes, version))
+    c, clip = read(src)
     assert clip.fps == 24.0 and clip.meta["format"] == "glTF" and c.source.endswith(".fbx")
     ref = maya_obj(asset(f"characters/fbx/maya_kenney_character_{frame}.obj"))
     ours = posed(c, clip, frame / 24.0)
@@ -66,6 +75,31 @@ def test_kenney_matches_maya_at_its_frames(frame):
     assert cKDTree(ours).query(ref)[0].max() < tol and cKDTree(ref).query(ours)[0].max() < tol
     other = posed(c, clip, (frame + 1) / 24.0)
     assert cKDTree(other).query(ref)[0].max() > 100 * tol        # the frame is told apart from the next one
+
+
+@pytest.mark.parametrize("form", ["ascii", "binary"])
+def test_an_fbx61_character_poses_as_its_take_says(tmp_path, form, capsys):
+    """An FBX 6.1 file (the skinned bar of tests/fbx_text.py, in Maya 2009's layout: named objects, inline
+    geometry, Properties60, a take with cubic, linear and constant keys), as ASCII and as binary FBX 6.1: jiggle
+    poses it at the take's key times where the bones put it (within 1e-6 m), and `jiggle inspect` gives its
+    height (2 m) from the posed skin."""
+    from fbx_text import bar_fbx61
+    from rig.motion.fbx_tree import read_tree, write_binary
+    text, pose = bar_fbx61()
+    src = tmp_path / "bar.fbx"
+    src.write_text(text)
+    if form == "binary":
+        nodes, version, _ = read_tree(str(src))
+        src.write_bytes(write_binary(nodes, version=6100))
+        assert src.read_bytes()[:18] == b"Kaydara FBX Binary"
+    c, clip = read(src)
+    assert c.joint_names == ("root", "tip") and clip.fps == 24.0
+    for t in (0.0, 0.5, 1.0):
+        ours = posed(c, clip, t)
+        assert cKDTree(ours).query(pose(t))[0].max() < 1e-6, t
+    assert main(["inspect", str(src)]) == 0
+    out = capsys.readouterr().out
+    assert "height_m: 2.0" in out and "FBX 6.1" in out, out
 
 
 def test_cesiumman_fbx_is_the_gltf_character_and_blender_plays_it_alike(tmp_path):
@@ -132,10 +166,16 @@ def test_a_skeleton_only_fbx_is_a_clip(capsys):
 
 def bad_files(folder) -> dict:
     src = asset("characters/fbx/maya_kenney_character_7700_binary.fbx").read_bytes()
-    files = {"ascii.fbx": b"; FBX 7.4.0 project file\nFBXHeaderExtension:  {\n}\n",
+    files = {"empty_ascii.fbx": b"; FBX 7.4.0 project file\nFBXHeaderExtension:  {\n}\n",
+             "cut_ascii.fbx": b"; FBX 7.4.0 project file\nObjects:  {\n\tModel: 1, \"Model::a\", \"Null\" {\n",
              "truncated.fbx": src[:4000], "garbage.fbx": b"\x00\x01 not an fbx at all" * 50,
-             "old.fbx": b"Kaydara FBX Binary  \x00\x1a\x00" + (6100).to_bytes(4, "little") + b"\x00" * 64,
+             "empty61.fbx": b"Kaydara FBX Binary  \x00\x1a\x00" + (6100).to_bytes(4, "little") + b"\x00" * 64,
+             "fbx5.fbx": b"Kaydara FBX Binary  \x00\x1a\x00" + (5000).to_bytes(4, "little") + b"\x00" * 64,
              "nan_keys.fbx": src.replace(b"KeyValueFloat", b"KeyValueFloaX")}
+    from fbx_text import bar_fbx61
+    bar = bar_fbx61()[0].encode()
+    files.update({"bar61_cut.fbx": bar[:len(bar) // 2], "bar61_count.fbx": bar.replace(b"KeyCount: 3", b"KeyCount: 4"),
+                  "bar61_nan.fbx": bar.replace(b",90,L", b",-1.#IND,L")})
     out = {}
     for name, data in files.items():
         p = os.path.join(folder, name)
@@ -147,8 +187,10 @@ def bad_files(folder) -> dict:
 
 @pytest.mark.parametrize("command", ["inspect", "bake"])
 def test_bad_fbx_files_are_one_line_and_exit_2(tmp_path, capsys, command):
-    """An ASCII FBX, an FBX 6.1, a truncated file, bytes that are no FBX, a file whose key curves are broken: one
-    line naming the file and what to do, exit code 2, no traceback; nothing written."""
+    """An ASCII FBX with no objects, one cut off inside a record, an FBX 6.1 with nothing in it, an FBX 5, a
+    truncated file, bytes that are no FBX, a file whose key curves are broken; an FBX 6.1 ASCII file cut in half,
+    with a wrong key count, with a NaN key: one line naming the file and what to do, exit code 2, no traceback;
+    nothing written."""
     for name, p in bad_files(tmp_path).items():
         argv = ["inspect", p] if command == "inspect" else ["bake", "--character", p, "--out", str(tmp_path / "o"),
                                                             "--formats", "npz", "--frames", "4"]

@@ -105,9 +105,9 @@ def add_parser(sub) -> None:
     p.add_argument("scene", nargs="?", metavar="SCENE", help="a scene TOML (scenes/*.toml); its [motion] may be left "
                    "out and given with --clip")
     p.add_argument("--clip", metavar="FILE", help="the motion: BVH, AMC (its ASF beside it or --skeleton), "
-                   "glTF/GLB with animations or binary FBX 7.1+ with takes (--animation; FBX is read through "
-                   "Blender's importer)")
-    p.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB or binary FBX: the clip is retargeted onto it "
+                   "glTF/GLB with animations or FBX (6.1/7.x, binary or ASCII) with takes (--animation; FBX is read "
+                   "through Blender's importer)")
+    p.add_argument("--character", metavar="FILE", help="a skinned glTF/GLB or FBX: the clip is retargeted onto it "
                    "(default: the scene's, else a body generated around the clip's skeleton)")
     template_option(p)
     bake_options(p, "out/bake")
