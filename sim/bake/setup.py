@@ -216,7 +216,7 @@ def output_times(duration: float, fps: float, start: float | None, end: float | 
     e = duration if end is None else float(end)
     if duration <= 0.0 and start is None and end is None:
         raise InputError("the motion is a single pose (one frame, 0 s long): there is no motion to bake; give a clip "
-                         "that moves (a skeleton-only file whose take keys a control rig, as HumanIK's, holds still)",
+                         "that moves (a take with no keys, as in a skeleton exported with its bind pose only, holds still)",
                          field="--clip")
     if not 0.0 <= s < e <= duration + 1e-9:
         raise InputError(f"expected 0 <= start < end <= {duration:.4g} s (the motion's length), got start {s:g}, "

@@ -150,8 +150,8 @@ np.save(out, np.array(res))
 
 def test_a_skeleton_only_fbx_is_a_clip(capsys):
     """Maya's HumanIK skeleton (62 bones, `Character1_*`, no mesh) is a clip: load_clip reads its skeleton and
-    its take, the built-in HumanIK map finds its roles, and `jiggle inspect` describes it as a clip. (Its take keys
-    the HumanIK control rig, which the file does not solve into the bones: the bones hold their pose.)"""
+    its take, the built-in HumanIK map finds its roles, and `jiggle inspect` describes it as a clip. (Its take has curve
+    nodes and no key curve: the file holds one pose.)"""
     from rig.motion.mocap import load_clip
     from rig.motion.role_map import resolve_roles
     clip = load_clip(asset("characters/fbx/maya_human_ik_7400_binary.fbx"))
