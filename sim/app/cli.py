@@ -151,6 +151,11 @@ def main(argv: list[str] | None = None) -> int:
         except InputError as e:
             print(f"jiggle: error: {e}", file=sys.stderr)
             return EXIT_USER_ERROR
+        except (FileExistsError, NotADirectoryError, IsADirectoryError, PermissionError) as e:
+            # a path the user gave that cannot be written or read as asked (an output "folder" that is a file)
+            where = f"{e.filename}: " if e.filename else ""
+            print(f"jiggle: error: {where}{e.strerror or e}; give another path", file=sys.stderr)
+            return EXIT_USER_ERROR
         except KeyboardInterrupt as e:
             # run_bake's says how much was kept and how to resume
             print("jiggle: interrupted" + (f" {e}" if str(e) else ""), file=sys.stderr)

@@ -100,6 +100,17 @@ def test_bad_input_is_one_line_and_exit_2(capsys, tmp_path):
     assert e.value.code == 2
 
 
+def test_an_output_path_under_a_file_is_one_line_and_exit_2(capsys, tmp_path):
+    """`jiggle body --out a_file/sub`: the folder cannot be made under a file; one line naming the path, exit 2,
+    no traceback (it was a FileExistsError's traceback)."""
+    blocker = tmp_path / "taken"
+    blocker.write_text("the user's file")
+    code, out, err = run(capsys, "-q", "body", "--out", str(blocker / "sub"), "--no-render")
+    assert code == 2 and "Traceback" not in err and err.count("\n") == 1 and str(blocker) in err, err
+    assert err.startswith("jiggle: error: ") and "give another path" in err
+    assert blocker.read_text() == "the user's file"
+
+
 def test_console_script_exit_code_without_traceback(tmp_path):
     exe = shutil.which("jiggle", path=os.path.dirname(sys.executable))
     if exe is None:
