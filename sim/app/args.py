@@ -122,6 +122,16 @@ def map_options(g, clip: bool = True, alias: bool = True) -> None:
                        "the built-in preset that fits, e.g. cmu, else found from the skeleton's shape)")
 
 
+def glb_options(g) -> None:
+    """--jiggle-bones and --max-influences, for `jiggle bake --formats glb` and `jiggle export --glb`."""
+    g.add_argument("--jiggle-bones", type=count("--jiggle-bones", zero=True), metavar="N", help="jiggle bones in "
+                   "the glb, spread over the muscles by how much they move (default: 48 for the human and quadruped "
+                   "templates, else 2 per muscle)")
+    g.add_argument("--max-influences", type=int, choices=[4, 8], default=4, help="skin weights per vertex in the "
+                   "glb, the character's and the jiggle bones' together: 4 (JOINTS_0, which every engine reads) or "
+                   "8 (default: 4)")
+
+
 def bake_options(p: argparse.ArgumentParser, out: str) -> None:
     """Options shared by `jiggle bake` and `jiggle demo`."""
     p.add_argument("--out", default=out, help=f"output folder (default: {out})")
@@ -156,7 +166,9 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
                    "(default: cpu)")
     g = p.add_argument_group("caches")
     g.add_argument("--formats", metavar="LIST", help=f"comma-separated cache formats: {', '.join(FORMATS)} "
-                   "(default: the scene's, else npz,usdc)")
+                   "(default: the scene's, else npz,usdc); glb: a skinned glTF with jiggle bones any engine plays "
+                   "(the npz is written with it)")
+    glb_options(g)
     g.add_argument("--chunk", type=count("--chunk"), metavar="N", help="frames per chunk written and resumed "
                    "(default: 64)")
     g = p.add_argument_group("skin")

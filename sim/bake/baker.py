@@ -233,7 +233,8 @@ def _write_json(path: str, obj) -> None:
 
 
 def cache_paths(out_dir: str, formats) -> dict:
-    return {f: os.path.join(out_dir, CACHE_NAMES[f]) for f in formats}
+    """{format: path} of the caches among `formats` (the glb is made after them, from the npz)."""
+    return {f: os.path.join(out_dir, CACHE_NAMES[f]) for f in formats if f in CACHE_NAMES}
 
 
 COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "limits.png", "energy.png", "spectrum.png",
@@ -456,6 +457,13 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
     _write_json(os.path.join(out_dir, SUMMARY), summary)
     shutil.rmtree(partial, ignore_errors=True)
+    if "glb" in setup.formats:                  # fitted from the finished npz; recorded in bake.json when written
+        from sim.bake.glb import write_for_bake
+        log("fitting jiggle bones for the glb")
+        rep = write_for_bake(setup, out_dir, bones=setup.glb.get("bones"),
+                             max_influences=setup.glb.get("max_influences", 4))
+        summary["glb"] = {k: v for k, v in rep.items() if k != "bone_names"}
+        summary["files"]["glb"] = rep["file"]
     return summary
 
 

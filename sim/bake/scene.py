@@ -93,8 +93,9 @@ _KNOWN = {"name": None, "builtin": None,
           "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}, "pose_shapes": None}
 _POSE_SHAPE_KEYS = ("muscle", "joint", "angles", "scales")
 BUILTINS = ("simple_arm",)
-FORMATS = ("npz", "usdc", "usda", "pc2")
-"""Cache formats `jiggle bake` writes (usdc and usda are one USD stage, crate or text)."""
+FORMATS = ("npz", "usdc", "usda", "pc2", "glb")
+"""Formats `jiggle bake` writes: caches (usdc and usda are one USD stage, crate or text) and glb, a skinned glTF
+with jiggle bones fitted from the finished npz (sim/bake/glb.py; asking for glb writes the npz too)."""
 
 
 MAX_FPS = 10000.0            # output frames per second
@@ -324,6 +325,8 @@ def parse_formats(value, path=None, line=None, where="--formats") -> tuple[str, 
                          path, line, field=where)
     if "usdc" in items and "usda" in items:
         raise InputError("usdc and usda are the same stage; pick one", path, line, field=where)
+    if "glb" in items and "npz" not in items:
+        items.insert(0, "npz")                  # the glb is fitted from the finished npz, which stays beside it
     return tuple(dict.fromkeys(items))
 
 

@@ -83,6 +83,8 @@ class BakeRequest:
     drive: str | None = None
     formats: tuple | None = None
     chunk: int | None = None
+    jiggle_bones: int | None = None
+    max_influences: int = 4
     body: Mapping = field(default_factory=lambda: MappingProxyType({}))
     influences: int | None = None
     skinning: str | None = None
@@ -128,6 +130,7 @@ class BakeSetup:
     timings: dict
     floor: float | None = None
     capsules: object = None
+    glb: Mapping = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def rig(self):
@@ -361,7 +364,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
                      chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
-                     capsules=capsules)
+                     capsules=capsules, glb=_glb(req))
 
 
 def _model_capsules(clip, character, log):
@@ -422,7 +425,8 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
     return BakeSetup(name=scene.name, skin=skin, jiggles=tuple(jiggles), settings=settings, times=times, fps=fps,
                      knots=knots, world_at=arm.world_at, joints_at=arm.world_at,
                      joint_names=tuple(arm.character.joint_names), formats=_formats(req, scene),
-                     chunk=params["chunk"], params=params, key=params_key(params), timings={}, floor=floor)
+                     chunk=params["chunk"], params=params, key=params_key(params), timings={}, floor=floor,
+                     glb=_glb(req))
 
 
 def _picker(req: BakeRequest, spec):
@@ -500,6 +504,11 @@ def warp_device(name: str) -> str:
 
 def _formats(req: BakeRequest, scene) -> tuple:
     return tuple(req.formats or (scene.formats if scene is not None else None) or DEFAULT_FORMATS)
+
+
+def _glb(req: BakeRequest) -> Mapping:
+    """The glb's options (sim/bake/glb.py): jiggle bones (None: the template's default) and influences."""
+    return MappingProxyType({"bones": req.jiggle_bones, "max_influences": int(req.max_influences)})
 
 
 def _chunk(req: BakeRequest, scene) -> int:

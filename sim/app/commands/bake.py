@@ -28,6 +28,7 @@ def bake_request(args):
         muscle_collisions=getattr(args, "muscle_collisions", None), device=getattr(args, "device", None),
         start=args.start, end=args.end, frames=args.frames, drive=args.drive,
         formats=formats, chunk=args.chunk, body=MappingProxyType(body), influences=args.influences,
+        jiggle_bones=getattr(args, "jiggle_bones", None), max_influences=getattr(args, "max_influences", 4),
         skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),
         character_map=getattr(args, "character_map", None),
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None))

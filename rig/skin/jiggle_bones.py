@@ -1,0 +1,259 @@
+"""Jiggle bones: what the muscles add to plain skinning (skin_final - skin_lbs, the static bulges and the jiggle
+together), refitted as a few extra bones with skin weights, so any engine's ordinary linear blend skinning plays it.
+
+The fit is smooth skinning decomposition with rigid bones (Le & Deng, "Smooth Skinning Decomposition with Rigid
+Bones", 2012: the algorithm of EA's Dem Bones), with the character's own bones and weights locked:
+
+- Vertices are grouped by the muscle nearest them and by their strongest joint, their host (a muscle that spans
+  two bones makes two groups). A group's jiggle bones hang under its host, named `<muscle>_jiggle_<k>`. The bone
+  budget is spread over the groups by how much their vertices move (sum over frames of |final - lbs|).
+- A vertex hands its host's weight w_h over to the group's bones and the host itself, in shares u (u >= 0,
+  sum 1); its other influences stay as they are. Then its skin is the LBS skin plus
+  w_h * sum_k u_k (S_k - S_h) p, so in the host's rest frame the group's bones C_k = S_h^-1 S_k (the host
+  itself C_0 = I) fit the targets p + S_h^-1 (final - lbs) / w_h by ordinary skinning decomposition, each
+  vertex's error weighted by w_h^2 (its share of the world error).
+- Initial bones: k-means of the vertices' displacement paths; then Dem Bones' alternation: each bone's rigid
+  transform per frame by weighted Procrustes (Kabsch) against what the other bones leave, and each vertex's
+  shares by a least-squares fit on the simplex (projected gradient, batched over vertices), cut to the
+  influences the vertex has free (the budget, 4 per vertex by default, less its other joints).
+
+Shapes: T frames, V vertices, J character joints, K jiggle bones.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class JiggleBones:
+    """A fit.
+
+    names : (K,) bone names, `<muscle>_jiggle_<k>`.
+    hosts : (K,) int32 the character joint each bone hangs under.
+    skin : (T, K, 4, 4) float64 the bones' skinning matrices per frame (world <- rest skin, rigid when the
+        host's is), the jiggle bone's bind being its host's.
+    joints : (V, n) int32 each vertex's influences, strongest first: < J a character joint, J + k bone k;
+        padded with 0 where the weight is 0.
+    weights : (V, n) float32 their weights, rows summing to 1.
+    """
+
+    names: tuple
+    hosts: np.ndarray
+    skin: np.ndarray
+    joints: np.ndarray
+    weights: np.ndarray
+
+
+def nearest_muscle(points: np.ndarray, muscle_points: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(V,) int32 index of the muscle whose control points (N, 3), muscle m's rows offsets[m]:offsets[m + 1],
+    lie nearest each point (V, 3)."""
+    from scipy.spatial import cKDTree
+    owner = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    return owner[cKDTree(muscle_points).query(points)[1]].astype(np.int32)
+
+
+def play(bones: JiggleBones, skin_mats: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """(T, V, 3) float32 the skin an engine plays: LBS of the rest skin (V, 3) by the character's skinning
+    matrices (T, J, 4, 4) and the bones', with the fit's influences."""
+    mats = np.concatenate([skin_mats, bones.skin], axis=1)            # (T, J + K, 4, 4)
+    out = np.zeros((len(mats), len(rest), 3))
+    p = np.c_[rest, np.ones(len(rest))]
+    for c in range(bones.joints.shape[1]):
+        w = bones.weights[:, c].astype(np.float64)
+        m = mats[:, bones.joints[:, c]]                               # (T, V, 4, 4)
+        out += w[None, :, None] * np.einsum("tvab,vb->tva", m[..., :3, :], p)
+    return out.astype(np.float32)
+
+
+def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np.ndarray, lbs: np.ndarray,
+        final: np.ndarray, muscle: np.ndarray, muscle_names, budget: int, max_influences: int = 4,
+        iterations: int = 12, min_motion_m: float = 5e-5, seed: int = 0) -> JiggleBones:
+    """Fit jiggle bones (see the module).
+
+    rest : (V, 3) rest skin. joints, weights : (V, k) the character's influences (strongest first).
+    skin_mats : (T, J, 4, 4) the character's skinning matrices per frame (`Character.skin_matrices`).
+    lbs, final : (T, V, 3) the smooth skin and the final one (the bake's skin_lbs and skin_final).
+    muscle : (V,) int the muscle each vertex belongs to (`nearest_muscle`), -1 none; muscle_names : (M,).
+    budget : jiggle bones in all. max_influences : per vertex, the character's and the bones' together.
+    min_motion_m : vertices that never move more than this from the LBS skin are left alone.
+    """
+    rest = np.asarray(rest, np.float64)
+    V, J, T = len(rest), skin_mats.shape[1], len(skin_mats)
+    joints = np.asarray(joints, np.int64)
+    weights = np.asarray(weights, np.float64)
+    if weights.shape[1] > max_influences:
+        raise ValueError(f"the character has {weights.shape[1]} influences per vertex, the budget {max_influences}")
+    d = np.asarray(final, np.float64) - lbs                            # (T, V, 3)
+    moving = np.linalg.norm(d, axis=2).max(axis=0) > min_motion_m
+    host = joints[:, 0].astype(np.int64)
+    w_host = weights[:, 0].astype(np.float64)
+    free = max_influences - (weights[:, 1:] > 0).sum(axis=1)           # slots for the host's share
+    use = moving & (free >= 1) & (w_host > 0.2)
+    keys = sorted({int(h) for h in host[use]})
+    motion = np.array([np.linalg.norm(d[:, use & (host == h)], axis=2).sum() for h in keys])
+    counts = _spread(motion, budget)
+    rng = np.random.default_rng(seed)
+    names, hosts, skins = [], [], []
+    share_cols = {}                                                    # host -> (vertex ids, shares, first bone)
+    per_muscle: dict[str, int] = {}
+    for h, K in zip(keys, counts):
+        if K == 0:
+            continue
+        ids = np.flatnonzero(use & (host == h))
+        C, u = _fit_group(rest[ids], d[:, ids], w_host[ids], skin_mats[:, h], free[ids], K, iterations, rng)
+        base = len(names)
+        for k in range(C.shape[1]):                                    # named for the muscle most of its skin is
+            mine = muscle[ids][u[:, k + 1] > 0.5]
+            mine = mine[mine >= 0]
+            label = str(muscle_names[np.bincount(mine).argmax()]) if len(mine) else f"joint{h}"
+            names.append(f"{label}_jiggle_{per_muscle.get(label, 0)}")
+            per_muscle[label] = per_muscle.get(label, 0) + 1
+            hosts.append(h)
+        skins.append(skin_mats[:, h][:, None] @ C)                     # (T, K, 4, 4)
+        share_cols[h] = (ids, u, base)
+    skin = np.concatenate(skins, axis=1) if skins else np.zeros((T, 0, 4, 4))
+    out_j = np.zeros((V, max_influences), np.int64)
+    out_w = np.zeros((V, max_influences))
+    k0 = min(weights.shape[1], max_influences)
+    out_j[:, :k0], out_w[:, :k0] = joints[:, :k0], weights[:, :k0]
+    for ids, u, base in share_cols.values():
+        for r, i in enumerate(ids):
+            cols = [(int(joints[i, c]), float(weights[i, c])) for c in range(1, weights.shape[1]) if weights[i, c] > 0]
+            cols.append((int(host[i]), w_host[i] * u[r, 0]))
+            cols += [(J + base + k, w_host[i] * u[r, k + 1]) for k in range(u.shape[1] - 1)]
+            cols = sorted((c for c in cols if c[1] > 1e-6), key=lambda c: -c[1])[:max_influences]
+            total = sum(c[1] for c in cols)
+            out_j[i], out_w[i] = 0, 0.0
+            for c, (jj, ww) in enumerate(cols):
+                out_j[i, c], out_w[i, c] = jj, ww / total
+    return JiggleBones(tuple(names), np.array(hosts, np.int32), skin, out_j.astype(np.int32),
+                       out_w.astype(np.float32))
+
+
+def _lbs(joints, weights, skin_mats, rest):
+    """(T, V, 3) LBS of rest (V, 3) by skin_mats (T, J, 4, 4) and the influences."""
+    p = np.c_[rest, np.ones(len(rest))]
+    out = np.zeros((len(skin_mats), len(rest), 3))
+    for c in range(joints.shape[1]):
+        out += weights[None, :, c, None] * np.einsum("tvab,vb->tva", skin_mats[:, joints[:, c]][..., :3, :], p)
+    return out
+
+
+def _spread(motion: np.ndarray, budget: int) -> np.ndarray:
+    """Bones per group: proportional to its motion, largest remainders first, each moving group one before
+    any gets a second."""
+    n = len(motion)
+    out = np.zeros(n, np.int64)
+    if n == 0 or budget <= 0 or motion.sum() <= 0:
+        return out
+    order = np.argsort(-motion)
+    first = order[:min(budget, n)]
+    out[first] = 1
+    left = budget - len(first)
+    if left > 0:
+        share = motion / motion.sum() * budget - out
+        share = np.maximum(share, 0)
+        extra = np.floor(share / max(share.sum(), 1e-12) * left).astype(np.int64)
+        out += extra
+        rem = left - extra.sum()
+        out[np.argsort(-(share - extra))[:rem]] += 1
+    return out
+
+
+def _fit_group(p, d, w_host, host_mats, free, K, iterations, rng):
+    """One group's bones: (C (T, K, 4, 4) rigid transforms in the host's rest frame, shares (n, K + 1): the
+    host's own first)."""
+    T, n = d.shape[:2]
+    inv = np.linalg.inv(host_mats)                                     # (T, 4, 4)
+    target = p[None] + np.einsum("tab,tnb->tna", inv[:, :3, :3], d) / w_host[None, :, None]   # (T, n, 3)
+    omega = w_host ** 2
+    K = min(K, n)
+    # initial bones: k-means of the displacement paths (a few frames suffice), one bone per cluster
+    frames = np.linspace(0, T - 1, min(T, 48)).astype(int)
+    feats = (target[frames] - p[None]).transpose(1, 0, 2).reshape(n, -1)
+    if K > 1:
+        from scipy.cluster.vq import kmeans2
+        _, label = kmeans2(feats, K, minit="++", seed=rng)
+    else:
+        label = np.zeros(n, np.int64)
+    u = np.zeros((n, K + 1))
+    u[np.arange(n), label + 1] = 1.0
+    R = np.broadcast_to(np.eye(3), (T, K + 1, 3, 3)).copy()
+    t = np.zeros((T, K + 1, 3))
+    limit = np.minimum(free, K + 1)
+    for it in range(iterations):
+        for k in range(1, K + 1):
+            R[:, k], t[:, k] = _procrustes(p, target, u, R, t, k, omega)
+        u = _shares(p, target, R, t, omega, u, limit)
+    C = np.zeros((T, K, 4, 4))
+    C[:, :, :3, :3], C[:, :, :3, 3], C[:, :, 3, 3] = R[:, 1:], t[:, 1:], 1.0
+    return C, u
+
+
+def _blend(p, u, R, t):
+    """(T, n, 3) sum_k u_k (R_k p + t_k)."""
+    return np.einsum("nk,tkab,nb->tna", u, R, p) + np.einsum("nk,tka->tna", u, t)
+
+
+def _procrustes(p, target, u, R, t, k, omega):
+    """Bone k's rigid transform per frame (T, 3, 3), (T, 3) minimising the weighted error the other bones
+    leave (weights omega u_k^2)."""
+    uk = u[:, k]
+    w = omega * uk ** 2
+    if w.sum() < 1e-12:
+        return R[:, k], t[:, k]
+    rest_blend = _blend(p, u, R, t) - uk[None, :, None] * (np.einsum("tab,nb->tna", R[:, k], p) + t[:, None, k])
+    wr = (omega * uk)[None, :, None] * (target - rest_blend)           # w * r, r = (target - others) / u_k
+    W = w.sum()
+    pc = (w[:, None] * p).sum(0) / W
+    rc = wr.sum(1) / W                                                 # (T, 3)
+    H = np.einsum("na,tnb->tab", p - pc, wr)                           # sum w (p - pc)(r - rc)^T: sum w (p - pc) = 0
+    U, _, Vt = np.linalg.svd(H)
+    D = np.ones((len(H), 3))
+    D[:, 2] = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
+    Rk = np.swapaxes(Vt, 1, 2) @ (D[:, :, None] * np.swapaxes(U, 1, 2))
+    tk = rc - np.einsum("tab,b->ta", Rk, pc)
+    return Rk, tk
+
+
+def _shares(p, target, R, t, omega, u0, limit, steps: int = 150):
+    """Each vertex's shares on the simplex minimising sum_t |sum_k u_k (R_k p + t_k) - target|^2, at most
+    limit[i] of them nonzero (the strongest kept, then refitted)."""
+    # Gram (n, K+1, K+1) and linear term (n, K+1) without forming every bone's path
+    RtR = np.einsum("tkba,tlbc->klac", R, R)                          # sum_t R_k^T R_l
+    Rtt = np.einsum("tkba,tlb->kla", R, t)                             # sum_t R_k^T t_l
+    tt = np.einsum("tka,tla->kl", t, t)
+    G = np.einsum("na,klab,nb->nkl", p, RtR, p) + np.einsum("na,kla->nkl", p, Rtt) \
+        + np.einsum("na,lka->nkl", p, Rtt) + tt[None]
+    c = np.einsum("na,tkba,tnb->nk", p, R, target, optimize=True) + np.einsum("tka,tna->nk", t, target,
+                                                                               optimize=True)
+    u = _simplex_lsq(G, c, u0, np.ones_like(u0, bool), steps)
+    keep = np.ones_like(u, bool)
+    order = np.argsort(-u, axis=1)
+    for i in np.flatnonzero(limit < u.shape[1]):
+        keep[i, order[i, limit[i]:]] = False
+    return _simplex_lsq(G, c, u * keep, keep, steps)
+
+
+def _simplex_lsq(G, c, u, mask, steps):
+    """min u^T G u - 2 c^T u on {u >= 0, sum u = 1, u = 0 off mask}, by projected gradient (batched)."""
+    L = np.linalg.norm(G, axis=(1, 2))[:, None] + 1e-12                # >= the largest eigenvalue
+    u = _project(u, mask)
+    for _ in range(steps):
+        g = np.einsum("nkl,nl->nk", G, u) - c
+        u = _project(u - g / L, mask)
+    return u
+
+
+def _project(x, mask):
+    """Euclidean projection of each row of x onto the simplex restricted to mask (batched sort algorithm)."""
+    x = np.where(mask, x, -1e30)
+    s = -np.sort(-x, axis=1)
+    cs = np.cumsum(np.where(s > -1e29, s, 0), axis=1) - 1
+    idx = np.arange(1, x.shape[1] + 1)[None]
+    ok = (s - cs / idx > 0) & (s > -1e29)
+    r = ok.sum(axis=1).clip(min=1)
+    theta = cs[np.arange(len(x)), r - 1] / r
+    return np.where(mask, np.maximum(x - theta[:, None], 0), 0.0)
