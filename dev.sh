@@ -10,6 +10,8 @@
 # because the bpy wheels pin numpy < 2; and the X11 client libraries bpy loads.
 # Unless JIGGLE_BROWSER=0: Debian's chromium and chromium-driver, which the test extras' selenium drives
 # headless for tests/app/test_view.py (`jiggle view` in a real browser; skipped with a reason without them).
+# Unless JIGGLE_JS=0: Node.js and npm, and in tests/js/node_modules the JavaScript clients the tests check
+# jiggle's glTF files with (the Khronos glTF-Validator and three.js, pinned in tests/js/package-lock.json).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -23,6 +25,8 @@ want_blender() { [ "${JIGGLE_BLENDER:-1}" != 0 ] && command -v python3.11 >/dev/
 want_blender && SYSTEM_PKGS+=("${BLENDER_PKGS[@]}")
 BROWSER_PKGS=(chromium chromium-driver)
 [ "${JIGGLE_BROWSER:-1}" != 0 ] && SYSTEM_PKGS+=("${BROWSER_PKGS[@]}")
+want_js() { [ "${JIGGLE_JS:-1}" != 0 ]; }
+want_js && ! command -v npm >/dev/null 2>&1 && SYSTEM_PKGS+=(nodejs npm)
 
 pick_python() {
   for py in "${PYTHON:-}" python3.11 python3.12 python3.13 python3; do
@@ -80,6 +84,21 @@ install() {
     echo "$hash" > "$stamp"
   fi
   want_blender && blender_env || true
+  want_js && js_env || true
+}
+
+# The JavaScript clients of tests/js (npm ci from its lock file), again when the lock file changes.
+js_env() {
+  command -v npm >/dev/null 2>&1 || { say "npm not found; the glTF-Validator and three.js tests will be skipped"; return 0; }
+  local stamp=tests/js/node_modules/.jiggle-install hash
+  hash=$(sha256sum tests/js/package-lock.json | cut -d' ' -f1)
+  [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$hash" ] && return 0
+  say "installing the glTF-Validator and three.js into tests/js/node_modules"
+  if (cd tests/js && npm ci --no-audit --no-fund --loglevel=error >/dev/null); then
+    echo "$hash" > "$stamp"
+  else
+    say "npm ci failed; the glTF-Validator and three.js tests will be skipped"
+  fi
 }
 
 # Blender (bpy) in .venv/blender: the requirement of the extra "blender", read from pyproject.toml.

@@ -142,23 +142,23 @@ def _lbs(joints, weights, skin_mats, rest):
 
 
 def _spread(motion: np.ndarray, budget: int) -> np.ndarray:
-    """Bones per group: proportional to its motion, largest remainders first, each moving group one before
-    any gets a second."""
-    n = len(motion)
-    out = np.zeros(n, np.int64)
-    if n == 0 or budget <= 0 or motion.sum() <= 0:
+    """Bones per group: each moving group one (the most moving first) before any gets a second, the rest in
+    proportion to their motion, largest remainders first."""
+    motion = np.asarray(motion, np.float64)
+    out = np.zeros(len(motion), np.int64)
+    live = np.flatnonzero(motion > 0)
+    if len(live) == 0 or budget <= 0:
         return out
-    order = np.argsort(-motion)
-    first = order[:min(budget, n)]
+    first = live[np.argsort(-motion[live])][:budget]
     out[first] = 1
     left = budget - len(first)
     if left > 0:
-        share = motion / motion.sum() * budget - out
-        share = np.maximum(share, 0)
-        extra = np.floor(share / max(share.sum(), 1e-12) * left).astype(np.int64)
+        want = np.maximum(motion / motion.sum() * budget - out, 0)
+        extra = np.floor(want / want.sum() * left).astype(np.int64) if want.sum() > 0 else np.zeros_like(out)
         out += extra
-        rem = left - extra.sum()
-        out[np.argsort(-(share - extra))[:rem]] += 1
+        rest = left - int(extra.sum())
+        order = live[np.argsort(-(want - extra)[live])]
+        out[order[:rest]] += 1
     return out
 
 

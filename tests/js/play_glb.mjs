@@ -12,7 +12,10 @@ loader.parse(data, '', (gltf) => {
   gltf.scene.traverse((o) => { if (o.isSkinnedMesh && !mesh) mesh = o; });
   if (!mesh || gltf.animations.length === 0) { console.error('no skinned mesh or no animation'); process.exit(3); }
   const mixer = new THREE.AnimationMixer(gltf.scene);
-  mixer.clipAction(gltf.animations[0]).play();
+  const action = mixer.clipAction(gltf.animations[0]);
+  action.setLoop(THREE.LoopOnce, 1);      // the last key is the last frame, not the first again
+  action.clampWhenFinished = true;
+  action.play();
   const out = [];
   const v = new THREE.Vector3();
   for (const t of JSON.parse(timesJson)) {
