@@ -21,6 +21,8 @@ contacts.png      for a bake with collisions (its bake.json has "contacts"): the
                   static and final skin (see :func:`collision_metrics`)
 peak.png          static | dynamic skin at the peak frame (sim.app.compare_render), unless render=False
 quality_closeups.png  the worst frames for skin quality, close up, static | final, unless render=False
+glb_closeup.png   for a bake with a glb (--formats glb): its worst frame close up, skin_final | played from the
+                  glb (sim.app.glb_report; metrics.json "glb": the file's fit per frame), unless render=False
 clip.mp4          the same over the whole clip (clip.gif when ffmpeg fails), unless render/video False
 report.html       one self-contained page with all of it (sim.app.report)
 
@@ -652,6 +654,14 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         if closeups:
             files["quality_closeups"] = closeups
         timings["quality_render_s"] = time.perf_counter() - t0
+    glb = None
+    if "glb" in (read_contacts(out_dir, "files") or {}) and os.path.isfile(os.path.join(out_dir, "bake.glb")):
+        from sim.app.glb_report import glb_check
+        t0 = time.perf_counter()
+        glb, drawn = glb_check(out_dir, data, out("glb_closeup.png") if render and V else None)
+        if drawn:
+            files["glb_closeup"] = drawn
+        timings["glb_s"] = time.perf_counter() - t0
     files["metrics"] = out("metrics.json")
     files["report"] = out("report.html")
     metrics = {
@@ -664,6 +674,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         "start_s": float(times[0]), "end_s": float(times[-1]), "vertices": V, "muscle_count": len(names),
         "skin": skin, "peak": peak, "skin_quality": quality,
         **({"collisions": collisions} if collisions is not None else {}),
+        **({"glb": glb} if glb is not None else {}),
         "amplitude": "largest CV distance |dynamic - static| (the bake's blended CVs); rms: over time",
         "energy": "per muscle, sum over its CVs of 0.5 m_cv (|v|^2 + w^2 |d|^2); d = dynamic - static, "
                   "v = dd/dt (central differences), m_cv = mass_kg / CVs, w = 2 pi frequency_hz "

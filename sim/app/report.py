@@ -140,6 +140,25 @@ def _quality_section(q: dict, files: dict) -> list[str]:
     return parts
 
 
+def _glb_section(g: dict, files: dict) -> list[str]:
+    """Jiggle bones (metrics.json's "glb", a bake with --formats glb): the file's fit in numbers and its worst
+    frame close up."""
+    s = g.get("summary") or {}
+    rows = [("file", f"{_e(g.get('file'))} ({_e(g.get('bytes'))} bytes, {_e(g.get('bones'))} jiggle bones)"),
+            ("RMS per frame, worst", f"{_e(_short(s.get('rms_mm_max')))} mm"),
+            ("p99 per frame, worst", f"{_e(_short(s.get('p99_mm_max')))} mm"),
+            ("largest distance", f"{_e(_short(s.get('max_mm')))} mm"),
+            ("the bones make, at least", f"{_e(_short(s.get('share_min')))} of the muscles' motion"),
+            ("made right, at least", f"{_e(_short(s.get('explained_min')))} (1 - sum |played - final| / "
+                                     "sum |final - lbs|)")]
+    parts = ["<h2>Jiggle bones (glb)</h2>", _kv(rows)]
+    if "glb_closeup" in files:
+        parts += [f'<img alt="the glb worst frame close up" src="{data_uri(files["glb_closeup"])}">',
+                  f'<p class="note">frame {_e(g.get("worst_frame"))}, the worst for p99: skin_final | the skin '
+                  "the glb plays (read back by jiggle's glTF reader), coloured by the distance between them.</p>"]
+    return parts
+
+
 def _collision_section(c: dict, files: dict) -> list[str]:
     """Collisions (metrics.json's "collisions", a bake with them): key numbers, the skin inside capsules,
     the per-frame plot and the table of which muscle hit what (deepest first)."""
@@ -210,6 +229,8 @@ def render_report(metrics: dict, files: dict) -> str:
     ])]
     parts += _quality_section(m.get("skin_quality") or {}, files)
     parts += _collision_section(m.get("collisions") or {}, files)
+    if m.get("glb"):
+        parts += _glb_section(m["glb"], files)
     unit = m.get("energy_unit", "J")
     parts += _limits_section(m.get("limits") or {})
     parts += ["<h2>Muscles</h2>", _muscle_table(m.get("muscles") or {}, unit),

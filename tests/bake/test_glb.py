@@ -180,3 +180,16 @@ def test_export_writes_the_same_file_as_the_bake(baked, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main(["export", str(baked), "--glb", str(tmp_path / "x.glb"), "--max-influences", "5"])
     assert e.value.code == 2
+
+
+def test_compare_reads_the_glb_back_and_draws_its_worst_frame(baked):
+    """`jiggle compare` on a bake with a glb: metrics.json "glb" (the file read back by jiggle's reader, per frame
+    against skin_final, the same figures bake.json gave) and glb_closeup.png, in the report."""
+    assert main(["-q", "compare", "--no-video", str(baked)]) == 0
+    m = json.loads((baked / "metrics.json").read_text())["glb"]
+    b = json.loads((baked / "bake.json").read_text())["glb"]
+    assert m["bones"] == 48 and len(m["rms_mm"]) == len(b["rms_mm"])
+    assert np.allclose(m["rms_mm"], b["rms_mm"], atol=0.02) and np.allclose(m["p99_mm"], b["p99_mm"], atol=0.05)
+    png = baked / "glb_closeup.png"
+    assert png.is_file() and png.stat().st_size > 10_000
+    assert "Jiggle bones (glb)" in (baked / "report.html").read_text()
