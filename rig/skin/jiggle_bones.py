@@ -184,32 +184,43 @@ def _fit_group(p, d, w_host, host_mats, free, K, iterations, rng):
     t = np.zeros((T, K + 1, 3))
     limit = np.minimum(free, K + 1)
     for it in range(iterations):
+        Y = _blend(p, u, R, t)                                         # the blend, kept up to date bone by bone
         for k in range(1, K + 1):
-            R[:, k], t[:, k] = _procrustes(p, target, u, R, t, k, omega)
+            old = _path(p, R[:, k], t[:, k])
+            others = Y - u[None, :, k, None] * old
+            R[:, k], t[:, k] = _procrustes(p, target, others, u[:, k], omega, R[:, k], t[:, k])
+            Y = others + u[None, :, k, None] * _path(p, R[:, k], t[:, k])
         u = _shares(p, target, R, t, omega, u, limit)
     C = np.zeros((T, K, 4, 4))
     C[:, :, :3, :3], C[:, :, :3, 3], C[:, :, 3, 3] = R[:, 1:], t[:, 1:], 1.0
     return C, u
 
 
+def _path(p, R, t):
+    """(T, n, 3) R p + t of one bone over the frames (R (T, 3, 3), t (T, 3))."""
+    return np.matmul(p[None], np.swapaxes(R, 1, 2)) + t[:, None]
+
+
 def _blend(p, u, R, t):
     """(T, n, 3) sum_k u_k (R_k p + t_k)."""
-    return np.einsum("nk,tkab,nb->tna", u, R, p) + np.einsum("nk,tka->tna", u, t)
+    out = np.zeros((len(R), len(p), 3))
+    for k in range(R.shape[1]):
+        if np.any(u[:, k]):
+            out += u[None, :, k, None] * _path(p, R[:, k], t[:, k])
+    return out
 
 
-def _procrustes(p, target, u, R, t, k, omega):
-    """Bone k's rigid transform per frame (T, 3, 3), (T, 3) minimising the weighted error the other bones
-    leave (weights omega u_k^2)."""
-    uk = u[:, k]
+def _procrustes(p, target, others, uk, omega, Rk, tk):
+    """A bone's rigid transform per frame (T, 3, 3), (T, 3) minimising the weighted error (weights omega u_k^2)
+    the other bones leave, `others` (T, n, 3) their blend."""
     w = omega * uk ** 2
     if w.sum() < 1e-12:
-        return R[:, k], t[:, k]
-    rest_blend = _blend(p, u, R, t) - uk[None, :, None] * (np.einsum("tab,nb->tna", R[:, k], p) + t[:, None, k])
-    wr = (omega * uk)[None, :, None] * (target - rest_blend)           # w * r, r = (target - others) / u_k
+        return Rk, tk
+    wr = (omega * uk)[None, :, None] * (target - others)              # w * r, r = (target - others) / u_k
     W = w.sum()
     pc = (w[:, None] * p).sum(0) / W
     rc = wr.sum(1) / W                                                 # (T, 3)
-    H = np.einsum("na,tnb->tab", p - pc, wr)                           # sum w (p - pc)(r - rc)^T: sum w (p - pc) = 0
+    H = np.einsum("na,tnb->tab", p - pc, wr, optimize=True)            # sum w (p - pc)(r - rc)^T: sum w (p - pc) = 0
     U, _, Vt = np.linalg.svd(H)
     D = np.ones((len(H), 3))
     D[:, 2] = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
@@ -218,7 +229,7 @@ def _procrustes(p, target, u, R, t, k, omega):
     return Rk, tk
 
 
-def _shares(p, target, R, t, omega, u0, limit, steps: int = 150):
+def _shares(p, target, R, t, omega, u0, limit, steps: int = 40):
     """Each vertex's shares on the simplex minimising sum_t |sum_k u_k (R_k p + t_k) - target|^2, at most
     limit[i] of them nonzero (the strongest kept, then refitted)."""
     # Gram (n, K+1, K+1) and linear term (n, K+1) without forming every bone's path
@@ -229,7 +240,7 @@ def _shares(p, target, R, t, omega, u0, limit, steps: int = 150):
         + np.einsum("na,lka->nkl", p, Rtt) + tt[None]
     c = np.einsum("na,tkba,tnb->nk", p, R, target, optimize=True) + np.einsum("tka,tna->nk", t, target,
                                                                                optimize=True)
-    u = _simplex_lsq(G, c, u0, np.ones_like(u0, bool), steps)
+    u = _simplex_lsq(G, c, u0, np.ones_like(u0, bool), steps)        # warm-started from the last shares
     keep = np.ones_like(u, bool)
     order = np.argsort(-u, axis=1)
     for i in np.flatnonzero(limit < u.shape[1]):

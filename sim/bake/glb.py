@@ -22,7 +22,7 @@ import numpy as np
 
 from rig.base.errors import InputError
 
-DEFAULT_BONES = {"human": 48, "quadruped": 48}
+DEFAULT_BONES = {"human": 96, "quadruped": 96}
 """Jiggle bones per built-in template; another template gets two per muscle."""
 GLB_NAME = "bake.glb"
 
