@@ -67,17 +67,22 @@ def play(bones: JiggleBones, skin_mats: np.ndarray, rest: np.ndarray) -> np.ndar
     return out.astype(np.float32)
 
 
-def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np.ndarray, lbs: np.ndarray,
-        final: np.ndarray, muscle: np.ndarray, muscle_names, budget: int, max_influences: int = 4,
-        iterations: int = 12, min_motion_m: float = 5e-5, seed: int = 0) -> JiggleBones:
+def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np.ndarray, final: np.ndarray,
+        muscle: np.ndarray, muscle_names, budget: int, max_influences: int = 4, muscle_joint=None,
+        iterations: int = 12, min_motion_m: float = 5e-5, prune_m: float = 5e-4, seed: int = 0) -> JiggleBones:
     """Fit jiggle bones (see the module).
 
     rest : (V, 3) rest skin. joints, weights : (V, k) the character's influences (strongest first).
     skin_mats : (T, J, 4, 4) the character's skinning matrices per frame (`Character.skin_matrices`).
-    lbs, final : (T, V, 3) the smooth skin and the final one (the bake's skin_lbs and skin_final).
+    final : (T, V, 3) the skin to reproduce (the bake's skin_final); the smooth skin is the LBS of the above.
     muscle : (V,) int the muscle each vertex belongs to (`nearest_muscle`), -1 none; muscle_names : (M,).
+    muscle_joint : (M,) the joint each muscle rides (None: none known): a vertex hands over that joint's weight
+        when it has it (>= 0.2), so its bones move with the muscle; else its strongest joint's.
     budget : jiggle bones in all. max_influences : per vertex, the character's and the bones' together.
     min_motion_m : vertices that never move more than this from the LBS skin are left alone.
+    prune_m : a weak influence that never moves its vertex more than this (metres, against the strongest joint
+        over the clip) goes to the strongest joint, freeing its slot for the jiggle bones; what it moved joins the
+        fitted motion (the reported error includes it).
     """
     rest = np.asarray(rest, np.float64)
     V, J, T = len(rest), skin_mats.shape[1], len(skin_mats)
@@ -85,8 +90,18 @@ def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np
     weights = np.asarray(weights, np.float64)
     if weights.shape[1] > max_influences:
         raise ValueError(f"the character has {weights.shape[1]} influences per vertex, the budget {max_influences}")
+    joints, weights = _pruned(joints, weights, skin_mats, rest, prune_m)
+    lbs = _lbs(joints, weights, skin_mats, rest)                       # the smooth skin of the kept influences
     d = np.asarray(final, np.float64) - lbs                            # (T, V, 3)
     moving = np.linalg.norm(d, axis=2).max(axis=0) > min_motion_m
+    if muscle_joint is not None:                                       # the muscle's joint first, where it is one
+        mj = np.where(muscle >= 0, np.asarray(muscle_joint)[np.maximum(muscle, 0)], -1)
+        col = np.argmax((joints == mj[:, None]) & (weights >= 0.2), axis=1)
+        swap = np.arange(V)
+        for a in (joints, weights):
+            first = a[swap, 0].copy()
+            a[swap, 0] = a[swap, col]
+            a[swap, col] = first
     host = joints[:, 0].astype(np.int64)
     w_host = weights[:, 0].astype(np.float64)
     free = max_influences - (weights[:, 1:] > 0).sum(axis=1)           # slots for the host's share
@@ -132,6 +147,27 @@ def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np
                        out_w.astype(np.float32))
 
 
+def _pruned(joints, weights, skin_mats, rest, tol: float):
+    """(joints, weights) with the influences whose weight times their joint's motion against the strongest joint
+    stays under `tol` metres over every frame given to the strongest joint (see `fit`)."""
+    j, w = joints.copy(), weights.copy()
+    if tol <= 0:
+        return j, w
+    p = np.c_[rest, np.ones(len(rest))]
+    host = np.einsum("tvab,vb->tva", skin_mats[:, j[:, 0]][..., :3, :], p)
+    for c in range(1, j.shape[1]):
+        live = w[:, c] > 0
+        if not live.any():
+            continue
+        other = np.einsum("tvab,vb->tva", skin_mats[:, j[live, c]][..., :3, :], p[live])
+        lever = np.linalg.norm(other - host[:, live], axis=2).max(axis=0) * w[live, c]
+        drop = np.flatnonzero(live)[lever < tol]
+        w[drop, 0] += w[drop, c]
+        w[drop, c], j[drop, c] = 0.0, 0
+    order = np.argsort(-w, axis=1, kind="stable")                      # strongest first again
+    return np.take_along_axis(j, order, 1), np.take_along_axis(w, order, 1)
+
+
 def _lbs(joints, weights, skin_mats, rest):
     """(T, V, 3) LBS of rest (V, 3) by skin_mats (T, J, 4, 4) and the influences."""
     p = np.c_[rest, np.ones(len(rest))]
@@ -139,6 +175,12 @@ def _lbs(joints, weights, skin_mats, rest):
     for c in range(joints.shape[1]):
         out += weights[None, :, c, None] * np.einsum("tvab,vb->tva", skin_mats[:, joints[:, c]][..., :3, :], p)
     return out
+
+
+SAMPLE_FRAMES = 32
+"""Frames the shares are fitted on (half evenly spaced, half where the group moves most)."""
+FINAL_SWEEPS = 3
+"""Passes over every frame's bone transforms once the shares are fixed."""
 
 
 def _spread(motion: np.ndarray, budget: int) -> np.ndarray:
@@ -180,20 +222,34 @@ def _fit_group(p, d, w_host, host_mats, free, K, iterations, rng):
         label = np.zeros(n, np.int64)
     u = np.zeros((n, K + 1))
     u[np.arange(n), label + 1] = 1.0
+    limit = np.minimum(free, K + 1)
+    # shares and bones alternate on a sample of the frames (shares do not change with time): evenly spaced,
+    # and the frames where the group moves most; then every frame's bones, the shares fixed
+    sample = np.unique(np.r_[np.linspace(0, T - 1, min(T, SAMPLE_FRAMES // 2)).astype(int),
+                             np.argsort(-np.abs(target - p[None]).sum(axis=(1, 2)))[:SAMPLE_FRAMES // 2]])
+    R = np.broadcast_to(np.eye(3), (len(sample), K + 1, 3, 3)).copy()
+    t = np.zeros((len(sample), K + 1, 3))
+    for it in range(iterations):
+        _sweep(p, target[sample], u, R, t, omega)
+        u = _shares(p, target[sample], R, t, omega, u, limit)
     R = np.broadcast_to(np.eye(3), (T, K + 1, 3, 3)).copy()
     t = np.zeros((T, K + 1, 3))
-    limit = np.minimum(free, K + 1)
-    for it in range(iterations):
-        Y = _blend(p, u, R, t)                                         # the blend, kept up to date bone by bone
-        for k in range(1, K + 1):
-            old = _path(p, R[:, k], t[:, k])
-            others = Y - u[None, :, k, None] * old
-            R[:, k], t[:, k] = _procrustes(p, target, others, u[:, k], omega, R[:, k], t[:, k])
-            Y = others + u[None, :, k, None] * _path(p, R[:, k], t[:, k])
-        u = _shares(p, target, R, t, omega, u, limit)
+    for _ in range(FINAL_SWEEPS):
+        _sweep(p, target, u, R, t, omega)
     C = np.zeros((T, K, 4, 4))
     C[:, :, :3, :3], C[:, :, :3, 3], C[:, :, 3, 3] = R[:, 1:], t[:, 1:], 1.0
     return C, u
+
+
+def _sweep(p, target, u, R, t, omega) -> None:
+    """Every bone's transforms once, in place, each against the blend the others make (Gauss-Seidel)."""
+    Y = _blend(p, u, R, t)                                             # the blend, kept up to date bone by bone
+    for k in range(1, R.shape[1]):
+        if not np.any(u[:, k]):
+            continue
+        others = Y - u[None, :, k, None] * _path(p, R[:, k], t[:, k])
+        R[:, k], t[:, k] = _procrustes(p, target, others, u[:, k], omega, R[:, k], t[:, k])
+        Y = others + u[None, :, k, None] * _path(p, R[:, k], t[:, k])
 
 
 def _path(p, R, t):

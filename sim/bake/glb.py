@@ -22,7 +22,7 @@ import numpy as np
 
 from rig.base.errors import InputError
 
-DEFAULT_BONES = {"human": 96, "quadruped": 96}
+DEFAULT_BONES = {"human": 128, "quadruped": 128}
 """Jiggle bones per built-in template; another template gets two per muscle."""
 GLB_NAME = "bake.glb"
 
@@ -32,13 +32,14 @@ def default_bones(template: str | None, muscles: int) -> int:
 
 
 def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max_influences: int = 4,
-               source: str | None = None, fps: float | None = None) -> dict:
+               source: str | None = None, fps: float | None = None, muscle_joint=None) -> dict:
     """Write the glb (module docstring) and return its report.
 
     character : the bake's character (rig.character.character.Character). world : (T, J, 4, 4) its joints' world
     transforms at the output frames. data : sim.bake.caches.BakeData of the bake (skin_final, skin_lbs, muscle
     CVs). path : the .glb to write (atomically). bones : the jiggle bone budget. max_influences : 4 or 8.
     source : the glTF the character came from (its material is copied), None for a plain one.
+    muscle_joint : (M,) the joint each muscle rides (the rig's middle slot), None: unknown.
     """
     from rig.skin import jiggle_bones as jb
     if max_influences not in (4, 8):
@@ -60,8 +61,8 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
     mats = c.skin_matrices(np.asarray(world, np.float64))
     lbs = jb._lbs(c.joints.astype(np.int64), c.weights.astype(np.float64), mats, c.vertices)
     muscle = jb.nearest_muscle(data.skin_static[0], data.muscle_cvs_static[0], data.muscle_cv_offsets)
-    fitted = jb.fit(c.vertices, c.joints, c.weights, mats, lbs, final, muscle, data.muscle_names, bones,
-                    max_influences=max_influences)
+    fitted = jb.fit(c.vertices, c.joints, c.weights, mats, final, muscle, data.muscle_names, bones,
+                    max_influences=max_influences, muscle_joint=muscle_joint)
     fit_s = time.perf_counter() - t0
     ext, clip = _with_bones(c, np.asarray(world, np.float64), fitted, fps or data.fps)
     from rig.character.gltf_write import write_character
@@ -140,8 +141,11 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
     budget = default_bones(template, len(data.muscle_names)) if bones is None else bones
     source = _material_source(setup.character)
     out = path or os.path.join(out_dir, GLB_NAME)
+    rig = setup.rig
+    muscle_joint = np.asarray(rig.joints)[:, 8] if getattr(rig, "joints", None) is not None and \
+        len(rig.joints) == len(data.muscle_names) else None
     rep = export_glb(setup.character, world, data, out, bones=budget, max_influences=max_influences,
-                     source=source, fps=setup.fps)
+                     source=source, fps=setup.fps, muscle_joint=muscle_joint)
     summary_path = os.path.join(out_dir, "bake.json")
     if os.path.isfile(summary_path) and path is None:
         with open(summary_path, encoding="utf-8") as fh:

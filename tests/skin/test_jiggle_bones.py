@@ -44,7 +44,7 @@ def test_the_decomposition_finds_the_bones_that_made_the_motion():
     """Two hidden bones under joint 0 move the upper arm's middle: with a budget of 2 the fit puts them back
     (error under 2% of the motion), hung under joint 0, and vertices that did not move keep their weights."""
     rest, joints, weights, S, lbs, final, mid = two_bone_arm()
-    bones = jb.fit(rest, joints, weights, S, lbs, final, np.zeros(len(rest), int), ["biceps"], budget=2,
+    bones = jb.fit(rest, joints, weights, S, final, np.zeros(len(rest), int), ["biceps"], budget=2,
                    iterations=30)
     assert bones.names == ("biceps_jiggle_0", "biceps_jiggle_1") and list(bones.hosts) == [0, 0]
     played = jb.play(bones, S, rest)
@@ -61,7 +61,7 @@ def test_influences_stay_in_budget_and_weights_sum_to_one():
     rest, joints, weights, S, lbs, final, mid = two_bone_arm(seed=1)
     for budget in (1, 3):
         for k in (2, 3):
-            bones = jb.fit(rest, joints, weights, S, lbs, final, np.zeros(len(rest), int), ["m"], budget=budget,
+            bones = jb.fit(rest, joints, weights, S, final, np.zeros(len(rest), int), ["m"], budget=budget,
                            max_influences=k)
             assert bones.joints.shape == (len(rest), k) and len(bones.names) == budget
             assert np.allclose(bones.weights.sum(axis=1), 1, atol=1e-5) and (bones.weights >= 0).all()
