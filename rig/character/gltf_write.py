@@ -261,16 +261,12 @@ def _animation_arrays(c, clip, path: str, name: str) -> dict:
     if not np.all(np.isfinite(clip.rotations)) or not np.all(np.isfinite(clip.translations)):
         raise InputError(f"animation {name!r} holds NaN or infinite values", path, field="animations")
     world_r, world_p = clip.world()
-    T, J = world_r.shape[:2]
-    rot = np.empty((T, J, 4))
-    tra = np.empty((T, J, 3))
-    for t in range(T):
-        rot[t], tra[t] = local_from_world(clip.parents, world_r[t], world_p[t])
+    rot, tra = local_from_world(clip.parents, world_r, world_p)       # every frame at once
     roots = np.asarray(c.parents) < 0
     rot[:, roots] = quat.mul(quat.conj(Y_TO_Z_UP), rot[:, roots])
     tra[:, roots] = tra[:, roots] @ _Y_UP[:3, :3].T
     rot = quat.make_continuous(quat.normalize(rot), axis=0)
-    return {"times": (np.arange(T) / clip.fps).astype(np.float32), "rotations": quat.to_xyzw(rot),
+    return {"times": (np.arange(len(rot)) / clip.fps).astype(np.float32), "rotations": quat.to_xyzw(rot),
             "translations": tra}
 
 

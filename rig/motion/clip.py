@@ -24,17 +24,20 @@ TRANSLATION_NOISE = 1e-6  # metres: translation changes below this are exporter 
 
 def local_from_world(parents: np.ndarray, world_rot: np.ndarray, world_pos: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Local rotations (J, 4) w,x,y,z and translations (J, 3) of a joint tree from its world
-    rotations (J, 4) and positions (J, 3); roots keep their world transform. Parents first."""
+    """Local rotations (..., J, 4) w,x,y,z and translations (..., J, 3) of a joint tree from its world
+    rotations (..., J, 4) and positions (..., J, 3) (any leading axes, e.g. frames); roots keep their world
+    transform. Parents first."""
+    world_rot = np.asarray(world_rot, dtype=np.float64)
+    world_pos = np.asarray(world_pos, dtype=np.float64)
     rot = np.empty_like(world_rot)
     tra = np.empty_like(world_pos)
     for j, p in enumerate(parents):
         if p < 0:
-            rot[j], tra[j] = world_rot[j], world_pos[j]
+            rot[..., j, :], tra[..., j, :] = world_rot[..., j, :], world_pos[..., j, :]
         else:
-            inv = quat.conj(world_rot[p])
-            rot[j] = quat.mul(inv, world_rot[j])
-            tra[j] = quat.rotate(inv, world_pos[j] - world_pos[p])
+            inv = quat.conj(world_rot[..., p, :])
+            rot[..., j, :] = quat.mul(inv, world_rot[..., j, :])
+            tra[..., j, :] = quat.rotate(inv, world_pos[..., j, :] - world_pos[..., p, :])
     return quat.canonical(rot), tra
 
 

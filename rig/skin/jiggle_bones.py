@@ -69,7 +69,7 @@ def play(bones: JiggleBones, skin_mats: np.ndarray, rest: np.ndarray) -> np.ndar
 
 def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np.ndarray, final: np.ndarray,
         muscle: np.ndarray, muscle_names, budget: int, max_influences: int = 4, muscle_joint=None,
-        iterations: int = 12, min_motion_m: float = 5e-5, prune_m: float = 5e-4, seed: int = 0) -> JiggleBones:
+        iterations: int = 8, min_motion_m: float = 5e-5, prune_m: float = 5e-4, seed: int = 0) -> JiggleBones:
     """Fit jiggle bones (see the module).
 
     rest : (V, 3) rest skin. joints, weights : (V, k) the character's influences (strongest first).
@@ -179,7 +179,7 @@ def _lbs(joints, weights, skin_mats, rest):
 
 SAMPLE_FRAMES = 32
 """Frames the shares are fitted on (half evenly spaced, half where the group moves most)."""
-FINAL_SWEEPS = 3
+FINAL_SWEEPS = 2
 """Passes over every frame's bone transforms once the shares are fixed."""
 
 
@@ -254,7 +254,9 @@ def _sweep(p, target, u, R, t, omega) -> None:
 
 def _path(p, R, t):
     """(T, n, 3) R p + t of one bone over the frames (R (T, 3, 3), t (T, 3))."""
-    return np.matmul(p[None], np.swapaxes(R, 1, 2)) + t[:, None]
+    T = len(R)
+    rp = (p @ np.transpose(R, (2, 0, 1)).reshape(3, 3 * T)).reshape(len(p), T, 3)    # one GEMM for every frame
+    return np.transpose(rp, (1, 0, 2)) + t[:, None]
 
 
 def _blend(p, u, R, t):
@@ -309,7 +311,7 @@ def _simplex_lsq(G, c, u, mask, steps):
     L = np.linalg.norm(G, axis=(1, 2))[:, None] + 1e-12                # >= the largest eigenvalue
     u = _project(u, mask)
     for _ in range(steps):
-        g = np.einsum("nkl,nl->nk", G, u) - c
+        g = np.matmul(G, u[:, :, None])[:, :, 0] - c
         u = _project(u - g / L, mask)
     return u
 

@@ -111,12 +111,7 @@ def _with_bones(c, world: np.ndarray, fitted, fps: float):
     bind_mats = np.concatenate([c.bind_matrices, c.bind_matrices[hosts]])
     bone_world = fitted.skin @ c.bind_matrices[hosts][None]             # (T, K, 4, 4): skin @ its bind
     all_world = np.concatenate([world, bone_world], axis=1)
-    T, J = all_world.shape[:2]
-    rot = np.empty((T, J, 4))
-    tra = np.empty((T, J, 3))
-    wq = quat.from_matrix(all_world[..., :3, :3])
-    for t in range(T):
-        rot[t], tra[t] = local_from_world(parents, wq[t], all_world[t, :, :3, 3])
+    rot, tra = local_from_world(parents, quat.from_matrix(all_world[..., :3, :3]), all_world[..., :3, 3])
     b_rot, b_tra = local_from_world(parents, quat.from_matrix(bind_world[:, :3, :3]), bind_world[:, :3, 3])
     names = tuple(c.joint_names) + tuple(fitted.names)
     clip = Clip(names, parents, b_tra, b_rot, rot, tra, fps, name="jiggle")
