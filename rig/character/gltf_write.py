@@ -59,7 +59,7 @@ from rig.motion.gltf_io import Z_UP, polar_rotation
 EXTENSIONS = (".glb", ".gltf")
 GENERATOR = "jiggle"
 
-_FLOAT, _UINT16, _UINT32 = 5126, 5123, 5125
+_FLOAT, _UINT16, _UINT32, _UINT8, _INT16 = 5126, 5123, 5125, 5121, 5122
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _Y_UP = Z_UP.T  # jiggle world (Z-up) -> glTF world (Y-up); Z_UP is a rotation
 _DEFAULT_MATERIAL = {"name": "jiggle default",
@@ -71,7 +71,7 @@ _MATERIAL_TEXTURES = ("normalTexture", "occlusionTexture", "emissiveTexture")
 
 def write_character(character, path: str | os.PathLike, *, source: str | os.PathLike | None = None,
                     name: str | None = None, extras: dict | None = None, animations: dict | None = None,
-                    attributes: dict | None = None) -> str:
+                    attributes: dict | None = None, compact: bool = False) -> str:
     """Write `character` (rig.character.character.Character, Z-up metres) as a skinned glTF 2.0 file.
 
     Parameters
@@ -90,6 +90,9 @@ def write_character(character, path: str | os.PathLike, *, source: str | os.Path
         naming the animation otherwise).
     attributes : {name: (V,) float} custom vertex attributes written as SCALAR FLOAT (names starting
         with "_", as the spec asks: e.g. rig.character.gltf_maps' _JIGGLE and _SHELL_<MUSCLE>).
+    compact : the smaller encodings core glTF allows, for files engines stream (sim/bake/glb.py): animation
+        rotations as normalized SHORT (3e-5 of a turn), weights as normalized UNSIGNED_SHORT (rows summing
+        to exactly 65535), joints as UNSIGNED_BYTE when there are fewer than 256.
 
     Returns the path written. InputError for an unknown extension, a missing folder, NaN or infinite
     values (naming the field), or indices out of range.
@@ -124,7 +127,7 @@ def write_character(character, path: str | os.PathLike, *, source: str | os.Path
             raise InputError(f"a custom attribute needs a name starting with '_' and one value per vertex "
                              f"({character.num_vertices}); got {k!r} with {len(v)}", p, field="attributes")
         extra_attrs[str(k)] = _finite(v, p, f"attributes.{k}").astype(np.float32)
-    doc, blob = _document(character, arrays, material, name, extras, anims, extra_attrs)
+    doc, blob = _document(character, arrays, material, name, extras, anims, extra_attrs, compact)
     with atomic_path(p) as tmp:
         if ext == ".glb":
             data = _glb(doc, blob)
@@ -271,14 +274,18 @@ def _animation_arrays(c, clip, path: str, name: str) -> dict:
 
 
 def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
-              animations: dict | None = None, custom: dict | None = None) -> tuple[dict, bytes]:
+              animations: dict | None = None, custom: dict | None = None,
+              compact: bool = False) -> tuple[dict, bytes]:
     buf = _Buffer()
     accessors: list[dict] = []
 
-    def accessor(arr: np.ndarray, ctype: int, kind: str, target: int | None, bounds: bool = False) -> int:
+    def accessor(arr: np.ndarray, ctype: int, kind: str, target: int | None, bounds: bool = False,
+                 normalized: bool = False) -> int:
         arr = np.ascontiguousarray(arr)
         acc = {"bufferView": buf.view(arr.astype(arr.dtype.newbyteorder("<")).tobytes(), target),
                "componentType": ctype, "count": int(len(arr)), "type": kind}
+        if normalized:
+            acc["normalized"] = True
         if bounds:
             acc["min"] = np.atleast_1d(arr.min(0)).tolist()   # a list even for SCALAR accessors
             acc["max"] = np.atleast_1d(arr.max(0)).tolist()
@@ -290,9 +297,15 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
                   "NORMAL": accessor(a["normals"], _FLOAT, "VEC3", _ARRAY_BUFFER)}
     if a["uvs"] is not None:
         attributes["TEXCOORD_0"] = accessor(a["uvs"], _FLOAT, "VEC2", _ARRAY_BUFFER)
-    for n in range(a["joints"].shape[1] // 4):
-        attributes[f"JOINTS_{n}"] = accessor(a["joints"][:, 4 * n:4 * n + 4], _UINT16, "VEC4", _ARRAY_BUFFER)
-        attributes[f"WEIGHTS_{n}"] = accessor(a["weights"][:, 4 * n:4 * n + 4], _FLOAT, "VEC4", _ARRAY_BUFFER)
+    small = compact and J < 256
+    weights = _unit_shorts(a["weights"]) if compact else a["weights"]
+    joints = np.where(weights > 0, a["joints"], 0)     # a weight rounded to 0 names joint 0, as padding does
+    for n in range(joints.shape[1] // 4):
+        jn = joints[:, 4 * n:4 * n + 4]
+        attributes[f"JOINTS_{n}"] = accessor(jn.astype(np.uint8) if small else jn, _UINT8 if small else _UINT16,
+                                             "VEC4", _ARRAY_BUFFER)
+        attributes[f"WEIGHTS_{n}"] = accessor(weights[:, 4 * n:4 * n + 4], _UINT16 if compact else _FLOAT, "VEC4",
+                                              _ARRAY_BUFFER, normalized=compact)
     for k, v in (custom or {}).items():
         attributes[k] = accessor(v, _FLOAT, "SCALAR", _ARRAY_BUFFER, bounds=True)
     indices = accessor(a["faces"].reshape(-1), _UINT32, "SCALAR", _ELEMENT_ARRAY_BUFFER)
@@ -350,9 +363,12 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
                 # a translation that stays at the node's own (the bind pose's) needs no channel
                 if kind == "translation" and np.abs(values - a["translations"][j]).max() <= 1e-9:
                     continue
-                data = values.astype(np.float32)
-                samplers.append({"input": times, "output": accessor(data, _FLOAT, "VEC4" if kind == "rotation"
-                                                                    else "VEC3", None), "interpolation": "LINEAR"})
+                if kind == "rotation" and compact:
+                    out = accessor(np.round(np.clip(values, -1, 1) * 32767).astype(np.int16), _INT16, "VEC4", None,
+                                   normalized=True)
+                else:
+                    out = accessor(values.astype(np.float32), _FLOAT, "VEC4" if kind == "rotation" else "VEC3", None)
+                samplers.append({"input": times, "output": out, "interpolation": "LINEAR"})
                 channels.append({"sampler": len(samplers) - 1, "target": {"node": j, "path": kind}})
         anims.append({"name": aname, "channels": channels, "samplers": samplers})
     if anims:
@@ -362,6 +378,16 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
     order = ["asset", "scene", "scenes", "nodes", "meshes", "materials", "textures", "images", "samplers", "skins",
              "animations", "accessors", "bufferViews", "buffers"]
     return {k: doc[k] for k in order if k in doc}, buf.bytes()
+
+
+def _unit_shorts(weights: np.ndarray) -> np.ndarray:
+    """(V, k) weights (rows summing to 1) as uint16 rows summing to exactly 65535 over all the sets (the
+    rounding's remainder on the row's largest weight), so the normalized weights sum to one exactly."""
+    w = np.asarray(weights, np.float64)
+    q = np.round(w * 65535.0).astype(np.int64)
+    rows = np.arange(len(w))
+    q[rows, np.argmax(w, axis=1)] += 65535 - q.sum(axis=1)
+    return q.astype(np.uint16)
 
 
 def _glb(doc: dict, blob: bytes) -> bytes:

@@ -12,21 +12,15 @@ import numpy as np
 
 def glb_check(out_dir: str, data, png: str | None) -> tuple[dict, str | None]:
     """(metrics, the close-up's path or None) of OUT_DIR/bake.glb against the bake's data (BakeData)."""
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
-    from rig.skin.skinning import pose_character
-    from sim.bake.glb import GLB_NAME, report
+    from rig.character.gltf_character import read_gltf_character
+    from sim.bake.glb import GLB_NAME, played_from_file, report
     path = os.path.join(out_dir, GLB_NAME)
-    c = load_character(path)
-    clip = load_clip(path)
-    T = min(clip.num_frames, len(data.times))
-    world = transforms(*clip.world())[:T, [clip.joint_names.index(n) for n in c.joint_names]]
-    played = pose_character(c, world).astype(np.float64)
+    played = played_from_file(path, len(data.times))
+    T = len(played)
     final = np.asarray(data.skin_final[:T], np.float64)
     lbs = np.asarray(data.skin_lbs[:T] if data.skin_lbs is not None else data.skin_static[:T], np.float64)
     rep = report(played, lbs, final)
-    bones = [n for n in c.joint_names if "_jiggle_" in n]
+    bones = [n for n in read_gltf_character(path).joint_names if "_jiggle_" in n]
     out = {"file": GLB_NAME, "bytes": os.path.getsize(path), "bones": len(bones), "frames": T,
            "read_as": "jiggle's glTF reader: the file's own skin, weights and keys", **rep}
     drawn = _closeup(data, played, final, rep["worst_frame"], png) if png else None

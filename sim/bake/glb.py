@@ -8,7 +8,8 @@ the drive's world transforms at every output frame (what the bake skinned), and 
 character's weights with the bones' shares. One animation, "jiggle", LINEAR keys at the output frames.
 
 What it reports (bake.json "glb", and returned): per frame the RMS, 99th percentile and largest distance in mm
-between the skin the file plays (LBS by its own weights and keys, float32 as an engine does) and skin_final;
+between the skin the file plays (the file read back: its own quantized weights and keys, `played_from_file`) and
+skin_final;
 `share`, sum |played - lbs| / sum |final - lbs| per frame (how much of the muscles' motion the bones make), and
 `explained`, 1 - sum |played - final| / sum |final - lbs| (how much of it they make right); bones used, file
 bytes against the bytes of the same frames as a pc2 cache, and the fit's seconds.
@@ -68,15 +69,30 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
     from rig.character.gltf_write import write_character
     try:
         write_character(ext, path, source=source, name=c.name or "character", animations={"jiggle": clip},
+                        compact=True,
                         extras={"jiggle": {"from": os.path.basename(c.source) if c.source else "",
                                            "jiggle_bones": list(fitted.names)}})
     except OSError as e:
         raise InputError(f"cannot write: {e.strerror or e}", path) from None
-    played = jb.play(fitted, mats.astype(np.float32).astype(np.float64), c.vertices.astype(np.float32))
+    played = played_from_file(path, len(world))
     return {"file": os.path.basename(path), **report(played, lbs, final), "bones": len(fitted.names),
             "max_influences": max_influences, "bytes": os.path.getsize(path),
             "pc2_bytes": 32 + T * c.num_vertices * 12, "fit_s": round(fit_s, 3),
             "bone_names": list(fitted.names)}
+
+
+def played_from_file(path: str, frames: int | None = None) -> np.ndarray:
+    """(T, V, 3) float64 the skin a glb plays at each of its animation's keys, read back as an engine reads the
+    file (its own quantized weights and keys; jiggle's glTF reader, rig.character.gltf_character)."""
+    from rig.character.load import load_character
+    from rig.motion.clip import transforms
+    from rig.motion.mocap import load_clip
+    from rig.skin.skinning import pose_character
+    c = load_character(path, k=8)                 # every influence the file holds (JOINTS_0 and _1)
+    clip = load_clip(path)
+    T = clip.num_frames if frames is None else min(frames, clip.num_frames)
+    world = transforms(*clip.world())[:T][:, [clip.joint_names.index(n) for n in c.joint_names]]
+    return pose_character(c, world).astype(np.float64)
 
 
 def report(played: np.ndarray, lbs: np.ndarray, final: np.ndarray) -> dict:
