@@ -90,8 +90,9 @@ def write_character(character, path: str | os.PathLike, *, source: str | os.Path
         naming the animation otherwise).
     attributes : {name: (V,) float} custom vertex attributes written as SCALAR FLOAT (names starting
         with "_", as the spec asks: e.g. rig.character.gltf_maps' _JIGGLE and _SHELL_<MUSCLE>).
-    compact : the smaller encodings core glTF allows, for files engines stream (sim/bake/glb.py): animation
-        rotations as normalized SHORT (3e-5 of a turn), weights as normalized UNSIGNED_SHORT (rows summing
+    compact : the smaller encodings core glTF allows, for files engines stream (sim/bake/glb.py): the
+        rotation keys of leaf joints as normalized SHORT (3e-5 rad; a joint with children keeps FLOAT, as its
+        error would reach every descendant), weights as normalized UNSIGNED_SHORT (rows summing
         to exactly 65535), joints as UNSIGNED_BYTE when there are fewer than 256.
 
     Returns the path written. InputError for an unknown extension, a missing folder, NaN or infinite
@@ -355,6 +356,7 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
         "skins": [skin],
     })
     anims = []
+    inner = set(int(p) for p in c.parents if p >= 0)
     for aname, an in (animations or {}).items():
         samplers, channels = [], []
         times = accessor(an["times"], _FLOAT, "SCALAR", None, bounds=True)
@@ -363,7 +365,7 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
                 # a translation that stays at the node's own (the bind pose's) needs no channel
                 if kind == "translation" and np.abs(values - a["translations"][j]).max() <= 1e-9:
                     continue
-                if kind == "rotation" and compact:
+                if kind == "rotation" and compact and j not in inner:   # a leaf: no child amplifies it
                     out = accessor(np.round(np.clip(values, -1, 1) * 32767).astype(np.int16), _INT16, "VEC4", None,
                                    normalized=True)
                 else:

@@ -179,6 +179,8 @@ def _lbs(joints, weights, skin_mats, rest):
 
 SAMPLE_FRAMES = 32
 """Frames the shares are fitted on (half evenly spaced, half where the group moves most)."""
+SAMPLE_VERTICES = 1500
+"""Vertices per group the shares and bones alternate on (the rest get their shares from the result)."""
 FINAL_SWEEPS = 2
 """Passes over every frame's bone transforms once the shares are fixed."""
 
@@ -229,8 +231,13 @@ def _fit_group(p, d, w_host, host_mats, free, K, iterations, rng):
                              np.argsort(-np.abs(target - p[None]).sum(axis=(1, 2)))[:SAMPLE_FRAMES // 2]])
     R = np.broadcast_to(np.eye(3), (len(sample), K + 1, 3, 3)).copy()
     t = np.zeros((len(sample), K + 1, 3))
+    # and on a sample of the vertices (every bone's cluster represented), then every vertex's shares once
+    fit = _vertex_sample(label, SAMPLE_VERTICES, rng)
+    tf = target[sample][:, fit]
     for it in range(iterations):
-        _sweep(p, target[sample], u, R, t, omega)
+        _sweep(p[fit], tf, u[fit], R, t, omega[fit])
+        u[fit] = _shares(p[fit], tf, R, t, omega[fit], u[fit], limit[fit])
+    if len(fit) < n:
         u = _shares(p, target[sample], R, t, omega, u, limit)
     R = np.broadcast_to(np.eye(3), (T, K + 1, 3, 3)).copy()
     t = np.zeros((T, K + 1, 3))
@@ -239,6 +246,19 @@ def _fit_group(p, d, w_host, host_mats, free, K, iterations, rng):
     C = np.zeros((T, K, 4, 4))
     C[:, :, :3, :3], C[:, :, :3, 3], C[:, :, 3, 3] = R[:, 1:], t[:, 1:], 1.0
     return C, u
+
+
+def _vertex_sample(label: np.ndarray, most: int, rng) -> np.ndarray:
+    """Indices of at most `most` vertices, drawn from each initial cluster in proportion (at least a few each)."""
+    n = len(label)
+    if n <= most:
+        return np.arange(n)
+    out = []
+    for k in np.unique(label):
+        ids = np.flatnonzero(label == k)
+        take = min(len(ids), max(8, int(round(most * len(ids) / n))))
+        out.append(rng.choice(ids, take, replace=False))
+    return np.sort(np.concatenate(out))
 
 
 def _sweep(p, target, u, R, t, omega) -> None:
@@ -287,7 +307,7 @@ def _procrustes(p, target, others, uk, omega, Rk, tk):
     return Rk, tk
 
 
-def _shares(p, target, R, t, omega, u0, limit, steps: int = 40):
+def _shares(p, target, R, t, omega, u0, limit, steps: int = 20):
     """Each vertex's shares on the simplex minimising sum_t |sum_k u_k (R_k p + t_k) - target|^2, at most
     limit[i] of them nonzero (the strongest kept, then refitted)."""
     # Gram (n, K+1, K+1) and linear term (n, K+1) without forming every bone's path
