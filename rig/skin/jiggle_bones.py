@@ -69,7 +69,7 @@ def play(bones: JiggleBones, skin_mats: np.ndarray, rest: np.ndarray) -> np.ndar
 
 def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np.ndarray, final: np.ndarray,
         muscle: np.ndarray, muscle_names, budget: int, max_influences: int = 4, muscle_joint=None,
-        iterations: int = 8, min_motion_m: float = 5e-5, prune_m: float = 5e-4, seed: int = 0) -> JiggleBones:
+        iterations: int = 4, min_motion_m: float = 5e-5, prune_m: float = 5e-4, seed: int = 0) -> JiggleBones:
     """Fit jiggle bones (see the module).
 
     rest : (V, 3) rest skin. joints, weights : (V, k) the character's influences (strongest first).
@@ -153,13 +153,12 @@ def _pruned(joints, weights, skin_mats, rest, tol: float):
     j, w = joints.copy(), weights.copy()
     if tol <= 0:
         return j, w
-    p = np.c_[rest, np.ones(len(rest))]
-    host = np.einsum("tvab,vb->tva", skin_mats[:, j[:, 0]][..., :3, :], p)
+    host = _moved(skin_mats, j[:, 0], rest)
     for c in range(1, j.shape[1]):
         live = w[:, c] > 0
         if not live.any():
             continue
-        other = np.einsum("tvab,vb->tva", skin_mats[:, j[live, c]][..., :3, :], p[live])
+        other = _moved(skin_mats, j[live, c], rest[live])
         lever = np.linalg.norm(other - host[:, live], axis=2).max(axis=0) * w[live, c]
         drop = np.flatnonzero(live)[lever < tol]
         w[drop, 0] += w[drop, c]
@@ -168,12 +167,18 @@ def _pruned(joints, weights, skin_mats, rest, tol: float):
     return np.take_along_axis(j, order, 1), np.take_along_axis(w, order, 1)
 
 
+def _moved(skin_mats, joint, rest):
+    """(T, V, 3) each rest point (V, 3) moved by its joint's skinning matrices (T, J, 4, 4)."""
+    m = skin_mats[:, joint, :3, :]                                     # (T, V, 3, 4)
+    return np.matmul(m[..., :3], rest[..., None])[..., 0] + m[..., 3]
+
+
 def _lbs(joints, weights, skin_mats, rest):
     """(T, V, 3) LBS of rest (V, 3) by skin_mats (T, J, 4, 4) and the influences."""
-    p = np.c_[rest, np.ones(len(rest))]
     out = np.zeros((len(skin_mats), len(rest), 3))
     for c in range(joints.shape[1]):
-        out += weights[None, :, c, None] * np.einsum("tvab,vb->tva", skin_mats[:, joints[:, c]][..., :3, :], p)
+        live = weights[:, c] > 0
+        out[:, live] += weights[None, live, c, None] * _moved(skin_mats, joints[live, c], rest[live])
     return out
 
 
