@@ -143,6 +143,13 @@ def _check(value, size: int, target: str, where: str, path: str) -> None:
             value, bool) else f"{value!r} is not an index into the {size} {target}", path, field=where)
 
 
+_PARSED: dict = {}
+"""(real path, inode, size, mtime) -> (pygltflib.GLTF2, GLB binary chunk): the last files parsed, shared read-only by
+GltfDocuments of the same unchanged file (a character and its clip read from one file parse it once; pygltflib's
+parse is most of a read)."""
+_PARSED_KEEP = 4
+
+
 class GltfDocument:
     """A parsed glTF file: the pygltflib model plus its buffers as bytes.
 
@@ -155,9 +162,21 @@ class GltfDocument:
     """
 
     def __init__(self, path: str | os.PathLike):
-        import pygltflib
-
         self.path = require_file(path, "glTF file")
+        st = os.stat(self.path)
+        key = (os.path.realpath(self.path), st.st_ino, st.st_size, st.st_mtime_ns)
+        if key not in _PARSED:
+            _PARSED[key] = self._parse()
+            while len(_PARSED) > _PARSED_KEEP:
+                _PARSED.pop(next(iter(_PARSED)))
+        self.gltf, self._bin = _PARSED[key]
+        self._buffers: dict[int, bytes] = {}
+        self._accessors: dict[int, np.ndarray] = {}
+        self._index()
+
+    def _parse(self):
+        """(pygltflib.GLTF2, the GLB binary chunk or None) of the file, checked."""
+        import pygltflib
         with open(self.path, "rb") as fh:
             data = fh.read()
         bin_chunk = None
@@ -174,19 +193,19 @@ class GltfDocument:
                 raise InputError("not a glTF file: JSON without the required 'asset' object", self.path,
                                  field="asset")
         try:
-            self.gltf = pygltflib.GLTF2.from_json(json_text)
+            gltf = pygltflib.GLTF2.from_json(json_text)
         except Exception as e:  # pygltflib/dataclasses_json raise many types for malformed JSON
             raise InputError(f"not a valid glTF document ({type(e).__name__}: {e})", self.path) from None
-        version = str(getattr(self.gltf.asset, "version", "") or "")
+        version = str(getattr(gltf.asset, "version", "") or "")
         if not version.startswith("2"):
             raise InputError(f"glTF version {version or '(none)'} is not supported; expected 2.x", self.path,
                              field="asset.version")
-        self._bin = bin_chunk
-        self._buffers: dict[int, bytes] = {}
-        self._accessors: dict[int, np.ndarray] = {}
         raw = json.loads(json_text)
         check_structure(raw, self.path)
         check_indices(raw, self.path)
+        return gltf, bin_chunk
+
+    def _index(self) -> None:
         g = self.gltf
         n = len(g.nodes)
         parent = np.full(n, -1, dtype=np.int64)

@@ -134,15 +134,16 @@ def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np
     k0 = min(weights.shape[1], max_influences)
     out_j[:, :k0], out_w[:, :k0] = joints[:, :k0], weights[:, :k0]
     for ids, u, base in share_cols.values():
-        for r, i in enumerate(ids):
-            cols = [(int(joints[i, c]), float(weights[i, c])) for c in range(1, weights.shape[1]) if weights[i, c] > 0]
-            cols.append((int(host[i]), w_host[i] * u[r, 0]))
-            cols += [(J + base + k, w_host[i] * u[r, k + 1]) for k in range(u.shape[1] - 1)]
-            cols = sorted((c for c in cols if c[1] > 1e-6), key=lambda c: -c[1])[:max_influences]
-            total = sum(c[1] for c in cols)
-            out_j[i], out_w[i] = 0, 0.0
-            for c, (jj, ww) in enumerate(cols):
-                out_j[i, c], out_w[i, c] = jj, ww / total
+        # each vertex's candidates: its other joints, the host's share kept, the bones' shares; the strongest kept
+        K = u.shape[1] - 1
+        cj = np.concatenate([joints[ids, 1:], host[ids, None], np.broadcast_to(J + base + np.arange(K), (len(ids), K))],
+                            axis=1)
+        cw = np.concatenate([weights[ids, 1:], w_host[ids, None] * u], axis=1)
+        cw = np.where(cw > 1e-6, cw, 0.0)
+        top = np.argsort(-cw, axis=1, kind="stable")[:, :max_influences]
+        tw = np.take_along_axis(cw, top, 1)
+        out_j[ids] = np.where(tw > 0, np.take_along_axis(cj, top, 1), 0)
+        out_w[ids] = tw / tw.sum(axis=1, keepdims=True)
     return JiggleBones(tuple(names), np.array(hosts, np.int32), skin, out_j.astype(np.int32),
                        out_w.astype(np.float32))
 
@@ -169,8 +170,11 @@ def _pruned(joints, weights, skin_mats, rest, tol: float):
 
 def _moved(skin_mats, joint, rest):
     """(T, V, 3) each rest point (V, 3) moved by its joint's skinning matrices (T, J, 4, 4)."""
-    m = skin_mats[:, joint, :3, :]                                     # (T, V, 3, 4)
-    return np.matmul(m[..., :3], rest[..., None])[..., 0] + m[..., 3]
+    out = np.empty((len(skin_mats), len(rest), 3))
+    for j in np.unique(joint):                                         # a GEMM per joint, not a (T, V, 4, 4) gather
+        ids = np.flatnonzero(joint == j)
+        out[:, ids] = _path(rest[ids], skin_mats[:, j, :3, :3], skin_mats[:, j, :3, 3])
+    return out
 
 
 def _lbs(joints, weights, skin_mats, rest):
@@ -270,11 +274,13 @@ def _sweep(p, target, u, R, t, omega) -> None:
     """Every bone's transforms once, in place, each against the blend the others make (Gauss-Seidel)."""
     Y = _blend(p, u, R, t)                                             # the blend, kept up to date bone by bone
     for k in range(1, R.shape[1]):
-        if not np.any(u[:, k]):
+        ids = np.flatnonzero(u[:, k] > 0)                              # the bone's own vertices: nobody else sees it
+        if len(ids) == 0:
             continue
-        others = Y - u[None, :, k, None] * _path(p, R[:, k], t[:, k])
-        R[:, k], t[:, k] = _procrustes(p, target, others, u[:, k], omega, R[:, k], t[:, k])
-        Y = others + u[None, :, k, None] * _path(p, R[:, k], t[:, k])
+        uk = u[ids, k][None, :, None]
+        others = Y[:, ids] - uk * _path(p[ids], R[:, k], t[:, k])
+        R[:, k], t[:, k] = _procrustes(p[ids], target[:, ids], others, u[ids, k], omega[ids], R[:, k], t[:, k])
+        Y[:, ids] = others + uk * _path(p[ids], R[:, k], t[:, k])
 
 
 def _path(p, R, t):
