@@ -142,8 +142,10 @@ def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np
         cw = np.where(cw > 1e-6, cw, 0.0)
         top = np.argsort(-cw, axis=1, kind="stable")[:, :max_influences]
         tw = np.take_along_axis(cw, top, 1)
-        out_j[ids] = np.where(tw > 0, np.take_along_axis(cj, top, 1), 0)
-        out_w[ids] = tw / tw.sum(axis=1, keepdims=True)
+        m = top.shape[1]                                               # fewer candidates than slots: zeros after
+        out_j[ids], out_w[ids] = 0, 0.0
+        out_j[ids, :m] = np.where(tw > 0, np.take_along_axis(cj, top, 1), 0)
+        out_w[ids, :m] = tw / tw.sum(axis=1, keepdims=True)
     return JiggleBones(tuple(names), np.array(hosts, np.int32), skin, out_j.astype(np.int32),
                        out_w.astype(np.float32))
 
