@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from blender_eval import blender_frames
 from conftest import asset
 
 from sim.app.cli import main
@@ -121,41 +122,11 @@ def test_threejs_plays_it_as_the_bake_skinned_it(baked, tmp_path):
         assert rms <= 1.0 and p99 <= 3.0, (f, rms, p99)
 
 
-BLENDER_EVAL = r'''
-import json, sys
-import bpy
-import numpy as np
-src, out, fps, frames = sys.argv[-4], sys.argv[-3], float(sys.argv[-2]), json.loads(sys.argv[-1])
-bpy.ops.wm.read_factory_settings(use_empty=True)
-bpy.context.scene.render.fps = int(round(fps))
-bpy.ops.import_scene.gltf(filepath=src)
-mesh = [o for o in bpy.data.objects if o.type == "MESH"][0]
-res = []
-for f in frames:
-    bpy.context.scene.frame_set(f)
-    ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    M = np.array(ev.matrix_world)
-    res.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
-    ev.to_mesh_clear()
-np.save(out, np.array(res))
-'''
-
-
 def test_blender_imports_it_and_plays_it_as_the_bake_skinned_it(baked, tmp_path):
     """Blender's glTF importer: the evaluated mesh at sampled frames is skin_final within RMS 1 mm, p99 3 mm."""
-    from rig.motion.fbx import blender_command
-    if blender_command("x.py") is None:
-        pytest.skip("no Blender here (bpy in .venv/blender, JIGGLE_BPY_PYTHON or JIGGLE_BLENDER_EXE)")
     d = read_npz(baked / "bake.npz")
     frames = [0, len(d.times) // 2, len(d.times) - 1]
-    script, out = tmp_path / "eval.py", tmp_path / "blender.npy"
-    script.write_text(BLENDER_EVAL)
-    r = subprocess.run(blender_command(str(script)) + [str(baked / "bake.glb"), str(out), str(d.fps),
-                                                        json.dumps(frames)], capture_output=True, text=True,
-                       timeout=600)
-    assert r.returncode == 0 and out.exists(), r.stdout[-1500:] + r.stderr[-1500:]
-    theirs = np.load(out)
+    theirs = blender_frames(baked / "bake.glb", frames, tmp_path, fps=d.fps)
     assert theirs.shape[1] == d.skin_final.shape[1]        # Blender keeps the file's vertices, in order
     for k, f in enumerate(frames):
         rms, p99 = errors_mm(theirs[k], d.skin_final[f])

@@ -13,6 +13,7 @@ import warnings
 
 import numpy as np
 import pytest
+from blender_eval import blender_frames
 from conftest import asset
 from scipy.spatial import cKDTree
 
@@ -107,45 +108,17 @@ def test_cesiumman_fbx_is_the_gltf_character_and_blender_plays_it_alike(tmp_path
     m), and posed by its take it is Blender's own evaluation of the FBX within 1e-5 m. Against the glTF's
     animation (aligned at the clips' first keys) it is within 5 mm: the FBX's curves are Blender's re-bake of
     the glTF's, not its keys (the FBX itself is that far from the glTF; jiggle reads the FBX as Blender does)."""
-    import json
     c, clip = read(asset("characters/fbx/CesiumMan_blender5.fbx"))
     g, gclip = read(asset("characters/CesiumMan.glb"))
     assert c.num_vertices == g.num_vertices == 3273 and c.joint_names == g.joint_names
     assert np.abs(c.vertices - g.vertices).max() < 1e-6
     frames = [5, 20, 40]
-    script, out = tmp_path / "eval.py", tmp_path / "blender.npy"
-    script.write_text(BLENDER_EVAL)
-    from rig.motion.fbx import blender_command
-    fbx = str(asset("characters/fbx/CesiumMan_blender5.fbx"))
-    r = subprocess.run(blender_command(str(script)) + [fbx, str(out), json.dumps(frames)], capture_output=True,
-                       text=True, timeout=600)
-    assert r.returncode == 0 and out.exists(), r.stdout[-1500:] + r.stderr[-1500:]
-    theirs = np.load(out)
+    theirs = blender_frames(asset("characters/fbx/CesiumMan_blender5.fbx"), frames, tmp_path)
     for k, f in enumerate(frames):
         ours = posed(c, clip, f / clip.fps)
         assert cKDTree(ours).query(theirs[k])[0].max() < 1e-5
         glb = posed(g, gclip, gclip.meta["start_time"] + (f / clip.fps - clip.meta["start_time"]))
         assert np.abs(ours - glb).max() < 5e-3
-
-
-BLENDER_EVAL = r'''
-import json, sys
-import bpy
-import numpy as np
-src, out, frames = sys.argv[-3], sys.argv[-2], json.loads(sys.argv[-1])
-bpy.ops.wm.read_factory_settings(use_empty=True)
-bpy.ops.import_scene.fbx(filepath=src, anim_offset=0.0)
-mesh = [o for o in bpy.data.objects if o.type == "MESH"][0]
-res = []
-for f in frames:
-    bpy.context.scene.frame_set(f)
-    ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    M = np.array(ev.matrix_world)
-    res.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
-    ev.to_mesh_clear()
-np.save(out, np.array(res))
-'''
 
 
 def test_a_skeleton_only_fbx_is_a_clip(capsys):
