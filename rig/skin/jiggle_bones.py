@@ -156,7 +156,8 @@ def _pruned(joints, weights, skin_mats, rest, tol: float):
     j, w = joints.copy(), weights.copy()
     if tol <= 0:
         return j, w
-    host = _moved(skin_mats, j[:, 0], rest)
+    skin_mats = skin_mats[np.unique(np.linspace(0, len(skin_mats) - 1, 48).astype(int))]   # a joint's motion is
+    host = _moved(skin_mats, j[:, 0], rest)                            # smooth: 48 frames show its largest
     for c in range(1, j.shape[1]):
         live = w[:, c] > 0
         if not live.any():
@@ -296,8 +297,9 @@ def _blend(p, u, R, t):
     """(T, n, 3) sum_k u_k (R_k p + t_k)."""
     out = np.zeros((len(R), len(p), 3))
     for k in range(R.shape[1]):
-        if np.any(u[:, k]):
-            out += u[None, :, k, None] * _path(p, R[:, k], t[:, k])
+        ids = np.flatnonzero(u[:, k] > 0)
+        if len(ids):
+            out[:, ids] += u[None, ids, k, None] * _path(p[ids], R[:, k], t[:, k])
     return out
 
 
@@ -329,8 +331,10 @@ def _shares(p, target, R, t, omega, u0, limit, steps: int = 20):
     tt = np.einsum("tka,tla->kl", t, t)
     G = np.einsum("na,klab,nb->nkl", p, RtR, p) + np.einsum("na,kla->nkl", p, Rtt) \
         + np.einsum("na,lka->nkl", p, Rtt) + tt[None]
-    c = np.einsum("na,tkba,tnb->nk", p, R, target, optimize=True) + np.einsum("tka,tna->nk", t, target,
-                                                                               optimize=True)
+    T, K1 = R.shape[:2]
+    flat = target.transpose(0, 2, 1).reshape(3 * T, -1)                # (T*3, n)
+    Rt = (R.transpose(1, 3, 0, 2).reshape(3 * K1, 3 * T) @ flat).reshape(K1, 3, -1)   # sum_t R_k^T target: a GEMM
+    c = np.einsum("kan,na->nk", Rt, p) + (t.transpose(1, 0, 2).reshape(K1, 3 * T) @ flat).T
     u = _simplex_lsq(G, c, u0, np.ones_like(u0, bool), steps)        # warm-started from the last shares
     keep = np.ones_like(u, bool)
     order = np.argsort(-u, axis=1)
