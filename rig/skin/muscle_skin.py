@@ -616,7 +616,12 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
                 d = out[s] - out[0]
                 d = d if mask is None else np.asarray(mask, np.float32)[:, None] * d
                 out[s] = out[0] + (d if spread is None else spread(d))
-            if painted is not None:     # last: where the map is 0 the final skin is the static one exactly
+            if painted is not None:     # where the map is 0 the final skin is the static one exactly
                 out[s] = painted.apply(out[0], out[s])
+        character = getattr(skin, "character", None)
+        if character is not None:       # the seams closed on every set (rig/skin/seams.py); LBS needs none
+            from rig.skin.seams import for_character, weld
+            groups = for_character(character)
+            out[:n] = [weld(o, groups) for o in out[:n]]
         return out
     return finish if defer else finish()

@@ -34,9 +34,34 @@ def bake_request(args):
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None))
 
 
-def run_bake(request, out_dir: str, resume: bool = False) -> dict:
-    """Prepare and bake with a progress bar; on Ctrl-C re-raise KeyboardInterrupt with a message saying what
-    was kept and how to resume (main prints it after "jiggle: interrupted")."""
+def emit(event: str, **fields) -> None:
+    """One line of the machine-readable progress stream (`--progress json`) on stdout: {"event": ..., ...}."""
+    import json
+    print(json.dumps({"event": event, **fields}), flush=True)
+
+
+class JsonProgress:
+    """tqdm's update(n) and write(s), as `--progress json` lines: frames done, frames per second, time left."""
+
+    def __init__(self, total: int):
+        import time
+        self.total, self.done, self.t0, self.clock = total, 0, time.perf_counter(), time.perf_counter
+
+    def update(self, n: int) -> None:
+        self.done += int(n)
+        dt = max(self.clock() - self.t0, 1e-9)
+        fps = self.done / dt
+        emit("progress", frames=self.done, total=self.total, fps=round(fps, 2),
+             eta_s=round((self.total - self.done) / fps, 2) if fps > 0 else None)
+
+    def write(self, s: str, file=None) -> None:
+        emit("note", text=s.strip())
+
+
+def run_bake(request, out_dir: str, resume: bool = False, progress: str = "bar") -> dict:
+    """Prepare and bake with a progress bar (or, progress="json", a line of JSON per chunk on stdout: see
+    `emit`); on Ctrl-C re-raise KeyboardInterrupt with a message saying what was kept and how to resume (main
+    prints it after "jiggle: interrupted")."""
     from tqdm import tqdm
 
     from sim.bake.baker import bake
@@ -44,8 +69,20 @@ def run_bake(request, out_dir: str, resume: bool = False) -> dict:
 
     def log(s):
         print(f"  {s}", file=sys.stderr)
+    if progress == "json":
+        emit("preparing")
     setup = prepare(request, log)
     T = len(setup.times)
+    if progress == "json":
+        emit("start", frames=T, fps=setup.fps, vertices=setup.character.num_vertices, muscles=setup.rig.M,
+             out=os.path.abspath(out_dir))
+        bar = JsonProgress(T)
+        try:
+            summary = bake(setup, out_dir, resume=resume, progress=bar.update, log=bar.write)
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt(interrupted_message(setup, out_dir)) from None
+        emit("done", out=os.path.abspath(out_dir), files=summary["files"])
+        return summary
     print(f"baking {setup.name!r}: {T} frames at {setup.fps:g} fps ({setup.times[0]:.3f}-{setup.times[-1]:.3f} s), "
           f"{setup.character.num_vertices} vertices, {setup.rig.M} muscles -> {os.path.abspath(out_dir)}",
           file=sys.stderr)
@@ -89,8 +126,10 @@ def print_bake(summary: dict, out_dir: str) -> None:
 
 
 def run(args) -> int:
-    summary = run_bake(bake_request(args), args.out, resume=args.resume)
-    print_bake(summary, args.out)
+    mode = getattr(args, "progress", None) or "bar"
+    summary = run_bake(bake_request(args), args.out, resume=args.resume, progress=mode)
+    if mode != "json":
+        print_bake(summary, args.out)
     return 0
 
 
@@ -112,6 +151,11 @@ def add_parser(sub) -> None:
                    "(default: the scene's, else a body generated around the clip's skeleton)")
     template_option(p)
     bake_options(p, "out/bake")
+    p.add_argument("--progress", choices=["bar", "json"], default="bar", help="bar: a progress bar on stderr; json: "
+                   "one JSON object a line on stdout for another program (a DCC's add-on) to read: "
+                   '{"event": "preparing" | "start" (frames, fps, vertices, muscles, out) | "progress" (frames, '
+                   'total, fps, eta_s) | "note" (text) | "done" (out, files)}; errors stay one line on stderr '
+                   "(default: bar)")
     g = p.add_argument_group("character")
     map_options(g)
     g.add_argument("--skin", type=int, metavar="N", help="which skin of a glTF character (default: 0)")

@@ -1,0 +1,395 @@
+"""jiggle for Blender: a thin client of the `jiggle` command (a separate install; Warp and the rest never load in
+Blender). The sidebar's Jiggle tab bakes the active armature's skinned meshes and its action:
+
+1. the armature and its meshes are exported to a temporary glTF with Blender's own exporter (the action over the
+   scene's frame range, sampled at the scene's rate);
+2. `jiggle bake --character that.glb --formats npz,pc2 --progress json` runs in a subprocess; its JSON lines
+   drive Blender's progress bar and the status line (frames done, frames/s, time left); Esc or Cancel stops it
+   and removes what it wrote;
+3. the result comes back "exact": a Mesh Cache modifier right after the Armature modifier replaces its
+   deformation with the baked skin (a PC2 cache in the mesh's own space and vertex order, made from the bake's
+   npz beside it, so nothing is transformed twice); "Compare" switches it between the final and the static skin.
+
+Errors (no jiggle command, a rig it refuses) are Blender reports with the command's own message; the scene is
+left as it was. The bake's files are the command's, bit for bit what `jiggle bake` writes for the same glTF.
+"""
+from __future__ import annotations
+
+import json
+import os
+import queue
+import shutil
+import subprocess
+import tempfile
+import threading
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
+
+MODIFIER = "Jiggle"
+FINAL_CACHE, STATIC_CACHE = "blender_final.pc2", "blender_static.pc2"
+
+
+# ------------------------------------------------------------------------------------------ the command
+def jiggle_command(context) -> str | None:
+    prefs = context.preferences.addons[__package__].preferences if __package__ in context.preferences.addons \
+        else None
+    path = bpy.path.abspath(prefs.jiggle_path) if prefs and prefs.jiggle_path else ""
+    if path:
+        return path if os.path.isfile(path) and os.access(path, os.X_OK) else None
+    return shutil.which("jiggle")
+
+
+def armature_and_meshes(context):
+    """(the armature, its skinned meshes) of the active object (an armature, or a mesh it deforms)."""
+    ob = context.active_object
+    if ob is None:
+        return None, []
+    arm = ob if ob.type == "ARMATURE" else next(
+        (m.object for m in getattr(ob, "modifiers", []) if m.type == "ARMATURE" and m.object), None)
+    if arm is None:
+        return None, []
+    meshes = [o for o in context.scene.objects if o.type == "MESH" and any(
+        m.type == "ARMATURE" and m.object == arm for m in o.modifiers)]
+    return arm, meshes
+
+
+def bake_arguments(context, s, glb: str, out: str) -> list[str]:
+    scene = context.scene
+    fps = scene.render.fps / scene.render.fps_base
+    args = ["bake", "--character", glb, "--out", out, "--formats", "npz,pc2", "--progress", "json",
+            "--fps", f"{fps:g}"]
+    if s.template:
+        args += ["--template", s.template]
+    if s.use_strength:
+        args += ["--strength", f"{s.strength:g}"]
+    for item in [x.strip() for x in s.muscles.split(",") if x.strip()]:
+        args += ["--strength", item]
+    if s.blend != 1.0:
+        args += ["--blend", f"{s.blend:g}"]
+    if s.collisions:
+        args += ["--collisions"]
+    return args
+
+
+# ------------------------------------------------------------------------------------------ the caches
+def write_pc2(path: str, frames, start: float, rate: float) -> None:
+    import numpy as np
+    frames = np.ascontiguousarray(frames, dtype="<f4")
+    T, V = frames.shape[:2]
+    tmp = path + ".part"
+    with open(tmp, "wb") as fh:
+        fh.write(b"POINTCACHE2\0" + np.array([1, V], "<i4").tobytes() + np.array([start, rate], "<f4").tobytes()
+                 + np.array([T], "<i4").tobytes())
+        fh.write(frames.tobytes())
+    os.replace(tmp, path)
+
+
+def first_frame(context, out: str) -> int:
+    """The scene frame of the bake's first frame (the glTF exporter keys frame f at f / fps seconds)."""
+    import numpy as np
+    scene = context.scene
+    with np.load(os.path.join(out, "bake.npz")) as data:
+        return int(round(float(data["times"][0]) * scene.render.fps / scene.render.fps_base))
+
+
+def mesh_caches(context, mesh, out: str, frame_start: int) -> tuple[str, str]:
+    """The bake's final and static skins as PC2 caches in `mesh`'s own space and vertex order: each Blender vertex
+    takes the bake's vertex where it stood at the first frame (the glTF splits vertices at UV seams; a split
+    vertex's copies move alike), its positions brought into the object's space."""
+    import numpy as np
+    from mathutils.kdtree import KDTree
+    data = np.load(os.path.join(out, "bake.npz"))
+    first = data["skin_lbs"][0] if "skin_lbs" in data.files else data["skin_static"][0]
+    scene = context.scene
+    scene.frame_set(frame_start)
+    dg = context.evaluated_depsgraph_get()
+    ev = mesh.evaluated_get(dg)
+    me = ev.to_mesh()
+    world = np.array(ev.matrix_world)
+    pts = np.array([v.co[:] for v in me.vertices])
+    ev.to_mesh_clear()
+    pts = pts @ world[:3, :3].T + world[:3, 3]
+    tree = KDTree(len(first))
+    for i, p in enumerate(first):
+        tree.insert(p.tolist(), i)
+    tree.balance()
+    pick = np.array([tree.find(p.tolist())[1] for p in pts])
+    far = max(tree.find(p.tolist())[2] for p in pts[:: max(1, len(pts) // 500)])
+    if far > 1e-3:
+        raise RuntimeError(f"the baked skin does not lie on {mesh.name!r} (a vertex {far * 1000:.1f} mm away): "
+                           "bake it again from this file")
+    inv = np.linalg.inv(world)
+    paths = []
+    for key, name in (("skin_final", FINAL_CACHE), ("skin_static", STATIC_CACHE)):
+        skin = data[key][:, pick].astype(np.float64)
+        local = skin @ inv[:3, :3].T + inv[:3, 3]
+        path = os.path.join(out, f"{mesh.name}.{name}")
+        write_pc2(path, local, float(frame_start), 1.0)
+        paths.append(path)
+    return paths[0], paths[1]
+
+
+def add_cache(mesh, path: str, frame_start: int):
+    """A Mesh Cache modifier right after the Armature one, overwriting its deformation."""
+    mod = mesh.modifiers.get(MODIFIER) or mesh.modifiers.new(MODIFIER, "MESH_CACHE")
+    mod.cache_format = "PC2"
+    mod.filepath = path
+    mod.deform_mode = "OVERWRITE"
+    mod.time_mode = "FRAME"
+    mod.play_mode = "SCENE"
+    mod.frame_start = float(frame_start)
+    mod.frame_scale = 1.0
+    mod.interpolation = "LINEAR"
+    mod.forward_axis, mod.up_axis = "POS_Y", "POS_Z"
+    names = [m.name for m in mesh.modifiers]
+    arm = next((i for i, m in enumerate(mesh.modifiers) if m.type == "ARMATURE"), None)
+    if arm is not None:
+        mesh.modifiers.move(names.index(mod.name), arm + 1)
+    return mod
+
+
+# ------------------------------------------------------------------------------------------ properties, UI
+class JigglePreferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+    jiggle_path: StringProperty(name="jiggle command", subtype="FILE_PATH", default="",
+                                description="The jiggle program; empty: the one on PATH")
+
+    def draw(self, context):
+        self.layout.prop(self, "jiggle_path")
+        found = jiggle_command(context)
+        self.layout.label(text=f"found: {found}" if found else "jiggle not found: install it, or give its path")
+
+
+class JiggleSettings(bpy.types.PropertyGroup):
+    out_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//jiggle_bake",
+                            description="The folder the bake writes (bake.npz, bake.pc2, bake.json)")
+    template: StringProperty(name="Template", default="", description="Muscle template: empty for auto, human, "
+                             "quadruped or a .toml file")
+    use_strength: BoolProperty(name="Strength", default=False, description="Scale every muscle's jiggle")
+    strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=4.0)
+    muscles: StringProperty(name="Per muscle", default="", description="Per-muscle strengths, NAME=VALUE, "
+                            "comma-separated (the CLI's --strength NAME=VALUE)")
+    blend: FloatProperty(name="Blend", default=1.0, min=0.0, max=1.0, description="0: static muscles, 1: jiggle")
+    collisions: BoolProperty(name="Collisions", default=False)
+    result: EnumProperty(name="Result", items=[("EXACT", "Exact", "A Mesh Cache modifier plays the baked skin")],
+                         default="EXACT")
+    showing: StringProperty(default="")
+
+
+class JIGGLE_PT_panel(bpy.types.Panel):
+    bl_label = "Jiggle"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Jiggle"
+
+    def draw(self, context):
+        s = context.scene.jiggle
+        arm, meshes = armature_and_meshes(context)
+        col = self.layout.column()
+        if arm is None:
+            col.label(text="Select an armature or a mesh it deforms")
+        else:
+            action = arm.animation_data.action.name if arm.animation_data and arm.animation_data.action else "none"
+            col.label(text=f"{arm.name}: {len(meshes)} mesh(es), action {action}")
+            sc = context.scene
+            col.label(text=f"frames {sc.frame_start}-{sc.frame_end} at {sc.render.fps / sc.render.fps_base:g} fps")
+        col.prop(s, "out_dir")
+        col.prop(s, "template")
+        row = col.row()
+        row.prop(s, "use_strength", text="")
+        row.prop(s, "strength")
+        col.prop(s, "muscles")
+        col.prop(s, "blend")
+        col.prop(s, "collisions")
+        col.prop(s, "result")
+        col.operator("jiggle.bake", icon="PHYSICS")
+        row = col.row()
+        row.operator("jiggle.compare", text="Show static" if s.showing != "static" else "Show final")
+        row.operator("jiggle.open_report")
+
+
+# ------------------------------------------------------------------------------------------ operators
+class JIGGLE_OT_bake(bpy.types.Operator):
+    """Export the character, run `jiggle bake`, play the result (Esc cancels)"""
+    bl_idname = "jiggle.bake"
+    bl_label = "Bake jiggle"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return armature_and_meshes(context)[0] is not None
+
+    def prepare(self, context) -> bool:
+        self.cmd = jiggle_command(context)
+        if self.cmd is None:
+            self.report({"ERROR"}, "jiggle: the jiggle command was not found: install jiggle (its README) and put it "
+                                   "on PATH, or set its path in the add-on's preferences")
+            return False
+        self.arm, self.meshes = armature_and_meshes(context)
+        if not self.meshes:
+            self.report({"ERROR"}, f"jiggle: {self.arm.name} deforms no mesh (an Armature modifier pointing at it)")
+            return False
+        s = context.scene.jiggle
+        self.out = bpy.path.abspath(s.out_dir)
+        self.out_existed = os.path.isdir(self.out)
+        self.tmp = tempfile.mkdtemp(prefix="jiggle_blender_")
+        glb = os.path.join(self.tmp, "character.glb")
+        kept = {o: o.select_get() for o in context.scene.objects}
+        active = context.view_layer.objects.active
+        try:
+            for o in context.scene.objects:
+                o.select_set(o == self.arm or o in self.meshes)
+            bpy.ops.export_scene.gltf(filepath=glb, use_selection=True, export_animations=True,
+                                      export_animation_mode="ACTIVE_ACTIONS", export_frame_range=True,
+                                      export_force_sampling=True, export_apply=False)
+        finally:
+            for o, sel in kept.items():
+                o.select_set(sel)
+            context.view_layer.objects.active = active
+        self.argv = [self.cmd] + bake_arguments(context, s, glb, self.out)
+        return True
+
+    def execute(self, context):              # blocking (scripts, background): the same command, waited for
+        if not self.prepare(context):
+            return {"CANCELLED"}
+        r = subprocess.run(self.argv, capture_output=True, text=True)
+        return self.finish(context, r.returncode, r.stderr)
+
+    def invoke(self, context, event):
+        if not self.prepare(context):
+            return {"CANCELLED"}
+        self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.lines: queue.Queue = queue.Queue()
+        self.err: list[str] = []
+        threading.Thread(target=self._read, args=(self.proc.stdout, self.lines), daemon=True).start()
+        threading.Thread(target=self._read, args=(self.proc.stderr, self.err), daemon=True).start()
+        wm = context.window_manager
+        self.timer = wm.event_timer_add(0.2, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    @staticmethod
+    def _read(stream, sink):
+        for line in stream:
+            (sink.put if isinstance(sink, queue.Queue) else sink.append)(line)
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self.proc.terminate()
+            self.proc.wait()
+            self._cleanup(context, cancelled=True)
+            self.report({"WARNING"}, "jiggle: bake cancelled; nothing was kept")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        while not self.lines.empty():
+            try:
+                msg = json.loads(self.lines.get_nowait())
+            except ValueError:
+                continue
+            if msg.get("event") == "progress" and msg.get("total"):
+                context.window_manager.progress_update(int(100 * msg["frames"] / msg["total"]))
+                eta = msg.get("eta_s")
+                context.workspace.status_text_set(
+                    f"jiggle: {msg['frames']}/{msg['total']} frames, {msg.get('fps', 0):.0f} frames/s"
+                    + (f", {eta:.0f} s left" if eta is not None else ""))
+        if self.proc.poll() is None:
+            return {"RUNNING_MODAL"}
+        return self.finish(context, self.proc.returncode, "".join(self.err))
+
+    def finish(self, context, code: int, stderr: str):
+        if code != 0:
+            lines = [ln for ln in stderr.strip().splitlines() if ln.strip()]
+            self._cleanup(context, cancelled=True)
+            self.report({"ERROR"}, lines[-1] if lines else f"jiggle bake failed (exit {code})")
+            return {"CANCELLED"}
+        try:
+            start = first_frame(context, self.out)
+            for mesh in self.meshes:
+                final, _static = mesh_caches(context, mesh, self.out, start)
+                add_cache(mesh, final, start)
+        except (OSError, RuntimeError, KeyError) as e:
+            self._cleanup(context, cancelled=False)
+            self.report({"ERROR"}, f"jiggle: {e}")
+            return {"CANCELLED"}
+        context.scene.jiggle.showing = "final"
+        self._cleanup(context, cancelled=False)
+        self.report({"INFO"}, f"jiggle: baked into {self.out}")
+        return {"FINISHED"}
+
+    def _cleanup(self, context, cancelled: bool):
+        wm = context.window_manager
+        if getattr(self, "timer", None) is not None:
+            wm.event_timer_remove(self.timer)
+            self.timer = None
+            wm.progress_end()
+            context.workspace.status_text_set(None)
+        shutil.rmtree(getattr(self, "tmp", ""), ignore_errors=True)
+        if cancelled:                         # what this bake wrote, and the folder if it made it
+            shutil.rmtree(os.path.join(self.out, ".partial"), ignore_errors=True)
+            if not self.out_existed:
+                shutil.rmtree(self.out, ignore_errors=True)
+
+
+class JIGGLE_OT_compare(bpy.types.Operator):
+    """Switch the baked skin between final (with jiggle) and static (muscles without jiggle)"""
+    bl_idname = "jiggle.compare"
+    bl_label = "Compare"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        s = context.scene.jiggle
+        to = "static" if s.showing != "static" else "final"
+        n = 0
+        for mesh in armature_and_meshes(context)[1]:
+            mod = mesh.modifiers.get(MODIFIER)
+            if mod is None:
+                continue
+            a, b = (FINAL_CACHE, STATIC_CACHE) if to == "static" else (STATIC_CACHE, FINAL_CACHE)
+            mod.filepath = mod.filepath.replace(a, b)
+            n += 1
+        if not n:
+            self.report({"ERROR"}, "jiggle: nothing baked on this character yet")
+            return {"CANCELLED"}
+        s.showing = to
+        return {"FINISHED"}
+
+
+class JIGGLE_OT_open_report(bpy.types.Operator):
+    """Open the bake's report (`jiggle compare` writes it the first time)"""
+    bl_idname = "jiggle.open_report"
+    bl_label = "Open report"
+
+    def execute(self, context):
+        import webbrowser
+        out = bpy.path.abspath(context.scene.jiggle.out_dir)
+        report = os.path.join(out, "report.html")
+        if not os.path.isfile(report):
+            cmd = jiggle_command(context)
+            if cmd is None or not os.path.isfile(os.path.join(out, "bake.npz")):
+                self.report({"ERROR"}, "jiggle: no bake to report on (bake first)")
+                return {"CANCELLED"}
+            r = subprocess.run([cmd, "-q", "compare", "--no-video", out], capture_output=True, text=True)
+            if r.returncode != 0:
+                self.report({"ERROR"}, (r.stderr.strip().splitlines() or ["jiggle compare failed"])[-1])
+                return {"CANCELLED"}
+        webbrowser.open("file://" + report)
+        return {"FINISHED"}
+
+
+CLASSES = (JigglePreferences, JiggleSettings, JIGGLE_PT_panel, JIGGLE_OT_bake, JIGGLE_OT_compare,
+           JIGGLE_OT_open_report)
+
+
+def register():
+    for c in CLASSES:
+        bpy.utils.register_class(c)
+    bpy.types.Scene.jiggle = PointerProperty(type=JiggleSettings)
+
+
+def unregister():
+    del bpy.types.Scene.jiggle
+    for c in reversed(CLASSES):
+        bpy.utils.unregister_class(c)
