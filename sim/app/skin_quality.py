@@ -34,6 +34,10 @@ CHUNK = 64
 """Frames measured per launch (bounds the (T, E) temporaries)."""
 
 
+SEAM_GAP_MM = 0.01
+"""The widest a seam may open, mm (float32 rounding is far below it)."""
+
+
 def measure(data) -> dict:
     """Per-frame measures of a bake (sim.bake.caches.BakeData): {"lbs" | "static" | "final": {name:
     (T,)}, "jiggle": {name: (T,)}} (arrays float64; "lbs" only when the bake has its smooth skin) and
@@ -51,9 +55,25 @@ def measure(data) -> dict:
         out[name] = {k: np.concatenate([p[k] for p in parts]) for k in SKIN_MEASURES}
     parts = [q.jiggle(data.skin_static[a:a + CHUNK], data.skin_final[a:a + CHUNK]) for a in range(0, T, CHUNK)]
     out["jiggle"] = {k: np.concatenate([p[k] for p in parts]) for k in JIGGLE_MEASURES}
+    out["seams"] = seam_gaps(rest, data.skin_lbs, data.skin_final)
     out["quality"] = q
     out["rest_from"] = "skin_rest" if data.skin_rest is not None else "the first static frame (no skin_rest)"
     return out
+
+
+def seam_gaps(rest: np.ndarray, lbs, final: np.ndarray) -> dict:
+    """Seams the skin opens: pairs of vertices at one rest place (a mesh split at UV or normal seams) that plain
+    skinning keeps together (all pairs without the LBS skin); per frame the widest gap between a pair in the
+    final skin, metres: {"pairs": P, "gap_m": (T,)}."""
+    from scipy.spatial import cKDTree
+    pairs = cKDTree(np.asarray(rest, np.float64)).query_pairs(1e-6, output_type="ndarray")
+    if len(pairs) and lbs is not None:
+        together = np.linalg.norm(lbs[:, pairs[:, 0]] - lbs[:, pairs[:, 1]], axis=2).max(axis=0) < 1e-6
+        pairs = pairs[together]
+    if len(pairs) == 0:
+        return {"pairs": 0, "gap_m": np.zeros(len(final))}
+    return {"pairs": int(len(pairs)),
+            "gap_m": np.linalg.norm(final[:, pairs[:, 0]] - final[:, pairs[:, 1]], axis=2).max(axis=1)}
 
 
 def summarise(m: dict, times: np.ndarray) -> dict:
@@ -113,6 +133,13 @@ def check_targets(m: dict, rest_folded: int, edges: int) -> dict:
             "worst_frame": k, "worst_frame_added": int(final[k] - lbs[k]),
             "rule": f"folded edges of the final skin summed over the clip, over LBS's: at most "
                     f"{1 + ADDED_FOLDS:g}x (worst_frame: the frame with the most folds added)"}
+    seams = m.get("seams")
+    if seams and seams["pairs"]:
+        gap = float(seams["gap_m"].max()) * 1e3
+        out["open_seams"] = {"value": gap, "limit": SEAM_GAP_MM, "pass": bool(gap <= SEAM_GAP_MM),
+                             "pairs": seams["pairs"],
+                             "rule": "widest gap (mm) the final skin opens between vertices split at a seam (one rest "
+                                     "place, moved together by plain skinning), every frame"}
     j = m["jiggle"]
     out["torn_edges"] = {"value": int(j["torn_edges"].max()), "limit": 0, "pass": bool(j["torn_edges"].max() == 0),
                          "rule": "edges the jiggle stretches or squeezes by more than their length "

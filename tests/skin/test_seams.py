@@ -34,3 +34,21 @@ def test_cesiumman_seams_stay_closed_in_the_bake(tmp_path):
     for skin in (d.skin_static, d.skin_final):
         assert np.linalg.norm(skin[:, pairs[:, 0]] - skin[:, pairs[:, 1]], axis=2).max() < 1e-6
     assert np.abs(d.skin_final - d.skin_lbs).max() > 1e-3          # and the muscles still move it
+
+
+def test_compare_measures_open_seams():
+    """skin_quality's open_seams: the widest gap between seam pairs plain skinning keeps together; a skin that
+    opens a seam by 5 mm at one frame fails it, a closed one passes."""
+    from sim.app.skin_quality import check_targets, seam_gaps
+    rest = np.array([[0, 0, 0], [0, 0, 0], [1, 0, 0]], float)
+    lbs = np.repeat(rest[None], 3, axis=0)
+    final = lbs.copy()
+    final[1, 1, 0] += 0.005
+    s = seam_gaps(rest, lbs, final)
+    assert s["pairs"] == 1 and np.allclose(s["gap_m"], [0, 0.005, 0])
+    m = {"final": {"folded_edges": np.zeros(3)}, "jiggle": {"torn_edges": np.zeros(3), "gradient_p999": np.zeros(3)},
+         "seams": s}
+    t = check_targets(m, 0, 10)["open_seams"]
+    assert t["value"] == 5.0 and not t["pass"]
+    m["seams"] = seam_gaps(rest, lbs, lbs)
+    assert check_targets(m, 0, 10)["open_seams"]["pass"]
