@@ -2,7 +2,7 @@
 Blender). The sidebar's Jiggle tab bakes the active armature's skinned meshes and its action:
 
 1. the armature and its meshes are exported to a temporary glTF with Blender's own exporter (the action over the
-   scene's frame range, sampled at the scene's rate);
+   scene's frame range, sampled at the scene's rate; kept beside the bake as ARMATURE.jiggle.glb);
 2. `jiggle bake --character that.glb --formats npz,pc2 --progress json` runs in a subprocess; its JSON lines
    drive Blender's progress bar and the status line (frames done, frames/s, time left); Esc or Cancel stops it
    and removes what it wrote;
@@ -315,6 +315,8 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             self.report({"ERROR"}, f"jiggle: {e}")
             return {"CANCELLED"}
         context.scene.jiggle.showing = "final"
+        kept = os.path.join(self.out, f"{bpy.path.clean_name(self.arm.name)}.jiggle.glb")
+        shutil.copyfile(os.path.join(self.tmp, "character.glb"), kept)     # what was baked: `jiggle bake` again
         self._cleanup(context, cancelled=False)
         self.report({"INFO"}, f"jiggle: baked into {self.out}")
         return {"FINISHED"}

@@ -1,0 +1,145 @@
+"""The Blender extension (blender/jiggle_blender, built by blender/build.py) in real Blender (bpy, .venv/blender):
+installed from its zip and enabled as a user would, CesiumMan imported, its action baked from the operator with
+the project's jiggle command, and the evaluated mesh checked against the bake's skin_final; the bake equals
+`jiggle bake` on the file the add-on exported; a missing or failing jiggle command is a report and leaves the
+scene and the folder as they were. Skipped without bpy."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import ROOT, asset
+from scipy.spatial import cKDTree
+
+from sim.bake.caches import read_npz
+
+DRIVE = r'''
+import json, os, sys
+import bpy
+import numpy as np
+zip_path, glb, out, jiggle, result = sys.argv[-5:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+name = "bl_ext.user_default.jiggle_blender"
+report = {"enabled": name in bpy.context.preferences.addons}
+bpy.context.preferences.addons[name].preferences.jiggle_path = jiggle
+bpy.ops.import_scene.gltf(filepath=glb)
+arm = [o for o in bpy.data.objects if o.type == "ARMATURE"][0]
+mesh = [o for o in bpy.data.objects if o.type == "MESH"][0]
+bpy.context.view_layer.objects.active = arm
+sc = bpy.context.scene
+sc.render.fps = 30
+act = arm.animation_data.action
+sc.frame_start, sc.frame_end = int(act.frame_range[0]), int(act.frame_range[1])
+sc.jiggle.out_dir = out
+report["before"] = [m.type for m in mesh.modifiers]
+try:
+    report["result"] = sorted(bpy.ops.jiggle.bake())
+except RuntimeError as e:                      # an operator's ERROR report raises in a script: its message
+    report["result"], report["error"] = ["CANCELLED"], str(e)
+report["after"] = [(m.name, m.type) for m in mesh.modifiers]
+report["frames"] = []
+if os.path.isfile(os.path.join(out, "bake.npz")) and "Jiggle" in mesh.modifiers:
+    with np.load(os.path.join(out, "bake.npz")) as d:
+        T, t0 = len(d["times"]), float(d["times"][0])
+    skins = []
+    for k in (0, T // 2, T - 1):
+        sc.frame_set(int(round(t0 * 30)) + k)
+        ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        me = ev.to_mesh()
+        M = np.array(ev.matrix_world)
+        skins.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
+        ev.to_mesh_clear()
+        report["frames"].append(k)
+    np.save(result + ".npy", np.array(skins))
+    bpy.ops.jiggle.compare()
+    report["compare"] = mesh.modifiers["Jiggle"].filepath
+json.dump(report, open(result + ".json", "w"))
+'''
+
+
+@pytest.fixture(scope="module")
+def addon(tmp_path_factory):
+    from rig.motion.fbx import blender_command
+    if blender_command("x.py") is None:
+        pytest.skip("no Blender here (bpy in .venv/blender, JIGGLE_BPY_PYTHON or JIGGLE_BLENDER_EXE)")
+    sys.path.insert(0, str(ROOT / "blender"))
+    import build
+    return build.build(tmp_path_factory.mktemp("dist"))
+
+
+def jiggle_exe() -> str:
+    exe = shutil.which("jiggle", path=os.path.dirname(sys.executable)) or shutil.which("jiggle")
+    if exe is None:
+        pytest.skip("the jiggle command is not installed in this environment")
+    return exe
+
+
+def drive(addon, out, jiggle, tmp_path) -> tuple[dict, np.ndarray | None]:
+    from rig.motion.fbx import blender_command
+    script, result = tmp_path / "drive.py", tmp_path / "result"
+    script.write_text(DRIVE)
+    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")), str(out),
+                                                        jiggle, str(result)], capture_output=True, text=True,
+                       timeout=900, env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert r.returncode == 0 and Path(str(result) + ".json").exists(), r.stdout[-2000:] + r.stderr[-2000:]
+    rep = json.loads(Path(str(result) + ".json").read_text())
+    skins = np.load(str(result) + ".npy") if Path(str(result) + ".npy").exists() else None
+    return rep, skins
+
+
+def test_the_zip_is_an_extension_of_the_projects_version(addon):
+    import zipfile
+    names = zipfile.ZipFile(addon).namelist()
+    assert sorted(names) == ["__init__.py", "blender_manifest.toml"]
+    manifest = tomllib.loads(zipfile.ZipFile(addon).read("blender_manifest.toml").decode())
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert manifest["version"] == project["version"] and manifest["type"] == "add-on"
+
+
+def test_bake_from_blender_plays_the_baked_skin(addon, tmp_path):
+    """Installed from the zip and enabled; the operator bakes CesiumMan's action: a Mesh Cache modifier right after
+    the Armature one, and Blender's evaluated mesh is skin_final within 0.1 mm at the first, middle and last frame
+    (every Blender vertex on its baked place, and every baked vertex under a Blender vertex); Compare switches
+    to the static skin; the bake is `jiggle bake` of the exported file, bit for bit."""
+    out = tmp_path / "bake"
+    rep, skins = drive(addon, out, jiggle_exe(), tmp_path)
+    assert rep["enabled"] and rep["result"] == ["FINISHED"], rep
+    assert rep["after"] == [["Armature", "ARMATURE"], ["Jiggle", "MESH_CACHE"]]
+    d = read_npz(out / "bake.npz")
+    for k, f in enumerate(rep["frames"]):
+        a = cKDTree(d.skin_final[f]).query(skins[k])[0].max()
+        b = cKDTree(skins[k]).query(d.skin_final[f])[0].max()
+        assert a < 1e-4 and b < 1e-4, (f, a, b)
+    assert rep["compare"].endswith("blender_static.pc2")
+    exported = next(out.glob("*.jiggle.glb"))
+    again = tmp_path / "again"
+    summary = json.loads((out / "bake.json").read_text())
+    code = subprocess.run([jiggle_exe(), "-q", "bake", "--character", str(exported), "--out", str(again), "--formats",
+                           "npz,pc2", "--fps", f"{summary['fps']:g}"], capture_output=True, text=True).returncode
+    assert code == 0
+    e = read_npz(again / "bake.npz")
+    assert np.array_equal(e.skin_final, d.skin_final) and np.array_equal(e.skin_static, d.skin_static)
+
+
+def test_a_missing_or_failing_jiggle_is_a_report_and_changes_nothing(addon, tmp_path):
+    """No jiggle command at the given path: an error report saying so, no modifier, no folder. A jiggle that
+    fails (a rig it refuses): its own one-line message as the report, no modifier, the folder it made removed."""
+    out = tmp_path / "bake"
+    rep, _ = drive(addon, out, str(tmp_path / "no_such_jiggle"), tmp_path)
+    assert rep["result"] == ["CANCELLED"] and "jiggle command was not found" in rep["error"]
+    assert rep["after"] == [[n, t] for n, t in zip(["Armature"], rep["before"])] and not out.exists()
+    fake = tmp_path / "failing_jiggle"
+    fake.write_text("#!/bin/sh\necho 'jiggle: error: character.glb: no built-in template for this body plan' >&2\n"
+                    "exit 2\n")
+    fake.chmod(0o755)
+    rep, _ = drive(addon, out, str(fake), tmp_path)
+    assert rep["result"] == ["CANCELLED"] and "no built-in template for this body plan" in rep["error"]
+    assert [t for _, t in rep["after"]] == rep["before"] and not out.exists()
