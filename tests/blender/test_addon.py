@@ -59,6 +59,16 @@ if os.path.isfile(os.path.join(out, "bake.npz")) and "Jiggle" in mesh.modifiers:
         ev.to_mesh_clear()
         report["frames"].append(k)
     np.save(result + ".npy", np.array(skins))
+    # the result rendered headless (Workbench), at the middle frame, as the viewport plays it
+    sc.render.engine = "BLENDER_WORKBENCH"
+    sc.render.resolution_x, sc.render.resolution_y = 480, 640
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    sc.collection.objects.link(cam)
+    sc.camera = cam
+    cam.location, cam.rotation_euler = (0.4, -3.0, 1.0), (1.45, 0.0, 0.13)
+    sc.frame_set(int(round(t0 * 30)) + T // 2)
+    sc.render.filepath = result + ".png"
+    bpy.ops.render.render(write_still=True)
     bpy.ops.jiggle.compare()
     report["compare"] = mesh.modifiers["Jiggle"].filepath
 json.dump(report, open(result + ".json", "w"))
@@ -119,6 +129,8 @@ def test_bake_from_blender_plays_the_baked_skin(addon, tmp_path):
         b = cKDTree(skins[k]).query(d.skin_final[f])[0].max()
         assert a < 1e-4 and b < 1e-4, (f, a, b)
     assert rep["compare"].endswith("blender_static.pc2")
+    png = Path(str(tmp_path / "result") + ".png")
+    assert png.is_file() and png.stat().st_size > 20_000            # Workbench drew the played skin
     exported = next(out.glob("*.jiggle.glb"))
     again = tmp_path / "again"
     summary = json.loads((out / "bake.json").read_text())
