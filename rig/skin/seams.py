@@ -12,7 +12,7 @@ import weakref
 
 import numpy as np
 
-_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_CACHE: dict = {}
 
 
 def seam_groups(vertices: np.ndarray, joints: np.ndarray, weights: np.ndarray, tol: float = 1e-6):
@@ -41,17 +41,13 @@ def seam_groups(vertices: np.ndarray, joints: np.ndarray, weights: np.ndarray, t
 
 
 def for_character(character):
-    """seam_groups of a character (cached while it lives)."""
-    try:
-        return _CACHE[character]
-    except (KeyError, TypeError):
-        pass
-    groups = seam_groups(character.vertices, character.joints, character.weights)
-    try:
-        _CACHE[character] = groups
-    except TypeError:                          # not weak-referenceable: computed each time
-        pass
-    return groups
+    """seam_groups of a character, computed once while it lives (characters are frozen; a Character's arrays make
+    it unhashable, so the cache is keyed by identity and emptied when it goes)."""
+    key = id(character)
+    if key not in _CACHE:
+        _CACHE[key] = seam_groups(character.vertices, character.joints, character.weights)
+        weakref.finalize(character, _CACHE.pop, key, None)
+    return _CACHE[key]
 
 
 def weld(skins: np.ndarray, groups) -> np.ndarray:
