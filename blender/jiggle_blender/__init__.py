@@ -72,6 +72,63 @@ def bake_arguments(context, s, glb: str, out: str) -> list[str]:
     return args
 
 
+class BakeJob:
+    """`jiggle bake ... --progress json` running in a subprocess: its JSON lines as events, its stderr kept for the
+    error it prints, and a cancel that stops it and removes what it wrote (its .partial folder, and the output
+    folder when the job made it). Plain Python: the modal operator polls it on a timer."""
+
+    def __init__(self, argv: list[str], out: str):
+        self.argv, self.out = argv, out
+        self.out_existed = os.path.isdir(out)
+        self.proc = None
+        self._lines: queue.Queue = queue.Queue()
+        self._err: list[str] = []
+
+    def start(self, env: dict | None = None) -> None:
+        self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     env=env)
+        self._threads = [threading.Thread(target=lambda s=stream, f=sink: [f(line) for line in s], daemon=True)
+                         for stream, sink in ((self.proc.stdout, self._lines.put), (self.proc.stderr, self._err.append))]
+        for t in self._threads:
+            t.start()
+
+    def wait(self) -> int:
+        """The exit code, once the process and its readers are done."""
+        code = self.proc.wait()
+        for t in self._threads:
+            t.join(timeout=10)
+        return code
+
+    def events(self) -> list[dict]:
+        """The JSON lines read since the last call."""
+        out = []
+        while not self._lines.empty():
+            try:
+                out.append(json.loads(self._lines.get_nowait()))
+            except ValueError:
+                continue
+        return out
+
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def error(self) -> str:
+        lines = [ln for ln in "".join(self._err).strip().splitlines() if ln.strip()]
+        return lines[-1] if lines else f"jiggle bake failed (exit {self.proc.returncode})"
+
+    def cancel(self) -> None:
+        if self.running():
+            self.proc.terminate()
+            self.wait()
+        self.discard()
+
+    def discard(self) -> None:
+        """Remove what the bake wrote: its unfinished part, and the folder if the job made it."""
+        shutil.rmtree(os.path.join(self.out, ".partial"), ignore_errors=True)
+        if not self.out_existed:
+            shutil.rmtree(self.out, ignore_errors=True)
+
+
 # ------------------------------------------------------------------------------------------ the caches
 def write_pc2(path: str, frames, start: float, rate: float) -> None:
     import numpy as np
@@ -232,7 +289,6 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             return False
         s = context.scene.jiggle
         self.out = bpy.path.abspath(s.out_dir)
-        self.out_existed = os.path.isdir(self.out)
         self.tmp = tempfile.mkdtemp(prefix="jiggle_blender_")
         glb = os.path.join(self.tmp, "character.glb")
         kept = {o: o.select_get() for o in context.scene.objects}
@@ -247,63 +303,49 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             for o, sel in kept.items():
                 o.select_set(sel)
             context.view_layer.objects.active = active
-        self.argv = [self.cmd] + bake_arguments(context, s, glb, self.out)
+        self.job = BakeJob([self.cmd] + bake_arguments(context, s, glb, self.out), self.out)
         return True
 
     def execute(self, context):              # blocking (scripts, background): the same command, waited for
         if not self.prepare(context):
             return {"CANCELLED"}
-        r = subprocess.run(self.argv, capture_output=True, text=True)
-        return self.finish(context, r.returncode, r.stderr)
+        self.job.start()
+        return self.finish(context)
 
     def invoke(self, context, event):
         if not self.prepare(context):
             return {"CANCELLED"}
-        self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.lines: queue.Queue = queue.Queue()
-        self.err: list[str] = []
-        threading.Thread(target=self._read, args=(self.proc.stdout, self.lines), daemon=True).start()
-        threading.Thread(target=self._read, args=(self.proc.stderr, self.err), daemon=True).start()
+        self.job.start()
         wm = context.window_manager
         self.timer = wm.event_timer_add(0.2, window=context.window)
         wm.progress_begin(0, 100)
         wm.modal_handler_add(self)
         return {"RUNNING_MODAL"}
 
-    @staticmethod
-    def _read(stream, sink):
-        for line in stream:
-            (sink.put if isinstance(sink, queue.Queue) else sink.append)(line)
-
     def modal(self, context, event):
         if event.type == "ESC":
-            self.proc.terminate()
-            self.proc.wait()
-            self._cleanup(context, cancelled=True)
+            self.job.cancel()
+            self._cleanup(context)
             self.report({"WARNING"}, "jiggle: bake cancelled; nothing was kept")
             return {"CANCELLED"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        while not self.lines.empty():
-            try:
-                msg = json.loads(self.lines.get_nowait())
-            except ValueError:
-                continue
+        for msg in self.job.events():
             if msg.get("event") == "progress" and msg.get("total"):
                 context.window_manager.progress_update(int(100 * msg["frames"] / msg["total"]))
                 eta = msg.get("eta_s")
                 context.workspace.status_text_set(
                     f"jiggle: {msg['frames']}/{msg['total']} frames, {msg.get('fps', 0):.0f} frames/s"
                     + (f", {eta:.0f} s left" if eta is not None else ""))
-        if self.proc.poll() is None:
+        if self.job.running():
             return {"RUNNING_MODAL"}
-        return self.finish(context, self.proc.returncode, "".join(self.err))
+        return self.finish(context)
 
-    def finish(self, context, code: int, stderr: str):
-        if code != 0:
-            lines = [ln for ln in stderr.strip().splitlines() if ln.strip()]
-            self._cleanup(context, cancelled=True)
-            self.report({"ERROR"}, lines[-1] if lines else f"jiggle bake failed (exit {code})")
+    def finish(self, context):
+        if self.job.wait() != 0:
+            self.job.discard()
+            self._cleanup(context)
+            self.report({"ERROR"}, self.job.error())
             return {"CANCELLED"}
         try:
             start = first_frame(context, self.out)
@@ -311,17 +353,18 @@ class JIGGLE_OT_bake(bpy.types.Operator):
                 final, _static = mesh_caches(context, mesh, self.out, start)
                 add_cache(mesh, final, start)
         except (OSError, RuntimeError, KeyError) as e:
-            self._cleanup(context, cancelled=False)
+            self._cleanup(context)
             self.report({"ERROR"}, f"jiggle: {e}")
             return {"CANCELLED"}
         context.scene.jiggle.showing = "final"
         kept = os.path.join(self.out, f"{bpy.path.clean_name(self.arm.name)}.jiggle.glb")
         shutil.copyfile(os.path.join(self.tmp, "character.glb"), kept)     # what was baked: `jiggle bake` again
-        self._cleanup(context, cancelled=False)
+        self._cleanup(context)
         self.report({"INFO"}, f"jiggle: baked into {self.out}")
         return {"FINISHED"}
 
-    def _cleanup(self, context, cancelled: bool):
+    def _cleanup(self, context):
+        """The timer, the progress bar and status line, the exported glTF's folder."""
         wm = context.window_manager
         if getattr(self, "timer", None) is not None:
             wm.event_timer_remove(self.timer)
@@ -329,10 +372,6 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             wm.progress_end()
             context.workspace.status_text_set(None)
         shutil.rmtree(getattr(self, "tmp", ""), ignore_errors=True)
-        if cancelled:                         # what this bake wrote, and the folder if it made it
-            shutil.rmtree(os.path.join(self.out, ".partial"), ignore_errors=True)
-            if not self.out_existed:
-                shutil.rmtree(self.out, ignore_errors=True)
 
 
 class JIGGLE_OT_compare(bpy.types.Operator):

@@ -155,3 +155,41 @@ def test_a_missing_or_failing_jiggle_is_a_report_and_changes_nothing(addon, tmp_
     rep, _ = drive(addon, out, str(fake), tmp_path)
     assert rep["result"] == ["CANCELLED"] and "no built-in template for this body plan" in rep["error"]
     assert [t for _, t in rep["after"]] == rep["before"] and not out.exists()
+
+
+CANCEL = r'''
+import json, os, sys, time
+import bpy
+zip_path, glb, clip, out, jiggle, result = sys.argv[-6:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+addon = sys.modules["bl_ext.user_default.jiggle_blender"]
+job = addon.BakeJob([jiggle, "bake", "--character", glb, "--clip", clip, "--out", out, "--formats", "npz,pc2",
+                     "--progress", "json", "--chunk", "8"], out)
+job.start(env={**os.environ, "JIGGLE_BAKE_PAUSE": "0.3"})        # slow enough to be stopped mid-bake
+seen, t0 = [], time.time()
+while time.time() - t0 < 300 and not any(e.get("event") == "progress" for e in seen):
+    seen += job.events()
+    time.sleep(0.05)
+mid = {"partial": os.path.isdir(os.path.join(out, ".partial")), "running": job.running()}
+job.cancel()
+json.dump({"events": [e.get("event") for e in seen], "mid": mid, "after": os.path.exists(out),
+           "code": job.proc.returncode}, open(result, "w"))
+'''
+
+
+def test_cancelling_mid_bake_leaves_nothing(addon, tmp_path):
+    """The add-on's bake job (what Esc stops): started on CesiumMan with a walk, stopped after its first progress
+    line while the bake is writing; the process ends and the output folder it made is gone."""
+    from rig.motion.fbx import blender_command
+    script, result, out = tmp_path / "cancel.py", tmp_path / "cancel.json", tmp_path / "bake"
+    script.write_text(CANCEL)
+    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")),
+                                                        str(asset("mocap/cmu_bvh/05_02.bvh")), str(out), jiggle_exe(),
+                                                        str(result)], capture_output=True, text=True, timeout=900,
+                       env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert r.returncode == 0 and result.exists(), r.stdout[-2000:] + r.stderr[-2000:]
+    rep = json.loads(result.read_text())
+    assert rep["events"][:2] == ["preparing", "start"] and "progress" in rep["events"], rep
+    assert rep["mid"] == {"partial": True, "running": True}, rep
+    assert rep["code"] != 0 and rep["after"] is False and not out.exists()
