@@ -57,8 +57,11 @@ def armature_and_meshes(context):
 def bake_arguments(context, s, glb: str, out: str) -> list[str]:
     scene = context.scene
     fps = scene.render.fps / scene.render.fps_base
-    args = ["bake", "--character", glb, "--out", out, "--formats", "npz,pc2", "--progress", "json",
+    formats = "npz,pc2,glb" if s.result == "BONES" else "npz,pc2"
+    args = ["bake", "--character", glb, "--out", out, "--formats", formats, "--progress", "json",
             "--fps", f"{fps:g}"]
+    if s.result == "BONES" and s.jiggle_bones > 0:
+        args += ["--jiggle-bones", str(s.jiggle_bones)]
     if s.template:
         args += ["--template", s.template]
     if s.use_strength:
@@ -150,18 +153,14 @@ def first_frame(context, out: str) -> int:
         return int(round(float(data["times"][0]) * scene.render.fps / scene.render.fps_base))
 
 
-def mesh_caches(context, mesh, out: str, frame_start: int) -> tuple[str, str]:
-    """The bake's final and static skins as PC2 caches in `mesh`'s own space and vertex order: each Blender vertex
-    takes the bake's vertex where it stood at the first frame (the glTF splits vertices at UV seams; a split
-    vertex's copies move alike), its positions brought into the object's space."""
+def vertex_map(context, mesh, data, frame: int):
+    """(pick (V_blender,): the bake's vertex each Blender vertex is, the mesh's world matrix (4, 4)): where each
+    stood at the bake's first frame (the glTF splits vertices at UV seams; the copies move alike)."""
     import numpy as np
     from mathutils.kdtree import KDTree
-    data = np.load(os.path.join(out, "bake.npz"))
     first = data["skin_lbs"][0] if "skin_lbs" in data.files else data["skin_static"][0]
-    scene = context.scene
-    scene.frame_set(frame_start)
-    dg = context.evaluated_depsgraph_get()
-    ev = mesh.evaluated_get(dg)
+    context.scene.frame_set(frame)
+    ev = mesh.evaluated_get(context.evaluated_depsgraph_get())
     me = ev.to_mesh()
     world = np.array(ev.matrix_world)
     pts = np.array([v.co[:] for v in me.vertices])
@@ -171,11 +170,21 @@ def mesh_caches(context, mesh, out: str, frame_start: int) -> tuple[str, str]:
     for i, p in enumerate(first):
         tree.insert(p.tolist(), i)
     tree.balance()
-    pick = np.array([tree.find(p.tolist())[1] for p in pts])
-    far = max(tree.find(p.tolist())[2] for p in pts[:: max(1, len(pts) // 500)])
+    found = [tree.find(p.tolist()) for p in pts]
+    far = max(f[2] for f in found)
     if far > 1e-3:
         raise RuntimeError(f"the baked skin does not lie on {mesh.name!r} (a vertex {far * 1000:.1f} mm away): "
                            "bake it again from this file")
+    return np.array([f[1] for f in found]), world
+
+
+def mesh_caches(context, mesh, out: str, frame_start: int) -> tuple[str, str]:
+    """The bake's final and static skins as PC2 caches in `mesh`'s own space and vertex order: each Blender vertex
+    takes the bake's vertex where it stood at the first frame (the glTF splits vertices at UV seams; a split
+    vertex's copies move alike), its positions brought into the object's space."""
+    import numpy as np
+    data = np.load(os.path.join(out, "bake.npz"))
+    pick, world = vertex_map(context, mesh, data, frame_start)
     inv = np.linalg.inv(world)
     paths = []
     for key, name in (("skin_final", FINAL_CACHE), ("skin_static", STATIC_CACHE)):
@@ -206,6 +215,148 @@ def add_cache(mesh, path: str, frame_start: int):
     return mod
 
 
+# ------------------------------------------------------------------------------------------ jiggle bones
+_COMPONENTS = {5120: ("<i1", 127.0), 5121: ("<u1", 255.0), 5122: ("<i2", 32767.0), 5123: ("<u2", 65535.0),
+               5125: ("<u4", None), 5126: ("<f4", None)}
+_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+
+def read_glb(path: str):
+    """(the glTF JSON, accessor(i) -> array) of a .glb, normalized integers mapped to [-1, 1] / [0, 1]."""
+    import struct
+    import numpy as np
+    with open(path, "rb") as fh:
+        data = fh.read()
+    n = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(data[20:20 + n])
+    blob = data[20 + n + 8:]
+
+    def accessor(i):
+        a = doc["accessors"][i]
+        view = doc["bufferViews"][a["bufferView"]]
+        dtype, norm = _COMPONENTS[a["componentType"]]
+        k = _SIZES[a["type"]]
+        start = view.get("byteOffset", 0) + a.get("byteOffset", 0)
+        out = np.frombuffer(blob, dtype, a["count"] * k, start).reshape(a["count"], k).astype(np.float64)
+        if a.get("normalized") and norm:
+            out = np.maximum(out / norm, -1.0)
+        return out
+    return doc, accessor
+
+
+def _trs(t, q_xyzw):
+    from mathutils import Matrix, Quaternion
+    q = Quaternion((q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]))
+    return Matrix.Translation(t) @ q.to_matrix().to_4x4()
+
+
+def add_jiggle_bones(context, arm, meshes, glb: str, first: int) -> int:
+    """The glb's jiggle bones into `arm`: bones with their hosts' rest pose (children of the hosts), their keys in
+    a new action on an NLA track of their own (the armature's action and keys untouched), and the glb's weights
+    on the meshes' vertex groups (the jiggle bones' groups added). Returns the bones added."""
+    import numpy as np
+    from mathutils import Matrix
+    doc, acc = read_glb(glb)
+    nodes = doc["nodes"]
+    parent = {c: i for i, nd in enumerate(nodes) for c in nd.get("children", [])}
+    jig = [i for i, nd in enumerate(nodes) if "_jiggle_" in nd.get("name", "")]
+    bones = arm.data.bones
+    missing = [nodes[parent[i]]["name"] for i in jig if nodes[parent[i]]["name"] not in bones]
+    if missing:
+        raise RuntimeError(f"the glb's jiggle bones hang under bones this armature lacks ({missing[0]}, ...)")
+    # world rest of the glb's nodes (glTF Y-up) from their own transforms
+    def local(i):
+        nd = nodes[i]
+        return _trs(nd.get("translation", (0, 0, 0)), nd.get("rotation", (0, 0, 0, 1)))
+    def world(i):
+        m = local(i)
+        while i in parent:
+            i = parent[i]
+            m = local(i) @ m
+        return m
+    to_arm = arm.matrix_world.inverted() @ Matrix(((1, 0, 0, 0), (0, 0, -1, 0), (0, 1, 0, 0), (0, 0, 0, 1)))
+    # the bones, at their hosts' rest
+    ctx_obj = context.view_layer.objects.active
+    context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        for i in jig:
+            host = arm.data.edit_bones[nodes[parent[i]]["name"]]
+            eb = arm.data.edit_bones.get(nodes[i]["name"]) or arm.data.edit_bones.new(nodes[i]["name"])
+            eb.head, eb.tail, eb.roll = host.head.copy(), host.tail.copy(), host.roll
+            eb.parent, eb.use_connect, eb.use_deform = host, False, True
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+        context.view_layer.objects.active = ctx_obj
+    # their keys: basis = Y^-1 L Y, L the glb's local transform under the host, Y the host's node -> bone frame
+    anim = doc["animations"][0]
+    samplers = anim["samplers"]
+    keys = {}
+    for ch in anim["channels"]:
+        node, path = ch["target"]["node"], ch["target"]["path"]
+        if node in jig:
+            keys[(node, path)] = acc(samplers[ch["sampler"]]["output"])
+    times = acc(samplers[0]["input"])[:, 0]
+    action = bpy.data.actions.new(f"{arm.name}.jiggle")
+    slot = action.slots.new(id_type="OBJECT", name=arm.name)
+    from bpy_extras.anim_utils import action_ensure_channelbag_for_slot
+    bag = action_ensure_channelbag_for_slot(action, slot)
+    scene = context.scene
+    frames = first + np.round(times * scene.render.fps / scene.render.fps_base)
+    for i in jig:
+        name = nodes[i]["name"]
+        host = nodes[parent[i]]["name"]
+        Y = (to_arm @ world(parent[i])).inverted() @ bones[host].matrix_local
+        t = keys.get((i, "translation"), np.tile(nodes[i].get("translation", (0, 0, 0)), (len(times), 1)))
+        r = keys.get((i, "rotation"), np.tile(nodes[i].get("rotation", (0, 0, 0, 1)), (len(times), 1)))
+        loc, rot = np.empty((len(times), 3)), np.empty((len(times), 4))
+        for k in range(len(times)):
+            basis = Y.inverted() @ _trs(t[k], r[k]) @ Y
+            loc[k], rot[k] = basis.to_translation(), basis.to_quaternion()
+        for k in range(1, len(rot)):                                   # one hemisphere: keys interpolate the short way
+            if np.dot(rot[k], rot[k - 1]) < 0:
+                rot[k] = -rot[k]
+        arm.pose.bones[name].rotation_mode = "QUATERNION"
+        for path, values in (("location", loc), ("rotation_quaternion", rot)):
+            for c in range(values.shape[1]):
+                fc = bag.fcurves.new(f'pose.bones["{name}"].{path}', index=c, group_name=name)
+                fc.keyframe_points.add(len(frames))
+                fc.keyframe_points.foreach_set("co", np.c_[frames, values[:, c]].ravel().tolist())
+                fc.keyframe_points.foreach_set("interpolation", [1] * len(frames))       # LINEAR, as the glb
+                fc.update()
+    ad = arm.animation_data or arm.animation_data_create()
+    track = ad.nla_tracks.new()
+    track.name = "jiggle"
+    strip = track.strips.new(action.name, int(frames[0]), action)
+    strip.action_slot = slot
+    # the weights: each Blender vertex takes those of the glb vertex it is (the glb's vertices are the bake's)
+    prim = doc["meshes"][0]["primitives"][0]
+    sets = [(acc(prim["attributes"][f"JOINTS_{s}"]).astype(int), acc(prim["attributes"][f"WEIGHTS_{s}"]))
+            for s in range(4) if f"JOINTS_{s}" in prim["attributes"]]
+    skin_joints = [nodes[j]["name"] for j in doc["skins"][0]["joints"]]
+    deform = set(bones.keys())
+    with np.load(os.path.join(os.path.dirname(glb), "bake.npz")) as data:
+        picks = {mesh.name: vertex_map(context, mesh, data, first)[0] for mesh in meshes}
+    for mesh in meshes:
+        groups = {g.name: g for g in mesh.vertex_groups}
+        for i in jig:
+            if nodes[i]["name"] not in groups:
+                groups[nodes[i]["name"]] = mesh.vertex_groups.new(name=nodes[i]["name"])
+        index = {g.index: g for g in mesh.vertex_groups}
+        pick = picks[mesh.name]
+        for v in mesh.data.vertices:
+            k = int(pick[v.index])
+            for ge in list(v.groups):
+                g = index.get(ge.group)
+                if g is not None and g.name in deform:
+                    g.remove([v.index])
+            for J, W in sets:
+                for j, w in zip(J[k], W[k]):
+                    if w > 0:
+                        groups[skin_joints[j]].add([v.index], float(w), "REPLACE")
+    return len(jig)
+
+
 # ------------------------------------------------------------------------------------------ properties, UI
 class JigglePreferences(bpy.types.AddonPreferences):
     bl_idname = __package__
@@ -229,8 +380,12 @@ class JiggleSettings(bpy.types.PropertyGroup):
                             "comma-separated (the CLI's --strength NAME=VALUE)")
     blend: FloatProperty(name="Blend", default=1.0, min=0.0, max=1.0, description="0: static muscles, 1: jiggle")
     collisions: BoolProperty(name="Collisions", default=False)
-    result: EnumProperty(name="Result", items=[("EXACT", "Exact", "A Mesh Cache modifier plays the baked skin")],
-                         default="EXACT")
+    result: EnumProperty(name="Result", items=[
+        ("EXACT", "Exact", "A Mesh Cache modifier plays the baked skin"),
+        ("BONES", "Bones", "Jiggle bones (the glb's) added to the armature with their own action on an NLA track, "
+                           "and their weights on the mesh: what a game engine plays")], default="EXACT")
+    jiggle_bones: bpy.props.IntProperty(name="Jiggle bones", default=0, min=0, description="0: the template's "
+                                        "default (the CLI's --jiggle-bones)")
     showing: StringProperty(default="")
 
 
@@ -260,6 +415,8 @@ class JIGGLE_PT_panel(bpy.types.Panel):
         col.prop(s, "blend")
         col.prop(s, "collisions")
         col.prop(s, "result")
+        if s.result == "BONES":
+            col.prop(s, "jiggle_bones")
         col.operator("jiggle.bake", icon="PHYSICS")
         row = col.row()
         row.operator("jiggle.compare", text="Show static" if s.showing != "static" else "Show final")
@@ -349,9 +506,12 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             return {"CANCELLED"}
         try:
             start = first_frame(context, self.out)
-            for mesh in self.meshes:
-                final, _static = mesh_caches(context, mesh, self.out, start)
-                add_cache(mesh, final, start)
+            if context.scene.jiggle.result == "BONES":
+                add_jiggle_bones(context, self.arm, self.meshes, os.path.join(self.out, "bake.glb"), start)
+            else:
+                for mesh in self.meshes:
+                    final, _static = mesh_caches(context, mesh, self.out, start)
+                    add_cache(mesh, final, start)
         except (OSError, RuntimeError, KeyError) as e:
             self._cleanup(context)
             self.report({"ERROR"}, f"jiggle: {e}")

@@ -193,3 +193,78 @@ def test_cancelling_mid_bake_leaves_nothing(addon, tmp_path):
     assert rep["events"][:2] == ["preparing", "start"] and "progress" in rep["events"], rep
     assert rep["mid"] == {"partial": True, "running": True}, rep
     assert rep["code"] != 0 and rep["after"] is False and not out.exists()
+
+
+BONES = r'''
+import json, os, sys
+import bpy
+import numpy as np
+zip_path, glb, out, jiggle, result = sys.argv[-5:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+bpy.context.preferences.addons["bl_ext.user_default.jiggle_blender"].preferences.jiggle_path = jiggle
+bpy.ops.import_scene.gltf(filepath=glb)
+arm = [o for o in bpy.data.objects if o.type == "ARMATURE"][0]
+mesh = [o for o in bpy.data.objects if o.type == "MESH"][0]
+bpy.context.view_layer.objects.active = arm
+sc = bpy.context.scene
+sc.render.fps = 30
+act = arm.animation_data.action
+sc.frame_start, sc.frame_end = int(act.frame_range[0]), int(act.frame_range[1])
+user_keys = {fc.data_path + str(fc.array_index): [tuple(k.co) for k in fc.keyframe_points]
+             for fc in __import__("bpy_extras.anim_utils", fromlist=["x"]).action_get_channelbag_for_slot(
+                 act, arm.animation_data.action_slot).fcurves}
+bones_before = len(arm.data.bones)
+tracks_before = [t.name for t in arm.animation_data.nla_tracks]
+sc.jiggle.out_dir = out
+sc.jiggle.result = "BONES"
+report = {"result": sorted(bpy.ops.jiggle.bake())}
+report["bones_added"] = len(arm.data.bones) - bones_before
+report["action_same"] = arm.animation_data.action == act
+after = {fc.data_path + str(fc.array_index): [tuple(k.co) for k in fc.keyframe_points]
+         for fc in __import__("bpy_extras.anim_utils", fromlist=["x"]).action_get_channelbag_for_slot(
+             act, arm.animation_data.action_slot).fcurves}
+report["user_keys_same"] = after == user_keys
+report["tracks"] = [t.name for t in arm.animation_data.nla_tracks]
+report["tracks_before"] = tracks_before
+report["modifiers"] = [m.type for m in mesh.modifiers]
+with np.load(os.path.join(out, "bake.npz")) as d:
+    T, t0 = len(d["times"]), float(d["times"][0])
+skins, frames = [], []
+for k in (0, T // 2, T - 1):
+    sc.frame_set(int(round(t0 * 30)) + k)
+    ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    M = np.array(ev.matrix_world)
+    skins.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
+    ev.to_mesh_clear()
+    frames.append(k)
+report["frames"] = frames
+np.save(result + ".npy", np.array(skins))
+json.dump(report, open(result + ".json", "w"))
+'''
+
+
+def test_bones_result_adds_jiggle_bones_blender_plays(addon, tmp_path):
+    """Result "bones": the bake's glb jiggle bones join the armature (children of their hosts), their keys in an
+    action of their own on an NLA track, their weights on the mesh; the armature's action and its keys are
+    untouched, no Mesh Cache modifier; Blender's evaluated mesh (its Armature modifier alone) is skin_final within
+    RMS 1 mm and p99 3 mm, as the glb plays in an engine."""
+    from rig.motion.fbx import blender_command
+    script, result, out = tmp_path / "bones.py", tmp_path / "bones", tmp_path / "bake"
+    script.write_text(BONES)
+    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")), str(out),
+                                                        jiggle_exe(), str(result)], capture_output=True, text=True,
+                       timeout=900, env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert r.returncode == 0 and Path(str(result) + ".json").exists(), r.stdout[-2500:] + r.stderr[-2500:]
+    rep = json.loads(Path(str(result) + ".json").read_text())
+    assert rep["result"] == ["FINISHED"] and rep["bones_added"] == 128, rep
+    assert rep["action_same"] and rep["user_keys_same"] and rep["tracks"] == rep["tracks_before"] + ["jiggle"]
+    assert rep["modifiers"] == ["ARMATURE"]
+    skins = np.load(str(result) + ".npy")
+    d = read_npz(out / "bake.npz")
+    for k, f in enumerate(rep["frames"]):
+        e = cKDTree(skins[k]).query(d.skin_final[f])[0] * 1000
+        lbs = np.linalg.norm(d.skin_lbs[f] - d.skin_final[f], axis=1) * 1000     # what the bones have to make
+        assert np.sqrt((e ** 2).mean()) <= 1.0 and np.percentile(e, 99) <= 3.0, (f, e.max())
+        assert np.percentile(e, 99) < 0.5 * np.percentile(lbs, 99), (f, np.percentile(e, 99), np.percentile(lbs, 99))
