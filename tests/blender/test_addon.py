@@ -268,3 +268,55 @@ def test_bones_result_adds_jiggle_bones_blender_plays(addon, tmp_path):
         lbs = np.linalg.norm(d.skin_lbs[f] - d.skin_final[f], axis=1) * 1000     # what the bones have to make
         assert np.sqrt((e ** 2).mean()) <= 1.0 and np.percentile(e, 99) <= 3.0, (f, e.max())
         assert np.percentile(e, 99) < 0.5 * np.percentile(lbs, 99), (f, np.percentile(e, 99), np.percentile(lbs, 99))
+
+
+UNDO = r'''
+import json, sys
+import bpy
+zip_path, glb, out, jiggle, result = sys.argv[-5:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+bpy.context.preferences.addons["bl_ext.user_default.jiggle_blender"].preferences.jiggle_path = jiggle
+bpy.ops.import_scene.gltf(filepath=glb)
+sc = bpy.context.scene
+sc.render.fps = 30
+A = lambda: [o for o in bpy.data.objects if o.type == "ARMATURE"][0]          # noqa: E731 (undo swaps the data)
+M = lambda: [o for o in bpy.data.objects if o.type == "MESH"][0]              # noqa: E731
+bpy.context.view_layer.objects.active = A()
+act = A().animation_data.action
+sc.frame_start, sc.frame_end = int(act.frame_range[0]), int(act.frame_range[1])
+state = lambda: {"bones": len(A().data.bones), "groups": len(M().vertex_groups), "actions": len(bpy.data.actions),
+                 "tracks": len(A().animation_data.nla_tracks), "modifiers": [m.type for m in M().modifiers]}
+report = {}
+for mode in ("EXACT", "BONES"):
+    sc = bpy.context.scene                           # undo swaps the data: look everything up again
+    bpy.context.view_layer.objects.active = A()
+    sc.jiggle.out_dir = out + "_" + mode.lower()
+    sc.jiggle.result = mode
+    bpy.ops.ed.undo_push(message="before jiggle")
+    before = state()
+    bpy.ops.jiggle.bake()
+    bpy.ops.ed.undo_push(message="Bake jiggle")      # what the UI does after an UNDO operator; a script must
+    baked = state()
+    bpy.ops.ed.undo()
+    report[mode] = {"before": before, "baked": baked, "undone": state()}
+json.dump(report, open(result, "w"))
+'''
+
+
+def test_undo_returns_the_scene_as_it_was(addon, tmp_path):
+    """Ctrl-Z after a bake, exact or bones: the modifier, the bones, their vertex groups, the action and the NLA
+    track all go; the scene is as before the bake (the bake's files stay on disk, as any export's would)."""
+    from rig.motion.fbx import blender_command
+    script, result = tmp_path / "undo.py", tmp_path / "undo.json"
+    script.write_text(UNDO)
+    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")),
+                                                        str(tmp_path / "bake"), jiggle_exe(), str(result)],
+                       capture_output=True, text=True, timeout=900,
+                       env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert r.returncode == 0 and result.exists(), r.stdout[-2000:] + r.stderr[-2000:]
+    rep = json.loads(result.read_text())
+    assert rep["EXACT"]["baked"]["modifiers"] == ["ARMATURE", "MESH_CACHE"]
+    assert rep["BONES"]["baked"]["bones"] == rep["BONES"]["before"]["bones"] + 128
+    for mode in ("EXACT", "BONES"):
+        assert rep[mode]["undone"] == rep[mode]["before"], (mode, rep[mode])
