@@ -56,7 +56,7 @@ def armature_and_meshes(context):
 
 def bake_arguments(context, s, glb: str, out: str) -> list[str]:
     scene = context.scene
-    fps = scene.render.fps / scene.render.fps_base
+    fps = s.fps or scene.render.fps / scene.render.fps_base
     formats = "npz,pc2,glb" if s.result == "BONES" else "npz,pc2"
     args = ["bake", "--character", glb, "--out", out, "--formats", formats, "--progress", "json",
             "--fps", f"{fps:g}"]
@@ -145,14 +145,6 @@ def write_pc2(path: str, frames, start: float, rate: float) -> None:
     os.replace(tmp, path)
 
 
-def first_frame(context, out: str) -> int:
-    """The scene frame of the bake's first frame (the glTF exporter keys frame f at f / fps seconds)."""
-    import numpy as np
-    scene = context.scene
-    with np.load(os.path.join(out, "bake.npz")) as data:
-        return int(round(float(data["times"][0]) * scene.render.fps / scene.render.fps_base))
-
-
 def vertex_map(context, mesh, data, frame: int):
     """(pick (V_blender,): the bake's vertex each Blender vertex is, the mesh's world matrix (4, 4)): where each
     stood at the bake's first frame (the glTF splits vertices at UV seams; the copies move alike)."""
@@ -191,21 +183,23 @@ def mesh_caches(context, mesh, out: str, frame_start: int) -> tuple[str, str]:
         skin = data[key][:, pick].astype(np.float64)
         local = skin @ inv[:3, :3].T + inv[:3, 3]
         path = os.path.join(out, f"{mesh.name}.{name}")
-        write_pc2(path, local, float(frame_start), 1.0)
+        write_pc2(path, local, 0.0, 1.0)              # sample k at cache frame k: the modifier maps the scene
         paths.append(path)
     return paths[0], paths[1]
 
 
-def add_cache(mesh, path: str, frame_start: int):
-    """A Mesh Cache modifier right after the Armature one, overwriting its deformation."""
+def add_cache(mesh, path: str, frame_start: int, rate: float):
+    """A Mesh Cache modifier right after the Armature one, overwriting its deformation; `rate`: the bake's frames
+    per second."""
     mod = mesh.modifiers.get(MODIFIER) or mesh.modifiers.new(MODIFIER, "MESH_CACHE")
     mod.cache_format = "PC2"
     mod.filepath = path
     mod.deform_mode = "OVERWRITE"
     mod.time_mode = "FRAME"
     mod.play_mode = "SCENE"
-    mod.frame_start = float(frame_start)
-    mod.frame_scale = 1.0
+    scene = bpy.context.scene
+    mod.frame_scale = rate / (scene.render.fps / scene.render.fps_base)    # cache frames per scene frame
+    mod.frame_start = float(frame_start) * mod.frame_scale     # Blender plays cache frame f * scale - frame_start
     mod.interpolation = "LINEAR"
     mod.forward_axis, mod.up_axis = "POS_Y", "POS_Z"
     names = [m.name for m in mesh.modifiers]
@@ -302,7 +296,7 @@ def add_jiggle_bones(context, arm, meshes, glb: str, first: int) -> int:
     from bpy_extras.anim_utils import action_ensure_channelbag_for_slot
     bag = action_ensure_channelbag_for_slot(action, slot)
     scene = context.scene
-    frames = first + np.round(times * scene.render.fps / scene.render.fps_base)
+    frames = first + times * scene.render.fps / scene.render.fps_base   # another rate than the scene's: between frames
     for i in jig:
         name = nodes[i]["name"]
         host = nodes[parent[i]]["name"]
@@ -370,6 +364,13 @@ class JigglePreferences(bpy.types.AddonPreferences):
 
 
 class JiggleSettings(bpy.types.PropertyGroup):
+    action: PointerProperty(name="Action", type=bpy.types.Action, description="The action to bake; empty: the "
+                            "armature's own")
+    use_range: BoolProperty(name="Frame range", default=False, description="Bake these frames, not the scene's")
+    frame_start: bpy.props.IntProperty(name="Start", default=1)
+    frame_end: bpy.props.IntProperty(name="End", default=250)
+    fps: FloatProperty(name="Output fps", default=0.0, min=0.0, description="Frames per second of the bake; 0: the "
+                       "scene's")
     out_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//jiggle_bake",
                             description="The folder the bake writes (bake.npz, bake.pc2, bake.json)")
     template: StringProperty(name="Template", default="", description="Muscle template: empty for auto, human, "
@@ -406,6 +407,14 @@ class JIGGLE_PT_panel(bpy.types.Panel):
             col.label(text=f"{arm.name}: {len(meshes)} mesh(es), action {action}")
             sc = context.scene
             col.label(text=f"frames {sc.frame_start}-{sc.frame_end} at {sc.render.fps / sc.render.fps_base:g} fps")
+        col.prop(s, "action")
+        row = col.row()
+        row.prop(s, "use_range", text="")
+        sub = row.row(align=True)
+        sub.enabled = s.use_range
+        sub.prop(s, "frame_start")
+        sub.prop(s, "frame_end")
+        col.prop(s, "fps")
         col.prop(s, "out_dir")
         col.prop(s, "template")
         row = col.row()
@@ -448,10 +457,18 @@ class JIGGLE_OT_bake(bpy.types.Operator):
         self.out = bpy.path.abspath(s.out_dir)
         self.tmp = tempfile.mkdtemp(prefix="jiggle_blender_")
         glb = os.path.join(self.tmp, "character.glb")
-        kept = {o: o.select_get() for o in context.scene.objects}
+        scene = context.scene
+        kept = {o: o.select_get() for o in scene.objects}
         active = context.view_layer.objects.active
-        try:
-            for o in context.scene.objects:
+        ad = self.arm.animation_data or self.arm.animation_data_create()
+        action, span = ad.action, (scene.frame_start, scene.frame_end)
+        try:                               # the action and frame range asked for, for the export only
+            if s.action is not None:
+                ad.action = s.action
+            if s.use_range:
+                scene.frame_start, scene.frame_end = s.frame_start, max(s.frame_end, s.frame_start + 1)
+            self.first = scene.frame_start     # the exporter samples from here: the bake's first frame
+            for o in scene.objects:
                 o.select_set(o == self.arm or o in self.meshes)
             bpy.ops.export_scene.gltf(filepath=glb, use_selection=True, export_animations=True,
                                       export_animation_mode="ACTIVE_ACTIONS", export_frame_range=True,
@@ -460,6 +477,9 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             for o, sel in kept.items():
                 o.select_set(sel)
             context.view_layer.objects.active = active
+            if ad.action != action:
+                ad.action = action
+            scene.frame_start, scene.frame_end = span
         self.job = BakeJob([self.cmd] + bake_arguments(context, s, glb, self.out), self.out)
         return True
 
@@ -505,13 +525,16 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             self.report({"ERROR"}, self.job.error())
             return {"CANCELLED"}
         try:
-            start = first_frame(context, self.out)
+            start = self.first
             if context.scene.jiggle.result == "BONES":
                 add_jiggle_bones(context, self.arm, self.meshes, os.path.join(self.out, "bake.glb"), start)
             else:
+                import numpy as np
+                with np.load(os.path.join(self.out, "bake.npz")) as data:
+                    rate = float(data["fps"])
                 for mesh in self.meshes:
                     final, _static = mesh_caches(context, mesh, self.out, start)
-                    add_cache(mesh, final, start)
+                    add_cache(mesh, final, start, rate)
         except (OSError, RuntimeError, KeyError) as e:
             self._cleanup(context)
             self.report({"ERROR"}, f"jiggle: {e}")

@@ -320,3 +320,56 @@ def test_undo_returns_the_scene_as_it_was(addon, tmp_path):
     assert rep["BONES"]["baked"]["bones"] == rep["BONES"]["before"]["bones"] + 128
     for mode in ("EXACT", "BONES"):
         assert rep[mode]["undone"] == rep[mode]["before"], (mode, rep[mode])
+
+
+RATE = r'''
+import json, os, sys
+import bpy
+import numpy as np
+zip_path, glb, out, jiggle, result = sys.argv[-5:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+bpy.context.preferences.addons["bl_ext.user_default.jiggle_blender"].preferences.jiggle_path = jiggle
+bpy.ops.import_scene.gltf(filepath=glb)
+arm = [o for o in bpy.data.objects if o.type == "ARMATURE"][0]
+mesh = [o for o in bpy.data.objects if o.type == "MESH"][0]
+bpy.context.view_layer.objects.active = arm
+sc = bpy.context.scene
+sc.render.fps = 30
+sc.frame_start, sc.frame_end = 1, 250
+s = sc.jiggle
+s.out_dir, s.fps, s.use_range, s.frame_start, s.frame_end = out, 60.0, True, 10, 30
+report = {"result": sorted(bpy.ops.jiggle.bake()), "scene_range": [sc.frame_start, sc.frame_end]}
+with np.load(os.path.join(out, "bake.npz")) as d:
+    report["fps"], report["times"] = float(d["fps"]), [float(d["times"][0]), float(d["times"][-1])]
+report["frame_scale"] = mesh.modifiers["Jiggle"].frame_scale
+skins = []
+for f in (10, 20, 30):
+    sc.frame_set(f)
+    ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    M = np.array(ev.matrix_world)
+    skins.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
+    ev.to_mesh_clear()
+np.save(result + ".npy", np.array(skins))
+json.dump(report, open(result + ".json", "w"))
+'''
+
+
+def test_frame_range_and_output_rate_from_the_panel(addon, tmp_path):
+    """Frames 10-30 of a 30 fps scene baked at 60 fps: the bake covers those 20 frames' 2/3 s at 60 frames/s, the
+    scene's own range is left as it was, and the cache plays scene frame f at bake frame 2 (f - 10)."""
+    from rig.motion.fbx import blender_command
+    script, result, out = tmp_path / "rate.py", tmp_path / "rate", tmp_path / "bake"
+    script.write_text(RATE)
+    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")), str(out),
+                                                        jiggle_exe(), str(result)], capture_output=True, text=True,
+                       timeout=900, env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert r.returncode == 0 and Path(str(result) + ".json").exists(), r.stdout[-2500:] + r.stderr[-2500:]
+    rep = json.loads(Path(str(result) + ".json").read_text())
+    assert rep["result"] == ["FINISHED"] and rep["scene_range"] == [1, 250] and rep["fps"] == 60.0
+    assert abs(rep["times"][1] - rep["times"][0] - 20 / 30) < 1e-6 and rep["frame_scale"] == 2
+    skins = np.load(str(result) + ".npy")
+    d = read_npz(out / "bake.npz")
+    for k, f in enumerate((10, 20, 30)):
+        assert cKDTree(d.skin_final[2 * (f - 10)]).query(skins[k])[0].max() < 1e-4, f
