@@ -71,6 +71,11 @@ if os.path.isfile(os.path.join(out, "bake.npz")) and "Jiggle" in mesh.modifiers:
     bpy.ops.render.render(write_still=True)
     bpy.ops.jiggle.compare()
     report["compare"] = mesh.modifiers["Jiggle"].filepath
+    import webbrowser
+    opened = []
+    webbrowser.open = lambda url, *a, **k: opened.append(url)     # no browser here: what it would open
+    report["report_op"] = sorted(bpy.ops.jiggle.open_report())
+    report["opened"] = opened
 json.dump(report, open(result + ".json", "w"))
 '''
 
@@ -129,6 +134,8 @@ def test_bake_from_blender_plays_the_baked_skin(addon, tmp_path):
         b = cKDTree(skins[k]).query(d.skin_final[f])[0].max()
         assert a < 1e-4 and b < 1e-4, (f, a, b)
     assert rep["compare"].endswith("blender_static.pc2")
+    assert rep["report_op"] == ["FINISHED"] and rep["opened"] == ["file://" + str(out / "report.html")]
+    assert (out / "report.html").is_file() and (out / "metrics.json").is_file()     # `jiggle compare` made them
     png = Path(str(tmp_path / "result") + ".png")
     assert png.is_file() and png.stat().st_size > 20_000            # Workbench drew the played skin
     exported = next(out.glob("*.jiggle.glb"))
