@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from sim.bake.caches import read_npz
 
-DRIVE = r'''
+SETUP = r'''
 import json, os, sys
 import bpy
 import numpy as np
@@ -38,6 +38,25 @@ sc = bpy.context.scene
 sc.render.fps = 30
 act = arm.animation_data.action
 sc.frame_start, sc.frame_end = int(act.frame_range[0]), int(act.frame_range[1])
+
+
+def evaluated(frames):
+    """The mesh's evaluated world positions (F, V, 3) at scene frames."""
+    skins = []
+    for f in frames:
+        sc.frame_set(f)
+        ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        me = ev.to_mesh()
+        M = np.array(ev.matrix_world)
+        skins.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
+        ev.to_mesh_clear()
+    return np.array(skins)
+'''
+"""What every script below starts with: the add-on installed from its zip into a fresh user folder and enabled,
+its jiggle command set, CesiumMan imported, its armature active, the scene at 30 fps over the action's frames."""
+
+
+DRIVE = r'''
 sc.jiggle.out_dir = out
 report["before"] = [m.type for m in mesh.modifiers]
 try:
@@ -49,16 +68,8 @@ report["frames"] = []
 if os.path.isfile(os.path.join(out, "bake.npz")) and "Jiggle" in mesh.modifiers:
     with np.load(os.path.join(out, "bake.npz")) as d:
         T, t0 = len(d["times"]), float(d["times"][0])
-    skins = []
-    for k in (0, T // 2, T - 1):
-        sc.frame_set(int(round(t0 * 30)) + k)
-        ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
-        me = ev.to_mesh()
-        M = np.array(ev.matrix_world)
-        skins.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
-        ev.to_mesh_clear()
-        report["frames"].append(k)
-    np.save(result + ".npy", np.array(skins))
+    report["frames"] = [0, T // 2, T - 1]
+    np.save(result + ".npy", evaluated([int(round(t0 * 30)) + k for k in report["frames"]]))
     # the result rendered headless (Workbench), at the middle frame, as the viewport plays it
     sc.render.engine = "BLENDER_WORKBENCH"
     sc.render.resolution_x, sc.render.resolution_y = 480, 640
@@ -97,17 +108,26 @@ def jiggle_exe() -> str:
     return exe
 
 
-def drive(addon, out, jiggle, tmp_path) -> tuple[dict, np.ndarray | None]:
+def in_blender(addon, body: str, out, tmp_path, jiggle: str | None = None, setup: str = SETUP,
+               args: tuple = ()) -> tuple[dict, np.ndarray | None]:
+    """Run setup + body in Blender (its user folder in tmp_path), with the zip, CesiumMan, `out`, the jiggle
+    command and RESULT as its last arguments (after `args`): (RESULT.json, RESULT.npy or None)."""
     from rig.motion.fbx import blender_command
-    script, result = tmp_path / "drive.py", tmp_path / "result"
-    script.write_text(DRIVE)
-    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")), str(out),
-                                                        jiggle, str(result)], capture_output=True, text=True,
-                       timeout=900, env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
-    assert r.returncode == 0 and Path(str(result) + ".json").exists(), r.stdout[-2000:] + r.stderr[-2000:]
+    script, result = tmp_path / "script.py", tmp_path / "result"
+    script.write_text(setup + body)
+    r = subprocess.run(blender_command(str(script)) + [*map(str, args), str(addon),
+                                                        str(asset("characters/CesiumMan.glb")), str(out),
+                                                        jiggle or jiggle_exe(), str(result)],
+                       capture_output=True, text=True, timeout=900,
+                       env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert r.returncode == 0 and Path(str(result) + ".json").exists(), r.stdout[-2500:] + r.stderr[-2500:]
     rep = json.loads(Path(str(result) + ".json").read_text())
     skins = np.load(str(result) + ".npy") if Path(str(result) + ".npy").exists() else None
     return rep, skins
+
+
+def drive(addon, out, jiggle, tmp_path) -> tuple[dict, np.ndarray | None]:
+    return in_blender(addon, DRIVE, out, tmp_path, jiggle)
 
 
 def test_the_zip_is_an_extension_of_the_projects_version(addon):
@@ -167,7 +187,7 @@ def test_a_missing_or_failing_jiggle_is_a_report_and_changes_nothing(addon, tmp_
 CANCEL = r'''
 import json, os, sys, time
 import bpy
-zip_path, glb, clip, out, jiggle, result = sys.argv[-6:]
+clip, zip_path, glb, out, jiggle, result = sys.argv[-6:]
 bpy.ops.wm.read_factory_settings(use_empty=True)
 bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
 addon = sys.modules["bl_ext.user_default.jiggle_blender"]
@@ -181,43 +201,21 @@ while time.time() - t0 < 300 and not any(e.get("event") == "progress" for e in s
 mid = {"partial": os.path.isdir(os.path.join(out, ".partial")), "running": job.running()}
 job.cancel()
 json.dump({"events": [e.get("event") for e in seen], "mid": mid, "after": os.path.exists(out),
-           "code": job.proc.returncode}, open(result, "w"))
+           "code": job.proc.returncode}, open(result + ".json", "w"))
 '''
 
 
 def test_cancelling_mid_bake_leaves_nothing(addon, tmp_path):
     """The add-on's bake job (what Esc stops): started on CesiumMan with a walk, stopped after its first progress
     line while the bake is writing; the process ends and the output folder it made is gone."""
-    from rig.motion.fbx import blender_command
-    script, result, out = tmp_path / "cancel.py", tmp_path / "cancel.json", tmp_path / "bake"
-    script.write_text(CANCEL)
-    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")),
-                                                        str(asset("mocap/cmu_bvh/05_02.bvh")), str(out), jiggle_exe(),
-                                                        str(result)], capture_output=True, text=True, timeout=900,
-                       env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
-    assert r.returncode == 0 and result.exists(), r.stdout[-2000:] + r.stderr[-2000:]
-    rep = json.loads(result.read_text())
+    out = tmp_path / "bake"
+    rep, _ = in_blender(addon, CANCEL, out, tmp_path, setup="", args=(asset("mocap/cmu_bvh/05_02.bvh"),))
     assert rep["events"][:2] == ["preparing", "start"] and "progress" in rep["events"], rep
     assert rep["mid"] == {"partial": True, "running": True}, rep
     assert rep["code"] != 0 and rep["after"] is False and not out.exists()
 
 
 BONES = r'''
-import json, os, sys
-import bpy
-import numpy as np
-zip_path, glb, out, jiggle, result = sys.argv[-5:]
-bpy.ops.wm.read_factory_settings(use_empty=True)
-bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
-bpy.context.preferences.addons["bl_ext.user_default.jiggle_blender"].preferences.jiggle_path = jiggle
-bpy.ops.import_scene.gltf(filepath=glb)
-arm = [o for o in bpy.data.objects if o.type == "ARMATURE"][0]
-mesh = [o for o in bpy.data.objects if o.type == "MESH"][0]
-bpy.context.view_layer.objects.active = arm
-sc = bpy.context.scene
-sc.render.fps = 30
-act = arm.animation_data.action
-sc.frame_start, sc.frame_end = int(act.frame_range[0]), int(act.frame_range[1])
 user_keys = {fc.data_path + str(fc.array_index): [tuple(k.co) for k in fc.keyframe_points]
              for fc in __import__("bpy_extras.anim_utils", fromlist=["x"]).action_get_channelbag_for_slot(
                  act, arm.animation_data.action_slot).fcurves}
@@ -225,7 +223,7 @@ bones_before = len(arm.data.bones)
 tracks_before = [t.name for t in arm.animation_data.nla_tracks]
 sc.jiggle.out_dir = out
 sc.jiggle.result = "BONES"
-report = {"result": sorted(bpy.ops.jiggle.bake())}
+report["result"] = sorted(bpy.ops.jiggle.bake())
 report["bones_added"] = len(arm.data.bones) - bones_before
 report["action_same"] = arm.animation_data.action == act
 after = {fc.data_path + str(fc.array_index): [tuple(k.co) for k in fc.keyframe_points]
@@ -237,17 +235,8 @@ report["tracks_before"] = tracks_before
 report["modifiers"] = [m.type for m in mesh.modifiers]
 with np.load(os.path.join(out, "bake.npz")) as d:
     T, t0 = len(d["times"]), float(d["times"][0])
-skins, frames = [], []
-for k in (0, T // 2, T - 1):
-    sc.frame_set(int(round(t0 * 30)) + k)
-    ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    M = np.array(ev.matrix_world)
-    skins.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
-    ev.to_mesh_clear()
-    frames.append(k)
-report["frames"] = frames
-np.save(result + ".npy", np.array(skins))
+report["frames"] = [0, T // 2, T - 1]
+np.save(result + ".npy", evaluated([int(round(t0 * 30)) + k for k in report["frames"]]))
 json.dump(report, open(result + ".json", "w"))
 '''
 
@@ -257,18 +246,11 @@ def test_bones_result_adds_jiggle_bones_blender_plays(addon, tmp_path):
     action of their own on an NLA track, their weights on the mesh; the armature's action and its keys are
     untouched, no Mesh Cache modifier; Blender's evaluated mesh (its Armature modifier alone) is skin_final within
     RMS 1 mm and p99 3 mm, as the glb plays in an engine."""
-    from rig.motion.fbx import blender_command
-    script, result, out = tmp_path / "bones.py", tmp_path / "bones", tmp_path / "bake"
-    script.write_text(BONES)
-    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")), str(out),
-                                                        jiggle_exe(), str(result)], capture_output=True, text=True,
-                       timeout=900, env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
-    assert r.returncode == 0 and Path(str(result) + ".json").exists(), r.stdout[-2500:] + r.stderr[-2500:]
-    rep = json.loads(Path(str(result) + ".json").read_text())
+    out = tmp_path / "bake"
+    rep, skins = in_blender(addon, BONES, out, tmp_path)
     assert rep["result"] == ["FINISHED"] and rep["bones_added"] == 128, rep
     assert rep["action_same"] and rep["user_keys_same"] and rep["tracks"] == rep["tracks_before"] + ["jiggle"]
     assert rep["modifiers"] == ["ARMATURE"]
-    skins = np.load(str(result) + ".npy")
     d = read_npz(out / "bake.npz")
     for k, f in enumerate(rep["frames"]):
         e = cKDTree(skins[k]).query(d.skin_final[f])[0] * 1000
@@ -278,23 +260,10 @@ def test_bones_result_adds_jiggle_bones_blender_plays(addon, tmp_path):
 
 
 UNDO = r'''
-import json, sys
-import bpy
-zip_path, glb, out, jiggle, result = sys.argv[-5:]
-bpy.ops.wm.read_factory_settings(use_empty=True)
-bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
-bpy.context.preferences.addons["bl_ext.user_default.jiggle_blender"].preferences.jiggle_path = jiggle
-bpy.ops.import_scene.gltf(filepath=glb)
-sc = bpy.context.scene
-sc.render.fps = 30
 A = lambda: [o for o in bpy.data.objects if o.type == "ARMATURE"][0]          # noqa: E731 (undo swaps the data)
 M = lambda: [o for o in bpy.data.objects if o.type == "MESH"][0]              # noqa: E731
-bpy.context.view_layer.objects.active = A()
-act = A().animation_data.action
-sc.frame_start, sc.frame_end = int(act.frame_range[0]), int(act.frame_range[1])
 state = lambda: {"bones": len(A().data.bones), "groups": len(M().vertex_groups), "actions": len(bpy.data.actions),
                  "tracks": len(A().animation_data.nla_tracks), "modifiers": [m.type for m in M().modifiers]}
-report = {}
 for mode in ("EXACT", "BONES"):
     sc = bpy.context.scene                           # undo swaps the data: look everything up again
     bpy.context.view_layer.objects.active = A()
@@ -307,22 +276,14 @@ for mode in ("EXACT", "BONES"):
     baked = state()
     bpy.ops.ed.undo()
     report[mode] = {"before": before, "baked": baked, "undone": state()}
-json.dump(report, open(result, "w"))
+json.dump(report, open(result + ".json", "w"))
 '''
 
 
 def test_undo_returns_the_scene_as_it_was(addon, tmp_path):
     """Ctrl-Z after a bake, exact or bones: the modifier, the bones, their vertex groups, the action and the NLA
     track all go; the scene is as before the bake (the bake's files stay on disk, as any export's would)."""
-    from rig.motion.fbx import blender_command
-    script, result = tmp_path / "undo.py", tmp_path / "undo.json"
-    script.write_text(UNDO)
-    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")),
-                                                        str(tmp_path / "bake"), jiggle_exe(), str(result)],
-                       capture_output=True, text=True, timeout=900,
-                       env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
-    assert r.returncode == 0 and result.exists(), r.stdout[-2000:] + r.stderr[-2000:]
-    rep = json.loads(result.read_text())
+    rep, _ = in_blender(addon, UNDO, tmp_path / "bake", tmp_path)
     assert rep["EXACT"]["baked"]["modifiers"] == ["ARMATURE", "MESH_CACHE"]
     assert rep["BONES"]["baked"]["bones"] == rep["BONES"]["before"]["bones"] + 128
     for mode in ("EXACT", "BONES"):
@@ -330,35 +291,14 @@ def test_undo_returns_the_scene_as_it_was(addon, tmp_path):
 
 
 RATE = r'''
-import json, os, sys
-import bpy
-import numpy as np
-zip_path, glb, out, jiggle, result = sys.argv[-5:]
-bpy.ops.wm.read_factory_settings(use_empty=True)
-bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
-bpy.context.preferences.addons["bl_ext.user_default.jiggle_blender"].preferences.jiggle_path = jiggle
-bpy.ops.import_scene.gltf(filepath=glb)
-arm = [o for o in bpy.data.objects if o.type == "ARMATURE"][0]
-mesh = [o for o in bpy.data.objects if o.type == "MESH"][0]
-bpy.context.view_layer.objects.active = arm
-sc = bpy.context.scene
-sc.render.fps = 30
 sc.frame_start, sc.frame_end = 1, 250
 s = sc.jiggle
 s.out_dir, s.fps, s.use_range, s.frame_start, s.frame_end = out, 60.0, True, 10, 30
-report = {"result": sorted(bpy.ops.jiggle.bake()), "scene_range": [sc.frame_start, sc.frame_end]}
+report.update(result=sorted(bpy.ops.jiggle.bake()), scene_range=[sc.frame_start, sc.frame_end])
 with np.load(os.path.join(out, "bake.npz")) as d:
     report["fps"], report["times"] = float(d["fps"]), [float(d["times"][0]), float(d["times"][-1])]
 report["frame_scale"] = mesh.modifiers["Jiggle"].frame_scale
-skins = []
-for f in (10, 20, 30):
-    sc.frame_set(f)
-    ev = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    M = np.array(ev.matrix_world)
-    skins.append([(M @ np.r_[v.co[:], 1.0])[:3] for v in me.vertices])
-    ev.to_mesh_clear()
-np.save(result + ".npy", np.array(skins))
+np.save(result + ".npy", evaluated((10, 20, 30)))
 json.dump(report, open(result + ".json", "w"))
 '''
 
@@ -366,17 +306,10 @@ json.dump(report, open(result + ".json", "w"))
 def test_frame_range_and_output_rate_from_the_panel(addon, tmp_path):
     """Frames 10-30 of a 30 fps scene baked at 60 fps: the bake covers those 20 frames' 2/3 s at 60 frames/s, the
     scene's own range is left as it was, and the cache plays scene frame f at bake frame 2 (f - 10)."""
-    from rig.motion.fbx import blender_command
-    script, result, out = tmp_path / "rate.py", tmp_path / "rate", tmp_path / "bake"
-    script.write_text(RATE)
-    r = subprocess.run(blender_command(str(script)) + [str(addon), str(asset("characters/CesiumMan.glb")), str(out),
-                                                        jiggle_exe(), str(result)], capture_output=True, text=True,
-                       timeout=900, env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
-    assert r.returncode == 0 and Path(str(result) + ".json").exists(), r.stdout[-2500:] + r.stderr[-2500:]
-    rep = json.loads(Path(str(result) + ".json").read_text())
+    out = tmp_path / "bake"
+    rep, skins = in_blender(addon, RATE, out, tmp_path)
     assert rep["result"] == ["FINISHED"] and rep["scene_range"] == [1, 250] and rep["fps"] == 60.0
     assert abs(rep["times"][1] - rep["times"][0] - 20 / 30) < 1e-6 and rep["frame_scale"] == 2
-    skins = np.load(str(result) + ".npy")
     d = read_npz(out / "bake.npz")
     for k, f in enumerate((10, 20, 30)):
         assert cKDTree(d.skin_final[2 * (f - 10)]).query(skins[k])[0].max() < 1e-4, f
