@@ -125,8 +125,8 @@ def map_options(g, clip: bool = True, alias: bool = True) -> None:
 def glb_options(g) -> None:
     """--jiggle-bones and --max-influences, for `jiggle bake --formats glb` and `jiggle export --glb`."""
     g.add_argument("--jiggle-bones", type=count("--jiggle-bones", zero=True), metavar="N", help="jiggle bones in "
-                   "the glb, spread over the muscles by how much they move (default: 128 for the human and quadruped "
-                   "templates, else 2 per muscle)")
+                   "the glb, spread over the muscles by how much they move (default: a bone per 64 skin vertices, at least 32, "
+                   "at most 128 for the human and quadruped templates, else 2 per muscle)")
     g.add_argument("--max-influences", type=int, choices=[4, 8], default=4, help="skin weights per vertex in the "
                    "glb, the character's and the jiggle bones' together: 4 (JOINTS_0, which every engine reads) or "
                    "8 (default: 4)")

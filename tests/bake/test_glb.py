@@ -50,19 +50,19 @@ def errors_mm(played: np.ndarray, final: np.ndarray) -> tuple[float, float]:
 
 def test_the_bake_writes_a_glb_and_reports_its_fit(baked):
     """bake.json's "glb": per frame RMS <= 1 mm and p99 <= 3 mm against skin_final, the bones making >= 90% of
-    the muscles' motion (sum |played - lbs| / sum |final - lbs|), 128 bones (the human template's default) named
+    the muscles' motion (sum |played - lbs| / sum |final - lbs|), 51 bones (the default for its 3,273 vertices: one per 64) named
     for their muscles, hung under the character's joints; the npz written with it."""
     summary = json.loads((baked / "bake.json").read_text())
     g = summary["glb"]
     assert summary["files"]["glb"] == "bake.glb" and (baked / "bake.glb").is_file() and (baked / "bake.npz").is_file()
-    assert g["bones"] == 128 and g["max_influences"] == 4
+    assert g["bones"] == 51 and g["max_influences"] == 4
     assert max(g["rms_mm"]) <= 1.0 and max(g["p99_mm"]) <= 3.0, g["summary"]
     assert min(g["share"]) >= 0.9, g["summary"]
     assert g["bytes"] == (baked / "bake.glb").stat().st_size and g["bytes"] < (baked / "bake.pc2").stat().st_size
     doc = _json_chunk(baked / "bake.glb")
     names = [n["name"] for n in doc["nodes"]]
     jig = [n for n in names if "_jiggle_" in n]
-    assert len(jig) == 128 and all(n.split("_jiggle_")[0] in read_npz(baked / "bake.npz").muscle_names for n in jig)
+    assert len(jig) == 51 and all(n.split("_jiggle_")[0] in read_npz(baked / "bake.npz").muscle_names for n in jig)
     parent = {c: i for i, n in enumerate(doc["nodes"]) for c in n.get("children", [])}
     assert all(names.index(n) in parent and "_jiggle_" not in names[parent[names.index(n)]] for n in jig)
     assert len(doc["animations"]) == 1 and doc["animations"][0]["name"] == "jiggle"
@@ -75,7 +75,7 @@ def _json_chunk(path) -> dict:
 
 
 def test_the_glb_reads_back_as_the_bake_skinned_it(baked):
-    """jiggle's own glTF reader: the file holds CesiumMan's 19 joints and the 128 bones, and its character posed by
+    """jiggle's own glTF reader: the file holds CesiumMan's 19 joints and the 51 bones, and its character posed by
     its animation is skin_final within the reported error, frame by frame."""
     from rig.character.load import load_character
     from rig.motion.clip import transforms
@@ -92,7 +92,7 @@ def test_the_glb_reads_back_as_the_bake_skinned_it(baked):
         rms, p99 = errors_mm(played[f], d.skin_final[f])
         assert rms <= rep["rms_mm"][f] + 0.05 and p99 <= rep["p99_mm"][f] + 0.1
     own = [n for n in c.joint_names if "_jiggle_" not in n]
-    assert len(own) == 19 and len(c.joint_names) == 19 + 128
+    assert len(own) == 19 and len(c.joint_names) == 19 + 51
 
 
 def test_the_khronos_validator_finds_nothing(baked):
@@ -116,7 +116,7 @@ def test_threejs_plays_it_as_the_bake_skinned_it(baked, tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     res = json.loads(out.read_text())
-    assert res["bones"] == 19 + 128
+    assert res["bones"] == 19 + 51
     for k, f in enumerate(frames):
         rms, p99 = errors_mm(gltf_to_jiggle(res["frames"][k]), d.skin_final[f])
         assert rms <= 1.0 and p99 <= 3.0, (f, rms, p99)
@@ -159,7 +159,7 @@ def test_compare_reads_the_glb_back_and_draws_its_worst_frame(baked):
     assert main(["-q", "compare", "--no-video", str(baked)]) == 0
     m = json.loads((baked / "metrics.json").read_text())["glb"]
     b = json.loads((baked / "bake.json").read_text())["glb"]
-    assert m["bones"] == 128 and len(m["rms_mm"]) == len(b["rms_mm"])
+    assert m["bones"] == 51 and len(m["rms_mm"]) == len(b["rms_mm"])
     assert np.allclose(m["rms_mm"], b["rms_mm"], atol=0.02) and np.allclose(m["p99_mm"], b["p99_mm"], atol=0.05)
     png = baked / "glb_closeup.png"
     assert png.is_file() and png.stat().st_size > 10_000
