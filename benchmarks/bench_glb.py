@@ -7,7 +7,8 @@ Cases (the issue's): the built-in demo; CesiumMan (../shared/assets) on two CMU 
 generated body on the demo's jumping jacks. For each: the bake (sim.bake.baker.bake: frame loop and caches, npz +
 pc2; setup left out, as in bench_bake.py) timed, then the glb (sim.bake.glb.write_for_bake: the decomposition,
 the file written, the played skin measured) timed, side by side: glb_over_bake is glb / bake (frame loop and
-caches), glb_over_command glb / (setup + bake), what `jiggle bake` costs the user without the glb.
+caches), glb_over_command glb / (setup + bake), what `jiggle bake` costs the user without the glb; fit_over_* the
+same for the decomposition alone (rig.skin.jiggle_bones.fit with its inputs).
 """
 from __future__ import annotations
 
@@ -67,7 +68,8 @@ def main(argv=None) -> int:
         row = {"case": name, "frames": len(setup.times), "vertices": setup.character.num_vertices,
                "bones": rep["bones"], "bake_s": round(bake_s, 3), "glb_s": round(glb_s, 3),
                "fit_s": rep["fit_s"], "glb_over_bake": round(glb_s / bake_s, 2),
-               "prepare_s": round(prepare_s, 3),
+               "prepare_s": round(prepare_s, 3), "fit_over_bake": round(rep["fit_s"] / bake_s, 2),
+               "fit_over_command": round(rep["fit_s"] / (prepare_s + bake_s), 2),
                "glb_over_command": round(glb_s / (prepare_s + bake_s), 2), "glb_bytes": rep["bytes"],
                "pc2_bytes": pc2, "glb_over_pc2": round(rep["bytes"] / pc2, 3),
                "rms_mm_max": round(s["rms_mm_max"], 3), "p99_mm_max": round(s["p99_mm_max"], 3),
@@ -75,8 +77,8 @@ def main(argv=None) -> int:
                "explained_min": round(s["explained_min"], 3), "displacement_max_mm": round(s["displacement_max_mm"], 1)}
         rows.append(row)
         print(json.dumps(row))
-    head = ["case", "frames", "vertices", "bones", "prepare_s", "bake_s", "glb_s", "glb_over_bake",
-            "glb_over_command", "glb_bytes", "pc2_bytes",
+    head = ["case", "frames", "vertices", "bones", "prepare_s", "bake_s", "fit_s", "glb_s", "fit_over_bake",
+            "fit_over_command", "glb_over_bake", "glb_over_command", "glb_bytes", "pc2_bytes",
             "glb_over_pc2", "rms_mm_max", "p99_mm_max", "max_mm", "share_min", "explained_min"]
     lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     lines += ["| " + " | ".join(str(r[k]) for k in head) + " |" for r in rows]
