@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from rig.base.errors import InputError
-from rig.motion.fbx_tree import CLASS_SEP, Node, _typed_array, split_name
+from rig.motion.fbx_tree import CLASS_SEP, Node, _typed_array, property_value_type, split_name
 
 _ARRAY_ELEMENTS = {"Vertices", "PolygonVertexIndex", "Edges", "Normals", "NormalsW", "NormalsIndex", "Binormals",
                    "BinormalsIndex", "Tangents", "TangentsIndex", "UV", "UVIndex", "Smoothing", "Materials",
@@ -28,8 +28,6 @@ _ARRAY_ELEMENTS = {"Vertices", "PolygonVertexIndex", "Edges", "Normals", "Normal
 _INT_ELEMENTS = {"PolygonVertexIndex", "Edges", "NormalsIndex", "BinormalsIndex", "TangentsIndex", "UVIndex",
                  "Smoothing", "Materials", "ColorIndex", "Indexes", "TextureId"}
 _LABELS = {"double": "Number", "int": "Integer", "Vector3D": "Vector", "ColorRGB": "Color"}
-_KTIME_TYPES = {"KTime", "Time", "ULongLong"}
-_INT_TYPES = {"int", "Integer", "enum", "Enum", "bool", "Bool", "Visibility Inheritance"}
 _BONES = {"Limb", "LimbNode", "Root"}
 _KEPT_MODELS = {"Mesh", "Null", "Root", "Limb", "LimbNode", "Skeleton", "Marker", ""}
 _CHANNELS = {"T": "Lcl Translation", "R": "Lcl Rotation", "S": "Lcl Scaling"}
@@ -122,20 +120,8 @@ def _properties(o: Node) -> Node:
         if p.name != "Property" or len(p.props) < 3:
             continue
         name, kind, flags = str(p.props[0]), str(p.props[1]), str(p.props[2])
-        vals, types = [], []
-        for v in p.props[3:]:
-            if isinstance(v, str):
-                vals.append(v)
-                types.append("S")
-            elif kind in _KTIME_TYPES:
-                vals.append(int(v))
-                types.append("L")
-            elif kind in _INT_TYPES:
-                vals.append(int(v))
-                types.append("I")
-            else:
-                vals.append(float(v))
-                types.append("D")
+        types = [property_value_type(kind, v) for v in p.props[3:]]
+        vals = [v if t == "S" else int(v) if t in "LIY" else float(v) for v, t in zip(p.props[3:], types)]
         if kind == "object":                          # a reference by connection in FBX 7: nothing to carry
             continue
         out.children.append(Node("P", [name, kind, _LABELS.get(kind, ""), flags] + vals, "SSSS" + "".join(types)))

@@ -381,25 +381,23 @@ def _typed_array(name: str, vals: np.ndarray) -> tuple[list, str]:
     return [vals.astype(np.float64)], "d"
 
 
+def property_value_type(kind: str, v) -> str:
+    """The binary type of one value of a property whose type name is `kind` (see the module docstring)."""
+    if isinstance(v, str):
+        return "S"
+    if kind in _KTIME_TYPES:
+        return "L"
+    if kind in _INT_TYPES:
+        return "I"
+    if kind in _SHORT_TYPES:
+        return "Y"
+    return "F" if kind in _FLOAT_TYPES else "D"
+
+
 def _property_types(node: Node) -> str:
     head = ["S"] * min(len(node.props), 4 if node.name == "P" else 3)
-    rest = node.props[len(head):]
-    kind = node.props[1] if len(node.props) > 1 else ""
-    out = []
-    for v in rest:
-        if isinstance(v, str):
-            out.append("S")
-        elif kind in _KTIME_TYPES:
-            out.append("L")
-        elif kind in _INT_TYPES:
-            out.append("I")
-        elif kind in _SHORT_TYPES:
-            out.append("Y")
-        elif kind in _FLOAT_TYPES:
-            out.append("F")
-        else:
-            out.append("D")
-    return "".join(head) + "".join(out)
+    kind = str(node.props[1]) if len(node.props) > 1 else ""
+    return "".join(head) + "".join(property_value_type(kind, v) for v in node.props[len(head):])
 
 
 def _scalar_type(node: Node, k: int, v, parent: str) -> str:
