@@ -75,6 +75,12 @@ def bake_arguments(context, s, glb: str, out: str) -> list[str]:
     return args
 
 
+def _pump(stream, sink) -> None:
+    """Every line of a subprocess's stream to sink(line), until it closes (a reader thread's loop)."""
+    for line in stream:
+        sink(line)
+
+
 class BakeJob:
     """`jiggle bake ... --progress json` running in a subprocess: its JSON lines as events, its stderr kept for the
     error it prints, and a cancel that stops it and removes what it wrote (its .partial folder, and the output
@@ -90,7 +96,7 @@ class BakeJob:
     def start(self, env: dict | None = None) -> None:
         self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env=env)
-        self._threads = [threading.Thread(target=lambda s=stream, f=sink: [f(line) for line in s], daemon=True)
+        self._threads = [threading.Thread(target=_pump, args=(stream, sink), daemon=True)
                          for stream, sink in ((self.proc.stdout, self._lines.put), (self.proc.stderr, self._err.append))]
         for t in self._threads:
             t.start()

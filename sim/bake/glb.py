@@ -65,8 +65,11 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
                          f"frames: the bake and its character do not match", path)
     t0 = time.perf_counter()
     mats = c.skin_matrices(np.asarray(world, np.float64))
-    lbs = np.asarray(data.skin_lbs, np.float64) if data.skin_lbs is not None else \
-        jb._lbs(c.joints.astype(np.int64), c.weights.astype(np.float64), mats, c.vertices)
+    if data.skin_lbs is not None:
+        lbs = np.asarray(data.skin_lbs, np.float64)
+    else:                                       # an older bake without its smooth skin: the character's own LBS
+        from rig.skin.skinning import pose_character
+        lbs = pose_character(c, np.asarray(world, np.float64)).astype(np.float64)
     muscle = jb.nearest_muscle(data.skin_static[0], data.muscle_cvs_static[0], data.muscle_cv_offsets)
     fitted = jb.fit(c.vertices, c.joints, c.weights, mats, final, muscle, data.muscle_names, bones,
                     max_influences=max_influences, muscle_joint=muscle_joint)
