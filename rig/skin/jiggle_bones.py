@@ -4,23 +4,29 @@ together), refitted as a few extra bones with skin weights, so any engine's ordi
 The fit is smooth skinning decomposition with rigid bones (Le & Deng, "Smooth Skinning Decomposition with Rigid
 Bones", 2012: the algorithm of EA's Dem Bones), with the character's own bones and weights locked:
 
-- Vertices are grouped by the muscle nearest them and by their strongest joint, their host (a muscle that spans
-  two bones makes two groups). A group's jiggle bones hang under its host, named `<muscle>_jiggle_<k>`. The bone
-  budget is spread over the groups by how much their vertices move (sum over frames of |final - lbs|).
+- Vertices are grouped by their host: the joint the muscle nearest them rides when they have its weight, else
+  their strongest joint. A group's jiggle bones hang under its host, named `<muscle>_jiggle_<k>` after the muscle
+  most of their skin belongs to. The bone budget is spread over the groups by how much their vertices move (the
+  square root of the sum over frames and vertices of |final - lbs|).
 - A vertex hands its host's weight w_h over to the group's bones and the host itself, in shares u (u >= 0,
   sum 1); its other influences stay as they are. Then its skin is the LBS skin plus
   w_h * sum_k u_k (S_k - S_h) p, so in the host's rest frame the group's bones C_k = S_h^-1 S_k (the host
   itself C_0 = I) fit the targets p + S_h^-1 (final - lbs) / w_h by ordinary skinning decomposition, each
   vertex's error weighted by w_h^2 (its share of the world error).
 - Initial bones: k-means of the vertices' displacement paths; then Dem Bones' alternation: each bone's rigid
-  transform per frame by weighted Procrustes (Kabsch) against what the other bones leave, and each vertex's
-  shares by a least-squares fit on the simplex (projected gradient, batched over vertices), cut to the
-  influences the vertex has free (the budget, 4 per vertex by default, less its other joints).
+  transform per frame by weighted Procrustes (Kabsch) against what the other bones leave (Gauss-Seidel over the
+  bones, a frame per thread), and each vertex's shares by a least-squares fit on the simplex (projected
+  gradient, a vertex per thread) over the CANDIDATES bones that fit it best alone (Dem Bones' nearest bones),
+  cut to the influences the vertex has free (the budget, 4 per vertex by default, less its other joints).
+- Those two solves, the smooth skin and the pruning's levers are Warp kernels in float64
+  (rig/skin/jiggle_bones_kernels.py, checked against the NumPy references `_*_numpy` here); the groups are
+  independent and run on a thread per core.
 
 Shapes: T frames, V vertices, J character joints, K jiggle bones.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,9 +97,10 @@ def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np
     if weights.shape[1] > max_influences:
         raise ValueError(f"the character has {weights.shape[1]} influences per vertex, the budget {max_influences}")
     joints, weights = _pruned(joints, weights, skin_mats, rest, prune_m)
-    lbs = _lbs(joints, weights, skin_mats, rest)                       # the smooth skin of the kept influences
-    d = np.asarray(final, np.float64) - lbs                            # (T, V, 3)
-    moving = np.linalg.norm(d, axis=2).max(axis=0) > min_motion_m
+    d = _lbs(joints, weights, skin_mats, rest)                         # the smooth skin of the kept influences,
+    np.subtract(final, d, out=d)                                       # and what the muscles add to it (T, V, 3)
+    far = np.sqrt(np.einsum("tva,tva->tv", d, d))                      # (T, V) metres
+    moving = far.max(axis=0) > min_motion_m
     if muscle_joint is not None:                                       # the muscle's joint first, where it is one
         mj = np.where(muscle >= 0, np.asarray(muscle_joint)[np.maximum(muscle, 0)], -1)
         col = np.argmax((joints == mj[:, None]) & (weights >= 0.2), axis=1)
@@ -107,17 +114,33 @@ def fit(rest: np.ndarray, joints: np.ndarray, weights: np.ndarray, skin_mats: np
     free = max_influences - (weights[:, 1:] > 0).sum(axis=1)           # slots for the host's share
     use = moving & (free >= 1) & (w_host > 0.2)
     keys = sorted({int(h) for h in host[use]})
-    motion = np.array([np.linalg.norm(d[:, use & (host == h)], axis=2).sum() for h in keys])
-    counts = _spread(motion, budget)
-    rng = np.random.default_rng(seed)
+    travel = far.sum(axis=0)
+    motion = np.array([travel[use & (host == h)].sum() for h in keys])
+    # bones in proportion to the square root of the motion: a group's error falls slower than its bones grow, and
+    # spending in proportion starved the demo's shoulders (8 bones to the thighs' 34, p99 3.2 mm there)
+    counts = _spread(np.sqrt(motion), budget)
+    groups = [(h, K, np.flatnonzero(use & (host == h))) for h, K in zip(keys, counts) if K > 0]
+
+    def one(group):                                                    # a group's own generator: the same fit
+        h, K, ids = group                                              # whichever thread runs it
+        return _fit_group(rest[ids], d[:, ids], w_host[ids], skin_mats[:, h], free[ids], K, iterations,
+                          np.random.default_rng([seed, h]))
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    from threadpoolctl import threadpool_limits
+    # a thread per core, each with a one-thread BLAS: a group's GEMMs are small, and BLAS threads on top of ours
+    # cost more than they give (2.5x slower on two cores)
+    with threadpool_limits(limits=1, user_api="blas"), \
+            ThreadPoolExecutor(max_workers=min(len(groups), os.cpu_count() or 1) or 1) as pool:
+        # groups are independent and their kernels and GEMMs release the GIL; the largest start first
+        order = sorted(range(len(groups)), key=lambda g: -len(groups[g][2]) * groups[g][1])
+        fits = dict(zip(order, pool.map(one, [groups[g] for g in order])))
     names, hosts, skins = [], [], []
     share_cols = {}                                                    # host -> (vertex ids, shares, first bone)
     per_muscle: dict[str, int] = {}
-    for h, K in zip(keys, counts):
-        if K == 0:
-            continue
-        ids = np.flatnonzero(use & (host == h))
-        C, u = _fit_group(rest[ids], d[:, ids], w_host[ids], skin_mats[:, h], free[ids], K, iterations, rng)
+    for g, (h, K, ids) in enumerate(groups):
+        C, u = fits[g]
         base = len(names)
         for k in range(C.shape[1]):                                    # named for the muscle most of its skin is
             mine = muscle[ids][u[:, k + 1] > 0.5]
@@ -156,15 +179,18 @@ def _pruned(joints, weights, skin_mats, rest, tol: float):
     j, w = joints.copy(), weights.copy()
     if tol <= 0:
         return j, w
-    skin_mats = skin_mats[np.unique(np.linspace(0, len(skin_mats) - 1, 48).astype(int))]   # a joint's motion is
-    host = _moved(skin_mats, j[:, 0], rest)                            # smooth: 48 frames show its largest
+    import warp as wp
+    from rig.skin import jiggle_bones_kernels as kern
+    mats = skin_mats[np.unique(np.linspace(0, len(skin_mats) - 1, 48).astype(int))]   # a joint's motion is smooth:
+    T, J = mats.shape[:2]                                              # 48 frames show its largest
+    lever = np.zeros(j.shape)
+    with wp.ScopedDevice("cpu"):
+        wp.launch(kern.lever, dim=j.shape, inputs=[
+            wp.array(_f64(rest), dtype=wp.vec3d), wp.array(j.astype(np.int32)),
+            wp.array(_f64(mats).reshape(T, J, 16), dtype=wp.mat44d), wp.array(lever, copy=False)])
+        wp.synchronize_device()
     for c in range(1, j.shape[1]):
-        live = w[:, c] > 0
-        if not live.any():
-            continue
-        other = _moved(skin_mats, j[live, c], rest[live])
-        lever = np.linalg.norm(other - host[:, live], axis=2).max(axis=0) * w[live, c]
-        drop = np.flatnonzero(live)[lever < tol]
+        drop = np.flatnonzero((w[:, c] > 0) & (lever[:, c] * w[:, c] < tol))
         w[drop, 0] += w[drop, c]
         w[drop, c], j[drop, c] = 0.0, 0
     order = np.argsort(-w, axis=1, kind="stable")                      # strongest first again
@@ -181,7 +207,32 @@ def _moved(skin_mats, joint, rest):
 
 
 def _lbs(joints, weights, skin_mats, rest):
-    """(T, V, 3) LBS of rest (V, 3) by skin_mats (T, J, 4, 4) and the influences."""
+    """(T, V, 3) float64 LBS of rest (V, 3) by skin_mats (T, J, 4, 4) and the influences (V, k): the Warp kernel
+    `smooth_skin`, in float64 (the bake's own skin_lbs is float32)."""
+    import warp as wp
+    from rig.skin import jiggle_bones_kernels as kern
+    T, J = skin_mats.shape[:2]
+    out = np.empty((T, len(rest), 3))
+    rest_w = wp.array(_f64(rest), dtype=wp.vec3d, device="cpu")
+    joints_w = wp.array(np.asarray(joints, np.int32), device="cpu")
+    weights_w = wp.array(_f64(weights), device="cpu")
+
+    def frames(a, b):                                                  # a launch per core, on its own frames
+        wp.launch(kern.smooth_skin, dim=(b - a, len(rest)), device="cpu", inputs=[
+            rest_w, joints_w, weights_w, wp.array(_f64(skin_mats[a:b]).reshape(b - a, J, 16), dtype=wp.mat44d,
+                                                  device="cpu"),
+            wp.array(out[a:b], dtype=wp.vec3d, copy=False, device="cpu")])
+
+    from concurrent.futures import ThreadPoolExecutor
+    cuts = np.linspace(0, T, min(T, os.cpu_count() or 1) + 1).astype(int)
+    with ThreadPoolExecutor(max_workers=len(cuts) - 1 or 1) as pool:
+        list(pool.map(frames, cuts[:-1], cuts[1:]))
+    wp.synchronize_device("cpu")
+    return out
+
+
+def _lbs_numpy(joints, weights, skin_mats, rest):
+    """`_lbs` in NumPy (the reference the kernel is tested against)."""
     out = np.zeros((len(skin_mats), len(rest), 3))
     for c in range(joints.shape[1]):
         live = weights[:, c] > 0
@@ -223,7 +274,7 @@ def _fit_group(p, d, w_host, host_mats, free, K, iterations, rng):
     host's own first)."""
     T, n = d.shape[:2]
     inv = np.linalg.inv(host_mats)                                     # (T, 4, 4)
-    target = p[None] + np.einsum("tab,tnb->tna", inv[:, :3, :3], d) / w_host[None, :, None]   # (T, n, 3)
+    target = p[None] + (d @ np.swapaxes(inv[:, :3, :3], 1, 2)) / w_host[None, :, None]       # (T, n, 3)
     omega = w_host ** 2
     K = min(K, n)
     # initial bones: k-means of the displacement paths (a few frames suffice), one bone per cluster
@@ -274,7 +325,43 @@ def _vertex_sample(label: np.ndarray, most: int, rng) -> np.ndarray:
 
 
 def _sweep(p, target, u, R, t, omega) -> None:
-    """Every bone's transforms once, in place, each against the blend the others make (Gauss-Seidel)."""
+    """Every bone's transforms once, in place (R (T, K1, 3, 3), t (T, K1, 3)), each against the blend the others
+    make (Gauss-Seidel), for p (n, 3), target (T, n, 3), shares u (n, K1), error weights omega (n,): the Warp
+    kernel `sweep`, a frame per thread."""
+    import warp as wp
+    from rig.skin import jiggle_bones_kernels as kern
+    T, n = target.shape[:2]
+    K1 = u.shape[1]
+    members = [np.flatnonzero(u[:, k] > 0) for k in range(K1)]        # the bone's own vertices: nobody else sees it
+    offsets = np.r_[0, np.cumsum([len(m) for m in members])].astype(np.int32)
+    flat = np.concatenate(members)
+    share = u[flat, np.repeat(np.arange(K1), np.diff(offsets))]
+    w = omega[flat] * share ** 2                                       # Procrustes weights, the same every frame
+    mass = np.add.reduceat(w, offsets[:-1]) if len(flat) else np.zeros(K1)
+    mass[np.diff(offsets) == 0] = 0.0
+    centre = np.zeros((K1, 3))
+    for k in np.flatnonzero(mass > 0):
+        centre[k] = w[offsets[k]:offsets[k + 1]] @ p[members[k]] / mass[k]
+    Rw = _f64(R).reshape(T, K1, 9)
+    tw = _f64(t)
+    with wp.ScopedDevice("cpu"):
+        wp.launch(kern.sweep, dim=T, inputs=[
+            wp.array(_f64(p), dtype=wp.vec3d), wp.array(_f64(target), dtype=wp.vec3d, copy=False),
+            wp.array(_f64(omega)), wp.array(offsets), wp.array(flat.astype(np.int32)), wp.array(_f64(share)),
+            wp.array(_f64(mass)), wp.array(centre, dtype=wp.vec3d), wp.array(Rw, dtype=wp.mat33d, copy=False),
+            wp.array(tw, dtype=wp.vec3d, copy=False), wp.empty((T, n), dtype=wp.vec3d)])
+        wp.synchronize_device()
+    R[...] = Rw.reshape(R.shape)
+    t[...] = tw
+
+
+def _f64(a) -> np.ndarray:
+    """a as a C-contiguous float64 array (a view when it already is one, so a kernel writes through it)."""
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _sweep_numpy(p, target, u, R, t, omega) -> None:
+    """`_sweep` in NumPy, a bone at a time over every frame (the reference the kernel is tested against)."""
     Y = _blend(p, u, R, t)                                             # the blend, kept up to date bone by bone
     for k in range(1, R.shape[1]):
         ids = np.flatnonzero(u[:, k] > 0)                              # the bone's own vertices: nobody else sees it
@@ -322,25 +409,69 @@ def _procrustes(p, target, others, uk, omega, Rk, tk):
     return Rk, tk
 
 
+def _frame_sums(p, target, R, t):
+    """The shares' least squares without forming every bone's path: frame sums RtR (K1, K1, 3, 3) = sum_t R_k^T R_l,
+    Rtt (K1, K1, 3) = sum_t R_k^T t_l, tt (K1, K1) = sum_t t_k . t_l, and the linear term c (n, K1) =
+    sum_t (R_k p + t_k) . target."""
+    T, K1 = R.shape[:2]
+    A = R.transpose(1, 3, 0, 2).reshape(3 * K1, 3 * T)                 # rows (k, a), columns (t, b): R_tk[b, a]
+    B = t.transpose(0, 2, 1).reshape(3 * T, K1)                        # rows (t, b), columns l: t_tl[b]
+    RtR = (A @ A.T).reshape(K1, 3, K1, 3).transpose(0, 2, 1, 3)         # each a GEMM
+    Rtt = (A @ B).reshape(K1, 3, K1).transpose(0, 2, 1)
+    tt = B.T @ B
+    flat = target.transpose(0, 2, 1).reshape(3 * T, -1)                # (T*3, n)
+    Rt = (A @ flat).reshape(K1, 3, -1)                                 # sum_t R_k^T target
+    c = np.einsum("kan,na->nk", Rt, p) + (B.T @ flat).T
+    return RtR, Rtt, tt, c
+
+
+CANDIDATES = 8
+"""Bones a vertex's shares are solved over: those that fit it best alone (Dem Bones' nearest bones)."""
+
+
 def _shares(p, target, R, t, omega, u0, limit, steps: int = 20):
-    """Each vertex's shares on the simplex minimising sum_t |sum_k u_k (R_k p + t_k) - target|^2, at most
-    limit[i] of them nonzero (the strongest kept, then refitted)."""
-    # Gram (n, K+1, K+1) and linear term (n, K+1) without forming every bone's path
-    RtR = np.einsum("tkba,tlbc->klac", R, R)                          # sum_t R_k^T R_l
-    Rtt = np.einsum("tkba,tlb->kla", R, t)                             # sum_t R_k^T t_l
-    tt = np.einsum("tka,tla->kl", t, t)
+    """Each vertex's shares (n, K1) on the simplex minimising sum_t |sum_k u_k (R_k p + t_k) - target|^2 over the
+    CANDIDATES bones that fit it best alone, at most limit[i] of them nonzero (the strongest kept, then refitted),
+    warm-started from u0: the Warp kernel `shares`, a vertex per thread."""
+    import warp as wp
+    from rig.skin import jiggle_bones_kernels as kern
+    RtR, Rtt, tt, c = _frame_sums(p, target, R, t)
+    n, K1 = u0.shape
+    u = _f64(u0).copy()
+    C = min(CANDIDATES, K1)
+    with wp.ScopedDevice("cpu"):
+        wp.launch(kern.shares, dim=n, inputs=[
+            wp.array(_f64(p), dtype=wp.vec3d), wp.array(_f64(RtR).reshape(K1, K1, 9), dtype=wp.mat33d),
+            wp.array(_f64(Rtt), dtype=wp.vec3d), wp.array(_f64(tt)), wp.array(_f64(c)),
+            wp.array(np.asarray(limit, np.int32)), steps, wp.array(u, copy=False),
+            wp.empty((n, C), dtype=wp.int32), wp.empty((n, C), dtype=wp.float64),
+            wp.empty((n, C, C), dtype=wp.float64), *(wp.empty((n, C), dtype=wp.float64) for _ in range(2)),
+            wp.empty((n, C), dtype=wp.int32), wp.empty((n, C), dtype=wp.float64)])
+        wp.synchronize_device()
+    return u
+
+
+def _shares_numpy(p, target, R, t, omega, u0, limit, steps: int = 20):
+    """`_shares` in NumPy, batched over the vertices (the reference the kernel is tested against)."""
+    RtR, Rtt, tt, c = _frame_sums(p, target, R, t)
     G = np.einsum("na,klab,nb->nkl", p, RtR, p) + np.einsum("na,kla->nkl", p, Rtt) \
         + np.einsum("na,lka->nkl", p, Rtt) + tt[None]
-    T, K1 = R.shape[:2]
-    flat = target.transpose(0, 2, 1).reshape(3 * T, -1)                # (T*3, n)
-    Rt = (R.transpose(1, 3, 0, 2).reshape(3 * K1, 3 * T) @ flat).reshape(K1, 3, -1)   # sum_t R_k^T target: a GEMM
-    c = np.einsum("kan,na->nk", Rt, p) + (t.transpose(1, 0, 2).reshape(K1, 3 * T) @ flat).T
-    u = _simplex_lsq(G, c, u0, np.ones_like(u0, bool), steps)        # warm-started from the last shares
-    keep = np.ones_like(u, bool)
-    order = np.argsort(-u, axis=1)
-    for i in np.flatnonzero(limit < u.shape[1]):
-        keep[i, order[i, limit[i]:]] = False
+    K1 = G.shape[1]
+    cand = _best(2 * c - np.einsum("nkk->nk", G), np.ones_like(u0, bool), np.full(len(u0), CANDIDATES))
+    G = G * (cand[:, :, None] & cand[:, None, :])
+    u = _simplex_lsq(G, c, u0, cand, steps)                          # warm-started from the last shares
+    keep = _best(u, cand, limit)
     return _simplex_lsq(G, c, u * keep, keep, steps)
+
+
+def _best(score, mask, count):
+    """(n, K1) bool: mask less the entries not among each row's count[i] largest scores of the masked (ties: the
+    first)."""
+    s = np.where(mask, score, -np.inf)
+    order = np.argsort(-s, axis=1, kind="stable")
+    rank = np.empty_like(order)
+    np.put_along_axis(rank, order, np.arange(s.shape[1])[None].repeat(len(s), 0), 1)
+    return mask & (rank < np.asarray(count)[:, None])
 
 
 def _simplex_lsq(G, c, u, mask, steps):

@@ -79,3 +79,58 @@ def test_nearest_muscle_labels_points_by_control_points():
     cvs = np.array([[0, 0, 0], [0.1, 0, 0], [1, 0, 0]], float)
     lab = jb.nearest_muscle(np.array([[0.05, 0.01, 0], [0.9, 0, 0]]), cvs, np.array([0, 2, 3]))
     assert list(lab) == [0, 1]
+
+
+def random_group(T=12, n=160, K1=14, seed=3):
+    """A group's solve inputs: rest points, shares on the simplex, rigid bones (the host, bone 0, the identity),
+    and the targets they make plus noise."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3)) * 0.1
+    R = Rotation.from_rotvec(rng.normal(size=(T * K1, 3)) * 0.3).as_matrix().reshape(T, K1, 3, 3)
+    t = rng.normal(size=(T, K1, 3)) * 0.02
+    R[:, 0], t[:, 0] = np.eye(3), 0.0
+    u = rng.dirichlet(np.full(K1, 0.3), size=n)
+    target = np.einsum("nk,tkab,nb->tna", u, R, p) + np.einsum("nk,tka->tna", u, t)
+    return p, u, R, t, target + rng.normal(size=target.shape) * 1e-3, rng.uniform(0.2, 1.0, n), rng
+
+
+def test_the_share_kernel_is_the_numpy_solve():
+    """More bones than candidates (14 > 8), mixed influence limits: the kernel's shares are the NumPy
+    reference's, on the simplex, within the limit, and only on a vertex's candidate bones."""
+    p, u, R, t, target, omega, rng = random_group()
+    u0 = np.zeros_like(u)
+    u0[np.arange(len(u)), rng.integers(0, u.shape[1], len(u))] = 1.0
+    limit = rng.integers(1, 5, len(u))
+    got = jb._shares(p, target, R, t, omega, u0, limit)
+    ref = jb._shares_numpy(p, target, R, t, omega, u0, limit)
+    assert u.shape[1] > jb.CANDIDATES
+    assert np.abs(got - ref).max() < 1e-12
+    assert np.allclose(got.sum(axis=1), 1) and (got >= 0).all()
+    assert ((got > 0).sum(axis=1) <= limit).all() and (got > 0).sum(axis=1).max() > 1
+
+
+def test_the_sweep_kernel_is_the_numpy_sweep_and_finds_the_bones():
+    p, u, R, t, target, omega, _ = random_group(seed=4)
+    R1, t1 = np.broadcast_to(np.eye(3), R.shape).copy(), np.zeros_like(t)
+    R2, t2 = R1.copy(), t1.copy()
+    jb._sweep(p, target, u, R1, t1, omega)
+    jb._sweep_numpy(p, target, u, R2, t2, omega)
+    assert np.abs(R1 - R2).max() < 1e-10 and np.abs(t1 - t2).max() < 1e-10
+    assert np.allclose(np.einsum("tkab,tkcb->tkac", R1, R1), np.eye(3), atol=1e-9)     # rotations
+    assert np.allclose(np.linalg.det(R1), 1.0)
+    for _ in range(40):                                       # known shares: the sweeps converge on the bones
+        jb._sweep(p, target, u, R1, t1, omega)
+    made = np.einsum("nk,tkab,nb->tna", u, R1, p) + np.einsum("nk,tka->tna", u, t1)
+    assert np.sqrt(((made - target) ** 2).sum(axis=2).mean()) < 2e-3
+
+
+def test_the_skinning_and_lever_kernels_are_numpy():
+    rest, joints, weights, S, lbs, final, mid = two_bone_arm(seed=2)
+    j, w = joints.astype(np.int64), weights.astype(np.float64)
+    assert np.abs(jb._lbs(j, w, S, rest) - jb._lbs_numpy(j, w, S, rest)).max() < 1e-12
+    # pruning: the elbow's weak second influences that never move their vertex 5 mm go to the first joint
+    kept_j, kept_w = jb._pruned(j, w, S, rest, 5e-3)
+    moved = np.linalg.norm(jb._moved(S, j[:, 1], rest) - jb._moved(S, j[:, 0], rest), axis=2).max(axis=0)
+    drop = (w[:, 1] > 0) & (moved * w[:, 1] < 5e-3)
+    assert drop.any() and (~drop & (w[:, 1] > 0)).any()
+    assert np.allclose(kept_w[drop, 0], 1.0) and (kept_w[~drop, 1] == w[~drop, 1]).all()
