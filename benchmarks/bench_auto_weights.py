@@ -21,8 +21,8 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.character.body import BodyOptions, generate_body  # noqa: E402
-from rig.character.bone_heat import (
+from jiggle.rig.character.body import BodyOptions, generate_body  # noqa: E402
+from jiggle.rig.character.bone_heat import (
     bone_heat_weights,
     bone_segments,
     closest_visible,
@@ -31,7 +31,7 @@ from rig.character.bone_heat import (
     solve_heat,
     weld,
 )
-from rig.motion.bvh import read_bvh  # noqa: E402
+from jiggle.rig.motion.bvh import read_bvh  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
 

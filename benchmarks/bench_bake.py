@@ -63,8 +63,8 @@ def lbs_with_caches(setup, out_dir: str) -> None:
     joint transforms), a USD crate of the one skin with normals and extent, saved per chunk, and a pc2."""
     from pxr import Sdf, Usd, UsdGeom
 
-    from rig.character.normals import VertexNormals
-    from sim.bake.caches import (
+    from jiggle.rig.character.normals import VertexNormals
+    from jiggle.sim.bake.caches import (
         PC2_HEADER_BYTES,
         NpzInPlace,
         _author_samples,
@@ -105,7 +105,7 @@ def lbs_with_caches(setup, out_dir: str) -> None:
 def bake_loop(baker) -> dict:
     """The bake's compute of every chunk (Baker.chunk + finish), one thread, no files; its stage timings.
     The Baker (the particle model and solver, built once per bake) is setup, built by the caller."""
-    from sim.bake.baker import num_chunks
+    from jiggle.sim.bake.baker import num_chunks
     baker.timings = dict.fromkeys(baker.timings, 0.0)
     state = None
     for c in range(num_chunks(baker.setup)):
@@ -120,7 +120,7 @@ def bake_loop_threads(baker) -> None:
     with defer=True."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from sim.bake.baker import num_chunks
+    from jiggle.sim.bake.baker import num_chunks
     state, pending = None, None
     with ThreadPoolExecutor(max_workers=1) as worker:
         for c in range(num_chunks(baker.setup)):
@@ -177,8 +177,8 @@ def best(fn, repeats: int) -> float:
 
 
 def measure(label: str, request, repeats: int, targets: tuple[float, float]) -> dict:
-    from sim.bake.baker import Baker, bake, num_chunks
-    from sim.bake.setup import prepare
+    from jiggle.sim.bake.baker import Baker, bake, num_chunks
+    from jiggle.sim.bake.setup import prepare
     t0 = time.perf_counter()
     setup = prepare(request)
     prep = time.perf_counter() - t0
@@ -220,8 +220,8 @@ def memory_child(frames: int, out_dir: str) -> None:
     import resource
     from types import MappingProxyType
 
-    from sim.bake.baker import bake
-    from sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.setup import BakeRequest, prepare
     cycles = int(np.ceil(frames / 30.0)) + 1             # one jumping-jacks cycle lasts 1 s
     src = (ROOT / "scenes" / "motions" / "jumping_jacks.toml").read_text()
     motion = Path(out_dir) / "jumping_jacks_long.toml"
@@ -273,7 +273,7 @@ def main() -> None:
         return
     from types import MappingProxyType
 
-    from sim.bake.setup import BakeRequest
+    from jiggle.sim.bake.setup import BakeRequest
     repeats = 1 if args.quick else 3
     formats = ("npz", "usdc", "pc2")
     cesium, clip = ASSETS / "characters" / "CesiumMan.glb", ASSETS / "mocap" / "cmu_bvh" / "02_03.bvh"

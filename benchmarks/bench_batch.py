@@ -46,8 +46,8 @@ def main() -> int:
         return 0
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
-    from sim.app.batch import Job, dask_client, run_batch, run_job
-    from sim.bake.setup import BakeRequest
+    from jiggle.sim.app.batch import Job, dask_client, run_batch, run_job
+    from jiggle.sim.bake.setup import BakeRequest
     jobs = [Job(p.stem + ("_amc" if p.suffix == ".amc" else ""),
                 BakeRequest(clip=str(p), character=str(character), frames=args.frames,
                             formats=tuple(args.formats.split(","))), str(p))
@@ -57,7 +57,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmp:
         # serial: one process, one clip after another; the first job once untimed before, so Warp's
         # kernel loading stays out of every side alike
-        import sim.app.batch as batch
+        import jiggle.sim.app.batch as batch
         run_job(jobs[0], os.path.join(tmp, "warm"), "none")
         serial = []
         t = time.perf_counter()

@@ -47,9 +47,9 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.motion.clip import transforms  # noqa: E402
-from rig.muscle.fit import FitOptions, fit_musculature  # noqa: E402
-from rig.skin.muscle_skin import MuscleSkin  # noqa: E402
+from jiggle.rig.motion.clip import transforms  # noqa: E402
+from jiggle.rig.muscle.fit import FitOptions, fit_musculature  # noqa: E402
+from jiggle.rig.skin.muscle_skin import MuscleSkin  # noqa: E402
 
 CESIUM = ROOT.parent / "shared" / "assets" / "characters" / "CesiumMan.glb"
 SCENE = ROOT / "scenes" / "default.toml"
@@ -145,8 +145,8 @@ def bench_mesh(label: str, skin: MuscleSkin, world: np.ndarray, frames: int, rep
 
 
 def cesium(device: str):
-    from rig.character.load import load_character
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.mocap import load_clip
     ch = load_character(CESIUM)
     clip = load_clip(CESIUM)
     order = ch.joint_order(clip.joint_names)
@@ -156,9 +156,9 @@ def cesium(device: str):
 
 
 def body(resolution: int, device: str):
-    from rig.character.body import BodyOptions
-    from rig.character.load import body_character
-    from sim.bake.scene import load_scene
+    from jiggle.rig.character.body import BodyOptions
+    from jiggle.rig.character.load import body_character
+    from jiggle.sim.bake.scene import load_scene
     clip = load_scene(SCENE).clip
     ch = body_character(clip, BodyOptions(resolution=resolution))
     world = transforms(*clip.world())          # the body's joints are the clip's, in its order

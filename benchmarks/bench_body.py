@@ -20,16 +20,16 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.character.body import BodyOptions, at_least_voxel, evaluate_field, generate_body, grid_around, layout  # noqa: E402
+from jiggle.rig.character.body import BodyOptions, at_least_voxel, evaluate_field, generate_body, grid_around, layout  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
 
 
 def load(path: Path):
     if path.exists():
-        from rig.motion.bvh import read_bvh
+        from jiggle.rig.motion.bvh import read_bvh
         return read_bvh(path), path.name
-    from sim.bake.scene import load_scene
+    from jiggle.sim.bake.scene import load_scene
     print(f"skipped the CMU skeleton: {path} not found (../shared/assets is absent); using the demo skeleton")
     return load_scene(str(ROOT / "scenes" / "default.toml")).clip, "demo skeleton"
 

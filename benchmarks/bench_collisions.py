@@ -46,13 +46,13 @@ sys.path.insert(0, str(ROOT / "tests"))
 from conftest import ASSETS, CMU_BVH  # noqa: E402
 from timing import best, chunk_spans  # noqa: E402
 
-from rig.character.capsules import BoneCapsules  # noqa: E402
-from sim.jiggle.colliders import ColliderModel, collider_model, skin_check  # noqa: E402
-from sim.jiggle.goal_track import build_track  # noqa: E402
-from sim.jiggle.params import MuscleJiggle, section_goals  # noqa: E402
-from sim.jiggle.particles import ParticleBuilder, muscle_model  # noqa: E402
-from sim.jiggle.simulate import goals, simulate, step_times  # noqa: E402
-from sim.jiggle.solver import ParticleSolver  # noqa: E402
+from jiggle.rig.character.capsules import BoneCapsules  # noqa: E402
+from jiggle.sim.jiggle.colliders import ColliderModel, collider_model, skin_check  # noqa: E402
+from jiggle.sim.jiggle.goal_track import build_track  # noqa: E402
+from jiggle.sim.jiggle.params import MuscleJiggle, section_goals  # noqa: E402
+from jiggle.sim.jiggle.particles import ParticleBuilder, muscle_model  # noqa: E402
+from jiggle.sim.jiggle.simulate import goals, simulate, step_times  # noqa: E402
+from jiggle.sim.jiggle.solver import ParticleSolver  # noqa: E402
 
 
 def paired(off, on, repeats: int) -> tuple[float, float]:
@@ -69,7 +69,7 @@ def paired(off, on, repeats: int) -> tuple[float, float]:
 
 
 def demo(frames: int) -> dict:
-    from sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.bake.setup import BakeRequest, prepare
     s = prepare(BakeRequest(frames=frames, collisions=True))
     rig = s.rig
     model = muscle_model(rig, list(s.jiggles), "cpu", gravity=s.settings.gravity)
@@ -108,8 +108,8 @@ def whole_bake(frames: int, repeats: int = 2) -> dict:
     import contextlib
     import io
 
-    from sim.bake.baker import bake
-    from sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.setup import BakeRequest, prepare
     setups = {on: prepare(BakeRequest(frames=frames, collisions=on, formats=("npz",))) for on in (False, True)}
 
     def run(on):
@@ -175,8 +175,8 @@ def skin_table(clips: list[tuple[str, str | None]], frames: int, characters: lis
     """Per (clip, character) a bake with collisions on: the skin vertices inside another part's capsule per
     frame, static and final skin (max and mean), the frames where the final has more than the static, the
     worst frame of each, and the particle contacts. clips : (clip path, ASF path or None)."""
-    from sim.app.commands.bake import run_bake
-    from sim.bake.setup import BakeRequest
+    from jiggle.sim.app.commands.bake import run_bake
+    from jiggle.sim.bake.setup import BakeRequest
     rows = []
     for character in characters:
         for clip, asf in clips:

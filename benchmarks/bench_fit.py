@@ -31,13 +31,13 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.base.errors import JiggleWarning  # noqa: E402
-from rig.character.body import BodyOptions  # noqa: E402
-from rig.character.load import body_character, load_character  # noqa: E402
-from rig.motion.mocap import load_clip  # noqa: E402
-from rig.muscle.conform import conform, first_hits  # noqa: E402
-from rig.muscle.ellipsoid import surface_moments  # noqa: E402
-from rig.muscle.fit import FitOptions, _chain, _face_regions, fit_musculature  # noqa: E402
+from jiggle.rig.base.errors import JiggleWarning  # noqa: E402
+from jiggle.rig.character.body import BodyOptions  # noqa: E402
+from jiggle.rig.character.load import body_character, load_character  # noqa: E402
+from jiggle.rig.motion.mocap import load_clip  # noqa: E402
+from jiggle.rig.muscle.conform import conform, first_hits  # noqa: E402
+from jiggle.rig.muscle.ellipsoid import surface_moments  # noqa: E402
+from jiggle.rig.muscle.fit import FitOptions, _chain, _face_regions, fit_musculature  # noqa: E402
 
 CESIUM = ROOT.parent / "shared" / "assets" / "characters" / "CesiumMan.glb"
 CLIP = ROOT / "scenes" / "motions" / "jumping_jacks.toml"

@@ -29,7 +29,7 @@ ASSETS = Path(os.environ.get("JIGGLE_ASSETS", ROOT.parent / "shared" / "assets")
 
 
 def cases():
-    from sim.bake.setup import BakeRequest
+    from jiggle.sim.bake.setup import BakeRequest
     out = [("demo (built-in scene)", BakeRequest())]
     cm = ASSETS / "characters" / "CesiumMan.glb"
     for clip in ("02_04", "05_02"):
@@ -44,10 +44,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="write OUT.md and OUT.json")
     a = ap.parse_args(argv)
-    from rig.base.errors import JiggleWarning
-    from sim.bake.baker import bake
-    from sim.bake.glb import write_for_bake
-    from sim.bake.setup import prepare
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.glb import write_for_bake
+    from jiggle.sim.bake.setup import prepare
     warnings.simplefilter("ignore", JiggleWarning)
     rows = []
     for name, req in cases():

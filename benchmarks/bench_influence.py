@@ -30,11 +30,11 @@ sys.path.insert(0, str(ROOT))
 from bench_shells import M, muscles, skinned_tube  # noqa: E402  (the same scene)
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.muscle import loft  # noqa: E402
-from rig.muscle.loft_attach import bind_influence  # noqa: E402
-from rig.skin.influence import InfluenceDeformer, influence_numpy
-from rig.skin.shell.shells import cull_pairs  # noqa: E402
-from rig.skin.skinning import Skinner, lbs_numpy  # noqa: E402
+from jiggle.rig.muscle import loft  # noqa: E402
+from jiggle.rig.muscle.loft_attach import bind_influence  # noqa: E402
+from jiggle.rig.skin.influence import InfluenceDeformer, influence_numpy
+from jiggle.rig.skin.shell.shells import cull_pairs  # noqa: E402
+from jiggle.rig.skin.skinning import Skinner, lbs_numpy  # noqa: E402
 
 BULGE, SLIDE = 1.08, 0.005
 

@@ -47,13 +47,13 @@ import test_jiggle_clips as clips  # noqa: E402  the tests' elbow flex and frame
 from conftest import ASSETS  # noqa: E402  ../shared/assets, or $JIGGLE_ASSETS
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.muscle.simple_arm import arm_world, simple_arm  # noqa: E402
-from sim.jiggle.goal_track import build_track  # noqa: E402
-from sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
-from sim.jiggle.particles import ParticleBuilder  # noqa: E402
-from sim.jiggle.secondary import jiggle_rig  # noqa: E402
-from sim.jiggle.simulate import run, step_times  # noqa: E402
-from sim.jiggle.solver import ParticleSolver, step_numpy  # noqa: E402
+from jiggle.rig.muscle.simple_arm import arm_world, simple_arm  # noqa: E402
+from jiggle.sim.jiggle.goal_track import build_track  # noqa: E402
+from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
+from jiggle.sim.jiggle.particles import ParticleBuilder  # noqa: E402
+from jiggle.sim.jiggle.secondary import jiggle_rig  # noqa: E402
+from jiggle.sim.jiggle.simulate import run, step_times  # noqa: E402
+from jiggle.sim.jiggle.solver import ParticleSolver, step_numpy  # noqa: E402
 
 FPS, SUBSTEPS = 30, 8
 SPACING = 0.3            # metres between copies of the arm
@@ -266,10 +266,10 @@ def bench_rates(arm, device: str, quick: bool) -> None:
                         "biceps", rates, substeps)
     bvh = ASSETS / "mocap" / "cmu_bvh" / "09_11.bvh"
     if bvh.exists():
-        from rig.character.body import BodyOptions
-        from rig.character.load import body_character
-        from rig.motion.mocap import load_clip
-        from rig.muscle.fit import fit_musculature
+        from jiggle.rig.character.body import BodyOptions
+        from jiggle.rig.character.load import body_character
+        from jiggle.rig.motion.mocap import load_clip
+        from jiggle.rig.muscle.fit import fit_musculature
         clip = load_clip(bvh)
         t = time.perf_counter()
         mus = fit_musculature(body_character(clip, BodyOptions(resolution=8000 if quick else 20000)), "human")

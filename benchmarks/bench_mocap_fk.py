@@ -21,8 +21,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 import bvh_reference  # noqa: E402  the tests' independent FK: 4x4 matrices per joint per frame
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.motion.bvh import read_bvh  # noqa: E402
-from sim.drive.skeleton import Skeleton  # noqa: E402
+from jiggle.rig.motion.bvh import read_bvh  # noqa: E402
+from jiggle.sim.drive.skeleton import Skeleton  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "mocap" / "cmu_bvh" / "01_01.bvh"
 

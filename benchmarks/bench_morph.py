@@ -36,7 +36,7 @@ def subdivided(character, target: int = TARGET_VERTICES):
     """The character on its skin subdivided (trimesh.remesh.subdivide_to_size) to about `target` vertices."""
     import trimesh
 
-    from rig.anatomy.resample import Resampled, resample_character
+    from jiggle.rig.anatomy.resample import Resampled, resample_character
     v, f = np.asarray(character.vertices), np.asarray(character.faces)
     edge = np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean()
     lo, hi = edge / 64, edge
@@ -77,11 +77,11 @@ def main(path: Path = DEFAULT) -> None:
         return
     from test_morph import stretched
 
-    from rig.anatomy.features import FeatureOptions
-    from rig.anatomy.morph import MorphOptions, morph, prepare_canonical
-    from rig.character.load import load_character
-    from rig.skin.muscle_skin import MuscleSkin
-    from rig.skin.rbf_skin import RBFSkinOptions
+    from jiggle.rig.anatomy.features import FeatureOptions
+    from jiggle.rig.anatomy.morph import MorphOptions, morph, prepare_canonical
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
+    from jiggle.rig.skin.rbf_skin import RBFSkinOptions
 
     base = load_character(path)
     t = time.perf_counter()
@@ -111,7 +111,7 @@ def main(path: Path = DEFAULT) -> None:
           f"(< 1%), flipped triangles {r['flipped']}, condition up to {max(r['rbf']['condition']):.3g}")
 
     # --- animation
-    from rig.muscle.fit import fit_musculature
+    from jiggle.rig.muscle.fit import fit_musculature
     mus = canon.musculature if canon.character.num_vertices == c.num_vertices else fit_musculature(c)
     t = time.perf_counter()
     sk = MuscleSkin.from_musculature(mus, skinning="rbf",
@@ -119,7 +119,7 @@ def main(path: Path = DEFAULT) -> None:
     bind = time.perf_counter() - t
     rbf = sk.deformer
     print(f"rbf skin: {rbf.num_features} feature points, support {rbf.weights.index.shape[1]}, bind {bind:.1f} s")
-    from rig.motion.quat import from_axis_angle, to_matrix
+    from jiggle.rig.motion.quat import from_axis_angle, to_matrix
     T = 32
     world = np.repeat(np.asarray(c.bind_world)[None], T, axis=0)
     for i in range(T):  # a turning body: every frame different

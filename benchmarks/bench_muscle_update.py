@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT / "tests" / "muscle"))
 import test_muscle_model as ref  # noqa: E402  the tests' arm, muscles and per-muscle reference
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.muscle.model import VOLUME_RULES, build_muscle_rig  # noqa: E402
+from jiggle.rig.muscle.model import VOLUME_RULES, build_muscle_rig  # noqa: E402
 
 ARMS, FRAMES, CHUNK = 14, 100, 256
 

@@ -66,12 +66,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_jiggle import copied_model, swinging_goals  # noqa: E402
 from timing import best, chunk_spans  # noqa: E402  (benchmarks/timing.py)
 
-from rig.muscle.simple_arm import simple_arm  # noqa: E402
-from sim.jiggle.goal_track import build_track  # noqa: E402
-from sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
-from sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times  # noqa: E402
-from sim.jiggle.simulate import simulate, step_times  # noqa: E402
-from sim.jiggle.solver import ParticleSolver  # noqa: E402
+from jiggle.rig.muscle.simple_arm import simple_arm  # noqa: E402
+from jiggle.sim.jiggle.goal_track import build_track  # noqa: E402
+from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
+from jiggle.sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times  # noqa: E402
+from jiggle.sim.jiggle.simulate import simulate, step_times  # noqa: E402
+from jiggle.sim.jiggle.solver import ParticleSolver  # noqa: E402
 
 FPS, CHUNK, COPIES, SUBSTEPS = 30, 64, 40, 4
 TARGET_RATE = 25e6          # particle-steps/s, the bake path at 1,600 particles

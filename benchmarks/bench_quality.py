@@ -41,9 +41,9 @@ CHARACTERS = {"body": None, "CesiumMan": "characters/CesiumMan.glb"}
 
 def measure(out_dir: str) -> dict:
     """The row of one finished bake in out_dir."""
-    from sim.app.skin_quality import measure as skin_measure
-    from sim.app.skin_quality import summarise
-    from sim.bake.caches import read_npz
+    from jiggle.sim.app.skin_quality import measure as skin_measure
+    from jiggle.sim.app.skin_quality import summarise
+    from jiggle.sim.bake.caches import read_npz
     data = read_npz(os.path.join(out_dir, "bake.npz"))
     m = skin_measure(data)
     q = summarise(m, data.times)
@@ -71,8 +71,8 @@ def measure(out_dir: str) -> dict:
 
 
 def bake_one(clip: str, character: str | None, skinning: str, tmp: str) -> dict:
-    from sim.bake.baker import bake
-    from sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.setup import BakeRequest, prepare
     out = tempfile.mkdtemp(dir=tmp)
     req = BakeRequest(clip=str(ASSETS / "mocap" / clip), formats=("npz",), skinning=skinning,
                       character=None if character is None else str(ASSETS / character))

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.anatomy.rbf import RBFOptions, RBFSkinner, build_zone_rbf, interpolate, weld_edges  # noqa: E402
+from jiggle.rig.anatomy.rbf import RBFOptions, RBFSkinner, build_zone_rbf, interpolate, weld_edges  # noqa: E402
 
 DEFAULT = ROOT.parent / "shared" / "assets" / "characters" / "CesiumMan.glb"
 TARGET_VERTICES = 87_000
@@ -48,12 +48,12 @@ def skin(path: Path):
     """(vertices, faces, label): a welded skin subdivided to ~87k vertices."""
     import trimesh
     if path.exists():
-        from rig.character.load import load_character
+        from jiggle.rig.character.load import load_character
         c = load_character(path)
         v, f, label = c.vertices, c.faces, path.name
     else:
-        from rig.character.body import BodyOptions, generate_body
-        from sim.bake.scene import load_scene
+        from jiggle.rig.character.body import BodyOptions, generate_body
+        from jiggle.sim.bake.scene import load_scene
         print(f"skipped {path}: not found (../shared/assets is absent); using a generated body")
         body = generate_body(load_scene(str(ROOT / "scenes" / "default.toml")).clip, BodyOptions())
         v, f, label = body.vertices, body.faces, "generated body"

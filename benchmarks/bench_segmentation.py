@@ -21,9 +21,9 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.character.load import body_character  # noqa: E402
-from rig.motion.mocap import load_clip  # noqa: E402
-from rig.muscle.segmentation import TIE_FRACTION, assign, bone_segments, segment_skin, smoothed_normals  # noqa: E402
+from jiggle.rig.character.load import body_character  # noqa: E402
+from jiggle.rig.motion.mocap import load_clip  # noqa: E402
+from jiggle.rig.muscle.segmentation import TIE_FRACTION, assign, bone_segments, segment_skin, smoothed_normals  # noqa: E402
 
 
 def assign_loop(points, normals, start, end, tol):

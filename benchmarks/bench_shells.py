@@ -25,10 +25,10 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.muscle.shell_params import ShellParams  # noqa: E402
-from rig.skin.shell.deformer import ShellDeformer  # noqa: E402
-from rig.skin.shell.shells import ShellFrames, cull_pairs, shell_numpy, shell_table
-from rig.skin.skinning import Skinner, lbs_numpy  # noqa: E402
+from jiggle.rig.muscle.shell_params import ShellParams  # noqa: E402
+from jiggle.rig.skin.shell.deformer import ShellDeformer  # noqa: E402
+from jiggle.rig.skin.shell.shells import ShellFrames, cull_pairs, shell_numpy, shell_table
+from jiggle.rig.skin.skinning import Skinner, lbs_numpy  # noqa: E402
 
 V, M, J, K = 100_000, 40, 41, 4
 LENGTH, RADIUS = 1.2, 0.06

@@ -23,8 +23,8 @@ sys.path.insert(0, str(ROOT))
 
 from timing import best  # noqa: E402  (benchmarks/timing.py)
 
-from rig.character.normals import VertexNormals  # noqa: E402
-from rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy  # noqa: E402
+from jiggle.rig.character.normals import VertexNormals  # noqa: E402
+from jiggle.rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy  # noqa: E402
 
 V, K, J = 100_000, 4, 31
 

@@ -67,7 +67,7 @@ def cases() -> list[tuple[str, dict]]:
 def limits_of(out: str) -> dict:
     """From a finished bake in `out`: per muscle the fraction of frames at >= 97% and >= 90% of its reach,
     its peak over reach, and bake.json's hard stops (None where the bake does not count them)."""
-    from sim.bake.caches import read_npz
+    from jiggle.sim.bake.caches import read_npz
     data = read_npz(os.path.join(out, "bake.npz"))
     with open(os.path.join(out, "bake.json"), encoding="utf-8") as fh:
         summary = json.load(fh)
@@ -93,8 +93,8 @@ def limits(json_out: str | None) -> list[dict]:
     import contextlib
     import io
 
-    from sim.app.commands.bake import run_bake
-    from sim.bake.setup import BakeRequest
+    from jiggle.sim.app.commands.bake import run_bake
+    from jiggle.sim.bake.setup import BakeRequest
     rows = []
     for label, kw in cases():
         with tempfile.TemporaryDirectory() as out, contextlib.redirect_stderr(io.StringIO()):
@@ -129,9 +129,9 @@ def ringdown() -> list[dict]:
     free: the measured frequency and damping ratio against the set ones (a pulse of 0.2 reach: linear), and a
     pulse ten times larger (a linear swing of 2 reaches): its peak over the reach, whether the peaks fall
     every half cycle, and how long it stays within 1% of its largest offset (a plateau would be long)."""
-    from sim.jiggle.goal_track import build_track
-    from sim.jiggle.particles import ParticleBuilder
-    from sim.jiggle.solver import ParticleSolver
+    from jiggle.sim.jiggle.goal_track import build_track
+    from jiggle.sim.jiggle.particles import ParticleBuilder
+    from jiggle.sim.jiggle.solver import ParticleSolver
     R, rows = 0.02, []
     for f, z in ((2.0, 0.1), (4.0, 0.2), (4.0, 0.3), (8.0, 0.4)):
         w = 2 * math.pi * f
@@ -176,13 +176,13 @@ def ringdown() -> list[dict]:
 # ------------------------------------------------------------------------------------------------ timing
 def simulate_stage(clip=None, character=None, repeats: int = 7) -> dict:
     """The bake's simulate stage per frame (ms), collisions on, best of `repeats` after a warm-up."""
-    from sim.bake.setup import BakeRequest, prepare
-    from sim.jiggle.colliders import collider_model
-    from sim.jiggle.particles import muscle_model
-    from sim.jiggle.simulate import goals, simulate
+    from jiggle.sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.jiggle.colliders import collider_model
+    from jiggle.sim.jiggle.particles import muscle_model
+    from jiggle.sim.jiggle.simulate import goals, simulate
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from timing import chunk_spans
-    from sim.jiggle.solver import ParticleSolver
+    from jiggle.sim.jiggle.solver import ParticleSolver
     s = prepare(BakeRequest(clip=clip, character=character, formats=("npz",)))
     rig = s.rig
     model = muscle_model(rig, list(s.jiggles), "cpu", gravity=s.settings.gravity)

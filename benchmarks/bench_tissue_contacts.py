@@ -39,14 +39,14 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from timing import chunk_spans  # noqa: E402
 
-from rig.character.capsules import BoneCapsules  # noqa: E402
-from sim.jiggle.colliders import ColliderModel, collider_model  # noqa: E402
-from sim.jiggle.goal_track import build_track  # noqa: E402
-from sim.jiggle.params import MuscleJiggle, section_goals  # noqa: E402
-from sim.jiggle.particles import ParticleBuilder, muscle_model  # noqa: E402
-from sim.jiggle.simulate import goals, run, simulate, step_times  # noqa: E402
-from sim.jiggle.solver import ParticleSolver  # noqa: E402
-from sim.jiggle.tissue_contacts import TissueContactModel, TissuePass, tissue_contact_model  # noqa: E402
+from jiggle.rig.character.capsules import BoneCapsules  # noqa: E402
+from jiggle.sim.jiggle.colliders import ColliderModel, collider_model  # noqa: E402
+from jiggle.sim.jiggle.goal_track import build_track  # noqa: E402
+from jiggle.sim.jiggle.params import MuscleJiggle, section_goals  # noqa: E402
+from jiggle.sim.jiggle.particles import ParticleBuilder, muscle_model  # noqa: E402
+from jiggle.sim.jiggle.simulate import goals, run, simulate, step_times  # noqa: E402
+from jiggle.sim.jiggle.solver import ParticleSolver  # noqa: E402
+from jiggle.sim.jiggle.tissue_contacts import TissueContactModel, TissuePass, tissue_contact_model  # noqa: E402
 
 
 def pass_seconds(fn) -> float:
@@ -80,7 +80,7 @@ def paired(off, on, repeats: int) -> tuple[float, float]:
 
 
 def demo(frames: int, repeats: int = 3) -> dict:
-    from sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.bake.setup import BakeRequest, prepare
     s = prepare(BakeRequest(frames=frames, collisions=True))
     rig = s.rig
     model = muscle_model(rig, list(s.jiggles), "cpu", gravity=s.settings.gravity)

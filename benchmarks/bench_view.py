@@ -32,7 +32,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def bake_demo(out: str) -> None:
-    from sim.app.cli import main
+    from jiggle.sim.app.cli import main
     if os.path.isfile(os.path.join(out, "bake.npz")) and os.path.isfile(os.path.join(out, "bake.json")):
         return
     print(f"baking the demo into {out} ...", flush=True)
@@ -43,7 +43,7 @@ def bake_demo(out: str) -> None:
 
 def baker_loop(setup) -> None:
     """The clip recomputed as a bake computes it (Baker.chunk and its skins), no files."""
-    from sim.bake.baker import Baker, num_chunks
+    from jiggle.sim.bake.baker import Baker, num_chunks
     baker = Baker(setup, defer=False)
     state = None
     for c in range(num_chunks(setup)):
@@ -58,7 +58,7 @@ def main() -> None:
     args = ap.parse_args()
     from timing import best
 
-    from sim.app.commands.view import open_viewer
+    from jiggle.sim.app.commands.view import open_viewer
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or os.path.join(tmp, "demo")
         bake_demo(out)
@@ -89,7 +89,7 @@ def main() -> None:
                     raise SystemExit("the re-simulation did not finish")
                 totals.append(time.perf_counter() - t)
                 runs.append(page.last_run_s)
-            from sim.app.view.tuning import Tuning
+            from jiggle.sim.app.view.tuning import Tuning
             replace_s, _ = best(lambda: pb.replace_motion(pb.cvs_dynamic, pb.skin_final), 3)
             draw_s, _ = best(lambda: page.draw(pb.T // 2), 3)
             setup = tuner.tuned_setup(Tuning().with_muscle("belly_fat", strength=values[0]))

@@ -53,12 +53,12 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from scipy.spatial import cKDTree
 
-    from rig.base.errors import InputError, JiggleWarning
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.motion.fbx import fbx_to_gltf
-    from rig.motion.mocap import load_clip
-    from rig.skin.skinning import pose_character
+    from jiggle.rig.base.errors import InputError, JiggleWarning
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.fbx import fbx_to_gltf
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.rig.skin.skinning import pose_character
     warnings.simplefilter("ignore", JiggleWarning)
     data = Path(a.data)
     rows = []

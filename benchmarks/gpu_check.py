@@ -89,7 +89,7 @@ def long_scene(folder: str, cycles: int) -> str:
 
 
 def request(kw: dict, device: str, formats=FORMATS, **more):
-    from sim.bake.setup import BakeRequest
+    from jiggle.sim.bake.setup import BakeRequest
     return BakeRequest(**{**kw, **more}, device=device, formats=tuple(formats))
 
 
@@ -151,7 +151,7 @@ def _compare_caches(a: str, b: str) -> dict:
     """Largest difference (mm) between the caches of two bake folders, per cache and key."""
     import numpy as np
 
-    from sim.bake.caches import read_pc2
+    from jiggle.sim.bake.caches import read_pc2
     out = {}
     with np.load(os.path.join(a, "bake.npz")) as za, np.load(os.path.join(b, "bake.npz")) as zb:
         worst, key = 0.0, ""
@@ -187,8 +187,8 @@ def _compare_caches(a: str, b: str) -> dict:
 
 
 def section_agree(device: str, quick: bool, out_dir: Path) -> dict:
-    from sim.bake.baker import bake
-    from sim.bake.setup import prepare
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.setup import prepare
     res = {}
     for name, kw in cases(quick).items():
         if name == "body100k":
@@ -212,8 +212,8 @@ def section_speed(device: str, quick: bool, out_dir: Path) -> dict:
     both = os.environ.get("JIGGLE_CHECK_SPEED_CPU", "1") != "0"     # gpu_check.py --speed-cpu-from
     from bench_bake import bake_loop, bake_loop_threads, best, lbs_loop, lbs_with_caches
 
-    from sim.bake.baker import Baker, bake
-    from sim.bake.setup import prepare
+    from jiggle.sim.bake.baker import Baker, bake
+    from jiggle.sim.bake.setup import prepare
     res = {}
     tmp_scene = tempfile.mkdtemp()
     for name, kw in cases(quick, long_scene(tmp_scene, 3 if quick else 5)).items():
@@ -254,10 +254,10 @@ def section_particles(device: str, quick: bool, out_dir: Path) -> dict:
     from bench_particles import CHUNK, COPIES, FPS, SUBSTEPS, bake_chunks, bake_particles, kernel_pass
     from timing import best
 
-    from rig.muscle.simple_arm import simple_arm
-    from sim.jiggle.params import JiggleSettings
-    from sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
-    from sim.jiggle.solver import ParticleSolver
+    from jiggle.rig.muscle.simple_arm import simple_arm
+    from jiggle.sim.jiggle.params import JiggleSettings
+    from jiggle.sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
+    from jiggle.sim.jiggle.solver import ParticleSolver
     wp.init()
     arm = simple_arm()
     res = {}
@@ -307,7 +307,7 @@ def section_batch(device: str, quick: bool, out_dir: Path) -> dict:
             if key in res:
                 continue
             out = Path(tmp) / key.replace("/", "_")
-            cmd = [sys.executable, "-m", "sim.app.cli", "-q", "batch", str(manifest), "--out", str(out), "--workers",
+            cmd = [sys.executable, "-m", "jiggle", "-q", "batch", str(manifest), "--out", str(out), "--workers",
                    str(workers), "--no-report", "--character", str(CESIUM), "--device", dev, "--formats", "npz", "--fps", "30"]
             t = time.perf_counter()
             r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=280,
@@ -329,8 +329,8 @@ def precompile(arch: int, out_dir: Path) -> None:
     """Load every Warp module the check uses with tiny CPU bakes, then compile each for sm_`arch` ahead of time."""
     import warp as wp
 
-    from sim.bake.baker import bake
-    from sim.bake.setup import prepare
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.setup import prepare
     wp.init()
     with tempfile.TemporaryDirectory() as tmp:
         for name, kw in cases(quick=True).items():
@@ -341,8 +341,8 @@ def precompile(arch: int, out_dir: Path) -> None:
         bake(prepare(request({"scene": str(ROOT / "scenes" / "simple_arm.toml"), "fps": 60, "chunk": 16},
                              "cpu")), os.path.join(tmp, "arm"))
     import bench_jiggle  # noqa: F401  (their modules, for the particle section)
-    from rig.skin import smoothing_kernels  # noqa: F401  (a GPU's spread and steps: not loaded on the CPU)
-    from sim.jiggle import particle_kernels, step_kernels  # noqa: F401
+    from jiggle.rig.skin import smoothing_kernels  # noqa: F401  (a GPU's spread and steps: not loaded on the CPU)
+    from jiggle.sim.jiggle import particle_kernels, step_kernels  # noqa: F401
     from warp._src.context import user_modules
     done = []
     for name, module in list(user_modules.items()):

@@ -23,8 +23,8 @@ def chunk_spans(times, knots, size: int = 64) -> list[tuple[int, int, int, int, 
     it) and its goal knots ka:kb (MARGIN knots past its ends). times (T,), knots (S,) seconds."""
     import numpy as np
 
-    from sim.bake.baker import MARGIN
-    from sim.jiggle.simulate import TIME_EPS
+    from jiggle.sim.bake.baker import MARGIN
+    from jiggle.sim.jiggle.simulate import TIME_EPS
     out = []
     for f0 in range(0, len(times), size):
         f1 = min(len(times), f0 + size)

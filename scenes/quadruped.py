@@ -232,10 +232,10 @@ def make_quadruped_gltf(path: str | os.PathLike, resolution: int = 15000, k: int
     heat (`k` influences) and writes it with rig.character.gltf_write. Returns the Character written
     (its skeleton is the walk's rest pose; the clips are on it joint for joint).
     """
-    from rig.character.body import BodyOptions
-    from rig.character.gltf_write import write_character
-    from rig.character.load import body_character
-    from rig.motion.keyframes import read_keyframes
+    from jiggle.rig.character.body import BodyOptions
+    from jiggle.rig.character.gltf_write import write_character
+    from jiggle.rig.character.load import body_character
+    from jiggle.rig.motion.keyframes import read_keyframes
     walk = read_keyframes(MOTIONS / f"{WALK.name}.toml")
     trot = read_keyframes(MOTIONS / f"{TROT.name}.toml")
     character = body_character(walk, options or BodyOptions(resolution=resolution), k=k)

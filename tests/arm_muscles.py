@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rig.muscle.model import MuscleSpec
+from jiggle.rig.muscle.model import MuscleSpec
 
 UPPER, FORE = 0.30, 0.25    # metres, arm bone lengths
 

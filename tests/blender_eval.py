@@ -37,7 +37,7 @@ def blender_frames(path, frames: list[int], tmp_path, fps: float = 0.0) -> np.nd
     """(F, V, 3) world positions (Blender's Z-up, metres) of the file's first mesh at each frame, as Blender's
     importer (FBX or glTF, by the extension) and depsgraph evaluate it; fps > 0 sets the scene's rate before
     the import. Skips the test without Blender."""
-    from rig.motion.fbx import blender_command
+    from jiggle.rig.motion.fbx import blender_command
     if blender_command("x.py") is None:
         pytest.skip("no Blender here (bpy in .venv/blender, JIGGLE_BPY_PYTHON or JIGGLE_BLENDER_EXE)")
     script, out = tmp_path / "blender_eval.py", tmp_path / "blender_eval.npy"

@@ -6,7 +6,7 @@ import base64
 
 import numpy as np
 
-from rig.motion.fbx_tree import CLASS_SEP, Node
+from jiggle.rig.motion.fbx_tree import CLASS_SEP, Node
 
 
 def ascii_fbx(nodes: list[Node], version: int) -> str:

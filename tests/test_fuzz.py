@@ -96,7 +96,7 @@ def _write_seeds(d: Path) -> dict[str, list[Path]]:
     seeds["jointmap"] = [d / "jointmap.toml"]
     import numpy as np
 
-    from rig.anatomy.markers import HUMAN, write_markers
+    from jiggle.rig.anatomy.markers import HUMAN, write_markers
     rng = np.random.default_rng(0)
     write_markers(d / "markers.toml", [s.name for s in HUMAN], rng.normal(0, 0.3, (len(HUMAN), 3)), "fuzz")
     seeds["markers"] = [d / "markers.toml"]
@@ -273,19 +273,19 @@ def _alarm(signum, frame):
 def _reader_call(fmt: str, path: str):
     """The reader of a format without a cheap CLI command, called as the CLI would."""
     if fmt == "scene":
-        from sim.bake.scene import load_scene
+        from jiggle.sim.bake.scene import load_scene
         load_scene(path)
     elif fmt == "keyframes":
-        from rig.motion.keyframes import read_keyframes
+        from jiggle.rig.motion.keyframes import read_keyframes
         read_keyframes(path)
     elif fmt == "template":
-        from rig.muscle.template import read_template
+        from jiggle.rig.muscle.template import read_template
         read_template(path)
     elif fmt == "jointmap":
-        from rig.motion.retarget import JointMap
+        from jiggle.rig.motion.retarget import JointMap
         JointMap.load(path)
     elif fmt == "markers":
-        from rig.anatomy.markers import HUMAN, read_markers
+        from jiggle.rig.anatomy.markers import HUMAN, read_markers
         read_markers(path, [s.name for s in HUMAN])
     else:
         raise AssertionError(fmt)
@@ -294,8 +294,8 @@ def _reader_call(fmt: str, path: str):
 def run_one(fmt: str, path: str, time_limit: float = TIME_LIMIT) -> tuple[int | None, str]:
     """Run one input: (exit code, stderr), or (None, why) when it broke a rule (traceback, other
     exception, hang, memory)."""
-    from rig.base.errors import InputError
-    from sim.app.cli import main
+    from jiggle.rig.base.errors import InputError
+    from jiggle.sim.app.cli import main
     err, out = io.StringIO(), io.StringIO()
     peak0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     old = signal.signal(signal.SIGALRM, _alarm)

@@ -48,12 +48,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rig.anatomy.resample import Resampled, identity, insert_points
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.muscle import loft
-from rig.muscle.loft_attach import CVS_PER_MUSCLE, _evaluate, bind_influence, closest_points, loft_frame, muscle_eps
-from rig.muscle.segmentation import BoneSegments
+from jiggle.rig.anatomy.resample import Resampled, identity, insert_points
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.muscle import loft
+from jiggle.rig.muscle.loft_attach import CVS_PER_MUSCLE, _evaluate, bind_influence, closest_points, loft_frame, muscle_eps
+from jiggle.rig.muscle.segmentation import BoneSegments
 
 BONE, MUSCLE = 0, 1
 """Values of `Anchors.kind` and `FeatureSet.source`."""

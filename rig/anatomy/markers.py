@@ -36,8 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.errors import InputError, require_file
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.base.frozen import frozen_array
 
 FORMAT = "jiggle.markers/1"
 
@@ -140,7 +140,7 @@ def role_axis(role: str, roles: dict, positions: np.ndarray, segments) -> tuple[
 
 def body_frame(positions: np.ndarray, roles: dict) -> dict:
     """{"front", "back", "up", "left", "right"} (3,) unit directions of the rest pose."""
-    from rig.motion.role_map import facing
+    from jiggle.rig.motion.role_map import facing
     front, left = facing(positions, roles)
     up = np.array([0.0, 0.0, 1.0])
     return {"front": front, "back": -front, "up": up, "left": left, "right": -left}
@@ -212,8 +212,8 @@ def _line_of(path: str, name: str) -> int | None:
 def read_markers(path: str | os.PathLike, names) -> dict[str, np.ndarray]:
     """{name: (3,) float64 metres} from a marker file (TOML or JSON, see the module docstring), with
     exactly the marker names `names`."""
-    from rig.base.tomlfile import read_toml
-    from rig.character.character import unit_scale
+    from jiggle.rig.base.tomlfile import read_toml
+    from jiggle.rig.character.character import unit_scale
     p = require_file(path, "markers file")
     if p.lower().endswith(".json"):
         try:
@@ -259,7 +259,7 @@ def read_markers(path: str | os.PathLike, names) -> dict[str, np.ndarray]:
 
 def write_markers(path: str | os.PathLike, names, positions: np.ndarray, source: str = "") -> str:
     """Write a marker file (TOML, metres, Z-up) atomically; returns the path."""
-    from rig.base.atomic import atomic_path
+    from jiggle.rig.base.atomic import atomic_path
     positions = np.asarray(positions, np.float64)
     if not np.isfinite(positions).all():
         raise InputError("marker positions hold NaN or inf", str(path), field="markers")

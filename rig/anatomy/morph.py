@@ -39,9 +39,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rig.anatomy.markers import HUMAN, NEXT_ROLE, WIDTHS, MarkerSet, find_markers, role_axis
-from rig.base.errors import InputError
-from rig.character.normals import vertex_normals
+from jiggle.rig.anatomy.markers import HUMAN, NEXT_ROLE, WIDTHS, MarkerSet, find_markers, role_axis
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.normals import vertex_normals
 
 TRUNK = ("hips", "spine", "chest", "neck", "head")
 
@@ -98,10 +98,10 @@ class Canonical:
 
 def prepare_canonical(character, options: MorphOptions = MorphOptions(), source: str = "") -> Canonical:
     """Fit, find feature and marker vertices, and zone a canonical character (see the module docstring)."""
-    from rig.anatomy.features import FeatureOptions, find_features
-    from rig.anatomy.resample import resample_character
-    from rig.anatomy.zones import body_zones
-    from rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.anatomy.features import FeatureOptions, find_features
+    from jiggle.rig.anatomy.resample import resample_character
+    from jiggle.rig.anatomy.zones import body_zones
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
 
     t = {}
     t0 = time.perf_counter()
@@ -380,8 +380,8 @@ class MorphResult:
 
 def morph(canon: Canonical, target: dict, options: MorphOptions = MorphOptions()) -> MorphResult:
     """The target character for marker positions `target` {name: (3,) metres} (all of the canonical's)."""
-    from rig.anatomy.rbf import RBFOptions, boundary_report, interpolate
-    from rig.character.character import bind_clip
+    from jiggle.rig.anatomy.rbf import RBFOptions, boundary_report, interpolate
+    from jiggle.rig.character.character import bind_clip
 
     t = {}
     missing = [n for n in canon.markers.names if n not in target]

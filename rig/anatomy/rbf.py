@@ -60,8 +60,8 @@ from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
 
 KERNELS = ("soliton", "gaussian", "multiquadric", "inverse_multiquadric")
 BLOCK = 8192            # vertices per block when building weights or evaluating (bounds memory)
@@ -861,7 +861,7 @@ class RBFSkinner:
         (V,) or (T, V) wp.vec3 buffer, valid until the next call with the same T."""
         import warp as wp
 
-        from rig.anatomy import rbf_kernels as kernels
+        from jiggle.rig.anatomy import rbf_kernels as kernels
         F = self.num_features
         ok = isinstance(points, wp.array) and points.dtype == wp.vec3 and points.device == self.device
         one = ok and points.shape == (F,)

@@ -35,8 +35,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
 
 EDGE_TOL = 1e-9
 """Barycentric coordinate below which a point counts as on the opposite edge (or at a corner)."""
@@ -386,7 +386,7 @@ def resample_character(character, resampled: Resampled):
     if not np.array_equal(resampled.vertices[:V], character.vertices):
         raise InputError("the resampled mesh's original vertices differ from the character's rest skin",
                          field="resampled")
-    from rig.character.normals import FALLBACK
+    from jiggle.rig.character.normals import FALLBACK
     n = carry(resampled, character.normals)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.where(length > 1e-12, n / np.where(length > 1e-12, length, 1.0), FALLBACK)

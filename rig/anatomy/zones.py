@@ -37,8 +37,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
 
 ZONE_OF_ROLE = {"hips": "torso", "spine": "torso", "chest": "torso", "neck": "head", "head": "head"}
 for _s in ("left", "right"):
@@ -125,7 +125,7 @@ def skeleton_neighbours(segments, segment_zone: np.ndarray, num_zones: int) -> n
 def edge_graph(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
     """(welded ids (V,), graph (W, W) CSR of edge lengths, metres) of a triangle mesh, its vertices
     welded by position (rig.character.bone_heat.weld), so a mesh split at UV seams is one surface again."""
-    from rig.character.bone_heat import weld
+    from jiggle.rig.character.bone_heat import weld
     pos, f, ids = weld(np.asarray(vertices, np.float64), np.asarray(faces, np.int64))
     W = len(pos)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])

@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 import tomllib
 
-from rig.base.errors import InputError, require_file
+from jiggle.rig.base.errors import InputError, require_file
 
 
 def read_toml(path: str | os.PathLike, what: str = "TOML file") -> tuple[str, dict]:

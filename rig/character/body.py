@@ -59,9 +59,9 @@ import scipy.sparse as sp
 from scipy.interpolate import PchipInterpolator
 from scipy.sparse.csgraph import connected_components
 
-from rig.base.frozen import frozen_array
-from rig.motion.bone_roles import bone_roles
-from rig.motion.clip import Clip
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.motion.bone_roles import bone_roles
+from jiggle.rig.motion.clip import Clip
 
 UP = np.array([0.0, 0.0, 1.0])
 SHOULDER_SHARE = 0.82  # shoulder joint height / stature of an adult
@@ -203,7 +203,7 @@ def surface(pieces: list, h0: float, options: BodyOptions, timings: dict) -> tup
 def bind_pose(clip: Clip, arm_angle: float = 40.0) -> Clip:
     """A one-frame clip of the rest pose with every upper arm that hangs within `arm_angle` degrees
     of straight down swung out sideways (about the body's front axis) to that angle."""
-    from rig.motion import quat
+    from jiggle.rig.motion import quat
     rest = replace(clip, rotations=clip.rest_rotations[None], translations=clip.offsets[None])
     if arm_angle <= 0:
         return rest

@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.motion import quat
-from rig.motion.clip import Clip
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
 
 SMALL_PART = 0.25
 """A weighted part beside the body with at most this share of the body's joints and skin weight is a placed part
@@ -94,7 +94,7 @@ def body_skeleton(character) -> tuple[Clip, np.ndarray]:
         r = main
     body = _reparented(clip, parents) if changed else clip
     order = _order(parents) if changed else np.arange(J)
-    from rig.motion.body_plan import detect_body_plan
+    from jiggle.rig.motion.body_plan import detect_body_plan
     if detect_body_plan(body).kind == "other":
         tipped = _skin_tips(body, order, character)
         if tipped is not None and detect_body_plan(tipped).kind != "other":

@@ -55,8 +55,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
-from rig.base.errors import InputError
-from rig.character.mesh_graph import mesh_neighbours
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.mesh_graph import mesh_neighbours
 
 LEAF_FRACTION = 0.5      # a leaf joint's bone continues its parent bone for this share of its length
 WELD_TOLERANCE = 1e-6    # metres: positions closer than this are one vertex for the solve

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.frozen import frozen_array
 
 MID_LO, MID_HI = 0.15, 0.85
 """Skin vertices projecting on this part of a bone set its radius."""
@@ -125,7 +125,7 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.nd
 
 def bone_capsules(character) -> BoneCapsules:
     """The capsules of a rig.character.Character (see the module)."""
-    from rig.character.character import end_sites
+    from jiggle.rig.character.character import end_sites
     bind = np.asarray(character.bind_world, dtype=np.float64)
     pos = bind[:, :3, 3]
     parents = np.asarray(character.parents)

@@ -18,11 +18,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.base.frozen import frozen_array
-from rig.character.painted_maps import PaintedMaps
-from rig.motion.clip import Clip, joint_index, local_from_world
-from rig.motion.gltf_io import polar_rotation
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.character.painted_maps import PaintedMaps
+from jiggle.rig.motion.clip import Clip, joint_index, local_from_world
+from jiggle.rig.motion.gltf_io import polar_rotation
 
 PLAUSIBLE_HEIGHT_M = (0.05, 10.0)
 """A character or creature outside this height (metres: a mouse to a giraffe) was probably read in the

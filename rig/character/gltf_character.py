@@ -27,8 +27,8 @@ import warnings
 
 import numpy as np
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.character import (
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.character import (
     Character,
     check_height,
     clean_weights,
@@ -36,8 +36,8 @@ from rig.character.character import (
     require_finite_positions,
     resolve_unit,
 )
-from rig.motion.gltf_io import Z_UP, GltfDocument, trs_matrix, world_chain
-from rig.motion.gltf_skeleton import read_gltf_skeleton
+from jiggle.rig.motion.gltf_io import Z_UP, GltfDocument, trs_matrix, world_chain
+from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
 
 
 def gltf_has_skin(path: str | os.PathLike) -> bool:
@@ -171,7 +171,7 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
         if sj >= 0:
             tree_of_skin[sj] = t
 
-    from rig.character.painted_maps import assemble, parse_jiggle_attribute, primitive_maps
+    from jiggle.rig.character.painted_maps import assemble, parse_jiggle_attribute, primitive_maps
     jiggle_attribute = parse_jiggle_attribute(jiggle_attribute)
     pos, nrm, uv, faces, jnt, wgt, parts = [], [], [], [], [], [], []
     prims, maps = [], []
@@ -268,10 +268,10 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
         length = np.linalg.norm(normals, axis=1, keepdims=True)
         normals = np.where(length > 1e-12, normals / np.maximum(length, 1e-12), 0.0)
         if np.any(length[:, 0] <= 1e-12):
-            from rig.character.normals import vertex_normals
+            from jiggle.rig.character.normals import vertex_normals
             normals = np.where(length > 1e-12, normals, vertex_normals(vertices, faces))
     else:
-        from rig.character.normals import vertex_normals
+        from jiggle.rig.character.normals import vertex_normals
         normals = vertex_normals(vertices, faces)
     character = Character(
         vertices=vertices, faces=faces, normals=normals, uvs=np.concatenate(uv) if has_uvs and uv else None,

@@ -23,9 +23,9 @@ import urllib.parse
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError
-from rig.character.painted_maps import JIGGLE_ATTRIBUTE, SHELL_PREFIX, PaintedMaps
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.painted_maps import JIGGLE_ATTRIBUTE, SHELL_PREFIX, PaintedMaps
 
 _FLOAT, _ARRAY_BUFFER = 5126, 34962
 
@@ -56,9 +56,9 @@ def write_maps_copy(character, path: str | os.PathLike, maps: PaintedMaps) -> st
     prims = character.meta.get("primitives")
     src = character.source
     if not prims or not src or os.path.splitext(src)[1].lower() not in (".glb", ".gltf"):
-        from rig.character.gltf_write import write_character
+        from jiggle.rig.character.gltf_write import write_character
         return write_character(character, p, attributes=attrs)
-    from rig.motion.gltf_io import GltfDocument
+    from jiggle.rig.motion.gltf_io import GltfDocument
     doc = GltfDocument(src)
     with open(doc.path, "rb") as fh:
         data = fh.read()

@@ -49,12 +49,12 @@ import warnings
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError, JiggleWarning, require_file
-from rig.motion import quat
-from rig.motion.bvh import Y_TO_Z_UP
-from rig.motion.clip import local_from_world
-from rig.motion.gltf_io import Z_UP, polar_rotation
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError, JiggleWarning, require_file
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.bvh import Y_TO_Z_UP
+from jiggle.rig.motion.clip import local_from_world
+from jiggle.rig.motion.gltf_io import Z_UP, polar_rotation
 
 EXTENSIONS = (".glb", ".gltf")
 GENERATOR = "jiggle"
@@ -199,7 +199,7 @@ def _checked_arrays(c, path: str) -> dict:
 
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     if np.any(length[:, 0] <= 1e-12):  # the spec wants unit normals: recompute the degenerate ones
-        from rig.character.normals import vertex_normals
+        from jiggle.rig.character.normals import vertex_normals
         normals = np.where(length > 1e-12, normals, vertex_normals(vertices, faces))
         length = np.linalg.norm(normals, axis=1, keepdims=True)
     normals = normals / length
@@ -254,7 +254,7 @@ class _Buffer:
 def _animation_arrays(c, clip, path: str, name: str) -> dict:
     """Key times (T,) float32 seconds, node rotations (T, J, 4) x,y,z,w and translations (T, J, 3)
     (glTF Y-up on the roots) of `clip` on character `c`, and which joints need a translation channel."""
-    from rig.motion.clip import Clip
+    from jiggle.rig.motion.clip import Clip
     if not isinstance(clip, Clip):
         raise InputError(f"animation {name!r} must be a Clip, got {type(clip).__name__}", path, field="animations")
     if tuple(clip.joint_names) != tuple(c.joint_names) or not np.array_equal(clip.parents, c.parents):
@@ -421,7 +421,7 @@ def _source_material(source, has_uvs: bool, skin: int = 0) -> dict | None:
     src = require_file(source, "source glTF")
     if os.path.splitext(src)[1].lower() not in EXTENSIONS:
         return None  # a mesh file has no glTF material to copy
-    from rig.motion.gltf_io import GltfDocument
+    from jiggle.rig.motion.gltf_io import GltfDocument
     gdoc = GltfDocument(src)
     d = json.loads(gdoc.gltf.to_json())
     materials = d.get("materials") or []

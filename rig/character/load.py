@@ -14,20 +14,20 @@ from dataclasses import replace
 
 import numpy as np
 
-from rig.base.errors import InputError, JiggleWarning, require_file
-from rig.character.body import BodyOptions, generate_body
-from rig.character.bone_heat import bone_heat_weights
-from rig.character.character import Character, drop_degenerate_faces, end_sites, require_finite_positions
-from rig.character.gltf_character import gltf_has_skin, read_gltf_character
-from rig.character.mesh_io import MESH_EXTENSIONS, read_mesh
-from rig.character.normals import vertex_normals
-from rig.character.quadruped_body import generate_quadruped_body, is_quadruped
-from rig.character.quadruped_body import heat_bones as quadruped_heat_bones
-from rig.motion.clip import Clip, transforms
-from rig.motion.gltf_skeleton import read_gltf_skeleton
-from rig.motion.keyframes import read_keyframes
-from rig.motion.mjcf_skeleton import read_mjcf_skeleton
-from rig.motion.mocap import load_clip
+from jiggle.rig.base.errors import InputError, JiggleWarning, require_file
+from jiggle.rig.character.body import BodyOptions, generate_body
+from jiggle.rig.character.bone_heat import bone_heat_weights
+from jiggle.rig.character.character import Character, drop_degenerate_faces, end_sites, require_finite_positions
+from jiggle.rig.character.gltf_character import gltf_has_skin, read_gltf_character
+from jiggle.rig.character.mesh_io import MESH_EXTENSIONS, read_mesh
+from jiggle.rig.character.normals import vertex_normals
+from jiggle.rig.character.quadruped_body import generate_quadruped_body, is_quadruped
+from jiggle.rig.character.quadruped_body import heat_bones as quadruped_heat_bones
+from jiggle.rig.motion.clip import Clip, transforms
+from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
+from jiggle.rig.motion.keyframes import read_keyframes
+from jiggle.rig.motion.mjcf_skeleton import read_mjcf_skeleton
+from jiggle.rig.motion.mocap import load_clip
 
 
 def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Clip | None = None,
@@ -58,7 +58,7 @@ def load_character(path: str | os.PathLike, *, skeleton: str | os.PathLike | Cli
 
 def with_sidecar_maps(character: Character, path: str | os.PathLike) -> Character:
     """`character` (read from `path`) with its own maps completed by the sidecar beside `path`."""
-    from rig.character.painted_maps import read_maps
+    from jiggle.rig.character.painted_maps import read_maps
     maps = read_maps(path, character.num_vertices, character.maps)
     return character if maps is character.maps else replace(character, maps=maps)
 
@@ -67,7 +67,7 @@ def _load_character(path, *, skeleton, k, unit, up, skin, jiggle_attribute) -> C
     p = os.fspath(path)
     ext = os.path.splitext(p)[1].lower()
     if ext == ".fbx":           # FBX through Blender's importer (rig.motion.fbx), read as its glTF
-        from rig.motion.fbx import through_gltf
+        from jiggle.rig.motion.fbx import through_gltf
         return through_gltf(p, _load_character, skeleton=skeleton, k=k, unit=unit, up=up, skin=skin,
                             jiggle_attribute=jiggle_attribute)
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 8:

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.errors import InputError, require_file
-from rig.character.character import check_height, drop_degenerate_faces, require_finite_positions, resolve_unit
-from rig.character.gltf_character import _node_world, triangles
-from rig.motion.gltf_io import GltfDocument
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.character.character import check_height, drop_degenerate_faces, require_finite_positions, resolve_unit
+from jiggle.rig.character.gltf_character import _node_world, triangles
+from jiggle.rig.motion.gltf_io import GltfDocument
 
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off")
 

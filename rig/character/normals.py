@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse
 
-from rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError
 
 FALLBACK = np.array([0.0, 0.0, 1.0])
 
@@ -73,7 +73,7 @@ class VertexNormals:
         Warp launch (rig/character/normals_kernels.py); what a bake's cache writer uses for every frame."""
         import warp as wp
 
-        from rig.character import normals_kernels as kernels
+        from jiggle.rig.character import normals_kernels as kernels
         p = np.ascontiguousarray(positions, dtype=np.float32)
         if p.ndim != 3 or p.shape[1:] != (self.num_vertices, 3):
             raise InputError(f"expected shape (T, {self.num_vertices}, 3), got {p.shape}", field="positions")

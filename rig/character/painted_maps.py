@@ -41,9 +41,9 @@ from types import MappingProxyType
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError, JiggleWarning
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.base.frozen import frozen_array
 
 JIGGLE_ATTRIBUTE = "_JIGGLE"
 SHELL_PREFIX = "_SHELL_"

@@ -44,8 +44,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from rig.base.frozen import frozen_array
-from rig.character.body import (
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.character.body import (
     UP,
     Body,
     BodyOptions,
@@ -58,8 +58,8 @@ from rig.character.body import (
     _Slots,
     surface,
 )
-from rig.motion.body_plan import detect_body_plan, quadruped_roles
-from rig.motion.clip import Clip
+from jiggle.rig.motion.body_plan import detect_body_plan, quadruped_roles
+from jiggle.rig.motion.clip import Clip
 
 VOXEL_PER_LENGTH = 0.5   # voxel ~ this * L / sqrt(vertex count), for the gap estimate (measured on the dog)
 # trunk sections: (place along the spine as a share of L from the hips towards the chest, half-width,

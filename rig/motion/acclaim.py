@@ -40,11 +40,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.errors import InputError, require_file
-from rig.base.frozen import frozen_array
-from rig.motion import quat
-from rig.motion.bvh import Y_TO_Z_UP
-from rig.motion.clip import Clip
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.bvh import Y_TO_Z_UP
+from jiggle.rig.motion.clip import Clip
 
 INCH = 0.0254  # metres
 MAX_OFFSET = 1000.0  # metres: a longer root position or bone (or a larger file unit) is refused

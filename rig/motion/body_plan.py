@@ -36,10 +36,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.motion.clip import Clip
-from rig.motion.retarget import ROLES
-from rig.motion.skeleton_tree import SkeletonTree
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.retarget import ROLES
+from jiggle.rig.motion.skeleton_tree import SkeletonTree
 
 UP = np.array([0.0, 0.0, 1.0])
 GROUND = 0.1

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.motion.clip import Clip
+from jiggle.rig.motion.clip import Clip
 
 
 def bone_roles(clip: Clip) -> list[list[str]]:

@@ -31,9 +31,9 @@ import os
 
 import numpy as np
 
-from rig.base.errors import InputError, require_file
-from rig.motion import quat
-from rig.motion.clip import Clip
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
 
 CMU_UNIT = 0.056444  # metres per CMU BVH unit (1/0.45 inch)
 MAX_OFFSET = 1000.0  # metres: a longer OFFSET (or position channel) is a broken file or a wrong unit
@@ -322,7 +322,7 @@ def read_bvh(path: str | os.PathLike, scale: float | None = None, up: str = "y",
         if {"LHipJoint", "RHipJoint", "LowerBack"} <= set(names):
             scale, units = CMU_UNIT, f"CMU units ({CMU_UNIT} m)"
         else:
-            from rig.motion.clip import Clip as _C  # rest height in file units, before scaling
+            from jiggle.rig.motion.clip import Clip as _C  # rest height in file units, before scaling
             tmp = _C(names, [j.parent for j in joints], offsets, quat.identity((J,)),
                      quat.identity((1, J)), offsets[None], 1.0)
             _, pos = tmp.rest_world()

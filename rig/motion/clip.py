@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.motion import quat
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.motion import quat
 
 TRANSLATION_NOISE = 1e-6  # metres: translation changes below this are exporter noise, not motion
 

@@ -28,7 +28,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from rig.base.errors import InputError, require_file
+from jiggle.rig.base.errors import InputError, require_file
 
 CONVERTER_VERSION = 3
 """Bump when the conversion changes: cached files of another version are made again."""
@@ -154,8 +154,8 @@ def binary_for_blender(path: str, tmp: str) -> str:
     7.4 into the folder `tmp`: an ASCII file's tree typed as binary (rig.motion.fbx_tree), an FBX 6.x file's tree
     lifted into 7.x's object model first (rig.motion.fbx_legacy). Either way the file is read here first and
     refused when it is cut short or holds NaN vertices, weights or keys (rig.motion.fbx_tree.check_finite)."""
-    from rig.motion.fbx_legacy import lift
-    from rig.motion.fbx_tree import check_finite, read_tree, write_binary
+    from jiggle.rig.motion.fbx_legacy import lift
+    from jiggle.rig.motion.fbx_tree import check_finite, read_tree, write_binary
     kind, version = fbx_version(path)
     nodes, version, _ = read_tree(path)
     check_finite(nodes, path)

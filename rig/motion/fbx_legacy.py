@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.motion.fbx_tree import CLASS_SEP, Node, _typed_array, property_value_type, split_name
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.fbx_tree import CLASS_SEP, Node, _typed_array, property_value_type, split_name
 
 _ARRAY_ELEMENTS = {"Vertices", "PolygonVertexIndex", "Edges", "Normals", "NormalsW", "NormalsIndex", "Binormals",
                    "BinormalsIndex", "Tangents", "TangentsIndex", "UV", "UVIndex", "Smoothing", "Materials",

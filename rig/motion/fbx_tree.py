@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError
 
 BINARY_MAGIC = b"Kaydara FBX Binary  \x00\x1a\x00"
 WRITE_VERSION = 7400

@@ -34,10 +34,10 @@ import warnings
 
 import numpy as np
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.motion import quat
-from rig.motion.clip import Clip
-from rig.motion.gltf_io import (
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.gltf_io import (
     Z_UP,
     GltfDocument,
     check_uniform_scale,

@@ -36,9 +36,9 @@ import urllib.parse
 
 import numpy as np
 
-from rig.base.errors import InputError, require_file
-from rig.motion import quat
-from rig.motion.bvh import Y_TO_Z_UP
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.bvh import Y_TO_Z_UP
 
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _NORM_DIV = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0, 5125: 4294967295.0}

@@ -34,11 +34,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.motion import quat
-from rig.motion.clip import Clip, joint_index, local_from_world
-from rig.motion.gltf_io import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip, joint_index, local_from_world
+from jiggle.rig.motion.gltf_io import (
     SCALE_RTOL,
     Z_UP,
     GltfDocument,

@@ -38,10 +38,10 @@ import os
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from rig.base.errors import InputError
-from rig.base.tomlfile import read_toml
-from rig.motion import quat
-from rig.motion.clip import Clip
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.tomlfile import read_toml
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
 
 MAX_OFFSET = 1000.0     # metres: a longer joint offset or root position is refused
 MAX_FPS = 10000.0       # frames per second

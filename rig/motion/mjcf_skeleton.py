@@ -11,9 +11,9 @@ import os
 
 import numpy as np
 
-from rig.base.errors import InputError, require_file
-from rig.motion import quat
-from rig.motion.clip import Clip, local_from_world
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip, local_from_world
 
 
 def read_mjcf_skeleton(path: str | os.PathLike) -> Clip:

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import os
 
-from rig.base.errors import InputError, require_file
-from rig.motion.clip import Clip
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.motion.clip import Clip
 
 CLIP_EXTENSIONS = (".bvh", ".amc", ".asf", ".glb", ".gltf", ".fbx", ".toml")
 
@@ -24,24 +24,24 @@ def load_clip(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = N
     p = require_file(path, "clip file")
     ext = os.path.splitext(p)[1].lower()
     if ext == ".bvh":
-        from rig.motion.bvh import read_bvh
+        from jiggle.rig.motion.bvh import read_bvh
         return read_bvh(p, scale=scale, tpose=tpose)
     if ext == ".amc":
-        from rig.motion.acclaim import find_asf, read_amc, read_asf
+        from jiggle.rig.motion.acclaim import find_asf, read_amc, read_asf
         asf = read_asf(skeleton if skeleton is not None else find_asf(p))
         return read_amc(p, asf)
     if ext == ".asf":
-        from rig.motion.acclaim import read_asf
+        from jiggle.rig.motion.acclaim import read_asf
         return read_asf(p).rest_clip()
     if ext == ".fbx":
-        from rig.motion.fbx import through_gltf
-        from rig.motion.gltf_anim import read_gltf_animation
+        from jiggle.rig.motion.fbx import through_gltf
+        from jiggle.rig.motion.gltf_anim import read_gltf_animation
         return through_gltf(p, read_gltf_animation, animation)
     if ext in (".glb", ".gltf"):
-        from rig.motion.gltf_anim import read_gltf_animation
+        from jiggle.rig.motion.gltf_anim import read_gltf_animation
         return read_gltf_animation(p, animation)
     if ext == ".toml":
-        from rig.motion.keyframes import read_keyframes
+        from jiggle.rig.motion.keyframes import read_keyframes
         return read_keyframes(p)
     raise InputError(f"unknown clip format {ext or '(no extension)'!r}; expected one of "
                      f"{', '.join(CLIP_EXTENSIONS)}", p)

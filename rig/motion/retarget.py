@@ -54,10 +54,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.motion import quat
-from rig.motion.clip import Clip
-from rig.motion.gltf_skeleton import CharacterSkeleton
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.gltf_skeleton import CharacterSkeleton
 
 SIDES = ("left", "right")
 LIMB_ROLES = ("shoulder", "upper_arm", "lower_arm", "hand", "upper_leg", "lower_leg", "foot", "toe")
@@ -72,7 +72,7 @@ MIN_BONE = 0.01  # metres: shorter role-to-role segments give no usable directio
 
 def presets() -> list[str]:
     """Names of the built-in joint maps."""
-    folder = importlib.resources.files("rig.motion") / "presets"
+    folder = importlib.resources.files("jiggle.rig.motion") / "presets"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
@@ -101,7 +101,7 @@ class JointMap:
         elif s.endswith(".toml") or os.sep in s or "/" in s:
             raise InputError("joint map file not found", s)
         else:
-            res = importlib.resources.files("rig.motion") / "presets" / f"{s}.toml"
+            res = importlib.resources.files("jiggle.rig.motion") / "presets" / f"{s}.toml"
             if not res.is_file():
                 raise InputError(f"no joint map preset named {s!r}; presets are {', '.join(presets())}, or give "
                                  f"a path to a .toml file", field="joint map")

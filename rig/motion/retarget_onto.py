@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import os
 
-from rig.base.errors import InputError
-from rig.motion.clip import Clip
-from rig.motion.retarget import JointMap, identity, presets, retarget, same_skeleton, scaled_skeleton
-from rig.motion.role_map import resolve_roles
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.retarget import JointMap, identity, presets, retarget, same_skeleton, scaled_skeleton
+from jiggle.rig.motion.role_map import resolve_roles
 
 
 def joint_map_for(given, skeleton: Clip, option: str, owner: str) -> JointMap:
@@ -47,8 +47,8 @@ def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=Non
         its bones agree.
     follow : None, or a function applied to the retargeted clip (not to the character's own animation): the
         bake hangs an IK rig's placed feet under its legs with it (rig.character.body_skeleton.hang)."""
-    from rig.motion.fbx import fbx_to_gltf, is_fbx
-    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    from jiggle.rig.motion.fbx import fbx_to_gltf, is_fbx
+    from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
     skeleton_file = fbx_to_gltf(character_file) if is_fbx(character_file) else character_file
     character = scaled_skeleton(read_gltf_skeleton(skeleton_file, skin), scale)
     if clip_map is None and character_map is None:

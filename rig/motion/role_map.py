@@ -17,11 +17,11 @@ import warnings
 
 import numpy as np
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.motion.body_plan import check_roles, detect_body_plan, quadruped_roles
-from rig.motion.clip import Clip
-from rig.motion.retarget import ROLES, JointMap, presets
-from rig.motion.skeleton_tree import SkeletonTree
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.motion.body_plan import check_roles, detect_body_plan, quadruped_roles
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.retarget import ROLES, JointMap, presets
+from jiggle.rig.motion.skeleton_tree import SkeletonTree
 
 UP = np.array([0.0, 0.0, 1.0])
 OTHER_LIMB = 0.6

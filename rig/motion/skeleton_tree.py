@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.motion.clip import Clip
+from jiggle.rig.motion.clip import Clip
 
 SAME_PLACE = 1e-3
 """Joints closer than this fraction of the skeleton's size sit at the same place (zero-length bones,

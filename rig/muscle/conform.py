@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.muscle.ellipsoid import Ellipsoid
+from jiggle.rig.muscle.ellipsoid import Ellipsoid
 
 
 @dataclass(frozen=True)

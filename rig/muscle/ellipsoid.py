@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.frozen import frozen_array
 
 MIDDLE_WIDTH = 0.5
 """Width of the weights that measure a flat patch's height at its middle, in tangential standard deviations."""

@@ -36,12 +36,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.base.frozen import frozen_array
-from rig.character.character import Character
-from rig.muscle.conform import ConformReport, conform
-from rig.muscle.ellipsoid import Ellipsoid, fit_ellipsoid, surface_moments
-from rig.muscle.fit_quality import assess, local_radius, thresholds
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.character.character import Character
+from jiggle.rig.muscle.conform import ConformReport, conform
+from jiggle.rig.muscle.ellipsoid import Ellipsoid, fit_ellipsoid, surface_moments
+from jiggle.rig.muscle.fit_quality import assess, local_radius, thresholds
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -261,12 +261,12 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     """
     import trimesh
 
-    from rig.character.body_skeleton import body_skeleton, original_parents
-    from rig.motion.body_plan import detect_body_plan, template_for
-    from rig.motion.role_map import facing, resolve_roles
-    from rig.muscle.model import MuscleSpec, build_muscle_rig
-    from rig.muscle.segmentation import segment_skin
-    from rig.muscle.template import Template, check_labels, load_template
+    from jiggle.rig.character.body_skeleton import body_skeleton, original_parents
+    from jiggle.rig.motion.body_plan import detect_body_plan, template_for
+    from jiggle.rig.motion.role_map import facing, resolve_roles
+    from jiggle.rig.muscle.model import MuscleSpec, build_muscle_rig
+    from jiggle.rig.muscle.segmentation import segment_skin
+    from jiggle.rig.muscle.template import Template, check_labels, load_template
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -403,7 +403,7 @@ def _axis_inside(e: Ellipsoid, skin, bone: _Bone) -> Ellipsoid:
     the body, and the conformed muscle with them. A centre outside the skin moves toward the bone
     until it is inside; then the axis is cut to the run of samples inside around the centre (the other
     radii no longer than the major one). An ellipsoid whose axis is inside is returned as it is."""
-    from rig.muscle.fit_quality import inside_skin
+    from jiggle.rig.muscle.fit_quality import inside_skin
     t = np.linspace(-1.0, 1.0, AXIS_SAMPLES)
     mid = AXIS_SAMPLES // 2
     centre = np.array(e.centre)
@@ -449,7 +449,7 @@ def _axis_inside(e: Ellipsoid, skin, bone: _Bone) -> Ellipsoid:
 def _without_optional(tpl, roles: dict):
     """`tpl` without the pairs that need a role the skeleton does not have when that role is optional
     (rig.muscle.template.OPTIONAL_ROLES: a collar bone, a toe, a tail), each left out with a JiggleWarning."""
-    from rig.muscle.template import OPTIONAL_ROLES
+    from jiggle.rig.muscle.template import OPTIONAL_ROLES
     keep = []
     for pair in tpl.pairs:
         labels = {pair.parent, pair.child} | {a for m in pair.muscles for a in pair.riding(m)}
@@ -469,7 +469,7 @@ def _dense_skin(vertices: np.ndarray, faces: np.ndarray, seg, min_vertices: int
     gives every sub-region, strip and pair half enough triangles to fit. The character's own vertices
     keep their regions (overrides included); a new midpoint vertex is assigned by the same normal test
     with its endpoints' low-frequency normals averaged. Returns vertices, faces, region per vertex."""
-    from rig.muscle.segmentation import assign
+    from jiggle.rig.muscle.segmentation import assign
     V, F = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     region, low = np.asarray(seg.region), np.asarray(seg.low_normals)
     while len(V) < min_vertices and len(F):

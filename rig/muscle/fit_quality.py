@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.frozen import frozen_array
 
 RMS_OK = 0.15          # share of the local radius: rms loft error at or below this is ok
 RMS_REFUSE = 0.50      # above: refused

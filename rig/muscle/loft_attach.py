@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.base.frozen import frozen_array
-from rig.muscle import loft
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.muscle import loft
 
 CVS_PER_MUSCLE = loft.SECTIONS * loft.RING      # 40
 FRAME_EPS = 1e-3                # a frame axis shorter than this x the muscle's size counts as collapsed

@@ -83,9 +83,9 @@ import numpy as np
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.muscle import loft
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.muscle import loft
 
 VOLUME_RULES = ("exact", "sqrt", "thesis", "none")
 CURVE_KNOTS = frozen_array([0.0, 0.0, 0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0])
@@ -389,7 +389,7 @@ def _static_on_device(rig: MuscleRig, world: np.ndarray, rule: str, device) -> t
     frames and muscles in one launch of rig.muscle.static_kernels.static_shape on the Warp `device`."""
     import warp as wp
 
-    from rig.muscle import static_kernels as kernels
+    from jiggle.rig.muscle import static_kernels as kernels
     T, M = len(world), rig.M
     if T == 0 or M == 0:
         return np.zeros((T, M * rig.CVS_PER_MUSCLE, 3)), np.zeros((T, M, 5, 3))

@@ -21,8 +21,8 @@ from functools import cached_property
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,9 +99,9 @@ def fit_pose_shapes(character, poses: list[SculptedPose], template="human", opti
                     roles: dict | None = None, front: np.ndarray | None = None) -> PoseShapes:
     """Fit `template` to every sculpted pose of `character` (rig.muscle.fit) and collect the muscles'
     section CVs in their bones' frames. Muscles missing from some pose are left out."""
-    from rig.character.character import bind_clip
-    from rig.character.normals import vertex_normals
-    from rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.character.character import bind_clip
+    from jiggle.rig.character.normals import vertex_normals
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
     if len(poses) < 2:
         raise InputError(f"pose-based shapes need at least two sculpted poses, got {len(poses)}", field="poses")
     D = len(poses[0].angles)

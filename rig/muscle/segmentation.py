@@ -57,8 +57,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
 
 PAPER_VERTICES = 10_000
 """Vertex count of the human meshes the paper tuned 25 passes with lam = 1 on."""
@@ -185,7 +185,7 @@ def bone_segments(character, exclude: Iterable[str] = ()) -> BoneSegments:
         neither raises InputError; so does a skeleton without any bone of non-zero length, or an
         exclude that leaves none.
     """
-    from rig.character.character import end_sites
+    from jiggle.rig.character.character import end_sites
 
     pos = np.asarray(character.bind_positions, np.float64)
     par = np.asarray(character.parents, np.int64)
@@ -294,7 +294,7 @@ def _one_ring(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_matrix, n
     mean length in metres of the edges at each vertex's position (0 when it has none), and the welded
     mesh's area in m^2.
     """
-    from rig.character.bone_heat import weld
+    from jiggle.rig.character.bone_heat import weld
 
     V = len(vertices)
     pts, wf, inverse = weld(vertices, faces)

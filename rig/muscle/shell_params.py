@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError
 
 MODES = ("basic", "stretch", "trajectory")
 """How a deformed local point returns to world space: through the muscle's current ellipsoid alone

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.character.character import Character, bind_clip
-from rig.character.normals import vertex_normals
-from rig.muscle.model import MuscleRig, MuscleSpec, build_muscle_rig
+from jiggle.rig.character.character import Character, bind_clip
+from jiggle.rig.character.normals import vertex_normals
+from jiggle.rig.muscle.model import MuscleRig, MuscleSpec, build_muscle_rig
 
 UPPER, FORE = 0.30, 0.26     # bone lengths
 RADIUS = 0.055               # the cylinder's radius

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from rig.muscle import loft
+from jiggle.rig.muscle import loft
 
 # forward only: never differentiated (no adjoint code to compile)
 wp.set_module_options({"enable_backward": False})

@@ -114,11 +114,11 @@ from dataclasses import dataclass, field, fields
 from defusedxml.common import DefusedXmlException, DTDForbidden, EntitiesForbidden, ExternalReferenceForbidden
 from defusedxml.ElementTree import DefusedXMLParser
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError, require_file
-from rig.motion.body_plan import QUADRUPED_REQUIRED, QUADRUPED_ROLES
-from rig.motion.retarget import REQUIRED, ROLES
-from rig.muscle.shell_params import ShellParams, check_params, default_shell
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.motion.body_plan import QUADRUPED_REQUIRED, QUADRUPED_ROLES
+from jiggle.rig.motion.retarget import REQUIRED, ROLES
+from jiggle.rig.muscle.shell_params import ShellParams, check_params, default_shell
 
 LABELS = ROLES + tuple(r for r in QUADRUPED_ROLES if r not in ROLES)
 """Template labels: the human roles (rig.motion.retarget.ROLES) and the quadruped ones
@@ -1031,7 +1031,7 @@ def write_template(template: Template, path: str | os.PathLike) -> str:
 
 def builtin_templates() -> list[str]:
     """Names of the templates shipped in rig/muscle/templates (each in .toml and .xml form)."""
-    folder = importlib.resources.files("rig.muscle") / "templates"
+    folder = importlib.resources.files("jiggle.rig.muscle") / "templates"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
@@ -1041,7 +1041,7 @@ def load_template(name_or_path: str | os.PathLike, form: str = ".toml") -> Templ
     s = os.fspath(name_or_path)
     if os.path.isfile(s) or os.path.splitext(s)[1] or os.sep in s or "/" in s:
         return read_template(s)
-    res = importlib.resources.files("rig.muscle") / "templates" / f"{s}{form}"
+    res = importlib.resources.files("jiggle.rig.muscle") / "templates" / f"{s}{form}"
     if form not in SUFFIXES or not res.is_file():
         raise InputError(f"no built-in template named {s!r} (form {form!r}); built-in templates are "
                          f"{', '.join(builtin_templates())}, or give a path to a .xml or .toml file",

@@ -23,8 +23,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.character.mesh_graph import mesh_neighbours
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.mesh_graph import mesh_neighbours
 
 DEFAULT_ITERATIONS = 6
 """Smoothing steps of the skin's clean-up pass by default (the bake, deform, play): enough to remove
@@ -81,7 +81,7 @@ class DeltaMush:
         self.launches = 0
         """Warp launches made so far (`launch`: iterations + 1 per call)."""
 
-        from rig.skin import delta_mush_kernels as k
+        from jiggle.rig.skin import delta_mush_kernels as k
         pts = wp.array(rest[None], dtype=wp.vec3, device=d)
         smoothed = self._smooth(pts)
         self._delta = wp.empty(V, dtype=wp.vec3, device=d)
@@ -93,7 +93,7 @@ class DeltaMush:
         return [self._faces, self._face_offsets, self._face_of, self._tangent_to]
 
     def _smooth(self, pts: wp.array) -> wp.array:
-        from rig.skin import delta_mush_kernels as k
+        from jiggle.rig.skin import delta_mush_kernels as k
         a = wp.clone(pts)
         b = wp.empty_like(pts)
         for _ in range(self.iterations):
@@ -109,7 +109,7 @@ class DeltaMush:
 
     def launch(self, points: wp.array) -> wp.array:
         """Mushed points (T, V) vec3 on the device for skinned points (T, V) vec3 on the device."""
-        from rig.skin import delta_mush_kernels as k
+        from jiggle.rig.skin import delta_mush_kernels as k
         if points.ndim != 2 or points.shape[1] != self.num_vertices:
             raise InputError(f"expected (T, {self.num_vertices}) points, got {points.shape}", field="points")
         out = wp.empty_like(points)

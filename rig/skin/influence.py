@@ -49,12 +49,12 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.muscle import loft
-from rig.muscle.loft_attach import CVS_PER_MUSCLE, InfluenceBinding, check_cvs, check_pairs, check_weights, loft_frame
-from rig.skin import influence_kernels as kernels
-from rig.skin.scratch import Scratch
-from rig.skin.shell.shells import limit
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle import loft
+from jiggle.rig.muscle.loft_attach import CVS_PER_MUSCLE, InfluenceBinding, check_cvs, check_pairs, check_weights, loft_frame
+from jiggle.rig.skin import influence_kernels as kernels
+from jiggle.rig.skin.scratch import Scratch
+from jiggle.rig.skin.shell.shells import limit
 
 _CHUNK = 32768                  # pairs per block in the NumPy reference (bounds its temporaries)
 

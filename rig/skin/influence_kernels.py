@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from rig.skin.gather_kernels import csr_span, entry
-from rig.skin.shell.kernels import limit
+from jiggle.rig.skin.gather_kernels import csr_span, entry
+from jiggle.rig.skin.shell.kernels import limit
 
 
 @wp.func

@@ -180,7 +180,7 @@ def _pruned(joints, weights, skin_mats, rest, tol: float):
     if tol <= 0:
         return j, w
     import warp as wp
-    from rig.skin import jiggle_bones_kernels as kern
+    from jiggle.rig.skin import jiggle_bones_kernels as kern
     mats = skin_mats[np.unique(np.linspace(0, len(skin_mats) - 1, 48).astype(int))]   # a joint's motion is smooth:
     T, J = mats.shape[:2]                                              # 48 frames show its largest
     lever = np.zeros(j.shape)
@@ -210,7 +210,7 @@ def _lbs(joints, weights, skin_mats, rest):
     """(T, V, 3) float64 LBS of rest (V, 3) by skin_mats (T, J, 4, 4) and the influences (V, k): the Warp kernel
     `smooth_skin`, in float64 (the bake's own skin_lbs is float32)."""
     import warp as wp
-    from rig.skin import jiggle_bones_kernels as kern
+    from jiggle.rig.skin import jiggle_bones_kernels as kern
     T, J = skin_mats.shape[:2]
     out = np.empty((T, len(rest), 3))
     rest_w = wp.array(_f64(rest), dtype=wp.vec3d, device="cpu")
@@ -329,7 +329,7 @@ def _sweep(p, target, u, R, t, omega) -> None:
     make (Gauss-Seidel), for p (n, 3), target (T, n, 3), shares u (n, K1), error weights omega (n,): the Warp
     kernel `sweep`, a frame per thread."""
     import warp as wp
-    from rig.skin import jiggle_bones_kernels as kern
+    from jiggle.rig.skin import jiggle_bones_kernels as kern
     T, n = target.shape[:2]
     K1 = u.shape[1]
     members = [np.flatnonzero(u[:, k] > 0) for k in range(K1)]        # the bone's own vertices: nobody else sees it
@@ -434,7 +434,7 @@ def _shares(p, target, R, t, omega, u0, limit, steps: int = 20):
     CANDIDATES bones that fit it best alone, at most limit[i] of them nonzero (the strongest kept, then refitted),
     warm-started from u0: the Warp kernel `shares`, a vertex per thread."""
     import warp as wp
-    from rig.skin import jiggle_bones_kernels as kern
+    from jiggle.rig.skin import jiggle_bones_kernels as kern
     RtR, Rtt, tt, c = _frame_sums(p, target, R, t)
     n, K1 = u0.shape
     u = _f64(u0).copy()

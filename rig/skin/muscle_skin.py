@@ -44,19 +44,19 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.character import Character
-from rig.muscle.loft_attach import bind_influence
-from rig.muscle.model import MuscleRig
-from rig.muscle.shell_params import MODES, ShellParams, default_shell
-from rig.skin.delta_mush import DeltaMush
-from rig.skin.influence import InfluenceDeformer
-from rig.skin.painted_maps import JiggleMap, painted_pairs
-from rig.skin.shell.deformer import ShellBatch, ShellDeformer
-from rig.skin.shell.frames import MuscleFrames
-from rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
-from rig.skin.skinning import character_skinner
-from rig.skin.surface_smoothing import BLOCK, JIGGLE_REACH, SurfaceSmoothing, pool, steps_for_reach
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.character import Character
+from jiggle.rig.muscle.loft_attach import bind_influence
+from jiggle.rig.muscle.model import MuscleRig
+from jiggle.rig.muscle.shell_params import MODES, ShellParams, default_shell
+from jiggle.rig.skin.delta_mush import DeltaMush
+from jiggle.rig.skin.influence import InfluenceDeformer
+from jiggle.rig.skin.painted_maps import JiggleMap, painted_pairs
+from jiggle.rig.skin.shell.deformer import ShellBatch, ShellDeformer
+from jiggle.rig.skin.shell.frames import MuscleFrames
+from jiggle.rig.skin.shell.shells import beta, cull_pairs, pair_envelope, shell_table
+from jiggle.rig.skin.skinning import character_skinner
+from jiggle.rig.skin.surface_smoothing import BLOCK, JIGGLE_REACH, SurfaceSmoothing, pool, steps_for_reach
 
 SKINNING = ("shell", "influence", "rbf")
 """How the muscles move the skin: the shell deformers (Pratscher et al.), influence objects (the
@@ -142,7 +142,7 @@ class MuscleSkin:
                      if mush else None)
         """rig.skin.delta_mush.DeltaMush over the smooth skin (or the RBF skin), or None."""
         if skinning == "rbf":  # the feature points carry the muscles: no (vertex, muscle) pairs to cull
-            from rig.skin.rbf_skin import RBFSkin, RBFSkinOptions
+            from jiggle.rig.skin.rbf_skin import RBFSkin, RBFSkinOptions
             self.pair_offsets, self.pair_muscle = np.zeros(V + 1, np.int64), np.zeros(0, np.int64)
             self.pair_weight = np.zeros(0, np.float32)
             self.deformer = RBFSkin(character, rig, segmentation=segmentation, roles=roles,
@@ -233,7 +233,7 @@ class MuscleSkin:
         """The skin of a fitted musculature (rig.muscle.fit), each muscle's deformer from its template
         entry. `weights`: a painted weights file (.npz, rig.skin.shell.weights), an array (V, M), or None for
         the file beside `character_path` when there is one, else 1. Other keywords as the constructor."""
-        from rig.skin.shell.weights import find_weights, load_weights
+        from jiggle.rig.skin.shell.weights import find_weights, load_weights
         names = mus.rig.names
         if weights is None and character_path is not None:
             weights = find_weights(character_path)
@@ -620,7 +620,7 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
                 out[s] = painted.apply(out[0], out[s])
         character = getattr(skin, "character", None)
         if character is not None:       # the seams closed on every set (rig/skin/seams.py); LBS needs none
-            from rig.skin.seams import for_character, weld
+            from jiggle.rig.skin.seams import for_character, weld
             groups = for_character(character)
             out[:n] = [weld(o, groups) for o in out[:n]]
         return out

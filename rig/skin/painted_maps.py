@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError
 
 
 class JiggleMap:
@@ -87,9 +87,9 @@ def shell_regions(character, rig, shells=None, margin: float = 0.25, star: bool 
     nothing is painted (0 outside the culled region, 1 within the drop-off shell, the envelope fading
     between: rig.skin.shell.shells.pair_envelope), as rig.skin.muscle_skin.MuscleSkin computes it for
     "shell" skinning with `margin` and `star`. What a user starts painting influence maps from."""
-    from rig.muscle.shell_params import default_shell
-    from rig.skin.shell.frames import MuscleFrames
-    from rig.skin.shell.shells import cull_pairs, pair_envelope, shell_table
+    from jiggle.rig.muscle.shell_params import default_shell
+    from jiggle.rig.skin.shell.frames import MuscleFrames
+    from jiggle.rig.skin.shell.shells import cull_pairs, pair_envelope, shell_table
     shells = [default_shell(k) for k in rig.kinds] if shells is None else list(shells)
     frames = MuscleFrames.build(rig, character.bind_world, star=star)
     table = shell_table(shells, star=frames.star if star else None, star_index=frames.star_index if star else None)

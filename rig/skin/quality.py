@@ -28,9 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.character.mesh_graph import mesh_edges
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.character.mesh_graph import mesh_edges
 
 FOLDED_COS = 0.0
 """An edge folds when its faces' normals are more than 90 degrees apart (cosine below this)."""
@@ -136,7 +136,7 @@ class SkinQuality:
     def edges(self, skins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per frame (T, V, 3) metres: cos (T, E), strain (T, E) and face area ratio (T, F), float32
         (see quality_kernels)."""
-        from rig.skin import quality_kernels as k
+        from jiggle.rig.skin import quality_kernels as k
         pts = self._points(skins, "skins")
         T, E, F = pts.shape[0], self.mesh.num_edges, len(self.mesh.faces)
         normals = wp.empty((T, F), dtype=wp.vec3, device=self.device)
@@ -163,7 +163,7 @@ class SkinQuality:
 
     def gradient(self, static: np.ndarray, final: np.ndarray) -> np.ndarray:
         """The jiggle displacement gradient (T, E) float32 of each edge (see the module)."""
-        from rig.skin import quality_kernels as k
+        from jiggle.rig.skin import quality_kernels as k
         s, f = self._points(static, "static"), self._points(final, "final")
         if s.shape != f.shape:
             raise InputError(f"static and final skins differ in shape: {s.shape} and {f.shape}", field="final")

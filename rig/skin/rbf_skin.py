@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -54,11 +54,11 @@ class RBFSkin:
                  options: RBFSkinOptions = RBFSkinOptions(), device: str = "cpu"):
         from dataclasses import replace
 
-        from rig.anatomy.features import FeatureOptions, find_features
-        from rig.anatomy.rbf import RBFOptions, RBFSkinner, build_zone_rbf
-        from rig.anatomy.zones import body_zones
-        from rig.motion.role_map import resolve_roles
-        from rig.muscle.segmentation import segment_skin
+        from jiggle.rig.anatomy.features import FeatureOptions, find_features
+        from jiggle.rig.anatomy.rbf import RBFOptions, RBFSkinner, build_zone_rbf
+        from jiggle.rig.anatomy.zones import body_zones
+        from jiggle.rig.motion.role_map import resolve_roles
+        from jiggle.rig.muscle.segmentation import segment_skin
 
         if segmentation is None:
             segmentation = segment_skin(character)
@@ -80,7 +80,7 @@ class RBFSkin:
         self.character, self.rig, self.options = character, rig, options
         # zones that hold a muscle's features show the jiggle, the others (head, hands, feet) do not,
         # blended across the zone boundaries like the interpolants themselves
-        from rig.anatomy.features import MUSCLE
+        from jiggle.rig.anatomy.features import MUSCLE
         holds = np.zeros(self.zones.num_zones)
         holds[self.zones.vertex_zone[vertex[np.asarray(fs.anchors.kind) == MUSCLE]]] = 1.0
         self.jiggle_mask = np.clip(np.asarray(self.zones.blend @ holds).ravel(), 0.0, 1.0).astype(np.float32)

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.character.normals import VertexNormals
-from rig.motion import quat
-from rig.skin import skinning_kernels as kernels
-from rig.skin.scratch import Scratch
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.normals import VertexNormals
+from jiggle.rig.motion import quat
+from jiggle.rig.skin import skinning_kernels as kernels
+from jiggle.rig.skin.scratch import Scratch
 
 METHODS = ("lbs", "dqs")
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from rig.skin.gather_kernels import entry, fixed_span
+from jiggle.rig.skin.gather_kernels import entry, fixed_span
 
 
 @wp.func

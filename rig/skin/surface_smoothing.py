@@ -30,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from rig.base.errors import InputError
-from rig.character.mesh_graph import mesh_neighbours
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.mesh_graph import mesh_neighbours
 
 try:        # SciPy's CSR x dense kernel (what F @ y runs), into a result we keep: y += F x
     from scipy.sparse._sparsetools import csr_matvecs as _matvecs
@@ -215,7 +215,7 @@ class SurfaceSmoothing:
         (a GPU may fuse the product and the sum)."""
         import warp as wp
 
-        from rig.skin import smoothing_kernels as k
+        from jiggle.rig.skin import smoothing_kernels as k
         device = smooth.device
         T = smooth.shape[0]
         out = wp.clone(smooth)

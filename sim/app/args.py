@@ -5,15 +5,34 @@ bake options of `bake` and `demo`), each defined once.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import contextvars
 import sys
 
 EXIT_USER_ERROR = 2
 
 
+_RAISING = contextvars.ContextVar("jiggle_parser_raising", default=False)
+
+
 class Parser(argparse.ArgumentParser):
     def error(self, message):  # argparse's own exit code is 2 too; keep the one-line style
+        if _RAISING.get():
+            from jiggle.rig.base.errors import InputError
+            raise InputError(message)
         self.print_usage(sys.stderr)
         self.exit(EXIT_USER_ERROR, f"jiggle: error: {message}\n")
+
+
+@contextlib.contextmanager
+def raising_errors():
+    """Parsers raise InputError (the message the command line prints) instead of exiting: the public API parses
+    its keyword arguments with the command's own parser (jiggle/api.py)."""
+    token = _RAISING.set(True)
+    try:
+        yield
+    finally:
+        _RAISING.reset(token)
 
 
 def output_options(p: argparse.ArgumentParser, top: bool = False) -> None:
@@ -91,7 +110,7 @@ def character_options(p: argparse.ArgumentParser) -> None:
     influences_option(g)
     g.add_argument("--resolution", type=count("--resolution"), metavar="N",
                    help="generated body: target vertex count, 10000-40000 useful (default: 20000)")
-    from rig.character.body import BodyOptions
+    from jiggle.rig.character.body import BodyOptions
     for name, what in (("belly", "belly"), ("chest", "chest"), ("glutes", "glutes"), ("upper-arms", "upper arms")):
         default = getattr(BodyOptions(), name.replace("-", "_"))
         g.add_argument(f"--{name}", type=non_negative(f"--{name}"), metavar="M",
@@ -141,7 +160,7 @@ def bake_options(p: argparse.ArgumentParser, out: str) -> None:
 
 def bake_settings(p: argparse.ArgumentParser) -> None:
     """The bake's settings (time, jiggle, caches, skin) of `jiggle bake`, `demo` and `batch`."""
-    from sim.bake.scene import FORMATS
+    from jiggle.sim.bake.scene import FORMATS
     g = p.add_argument_group("time")
     g.add_argument("--fps", type=positive("--fps"), metavar="N", help="output frames per second (default: the "
                    "scene's, else 30)")
@@ -197,8 +216,8 @@ class KeyedAction(argparse.Action):
         super().__init__(option_strings, dest, **kw)
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from rig.base.errors import InputError
-        from sim.jiggle.keyed import parse_assignment
+        from jiggle.rig.base.errors import InputError
+        from jiggle.sim.jiggle.keyed import parse_assignment
         text = str(values).strip()
         try:
             pattern, value = parse_assignment(text, self.parameter, option_string, self.global_ok)
@@ -218,7 +237,7 @@ KEYED_FLAGS = (("--strength", "strength", ("--jiggle",)), ("--frequency", "frequ
 def keyed_options(p: argparse.ArgumentParser) -> None:
     """The keyable jiggle parameters (sim/jiggle/keyed.py), one repeatable flag each, in one group:
     --strength (alias --jiggle), --frequency, --damping, --goal-scale and --blend, each ``[NAME=]VALUE|CURVE``."""
-    from sim.jiggle.keyed import PARAMETERS
+    from jiggle.sim.jiggle.keyed import PARAMETERS
     g = p.add_argument_group(
         "jiggle parameters, keyable (over the scene's [jiggle] and [jiggle.muscles.NAME])",
         "Each flag is repeatable: [NAME=]VALUE, NAME a muscle or a glob (\"*_fat\", \"left_*\"; an exact name beats "
@@ -251,7 +270,7 @@ def keyed_request(args) -> dict:
 
 def collision_option(g) -> None:
     """--collisions / --no-collisions: the particles collide with other body parts' bone capsules and the floor."""
-    from sim.jiggle.params import COLLIDERS, JiggleSettings
+    from jiggle.sim.jiggle.params import COLLIDERS, JiggleSettings
     g.add_argument("--collisions", action=argparse.BooleanOptionalAction, default=None,
                    help="the muscles' particles collide with the bone capsules of other body parts and with the floor "
                    f"(default: the scene's, else {'on' if JiggleSettings().collisions else 'off'})")

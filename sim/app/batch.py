@@ -30,9 +30,9 @@ from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Callable
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError
-from sim.bake.setup import BakeRequest, file_digest, jsonable, params_key
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.bake.setup import BakeRequest, file_digest, jsonable, params_key
 
 INDEX_FORMAT = "jiggle.batch/1"
 RECORD = "batch.json"
@@ -100,8 +100,8 @@ def _animations(path: str, log) -> list[tuple[int | None, str | None]]:
     read: its job then fails with the reader's error), one per animation of a glTF, none without."""
     if not path.lower().endswith((".glb", ".gltf", ".fbx")):
         return [(None, None)]
-    from rig.motion.fbx import fbx_to_gltf, is_fbx
-    from rig.motion.gltf_io import GltfDocument
+    from jiggle.rig.motion.fbx import fbx_to_gltf, is_fbx
+    from jiggle.rig.motion.gltf_io import GltfDocument
     try:
         anims = GltfDocument(fbx_to_gltf(path) if is_fbx(path) else path).gltf.animations or []
     except Exception:                  # noqa: BLE001 - the job reports the reader's error
@@ -129,7 +129,7 @@ def _unique(name: str, taken: set, longer: str) -> str:
 
 
 def manifest_jobs(path: str, base: BakeRequest, log: Callable[[str], None] = lambda s: None) -> list[Job]:
-    """The [[job]] tables of a manifest TOML (see JOB_KEYS and the README), each over `base`. A glTF clip
+    """The [[job]] tables of a manifest TOML (see JOB_KEYS and docs/tutorials/library.md), each over `base`. A glTF clip
     without `animation` makes one job per animation. Paths are relative to the manifest's folder."""
     import tomllib
     try:
@@ -292,8 +292,8 @@ def run_job(job: Job, out_root: str, report: str = "render", print_fingerprint: 
     without renders), "none".
     """
     _quiet_warp()
-    from sim.bake.baker import MANIFEST, PARTIAL, bake
-    from sim.bake.setup import prepare
+    from jiggle.sim.bake.baker import MANIFEST, PARTIAL, bake
+    from jiggle.sim.bake.setup import prepare
     out = os.path.join(out_root, job.name)
     t_start = time.perf_counter()
     rec = {"name": job.name, "source": job.source, "status": "failed", "error": None,
@@ -319,7 +319,7 @@ def run_job(job: Job, out_root: str, report: str = "render", print_fingerprint: 
                        resumed_after_chunks=summary["resumed_after_chunks"],
                        frames_per_s=summary["timings"].get("frames_per_s"))
             if report != "none":
-                from sim.app.compare import compare
+                from jiggle.sim.app.compare import compare
                 t = time.perf_counter()
                 res = compare(out, render=report == "render", video=False)
                 rec["report_s"] = time.perf_counter() - t
@@ -540,7 +540,7 @@ def render_index(doc: dict) -> str:
     """index.html: a table, one row per job, sortable by any column (click its header); a thumbnail of the
     peak frame and a link to the job's report (compare's report.html), both relative to DIR. The page's
     look is compare's (sim.app.report.CSS)."""
-    from sim.app.report import CSS
+    from jiggle.sim.app.report import CSS
 
     def e(v):
         return "&ndash;" if v is None else html.escape(str(v))

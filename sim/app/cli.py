@@ -16,9 +16,9 @@ import sys
 import time
 import warnings
 
-from rig.base.errors import InputError, JiggleWarning
-from sim.app.args import EXIT_USER_ERROR, Parser, output_options
-from sim.app.commands import COMMANDS
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.sim.app.args import EXIT_USER_ERROR, Parser, output_options
+from jiggle.sim.app.commands import COMMANDS
 
 EXIT_INTERRUPTED = 130
 
@@ -34,6 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
                "start-up and kernel-load lines and NumPy's overflow/invalid-value warnings are hidden unless "
                "--verbose; --quiet prints errors only. --quiet and --verbose go before or after COMMAND. "
                "Exit codes: 0 done, 1 some jobs of a batch failed, 2 bad input, 130 interrupted.")
+    from jiggle._version import __version__
+    top.add_argument("--version", action="version", version=f"jiggle {__version__}")
     output_options(top, top=True)
     sub = top.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for command in COMMANDS:

@@ -44,13 +44,13 @@ from typing import Callable
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError
-from sim.app import skin_quality
-from sim.app.jiggle_outputs import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
-from sim.app.plots import plot_contacts, pyplot, save_figure
-from sim.bake.baker import COMPARE_NAMES, COMPARE_RECORD, COMPARE_RECORD_FORMAT, SUMMARY, compare_files, remove_listed
-from sim.bake.caches import BakeData, read_npz
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.app import skin_quality
+from jiggle.sim.app.jiggle_outputs import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
+from jiggle.sim.app.plots import plot_contacts, pyplot, save_figure
+from jiggle.sim.bake.baker import COMPARE_NAMES, COMPARE_RECORD, COMPARE_RECORD_FORMAT, SUMMARY, compare_files, remove_listed
+from jiggle.sim.bake.caches import BakeData, read_npz
 
 FORMAT = "jiggle.compare/1"
 BAKE = "bake.npz"
@@ -411,7 +411,7 @@ def plot_amplitude(path, times, amp, names, order, top=TOP, title=""):
 def plot_limits(path, times, rho, names, order, top=TOP, title=""):
     """limits.png: each muscle's largest CV offset over its reach (T, M) over time, the tissue law's onset
     (linear below it) and the near-limit line marked; the muscles nearest their reach labelled."""
-    from sim.jiggle.tissue_law import ONSET
+    from jiggle.sim.jiggle.tissue_law import ONSET
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4))
     _curves(ax, times, rho, names, order, top)
@@ -641,7 +641,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
 
     video_info = None
     if render and V:
-        from sim.app.compare_render import render_outputs
+        from jiggle.sim.app.compare_render import render_outputs
         t0 = time.perf_counter()
         rendered = render_outputs(data, peak["frame"], an["disp"], out_dir, video=video, progress=progress,
                                   name=as_name.__getitem__)
@@ -656,7 +656,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         timings["quality_render_s"] = time.perf_counter() - t0
     glb = None
     if "glb" in (read_contacts(out_dir, "files") or {}) and os.path.isfile(os.path.join(out_dir, "bake.glb")):
-        from sim.app.glb_report import glb_check
+        from jiggle.sim.app.glb_report import glb_check
         t0 = time.perf_counter()
         glb, drawn = glb_check(out_dir, data, out("glb_closeup.png") if render and V else None)
         if drawn:
@@ -697,7 +697,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     metrics = clean(metrics)
     _write_json(files["metrics"], metrics)
 
-    from sim.app.report import write_report
+    from jiggle.sim.app.report import write_report
     t0 = time.perf_counter()
     write_report(files["report"], metrics, files)
     timings["report_s"] = time.perf_counter() - t0

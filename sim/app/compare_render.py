@@ -28,10 +28,10 @@ from typing import Callable
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.character.normals import VertexNormals
-from sim.app.jiggle_outputs import focus_boxes
-from sim.app.mesh_render import SKIN, frame_camera
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.character.normals import VertexNormals
+from jiggle.sim.app.jiggle_outputs import focus_boxes
+from jiggle.sim.app.mesh_render import SKIN, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 

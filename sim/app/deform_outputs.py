@@ -13,9 +13,9 @@ import os
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.skin.muscle_skin import MuscleSkin
-from sim.app.mesh_render import SKIN, VIEWS, frame_camera
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.skin.muscle_skin import MuscleSkin
+from jiggle.sim.app.mesh_render import SKIN, VIEWS, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 

@@ -5,8 +5,8 @@ import os
 
 import numpy as np
 
-from rig.base.errors import InputError, require_file
-from rig.motion.clip import Clip
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.motion.clip import Clip
 
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off")
 
@@ -35,10 +35,10 @@ def _body_clip(path: str) -> Clip:
     helper bones off a weightless root set aside); the file's skeleton when the character cannot be read."""
     import warnings
 
-    from rig.base.errors import JiggleWarning
-    from rig.character.body_skeleton import body_skeleton
-    from rig.character.gltf_character import read_gltf_character
-    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.rig.character.body_skeleton import body_skeleton
+    from jiggle.rig.character.gltf_character import read_gltf_character
+    from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", JiggleWarning)
@@ -49,14 +49,14 @@ def _body_clip(path: str) -> Clip:
 
 def body_plan(clip: Clip) -> dict:
     """The skeleton's body plan (rig.motion.body_plan) and the template `--template auto` picks for it."""
-    from rig.motion.body_plan import detect_body_plan
+    from jiggle.rig.motion.body_plan import detect_body_plan
     plan = detect_body_plan(clip)
     return {**plan.to_json(), "template": plan.template or "none built in (give --template FILE)"}
 
 
 def unit_note(height: float) -> dict:
     """What `--unit auto` makes of a character `height` file units tall (read as metres)."""
-    from rig.character.character import PLAUSIBLE_HEIGHT_M, UNIT_NAMES, UNITS, guess_unit
+    from jiggle.rig.character.character import PLAUSIBLE_HEIGHT_M, UNIT_NAMES, UNITS, guess_unit
     unit = guess_unit(height)
     lo, hi = PLAUSIBLE_HEIGHT_M
     if unit is not None:
@@ -70,7 +70,7 @@ def unit_note(height: float) -> dict:
 
 
 def describe_mesh(path: str) -> dict:
-    from rig.character.mesh_io import read_trimesh
+    from jiggle.rig.character.mesh_io import read_trimesh
     v, f, _ = read_trimesh(path)
     return {"kind": "character", "format": os.path.splitext(path)[1][1:].upper(), "vertices": int(len(v)),
             "faces": int(len(f)), "joints": 0, "skins": 0, "animations": [],
@@ -95,17 +95,17 @@ def describe_mjcf(path: str) -> dict:
 
 def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose="auto") -> dict:
     """A description of any file jiggle reads: clip, character, or MJCF."""
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.motion.mocap import load_clip
     p = require_file(path)
     ext = os.path.splitext(p)[1].lower()
     if ext in (".bvh", ".amc", ".asf"):
         out = describe_clip(load_clip(p, skeleton=skeleton, scale=scale, tpose=tpose))
     elif ext in (".glb", ".gltf"):
-        from rig.motion.gltf_skeleton import describe_gltf
+        from jiggle.rig.motion.gltf_skeleton import describe_gltf
         out = {"kind": "character", **describe_gltf(p)}
         if out.get("skins"):
             # the character as the bake reads it: skin 0 posed by glTF's skinning rule at its bind pose
-            from rig.character.gltf_character import skin_points
+            from jiggle.rig.character.gltf_character import skin_points
             pts = skin_points(p, 0)
             if len(pts):
                 out["height_m"] = round(float(np.ptp(pts[:, 2])), 4)
@@ -120,7 +120,7 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
             if "body_plan" in out:      # the animation moves the character's own skeleton: its body, as read above
                 out["clip"]["body_plan"] = out["body_plan"]
     elif ext == ".fbx":
-        from rig.motion.fbx import fbx_to_gltf, fbx_version
+        from jiggle.rig.motion.fbx import fbx_to_gltf, fbx_version
         kind, version = fbx_version(p)
         glb = fbx_to_gltf(p)
         try:

@@ -21,9 +21,9 @@ import os
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.muscle.fit import Musculature
-from sim.app.mesh_render import SKIN, VIEWS, frame_camera
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.muscle.fit import Musculature
+from jiggle.sim.app.mesh_render import SKIN, VIEWS, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
@@ -33,7 +33,7 @@ REFUSED = (0.8, 0.0, 0.0)  # a muscle the quality check refused (not in the rig)
 
 def quality_summary(mus: Musculature) -> dict:
     """JSON-ready fit quality: thresholds, counts, the worst loft error and inside share and their muscles."""
-    from rig.muscle.fit_quality import thresholds
+    from jiggle.rig.muscle.fit_quality import thresholds
     q = list(mus.quality) + list(mus.refused)
     out = {"thresholds": thresholds(), "ok": sum(x.status == "ok" for x in q),
            "warned": [x.name for x in q if x.status == "warn"], "refused": [x.name for x in mus.refused]}

@@ -12,8 +12,8 @@ import numpy as np
 
 def glb_check(out_dir: str, data, png: str | None) -> tuple[dict, str | None]:
     """(metrics, the close-up's path or None) of OUT_DIR/bake.glb against the bake's data (BakeData)."""
-    from rig.character.gltf_character import read_gltf_character
-    from sim.bake.glb import GLB_NAME, played_from_file, report
+    from jiggle.rig.character.gltf_character import read_gltf_character
+    from jiggle.sim.bake.glb import GLB_NAME, played_from_file, report
     path = os.path.join(out_dir, GLB_NAME)
     played = played_from_file(path, len(data.times))
     T = len(played)
@@ -28,7 +28,7 @@ def glb_check(out_dir: str, data, png: str | None) -> tuple[dict, str | None]:
 
 
 def _closeup(data, played: np.ndarray, final: np.ndarray, k: int, path: str) -> str:
-    from sim.app.compare_render import SideBySide, write_png
+    from jiggle.sim.app.compare_render import SideBySide, write_png
     err = np.linalg.norm(played[k] - final[k], axis=1)
     v = int(np.argmax(err))
     extent = np.ptp(final[k], axis=0).max()

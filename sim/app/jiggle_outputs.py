@@ -24,12 +24,12 @@ from typing import Sequence
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError
-from rig.skin.muscle_skin import skin_frames
-from sim.app.mesh_render import SKIN, frame_camera
-from sim.jiggle.keyed import jsonable_value
-from sim.jiggle.secondary import JiggleResult
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.skin.muscle_skin import skin_frames
+from jiggle.sim.app.mesh_render import SKIN, frame_camera
+from jiggle.sim.jiggle.keyed import jsonable_value
+from jiggle.sim.jiggle.secondary import JiggleResult
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 

@@ -5,18 +5,18 @@ from __future__ import annotations
 
 import sys
 
-from sim.app.args import animation
+from jiggle.sim.app.args import animation
 
 
 def load_clip(args):
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.motion.mocap import load_clip
     return load_clip(args.clip, skeleton=args.skeleton, animation=animation(args.animation),
                      scale=args.scale, tpose=args.tpose)
 
 
 def retarget_onto_character(clip, args, character):
     """`clip` on the skeleton of the skinned glTF `args.character`, read as `character` (its unit)."""
-    from rig.motion.retarget_onto import retarget_onto
+    from jiggle.rig.motion.retarget_onto import retarget_onto
     return retarget_onto(clip, args.character, args.skin, args.clip_map, args.character_map, print,
                          scale=character.meta.get("unit_scale", 1.0))
 
@@ -28,14 +28,14 @@ def body_overrides(args) -> dict:
 
 
 def body_options(args):
-    from rig.character.body import BodyOptions
+    from jiggle.rig.character.body import BodyOptions
     return BodyOptions(**body_overrides(args))
 
 
 def generated_character(clip, args, quiet=False):
     import time
 
-    from rig.character.load import body_character
+    from jiggle.rig.character.load import body_character
     t = time.perf_counter()
     character = body_character(clip, body_options(args), k=args.influences)
     if not quiet:
@@ -45,5 +45,5 @@ def generated_character(clip, args, quiet=False):
 
 
 def default_scene() -> str:
-    from sim.bake.scene import default_scene as path
+    from jiggle.sim.bake.scene import default_scene as path
     return path()

@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
+from jiggle.rig.base.atomic import atomic_path
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 

@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
+from jiggle.rig.base.atomic import atomic_path
 
 
 def side_paths(out: str) -> tuple[str, str]:
@@ -35,7 +35,7 @@ def render_morph(path: str, canonical_vertices, target_vertices, faces, markers:
     markers (n, 3) as red spheres on the target."""
     import pyvista as pv
 
-    from sim.app.mesh_render import frame_camera
+    from jiggle.sim.app.mesh_render import frame_camera
 
     f = np.hstack([np.full((len(faces), 1), 3), np.asarray(faces, np.int64)]).ravel()
     a = np.asarray(canonical_vertices, float)

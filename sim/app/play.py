@@ -11,9 +11,9 @@ import os
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.motion.clip import transforms
-from sim.drive.motion import Motion
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.motion.clip import transforms
+from jiggle.sim.drive.motion import Motion
 
 
 def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, render: bool = True,
@@ -25,7 +25,7 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
     motion.npz keys: times (N,) s; joint_names (J,); parents (J,); joint_world (N, J, 4, 4) metres,
     Z-up; end_sites (N, E, 3) metres; fps; plus the drive's `Motion.arrays`. Returns the summary.
     """
-    from sim.app.plots import plot_joint_trajectories
+    from jiggle.sim.app.plots import plot_joint_trajectories
 
     os.makedirs(out_dir, exist_ok=True)
     files = {}
@@ -42,7 +42,7 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
                                 tmp, title=f"{name}: joint trajectories ({motion.info['drive']} drive)")
     files["trajectories"] = "trajectories.png"
     if render:
-        from sim.app.render import render_skeleton_over_time
+        from jiggle.sim.app.render import render_skeleton_over_time
         with atomic_path(os.path.join(out_dir, "skeleton.png")) as tmp:
             render_skeleton_over_time(np.concatenate([motion.positions, motion.end_points], axis=1),
                                       motion.parents, motion.end_parents, times, tmp, poses=poses,
@@ -66,14 +66,14 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
 
 def _character_outputs(character, motion: Motion, name: str, out_dir: str, poses: int, render: bool,
                        method: str, files: dict) -> dict:
-    from sim.app.skin_pass import skin_motion
+    from jiggle.sim.app.skin_pass import skin_motion
     n = len(motion.times)
     frames = np.unique(np.linspace(0, n - 1, min(poses, n)).round().astype(int))
     skinned = skin_motion(character, motion, method=method, frames=frames)
     if not np.all(np.isfinite(skinned)):
         raise FloatingPointError("skinning produced non-finite vertices")  # a bug, never user input
     if render:
-        from sim.app.render import render_skin_over_time
+        from jiggle.sim.app.render import render_skin_over_time
         with atomic_path(os.path.join(out_dir, "character.png")) as tmp:
             render_skin_over_time(skinned, character.faces, motion.times[frames], tmp,
                                   title=f"{name}: {character.name or 'character'} skinned ({method.upper()})")

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
+from jiggle.rig.base.atomic import atomic_path
 
 
 def pyplot():

@@ -13,7 +13,7 @@ import html
 import json
 import os
 
-from rig.base.atomic import atomic_path
+from jiggle.rig.base.atomic import atomic_path
 
 MIME = {".png": "image/png", ".gif": "image/gif", ".mp4": "video/mp4"}
 PLOTS = (("amplitude", "Jiggle amplitude"), ("limits_plot", "Offset over reach: how near each muscle comes to its limit"),

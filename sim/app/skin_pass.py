@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.character.character import Character
-from rig.motion.clip import transforms
-from rig.skin.skinning import character_skinner
-from sim.drive.motion import Motion
+from jiggle.rig.character.character import Character
+from jiggle.rig.motion.clip import transforms
+from jiggle.rig.skin.skinning import character_skinner
+from jiggle.sim.drive.motion import Motion
 
 
 def skin_motion(character: Character, motion: Motion, method: str = "lbs", device: str = "cpu",

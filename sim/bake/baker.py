@@ -43,17 +43,17 @@ from typing import Callable
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError
-from rig.skin.muscle_skin import skin_frames
-from sim.bake.setup import BakeSetup
-from sim.bake.writer import BakeWriter
-from sim.jiggle.blend import blend, blend_weights, needs_simulation
-from sim.jiggle.colliders import collider_model, contact_summary, muscle_contacts, skin_check
-from sim.jiggle.keyed_solver import make_solver
-from sim.jiggle.particles import muscle_model
-from sim.jiggle.simulate import TIME_EPS, goals, simulate
-from sim.jiggle.tissue_contacts import tissue_contact_model
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.skin.muscle_skin import skin_frames
+from jiggle.sim.bake.setup import BakeSetup
+from jiggle.sim.bake.writer import BakeWriter
+from jiggle.sim.jiggle.blend import blend, blend_weights, needs_simulation
+from jiggle.sim.jiggle.colliders import collider_model, contact_summary, muscle_contacts, skin_check
+from jiggle.sim.jiggle.keyed_solver import make_solver
+from jiggle.sim.jiggle.particles import muscle_model
+from jiggle.sim.jiggle.simulate import TIME_EPS, goals, simulate
+from jiggle.sim.jiggle.tissue_contacts import tissue_contact_model
 
 PARTIAL = ".partial"
 MANIFEST = "manifest.json"
@@ -458,7 +458,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     _write_json(os.path.join(out_dir, SUMMARY), summary)
     shutil.rmtree(partial, ignore_errors=True)
     if "glb" in setup.formats:                  # fitted from the finished npz; recorded in bake.json when written
-        from sim.bake.glb import write_for_bake
+        from jiggle.sim.bake.glb import write_for_bake
         log("fitting jiggle bones for the glb")
         rep = write_for_bake(setup, out_dir, bones=setup.glb.get("bones"),
                              max_influences=setup.glb.get("max_influences", 4))
@@ -478,7 +478,7 @@ per muscle (M,)."""
 def _tissue_json(setup: BakeSetup, parts: dict) -> dict:
     """bake.json's "tissue": the tissue law's constants and the hard stops per muscle over the whole bake (a
     resumed bake adds its earlier chunks' from their markers)."""
-    from sim.jiggle import tissue_law
+    from jiggle.sim.jiggle import tissue_law
     M = setup.rig.M
     stops = np.zeros(M, np.int64)
     for c in sorted(parts):
@@ -598,3 +598,15 @@ def _summary(setup: BakeSetup, out_dir: str, files: dict, baker: Baker, loop_s: 
                     "frames_per_s": round(baked / loop_s, 2) if loop_s > 0 and baked else None},
         "params": setup.params,
     }
+
+
+def bake_in_memory(setup: BakeSetup) -> "BakeData":
+    """The bake's arrays (sim.bake.caches.BakeData) without a folder of the user's: `bake` into a temporary folder
+    with the npz alone, read back, the folder removed (the public API's `jiggle.simulate`)."""
+    import tempfile
+    from dataclasses import replace
+
+    from jiggle.sim.bake.caches import read_npz
+    with tempfile.TemporaryDirectory(prefix="jiggle-") as tmp:
+        bake(replace(setup, formats=("npz",)), tmp)
+        return read_npz(os.path.join(tmp, "bake.npz"))

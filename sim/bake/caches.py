@@ -49,10 +49,10 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.character.normals import VertexNormals
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.character.normals import VertexNormals
 
 FORMAT = "jiggle.bake/1"
 PC2_MAGIC = b"POINTCACHE2\0"

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError
 
 DEFAULT_BONES = {"human": 128, "quadruped": 128}
 """Jiggle bones per built-in template at most; another template gets two per muscle at most."""
@@ -47,7 +47,7 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
     source : the glTF the character came from (its material is copied), None for a plain one.
     muscle_joint : (M,) the joint each muscle rides (the rig's middle slot), None: unknown.
     """
-    from rig.skin import jiggle_bones as jb
+    from jiggle.rig.skin import jiggle_bones as jb
     if max_influences not in (4, 8):
         raise InputError(f"--max-influences must be 4 or 8 (JOINTS_0, or JOINTS_0 and JOINTS_1), got "
                          f"{max_influences}", field="--max-influences")
@@ -68,14 +68,14 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
     if data.skin_lbs is not None:
         lbs = np.asarray(data.skin_lbs, np.float64)
     else:                                       # an older bake without its smooth skin: the character's own LBS
-        from rig.skin.skinning import pose_character
+        from jiggle.rig.skin.skinning import pose_character
         lbs = pose_character(c, np.asarray(world, np.float64)).astype(np.float64)
     muscle = jb.nearest_muscle(data.skin_static[0], data.muscle_cvs_static[0], data.muscle_cv_offsets)
     fitted = jb.fit(c.vertices, c.joints, c.weights, mats, final, muscle, data.muscle_names, bones,
                     max_influences=max_influences, muscle_joint=muscle_joint)
     fit_s = time.perf_counter() - t0
     ext, clip = _with_bones(c, np.asarray(world, np.float64), fitted, fps or data.fps)
-    from rig.character.gltf_write import write_character
+    from jiggle.rig.character.gltf_write import write_character
     try:
         write_character(ext, path, source=source, name=c.name or "character", animations={"jiggle": clip},
                         compact=True,
@@ -93,10 +93,10 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
 def played_from_file(path: str, frames: int | None = None) -> np.ndarray:
     """(T, V, 3) float64 the skin a glb plays at each of its animation's keys, read back as an engine reads the
     file (its own quantized weights and keys; jiggle's glTF reader, rig.character.gltf_character)."""
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
-    from rig.skin.skinning import pose_character
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.rig.skin.skinning import pose_character
     c = load_character(path, k=8)                 # every influence the file holds (JOINTS_0 and _1)
     clip = load_clip(path)
     T = clip.num_frames if frames is None else min(frames, clip.num_frames)
@@ -127,8 +127,8 @@ def _with_bones(c, world: np.ndarray, fitted, fps: float):
     per frame)."""
     import dataclasses
 
-    from rig.motion import quat
-    from rig.motion.clip import Clip, local_from_world
+    from jiggle.rig.motion import quat
+    from jiggle.rig.motion.clip import Clip, local_from_world
     K = len(fitted.names)
     hosts = fitted.hosts.astype(np.int64)
     parents = np.r_[c.parents, hosts].astype(np.int32)
@@ -152,8 +152,8 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
     report, also stored in bake.json under "glb"."""
     import json
 
-    from rig.base.atomic import atomic_path
-    from sim.bake.caches import read_npz
+    from jiggle.rig.base.atomic import atomic_path
+    from jiggle.sim.bake.caches import read_npz
     data = read_npz(os.path.join(out_dir, "bake.npz"))
     world = setup.world_at(np.asarray(data.times, np.float64))
     template = setup.params.get("template") if isinstance(setup.params, dict) else None
@@ -185,6 +185,6 @@ def _material_source(character) -> str | None:
     if low.endswith((".glb", ".gltf")) and os.path.isfile(src):
         return src
     if low.endswith(".fbx") and os.path.isfile(src):
-        from rig.motion.fbx import fbx_to_gltf
+        from jiggle.rig.motion.fbx import fbx_to_gltf
         return fbx_to_gltf(src)
     return None

@@ -77,11 +77,11 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Mapping, Sequence
 
-from rig.base.errors import InputError
-from rig.base.tomlfile import read_toml
-from rig.motion.clip import Clip
-from sim.jiggle.keyed import parse_curve
-from sim.jiggle.params import COLLIDERS, OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.tomlfile import read_toml
+from jiggle.rig.motion.clip import Clip
+from jiggle.sim.jiggle.keyed import parse_curve
+from jiggle.sim.jiggle.params import COLLIDERS, OVERRIDES, BlendCurve, JiggleSettings, MuscleJiggle, override, section_goals
 
 _JIGGLE_SETTINGS = ("substeps", "goal_rate", "gravity", "preroll", "strength", "blend", "cut_ratio", "cut_jump",
                     "collisions", "colliders", "muscle_collisions")
@@ -109,7 +109,7 @@ MAX_SUBSTEPS = 1000          # jiggle substeps per frame
 def default_scene() -> str:
     """Path of the built-in demo scene, scenes/default.toml."""
     from importlib import resources
-    return str(resources.files("scenes").joinpath("default.toml"))
+    return str(resources.files("jiggle.scenes").joinpath("default.toml"))
 
 
 @dataclass(frozen=True)
@@ -171,7 +171,7 @@ class Scene:
         line for an unknown muscle or joint, or bad keys."""
         from dataclasses import replace
 
-        from rig.muscle.pose_shapes import bind_section_shapes
+        from jiggle.rig.muscle.pose_shapes import bind_section_shapes
         if not self.pose_shapes:
             return rig
         shapes = bind_section_shapes(self.pose_shapes, rig, character.joint_names, character.parents,
@@ -201,7 +201,7 @@ def apply_muscle_jiggle(jiggles: Sequence, tables: Mapping[str, Mapping], path: 
 def apply_entries(jiggles: Sequence, entries: Sequence[tuple], path: str | None = None, lines=None) -> list:
     """`jiggles` with entries (pattern, {OVERRIDES key: value}, where) applied as apply_muscle_jiggle does;
     where is a name for messages (a flag: "--damping *_fat=0.2") or (name, path, line)."""
-    from sim.jiggle.keyed import resolve_tables
+    from jiggle.sim.jiggle.keyed import resolve_tables
     names = [j.name for j in jiggles]
     merged = resolve_tables(entries, names)
     out = []
@@ -335,10 +335,10 @@ def _read_motion(motion: dict, p: str, here: str, lines: "_Lines") -> Clip:
     if not os.path.isfile(mfile):
         raise InputError(f"motion file {mfile} not found", p, lines.key("motion", "file"), field="motion.file")
     if mfile.lower().endswith(".toml"):
-        from rig.motion.keyframes import read_keyframes
+        from jiggle.rig.motion.keyframes import read_keyframes
         clip = read_keyframes(mfile)
     else:
-        from rig.motion.mocap import load_clip
+        from jiggle.rig.motion.mocap import load_clip
         skel = motion.get("skeleton")
         skel = os.path.join(here, expand_path(skel, p, "motion.skeleton", lines.key("motion", "skeleton"))) if skel else None
         scale = motion.get("scale")
@@ -486,7 +486,7 @@ def _jiggle_section(sec: dict, p: str, lines: "_Lines"):
 def _pose_shapes(tables, p: str) -> tuple:
     """The [[pose_shapes]] tables as SectionShape (types checked here, with the line of each table's
     header; ranges, muscles and joints when they are bound to a rig)."""
-    from rig.muscle.pose_shapes import SectionShape
+    from jiggle.rig.muscle.pose_shapes import SectionShape
     if tables is None:
         return ()
     with open(p, encoding="utf-8") as fh:

@@ -21,10 +21,10 @@ from typing import Callable, Mapping, MutableMapping
 
 import numpy as np
 
-from rig.base.errors import InputError
-from sim.jiggle.keyed import Curve
-from sim.jiggle.params import BlendCurve, JiggleSettings
-from sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.jiggle.keyed import Curve
+from jiggle.sim.jiggle.params import BlendCurve, JiggleSettings
+from jiggle.sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
 
 BAKE_FPS = 30.0
 """Output frames per second when neither the command line nor the scene says."""
@@ -228,35 +228,49 @@ def output_times(duration: float, fps: float, start: float | None, end: float | 
     return times if frames is None else times[:frames]
 
 
+def prepare_from(clip, character, musculature=None, req: BakeRequest | None = None, *,
+                 character_file: str | None = None, log: Callable[[str], None] = lambda s: None) -> BakeSetup:
+    """`prepare` for a clip (rig.motion.clip.Clip), a character (rig.character.character.Character) and its
+    muscles (rig.muscle.fit.Musculature; None: fitted with the request's template) already in memory, as the
+    public API's `jiggle.simulate` has them; the request gives the rest (fps, strength, ...; its clip, character
+    and scene are not read). character_file : the character's glTF/FBX, to retarget the clip onto it; None: the
+    clip must be on the character's own skeleton."""
+    req = req or BakeRequest()
+    if req.scene is not None or req.clip is not None or req.character is not None:
+        raise ValueError("prepare_from takes the clip and character themselves, not a request's files")
+    return prepare(replace(req, character=character_file), log, given=(clip, character, musculature))
+
+
 def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
-            rigs: MutableMapping | None = None) -> BakeSetup:
+            rigs: MutableMapping | None = None, given: tuple | None = None) -> BakeSetup:
     """Resolve `req` against its scene and do the one-off work (see the module).
 
     rigs : a cache of the per-character work (the character read or generated, its fitted muscles and
         bound skin: a FittedRig), by fitted_key; given, a request whose key is in it skips that work
         (`jiggle batch` keeps one per worker), and a new one is stored in it. The setup, its params and
         key are the same either way: nothing in that work depends on the clip beyond what the key names.
+    given : (clip, character, musculature or None) in memory, used instead of reading them (`prepare_from`).
     """
-    from sim.bake.scene import load_scene
+    from jiggle.sim.bake.scene import load_scene
     if req.device is not None:
         warp_device(req.device)             # before any work: a device that is not here is the user's mistake
     timings = {}
     t = time.perf_counter()
     scene = load_scene(req.scene) if req.scene is not None else None
     own = req.character is not None and str(req.character).lower().endswith((".glb", ".gltf", ".fbx"))
-    if scene is None and req.clip is None and not own:      # a glTF character alone bakes its own animation
-        from sim.bake.scene import default_scene
+    if scene is None and req.clip is None and not own and given is None:   # a glTF character alone bakes its own
+        from jiggle.sim.bake.scene import default_scene
         scene = load_scene(default_scene())
     if scene is not None and scene.builtin is not None:
         return _prepare_builtin(req, scene, log)
     spec = scene.character if scene is not None else None
     pick = _picker(req, spec)
     drive = req.drive or (scene.drive if scene is not None else "kinematic")
-    clip, clip_source = _clip(req, scene)
+    clip, clip_source = (given[0], given[0].name) if given is not None else _clip(req, scene)
     timings["read_s"] = time.perf_counter() - t
 
-    from rig.character.body import BodyOptions
-    from rig.character.load import body_character, load_character
+    from jiggle.rig.character.body import BodyOptions
+    from jiggle.rig.character.load import body_character, load_character
     t = time.perf_counter()
     character_file = req.character or (spec.file if spec is not None else None)
     source = clip
@@ -264,24 +278,26 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     if character_file is not None and req.body:
         raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
                          f"the character {os.path.basename(character_file)} has its own", field="--character")
-    if character_file is None:
+    if character_file is None and given is None:
         body = BodyOptions(**{**(dict(spec.body) if spec is not None else {}), **dict(req.body)})
     template = req.template or (spec.template if spec is not None else None) or "auto"
     skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
     rig_key = cached = None
-    if rigs is not None:
+    if rigs is not None and given is None:
         rig_key = fitted_key(req, pick, character_file, body, template, clip)
         cached = rigs.get(rig_key)
     if cached is not None:
         character = cached.character
+    elif given is not None:
+        character = given[1]
     elif character_file is not None:
         character = load_character(character_file, k=pick("influences", 4), unit=pick("unit", None),
                                    skin=pick("skin", 0))
     else:
         character = body_character(clip, body, k=pick("influences", 4))
     if character_file is not None:
-        from rig.motion.retarget_onto import retarget_onto
-        from rig.character.body_skeleton import hang, placed_parts
+        from jiggle.rig.motion.retarget_onto import retarget_onto
+        from jiggle.rig.character.body_skeleton import hang, placed_parts
         placed = placed_parts(character)
         clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
                              scale=character.meta.get("unit_scale", 1.0),
@@ -292,12 +308,14 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         f"({reused}{time.perf_counter() - t:.1f} s)")
     timings["character_s"] = time.perf_counter() - t
 
-    from rig.muscle.fit import FitOptions, fit_musculature
-    from rig.skin.muscle_skin import MuscleSkin
-    from sim.jiggle.params import default_jiggles
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
+    from jiggle.sim.jiggle.params import default_jiggles
     t = time.perf_counter()
     if cached is not None:
         mus, skin = cached.musculature, cached.skin
+    elif given is not None and given[2] is not None:
+        mus = given[2]
     else:
         mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
     if template == "auto":
@@ -328,8 +346,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     if source is clip:
         joints_at, joint_names = world_at, tuple(clip.joint_names)
     else:
-        from rig.motion.clip import transforms
-        from sim.drive.skeleton import Skeleton
+        from jiggle.rig.motion.clip import transforms
+        from jiggle.sim.drive.skeleton import Skeleton
         sk = Skeleton(source)
         joints_at = lambda ts: transforms(*sk.world(np.asarray(ts)))  # noqa: E731
         joint_names = tuple(source.joint_names)
@@ -340,7 +358,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "clip": {"file": clip_source, "sha256": file_digest(clip_source) if os.path.isfile(clip_source) else None,
                  "name": source.name, "duration_s": source.duration},
         "character": ({"file": os.path.abspath(character_file), "sha256": file_digest(character_file)}
-                      if character_file else {"generated": jsonable(body)}),
+                      if character_file else {"generated": jsonable(body)} if given is None
+                      else {"in_memory": character.name or "character"}),
         "template": template if not os.path.isfile(str(template)) else
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "body_plan": mus.plan.to_json(),
@@ -369,7 +388,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
 
 def _model_capsules(clip, character, log):
     """(capsules, geoms kept) of --colliders model (sim.drive.skeleton.model_capsules), logged."""
-    from sim.drive.skeleton import model_capsules
+    from jiggle.sim.drive.skeleton import model_capsules
     caps, geoms, kept = model_capsules(clip, character)
     log(f"colliders: {kept} of the MuJoCo model's {geoms} capsule geoms inside the skin, "
         f"{caps.count - kept} bone capsules where a joint has none")
@@ -379,7 +398,7 @@ def _model_capsules(clip, character, log):
 def _floor(character, drive: str, world_at, knots: np.ndarray) -> float:
     """metres: the floor the particles collide with: the physics drive's plane, else the lowest foot at rest
     lowered where the clip's joints reach below the bind pose's (sim.jiggle.colliders.rest_floor)."""
-    from sim.jiggle.colliders import rest_floor
+    from jiggle.sim.jiggle.colliders import rest_floor
     height = getattr(world_at, "floor_height", None)
     if drive == "physics" and height is not None:
         return float(height)
@@ -393,9 +412,9 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
         if getattr(req, name) is not None:
             raise InputError(f"the built-in scene {scene.builtin!r} makes its own character and motion; "
                              f"drop --{name.replace('_', '-')}", field=f"--{name.replace('_', '-')}")
-    from rig.muscle.simple_arm import FLEX_DURATION, simple_arm
-    from rig.skin.muscle_skin import MuscleSkin
-    from sim.jiggle.params import default_jiggles
+    from jiggle.rig.muscle.simple_arm import FLEX_DURATION, simple_arm
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
+    from jiggle.sim.jiggle.params import default_jiggles
     arm = simple_arm()
     pick = _picker(req, scene.character)
     skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
@@ -447,7 +466,7 @@ def _clip(req: BakeRequest, scene):
             and str(character).lower().endswith((".glb", ".gltf", ".fbx")):
         req = replace(req, clip=character)
     if req.clip is not None:
-        from rig.motion.mocap import load_clip
+        from jiggle.rig.motion.mocap import load_clip
         if not os.path.isfile(req.clip):
             raise InputError("clip file not found", req.clip, field="--clip")
         anim = req.animation
@@ -479,7 +498,7 @@ def _settings(req: BakeRequest, scene, jiggles):
     if req.jiggle is not None:
         jiggles = [replace(j, strength=settings.strength) for j in jiggles]
     if req.muscles:
-        from sim.bake.scene import apply_entries
+        from jiggle.sim.bake.scene import apply_entries
         jiggles = apply_entries(jiggles, req.muscles)
     return settings, list(jiggles)
 
@@ -518,14 +537,14 @@ def _chunk(req: BakeRequest, scene) -> int:
 def _drive(clip, drive: str, knots: np.ndarray, log) -> Callable:
     """world_at for the knots: the clip's skeleton posed by MuJoCo (kinematic), or simulated by MuJoCo
     on a floor following the clip (physics, run once over every knot since it carries state)."""
-    from rig.motion.clip import transforms
-    from sim.drive.skeleton import Skeleton
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.sim.drive.skeleton import Skeleton
     if drive == "kinematic":
         sk = Skeleton(clip)
         return lambda ts: transforms(*sk.world(np.asarray(ts, dtype=np.float64)))
     if drive != "physics":
         raise InputError(f"expected 'kinematic' or 'physics', got {drive!r}", field="--drive")
-    from sim.drive.motion import drive_physics
+    from jiggle.sim.drive.motion import drive_physics
     t = time.perf_counter()
     motion = drive_physics(clip, knots)
     world = transforms(motion.rotations, motion.positions)

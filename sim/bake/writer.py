@@ -23,8 +23,8 @@ import os
 
 import numpy as np
 
-from rig.base.errors import InputError
-from sim.bake.caches import (
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.bake.caches import (
     FRAME_KEYS,
     NPZ_KEYS,
     PC2_HEADER_BYTES,

@@ -46,10 +46,10 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rig.base.errors import InputError, require_file
-from rig.motion import quat
-from rig.motion.clip import Clip
-from sim.drive.skeleton import body_poses
+from jiggle.rig.base.errors import InputError, require_file
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
+from jiggle.sim.drive.skeleton import body_poses
 
 MAX_REST_MISALIGNMENT_DEG = 45.0  # Kabsch angle above which the two rest poses are not comparable
 
@@ -375,7 +375,7 @@ def _inv_left_jacobian(phi: np.ndarray) -> np.ndarray:
 
 def read_body_map(path: str | os.PathLike) -> dict[str, str]:
     """Read a clip-joint -> MJCF-body map from TOML: a ``[joints]`` table of ``clip_joint = "body"``."""
-    from rig.base.tomlfile import read_toml
+    from jiggle.rig.base.tomlfile import read_toml
 
     p, doc = read_toml(path, "joint map")
     table = doc.get("joints")

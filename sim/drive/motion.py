@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig.motion.clip import Clip
-from sim.drive.skeleton import Skeleton
+from jiggle.rig.motion.clip import Clip
+from jiggle.sim.drive.skeleton import Skeleton
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ def drive_kinematic(clip: Clip, times: np.ndarray, progress=None, chunk: int = 2
 
 def drive_physics(clip: Clip, times: np.ndarray, progress=None) -> Motion:
     """MuJoCo simulates the body on a floor, following the clip (see sim.drive.physics_drive)."""
-    from sim.drive.physics_drive import PhysicsDrive
+    from jiggle.sim.drive.physics_drive import PhysicsDrive
 
     drive = PhysicsDrive(clip)
     done = [0]
@@ -79,7 +79,7 @@ def drive_physics(clip: Clip, times: np.ndarray, progress=None) -> Motion:
 def drive_mjcf(clip: Clip, times: np.ndarray, xml_path: str, joint_map: dict[str, str] | None = None,
                progress=None) -> Motion:
     """A user's MuJoCo model posed from the clip (see sim.drive.mjcf_drive); joints are the model's bodies."""
-    from sim.drive.mjcf_drive import MjcfDrive
+    from jiggle.sim.drive.mjcf_drive import MjcfDrive
 
     drive = MjcfDrive(xml_path, clip, joint_map)
     rot, pos = drive.world(times)

@@ -68,11 +68,11 @@ from typing import Callable, Sequence
 import mujoco
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.motion import quat
-from rig.motion.clip import Clip
-from sim.drive.skeleton import BodyShape, Skeleton, build_mjcf, mjcf_names
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
+from jiggle.sim.drive.skeleton import BodyShape, Skeleton, build_mjcf, mjcf_names
 
 GRAVITY = 9.81  # m/s^2, as in build_mjcf
 

@@ -21,9 +21,9 @@ from xml.sax.saxutils import quoteattr
 import mujoco
 import numpy as np
 
-from rig.motion import quat
-from rig.motion.bone_roles import bone_roles
-from rig.motion.clip import Clip
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.bone_roles import bone_roles
+from jiggle.rig.motion.clip import Clip
 
 
 @dataclass(frozen=True)
@@ -270,9 +270,9 @@ def model_capsules(clip: Clip, character):
     own skeleton)."""
     from dataclasses import replace
 
-    from rig.base.errors import InputError
-    from rig.character.capsules import bone_capsules
-    from rig.character.capsules import model_capsules as kept_inside
+    from jiggle.rig.base.errors import InputError
+    from jiggle.rig.character.capsules import bone_capsules
+    from jiggle.rig.character.capsules import model_capsules as kept_inside
     sk = Skeleton(clip)
     if len(sk.body_ids) != character.num_joints:
         raise InputError(f"the MuJoCo model has {len(sk.body_ids)} bodies for the clip's joints, the character "

@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from sim.jiggle.params import CVS, JiggleSettings, MuscleJiggle
+from jiggle.sim.jiggle.params import CVS, JiggleSettings, MuscleJiggle
 
 
 def blend_weights(jiggles: Sequence[MuscleJiggle], settings: JiggleSettings, times: np.ndarray) -> np.ndarray:

@@ -30,11 +30,11 @@ from functools import cached_property
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.character.capsules import BoneCapsules, bone_capsules, segment_distance
-from sim.jiggle.goal_track import GoalControl, build_track
-from sim.jiggle.params import CVS
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.character.capsules import BoneCapsules, bone_capsules, segment_distance
+from jiggle.sim.jiggle.goal_track import GoalControl, build_track
+from jiggle.sim.jiggle.params import CVS
 
 FRICTION = 0.5
 """Coulomb friction coefficient of a particle sliding on a capsule or the floor (skin on skin, ~0.5)."""
@@ -162,7 +162,7 @@ class Colliders:
         # boxes per BROAD_BLOCK intervals: the kernel's per-step cull (sim/jiggle/contact_kernels.py) makes
         # them tight again, so a coarser host phase only costs a few more per-muscle box tests per step
         mlo, mhi = group_boxes(track, offs[:-1], BROAD_BLOCK)               # (B, M, 3)
-        from sim.jiggle.tissue_law import BROAD
+        from jiggle.sim.jiggle.tissue_law import BROAD
         # the tissue law turns particles back before their reach; BROAD reaches cover the violent exceptions
         reach = BROAD * np.maximum.reduceat(np.where(particles.glued, 0.0, particles.reach), offs[:-1])
         grow = (reach + cm.margin + 1e-4)[None, :, None]                    # inf reach: always near
@@ -394,7 +394,7 @@ class SkinCheck:
     def inside(self, world: np.ndarray, skin: np.ndarray, device: str = "cpu") -> np.ndarray:
         """(T, V) bool: vertex v of frame t inside a capsule it is checked against; world (T, J, 4, 4),
         skin (T, V, 3) metres (one Warp launch)."""
-        from sim.jiggle import contact_kernels as ck
+        from jiggle.sim.jiggle import contact_kernels as ck
         skin = np.asarray(skin, dtype=np.float32)
         T, V = skin.shape[:2]
         if self.capsules.count == 0 or T == 0:
@@ -439,7 +439,7 @@ class SkinCheck:
         skin the animation itself puts inside stays. Returns per frame (T,) "static" and "final" (the counts
         of :meth:`count`, taken after the pull-back: final <= static in every frame), "kept" (vertices pulled
         back) and "pulled_m" (the longest pull-back, metres). world (T, J, 4, 4). One launch."""
-        from sim.jiggle import contact_kernels as ck
+        from jiggle.sim.jiggle import contact_kernels as ck
         T = len(final)
         out = {"static": np.zeros(T, np.int32), "final": np.zeros(T, np.int32), "kept": np.zeros(T, np.int32),
                "pulled_m": np.zeros(T, np.float32)}
@@ -653,9 +653,9 @@ def integrate_contact_numpy(model, colliders: ColliderModel, flow, track, cap_tr
     """The NumPy reference of ParticleSolver.integrate with colliders, float64: (x, v) (N, 3) at grid[-1]
     and the largest contact depth (N,) metres over the run. cap_track : the capsules' ends' GoalTrack
     (S, 2C) on the goal track's knots; flow(h) -> (N, tissue_law.ROW) tissue flow rows."""
-    from sim.jiggle import tissue_law
-    from sim.jiggle.goal_track import hermite
-    from sim.jiggle.solver import _check_steps, kick_numpy
+    from jiggle.sim.jiggle import tissue_law
+    from jiggle.sim.jiggle.goal_track import hermite
+    from jiggle.sim.jiggle.solver import _check_steps, kick_numpy
     grid = np.asarray(grid, dtype=np.float64)
     dts = np.diff(grid)
     steps = list(zip(*(a.tolist() for a in _check_steps(track, grid))))

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim.jiggle.particle_kernels import (
+from jiggle.sim.jiggle.particle_kernels import (
     Edge,
     close_velocity,
     cubic,

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
 
 
 @dataclass(frozen=True, eq=False)

@@ -50,9 +50,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from sim.jiggle import tissue_law
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.sim.jiggle import tissue_law
 
 INTERPOLATIONS = ("linear", "smooth")
 

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim.jiggle.contact_kernels import NO_HIT, contact_pass
-from sim.jiggle.particle_kernels import (
+from jiggle.sim.jiggle.contact_kernels import NO_HIT, contact_pass
+from jiggle.sim.jiggle.particle_kernels import (
     Edge,
     close_velocity,
     cubic,

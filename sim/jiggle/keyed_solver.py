@@ -13,13 +13,13 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from sim.jiggle import keyed_kernels
-from sim.jiggle import particle_kernels as kernels
-from sim.jiggle import tissue_law
-from sim.jiggle.goal_track import hermite
-from sim.jiggle.keyed import Schedule
-from sim.jiggle.solver import ParticleSolver, _check_steps, kick_numpy
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.jiggle import keyed_kernels
+from jiggle.sim.jiggle import particle_kernels as kernels
+from jiggle.sim.jiggle import tissue_law
+from jiggle.sim.jiggle.goal_track import hermite
+from jiggle.sim.jiggle.keyed import Schedule
+from jiggle.sim.jiggle.solver import ParticleSolver, _check_steps, kick_numpy
 
 
 class KeyedSolver(ParticleSolver):

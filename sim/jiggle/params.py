@@ -50,9 +50,9 @@ from typing import Mapping
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from sim.jiggle.keyed import PARAMETERS, Curve, muscle_curves, parse_curve, reference_values
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.sim.jiggle.keyed import PARAMETERS, Curve, muscle_curves, parse_curve, reference_values
 
 CVS = 40
 SECTIONS, RING = 5, 8
@@ -218,7 +218,7 @@ def from_template(name: str, jiggle) -> MuscleJiggle:
 def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
     """One MuscleJiggle per muscle of `rig` (rig.muscle.model.MuscleRig): from `templates` (a sequence
     of Jiggle, one per muscle, e.g. the fitted muscles' template entries) or the kind's default."""
-    from rig.muscle.template import default_jiggle
+    from jiggle.rig.muscle.template import default_jiggle
     if templates is None:
         templates = [default_jiggle(k) for k in rig.kinds]
     if len(templates) != rig.M:

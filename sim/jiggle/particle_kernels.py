@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim.jiggle import tissue_law
+from jiggle.sim.jiggle import tissue_law
 
 # forward only: these kernels are never differentiated (no adjoint code to compile)
 wp.set_module_options({"enable_backward": False})

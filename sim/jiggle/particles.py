@@ -39,9 +39,9 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from sim.jiggle.params import CVS, RING, SECTIONS, MuscleJiggle
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.sim.jiggle.params import CVS, RING, SECTIONS, MuscleJiggle
 
 GRAVITY = 9.81
 """m/s^2, along -Z."""
@@ -151,7 +151,7 @@ class ParticleModel:
         """Joules in the goal frame: kinetic of the offsets' velocities, goal-spring potential under the tissue
         law (sim.jiggle.tissue_law.energy_numpy) and neighbour-spring potential (glued particles and gravity
         excluded). x, v, goal, goal_vel : (N, 3)."""
-        from sim.jiggle.tissue_law import energy_numpy
+        from jiggle.sim.jiggle.tissue_law import energy_numpy
         y, u = x - goal, v - goal_vel
         free = ~self.glued
         e = float(np.sum((self.mass * energy_numpy(y, u, self.goal_k, np.asarray(self.reach, dtype=np.float64)))[free]))

@@ -20,15 +20,15 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from sim.jiggle.blend import blend, blend_weights, needs_simulation
-from sim.jiggle.colliders import muscle_contacts
-from sim.jiggle.keyed_solver import make_solver
-from sim.jiggle.params import CVS, JiggleSettings, MuscleJiggle
-from sim.jiggle.particles import muscle_model
-from sim.jiggle.simulate import TIME_EPS, goals, merge_times, simulate
-from sim.jiggle.tissue_contacts import tissue_contact_model
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.sim.jiggle.blend import blend, blend_weights, needs_simulation
+from jiggle.sim.jiggle.colliders import muscle_contacts
+from jiggle.sim.jiggle.keyed_solver import make_solver
+from jiggle.sim.jiggle.params import CVS, JiggleSettings, MuscleJiggle
+from jiggle.sim.jiggle.particles import muscle_model
+from jiggle.sim.jiggle.simulate import TIME_EPS, goals, merge_times, simulate
+from jiggle.sim.jiggle.tissue_contacts import tissue_contact_model
 
 DEFAULT_GOAL_RATE = 120.0
 

@@ -25,13 +25,13 @@ import math
 
 import numpy as np
 
-from rig.base.errors import InputError
-from sim.jiggle import tissue_law
-from sim.jiggle.goal_track import GoalTrack, build_track
-from sim.jiggle.params import JiggleSettings
-from sim.jiggle.particles import GRAVITY, ParticleModel
-from sim.jiggle.solver import ParticleSolver
-from sim.jiggle.tissue_contacts import integrate_tissue
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.jiggle import tissue_law
+from jiggle.sim.jiggle.goal_track import GoalTrack, build_track
+from jiggle.sim.jiggle.params import JiggleSettings
+from jiggle.sim.jiggle.particles import GRAVITY, ParticleModel
+from jiggle.sim.jiggle.solver import ParticleSolver
+from jiggle.sim.jiggle.tissue_contacts import integrate_tissue
 
 TIME_EPS = 1e-9
 

@@ -31,11 +31,11 @@ import math
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from sim.jiggle import particle_kernels as kernels
-from sim.jiggle import tissue_law
-from sim.jiggle.goal_track import GoalControl, GoalTrack, hermite
-from sim.jiggle.particles import ParticleModel, ParticleState
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.jiggle import particle_kernels as kernels
+from jiggle.sim.jiggle import tissue_law
+from jiggle.sim.jiggle.goal_track import GoalControl, GoalTrack, hermite
+from jiggle.sim.jiggle.particles import ParticleModel, ParticleState
 
 NO_FLOOR = -1.0e30
 """metres: the floor height of colliders without a floor (no float32 position is below it)."""
@@ -235,7 +235,7 @@ class ParticleSolver:
     def _contact_flows(self, control: GoalControl, seg: np.ndarray, dts: np.ndarray, dev_array):
         """(flows, step_flow, kernel) of a run with contacts: the kernel's flow arguments, each step's index into
         them on the device, the run kernel (the keyed solver gives its own, sim/jiggle/keyed_solver.py)."""
-        from sim.jiggle import contact_kernels as ck
+        from jiggle.sim.jiggle import contact_kernels as ck
         table, flow_index = self._flow_table(dts)
         return table, dev_array(flow_index, wp.int32), ck.integrate_run_contact
 
@@ -253,7 +253,7 @@ class ParticleSolver:
         model ([flows, levels], or the keyed rows, levels and reaches); step_flow : each step's device index into them
         (K,), or the keyed row bases (K, G); kernel : None for integrate_run_contact, or the keyed one
         (sim/jiggle/keyed_kernels.py). plan : return (kernel, args, records) without launching (StepPlan)."""
-        from sim.jiggle import contact_kernels as ck
+        from jiggle.sim.jiggle import contact_kernels as ck
         m, dev, cm = self.model, self.model.device, colliders.model
         if colliders.control.track.num_knots != control.track.num_knots or \
                 np.any(colliders.control.track.times != control.track.times):
@@ -344,7 +344,7 @@ class ParticleSolver:
         """A one-launch run over `args` (K steps; frame (K,) each step's recorded frame or -1): in one launch, or
         a launch per step where :attr:`stepwise` (the plain and contact runs; the keyed solver's own kernels
         always run in one)."""
-        from sim.jiggle import contact_kernels as ck
+        from jiggle.sim.jiggle import contact_kernels as ck
         if self.stepwise and kernel in (kernels.integrate_run, ck.integrate_run_contact):
             self._run_stepwise(kernel, K, args, frame)
         else:
@@ -355,8 +355,8 @@ class ParticleSolver:
         launch per step, a thread per particle (and per muscle for the contacts): sim/jiggle/step_kernels.py,
         the GPU's way (:attr:`stepwise`). Each kernel is recorded once per run and only its step index set
         between launches."""
-        from sim.jiggle import contact_kernels as ck
-        from sim.jiggle import step_kernels as sk
+        from jiggle.sim.jiggle import contact_kernels as ck
+        from jiggle.sim.jiggle import step_kernels as sk
         m = self.model
         N, M = m.num_particles, len(m.group_offsets) - 1
         if kernel is kernels.integrate_run:

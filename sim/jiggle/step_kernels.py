@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim.jiggle.contact_kernels import NO_HIT, contact_ends, contact_particle
-from sim.jiggle.particle_kernels import Edge, close_velocity, cubic, flow_row, open_offsets, run_step, set_cubic
+from jiggle.sim.jiggle.contact_kernels import NO_HIT, contact_ends, contact_particle
+from jiggle.sim.jiggle.particle_kernels import Edge, close_velocity, cubic, flow_row, open_offsets, run_step, set_cubic
 
 wp.set_module_options({"enable_backward": False})
 

@@ -50,12 +50,12 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from sim.jiggle import tissue_contact_kernels as kernels
-from sim.jiggle.colliders import FRICTION
-from sim.jiggle.params import CVS, RING
-from sim.jiggle.solver import recorded_launch
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.sim.jiggle import tissue_contact_kernels as kernels
+from jiggle.sim.jiggle.colliders import FRICTION
+from jiggle.sim.jiggle.params import CVS, RING
+from jiggle.sim.jiggle.solver import recorded_launch
 
 SHARE = 0.5
 """A pair of particles closer than r_i + r_j at bind touches at this fraction of its bind distance."""

@@ -45,7 +45,7 @@ import math
 
 import numpy as np
 
-from sim.jiggle.goal_flow import COEFFS, flow_numpy
+from jiggle.sim.jiggle.goal_flow import COEFFS, flow_numpy
 
 ONSET = 0.5
 """rho below which the goal spring is exactly linear (the fraction of the reach)."""
@@ -163,7 +163,7 @@ def level(row: np.ndarray, y: np.ndarray, u: np.ndarray, reach: np.ndarray) -> n
 def rows(k: np.ndarray, c: np.ndarray, h) -> np.ndarray:
     """(n, ROW) float64 tissue rows for stiffness k (n,) 1/s^2 (inf: glued), damping c (n,) 1/s and step h
     seconds, a number or one per row."""
-    from sim.jiggle.goal_flow import goal_flow_batch
+    from jiggle.sim.jiggle.goal_flow import goal_flow_batch
     k = np.asarray(k, dtype=np.float64).reshape(-1)
     c = np.asarray(c, dtype=np.float64).reshape(-1)
     n = len(k)

@@ -16,15 +16,15 @@ import trimesh
 from conftest import asset
 from scipy.spatial import cKDTree
 
-from rig.anatomy.features import BONE, MUSCLE, Anchors, FeatureOptions, _thin, anchor_points, find_features
-from rig.anatomy.resample import Resampled, carry, carry_weights, insert_points, resample_character
-from rig.base.errors import InputError
-from rig.character.character import Character, bind_clip
-from rig.character.normals import vertex_normals
-from rig.muscle.loft_attach import closest_points
-from rig.muscle.segmentation import bone_segments
-from rig.muscle.simple_arm import RADIUS, capped_tube, simple_arm
-from rig.skin.influence import _attach
+from jiggle.rig.anatomy.features import BONE, MUSCLE, Anchors, FeatureOptions, _thin, anchor_points, find_features
+from jiggle.rig.anatomy.resample import Resampled, carry, carry_weights, insert_points, resample_character
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.character import Character, bind_clip
+from jiggle.rig.character.normals import vertex_normals
+from jiggle.rig.muscle.loft_attach import closest_points
+from jiggle.rig.muscle.segmentation import bone_segments
+from jiggle.rig.muscle.simple_arm import RADIUS, capped_tube, simple_arm
+from jiggle.rig.skin.influence import _attach
 
 
 # ---------------------------------------------------------------------------------- helpers
@@ -453,8 +453,8 @@ def test_markers_anchor_to_the_nearest_component(arm, arm_segments):
 # ---------------------------------------------------------------------------------- CesiumMan
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.character.load import load_character
-    from rig.muscle.fit import fit_musculature
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.muscle.fit import fit_musculature
     ch = load_character(asset("characters/CesiumMan.glb"))
     mus = fit_musculature(ch)
     segments = mus.segmentation.segments

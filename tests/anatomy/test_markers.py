@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.anatomy.markers import HUMAN, WIDTHS, find_markers, read_markers, write_markers
-from rig.base.errors import InputError
+from jiggle.rig.anatomy.markers import HUMAN, WIDTHS, find_markers, read_markers, write_markers
+from jiggle.rig.base.errors import InputError
 
 
 @pytest.fixture(scope="module")
 def cesium_markers():
-    from rig.character.load import load_character
-    from rig.motion.role_map import resolve_roles
-    from rig.muscle.segmentation import bone_segments
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.role_map import resolve_roles
+    from jiggle.rig.muscle.segmentation import bone_segments
     c = load_character(asset("characters/CesiumMan.glb"))
     roles = resolve_roles(c.skeleton)
     return c, find_markers(c.vertices, c.faces, roles, c.bind_positions, bone_segments(c))

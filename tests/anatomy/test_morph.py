@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError
-from rig.skin.skinning import pose_character
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.skin.skinning import pose_character
 
 
 def stretched(p: np.ndarray) -> np.ndarray:
@@ -26,8 +26,8 @@ def stretched(p: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def canon():
-    from rig.anatomy.morph import MorphOptions, prepare_canonical
-    from rig.character.load import load_character
+    from jiggle.rig.anatomy.morph import MorphOptions, prepare_canonical
+    from jiggle.rig.character.load import load_character
     path = asset("characters/CesiumMan.glb")
     return prepare_canonical(load_character(path), MorphOptions(), source=str(path))
 
@@ -39,7 +39,7 @@ def target(canon):
 
 @pytest.fixture(scope="module")
 def result(canon, target):
-    from rig.anatomy.morph import morph
+    from jiggle.rig.anatomy.morph import morph
     return morph(canon, target)
 
 
@@ -87,7 +87,7 @@ def test_components_follow_the_markers(canon, result):
 
 
 def test_identity_markers_give_the_canonical_back(canon):
-    from rig.anatomy.morph import morph
+    from jiggle.rig.anatomy.morph import morph
     # markers sit on original vertices: a marker file does not depend on the feature options
     assert (canon.markers.vertex < canon.musculature.character.num_vertices).all()
     same = dict(zip(canon.markers.names, canon.markers.positions))
@@ -103,16 +103,16 @@ def test_zones_keep_the_skin_smooth_across_boundaries(result):
 
 
 def test_marker_features_pin_the_markers(canon, target):
-    from rig.anatomy.morph import MorphOptions, morph
+    from jiggle.rig.anatomy.morph import MorphOptions, morph
     res = morph(canon, target, MorphOptions(marker_features=True))
     assert res.report["marker_max_m"] < 1e-6
 
 
 @pytest.mark.slow
 def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
-    from rig.anatomy.markers import write_markers
-    from rig.character.load import load_character
-    from sim.app.cli import main
+    from jiggle.rig.anatomy.markers import write_markers
+    from jiggle.rig.character.load import load_character
+    from jiggle.sim.app.cli import main
     src = canon.source
     m = write_markers(tmp_path / "t.toml", canon.markers.names, stretched(canon.markers.positions))
     out = tmp_path / "target.glb"
@@ -125,7 +125,7 @@ def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
     assert t.num_vertices == c.num_vertices and t.joint_names == c.joint_names
     assert t.uvs is not None
     # animatable: bending the left knee moves the left shin and leaves the right leg alone
-    from rig.motion.quat import from_axis_angle, to_matrix
+    from jiggle.rig.motion.quat import from_axis_angle, to_matrix
     w = np.asarray(t.bind_world).copy()
     knee = t.index("leg_joint_L_2")
     R = to_matrix(from_axis_angle(np.array([1.0, 0.0, 0.0]), np.radians(50)))
@@ -141,9 +141,9 @@ def test_morph_cli_writes_an_animatable_character(tmp_path, canon):
 
 @pytest.mark.slow
 def test_bad_markers(tmp_path, canon, target):
-    from rig.anatomy.markers import write_markers
-    from rig.anatomy.morph import morph
-    from sim.app.cli import main
+    from jiggle.rig.anatomy.markers import write_markers
+    from jiggle.rig.anatomy.morph import morph
+    from jiggle.sim.app.cli import main
     bad = dict(target)
     bad["left_knee"] = np.array([0.0, np.nan, 0.3])
     with pytest.raises(InputError, match="left_knee.*NaN"):
@@ -167,10 +167,10 @@ def test_bad_markers(tmp_path, canon, target):
 
 def test_too_few_features_in_a_zone(canon, target):
     """A zone set left with too few feature points is named, with a hint."""
-    from rig.anatomy.features import FeatureOptions
-    from rig.anatomy.morph import MorphOptions, prepare_canonical
+    from jiggle.rig.anatomy.features import FeatureOptions
+    from jiggle.rig.anatomy.morph import MorphOptions, prepare_canonical
     sparse = MorphOptions(features=FeatureOptions(spacing=0.25))
     with pytest.raises(InputError, match="zone.*feature"):
         c = prepare_canonical(canon.musculature.character, sparse)
-        from rig.anatomy.morph import morph
+        from jiggle.rig.anatomy.morph import morph
         morph(c, target, sparse)

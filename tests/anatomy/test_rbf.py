@@ -15,7 +15,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial.distance import cdist
 
-from rig.anatomy.rbf import (
+from jiggle.rig.anatomy.rbf import (
     KERNELS,
     RBFOptions,
     RBFSkinner,
@@ -29,7 +29,7 @@ from rig.anatomy.rbf import (
     weld_edges,
     zone_interpolants,
 )
-from rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError
 
 
 @dataclass(frozen=True, eq=False)

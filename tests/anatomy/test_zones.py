@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.anatomy.zones import blend_weights, body_zones, edge_graph, segment_zones, skeleton_neighbours
-from rig.base.errors import InputError
-from rig.character.bone_heat import weld
+from jiggle.rig.anatomy.zones import blend_weights, body_zones, edge_graph, segment_zones, skeleton_neighbours
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.bone_heat import weld
 
 
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.character.load import load_character
-    from rig.motion.role_map import resolve_roles
-    from rig.muscle.segmentation import segment_skin
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.role_map import resolve_roles
+    from jiggle.rig.muscle.segmentation import segment_skin
     c = load_character(asset("characters/CesiumMan.glb"))
     seg = segment_skin(c)
     roles = resolve_roles(c.skeleton)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from sim.app import batch
-from sim.app.cli import main
-from sim.bake.baker import PAUSE_ENV, chunk_path
-from sim.bake.setup import BakeRequest
+from jiggle.sim.app import batch
+from jiggle.sim.app.cli import main
+from jiggle.sim.bake.baker import PAUSE_ENV, chunk_path
+from jiggle.sim.bake.setup import BakeRequest
 
 CLIPS = ("02_03", "05_02", "09_11")
 SETTINGS = dict(end=0.5, chunk=4, formats=("npz",))          # 16 frames in 4 chunks: a few seconds a job
@@ -58,8 +58,8 @@ def client():
 @pytest.fixture(scope="module")
 def serial(library, cesium, tmp_path_factory):
     """clip -> (bake.npz arrays, key) of the same bake run here, alone, without any rig cache: lazily."""
-    from sim.bake.baker import bake
-    from sim.bake.setup import prepare
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.setup import prepare
     done = {}
 
     def get(clip):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from sim.app.cli import main
+from jiggle.sim.app.cli import main
 
 
 def run(capsys, *argv):
@@ -198,8 +198,8 @@ def test_body_command_writes_mesh_pictures_and_facts(capsys, tmp_path):
 def test_play_with_a_mesh_character_warns_and_skins(capsys, tmp_path):
     """An OBJ standing in the clip's rest pose, in centimetres: read so by --unit auto (the default) with
     a notice, automatic weights, a warning on stderr; read in metres (--unit m) it misses the skeleton."""
-    from rig.character.body import BodyOptions, generate_body
-    from rig.motion.keyframes import read_keyframes
+    from jiggle.rig.character.body import BodyOptions, generate_body
+    from jiggle.rig.motion.keyframes import read_keyframes
     scene = os.path.join(os.path.dirname(__file__), "..", "..", "scenes", "motions", "jumping_jacks.toml")
     clip = read_keyframes(scene)
     body = generate_body(clip, BodyOptions(resolution=10000))
@@ -256,7 +256,7 @@ def test_deform_bad_input_is_one_line_and_exit_2(capsys, tmp_path, argv, what):
 def test_one_name_for_the_character_map(command):
     """--character-map names the character's roles in every command (the template's and the
     retargeting's); --joint-map, its old name, is the same option."""
-    from sim.app.cli import build_parser
+    from jiggle.sim.app.cli import build_parser
     p = build_parser()
     extra = ["x.glb"] if command == "morph" else []
     a = p.parse_args([command, *extra, "--character-map", "m.toml"])
@@ -342,8 +342,8 @@ def test_a_warning_before_an_error_is_not_printed(capsys, tmp_path):
 def warn_then(monkeypatch, fail: bool):
     """`jiggle inspect` replaced by a command that issues a JiggleWarning and a NumPy overflow, then
     fails with an InputError or succeeds."""
-    from rig.base.errors import InputError, JiggleWarning
-    from sim.app.commands import inspect as inspect_cmd
+    from jiggle.rig.base.errors import InputError, JiggleWarning
+    from jiggle.sim.app.commands import inspect as inspect_cmd
 
     def fake(args):
         import warnings
@@ -379,7 +379,7 @@ def test_warnings_follow_a_success_in_order_numpy_ones_only_with_verbose(capsys,
 def test_interrupt_counts_the_frames_kept_on_disk(capsys, tmp_path, monkeypatch):
     """Ctrl-C in chunk 3 of 16-frame chunks: 48 frames kept (the progress bar, off when stderr is not a
     terminal, counted 0), said in one line with the --resume command."""
-    from sim.bake import baker as bake_mod
+    from jiggle.sim.bake import baker as bake_mod
     real = bake_mod.Baker.chunk
 
     def chunk(self, c, state):

@@ -9,10 +9,10 @@ import re
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from sim.app import compare_render
-from sim.app.compare import compare, muscle_energy, muscle_offsets
-from sim.bake.caches import BakeData, write_npz
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.app import compare_render
+from jiggle.sim.app.compare import compare, muscle_energy, muscle_offsets
+from jiggle.sim.bake.caches import BakeData, write_npz
 
 FPS, T = 30.0, 60
 PEAK_FRAME = 37

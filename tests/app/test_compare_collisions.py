@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from test_compare import STRICT, T, known_bake  # noqa: E402 - tests/app is on the path (rootdir conftest)
 
-from sim.app.compare import collision_metrics, compare
-from sim.bake.caches import write_npz
+from jiggle.sim.app.compare import collision_metrics, compare
+from jiggle.sim.bake.caches import write_npz
 
 DEPTH_FRAME = 20
 """The frame of the synthetic bake's deepest contact."""

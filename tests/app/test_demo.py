@@ -7,8 +7,8 @@ import re
 
 import numpy as np
 
-from sim.app.cli import main
-from sim.bake.caches import read_npz
+from jiggle.sim.app.cli import main
+from jiggle.sim.bake.caches import read_npz
 
 
 @pytest.mark.slow

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.character.capsules import BoneCapsules
-from sim.app.fit_outputs import capsule_facts, capsule_meshes
+from jiggle.rig.character.capsules import BoneCapsules
+from jiggle.sim.app.fit_outputs import capsule_facts, capsule_meshes
 
 
 def two_capsules() -> BoneCapsules:
@@ -36,8 +36,8 @@ def test_capsules_sit_inside_the_skin():
     from conftest import asset
     from scipy.spatial import cKDTree
 
-    from rig.character.capsules import bone_capsules
-    from rig.character.load import load_character
+    from jiggle.rig.character.capsules import bone_capsules
+    from jiggle.rig.character.load import load_character
     ch = load_character(str(asset("characters/CesiumMan.glb")))
     caps = bone_capsules(ch)
     assert caps.count >= 10

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import ASSETS, asset
 
-from sim.app.cli import main
+from jiggle.sim.app.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 JUMPING_JACKS = ROOT / "scenes" / "motions" / "jumping_jacks.toml"
@@ -25,9 +25,9 @@ def test_arm_biceps_overshoots_at_the_stop_and_rings_down():
     down: the offset peaks as the flex stops, swings back past the static shape (an underdamped ring,
     about exp(-pi z / sqrt(1 - z^2)) = 16% of the peak per half cycle before the neighbour springs), and
     decays as exp(-z w t): < 2% of the peak within half a second of the stop."""
-    from rig.muscle.simple_arm import FLEX_HOLD, FLEX_RISE, FLEX_START, simple_arm
-    from sim.jiggle.params import JiggleSettings, default_jiggles
-    from sim.jiggle.secondary import jiggle_rig
+    from jiggle.rig.muscle.simple_arm import FLEX_HOLD, FLEX_RISE, FLEX_START, simple_arm
+    from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles
+    from jiggle.sim.jiggle.secondary import jiggle_rig
     arm = simple_arm(rings=24, around=16)
     stop = FLEX_START + FLEX_RISE
     times = np.arange(0.0, stop + FLEX_HOLD, 1.0 / 240.0)
@@ -59,7 +59,7 @@ def test_arm_renders_side_by_side_frames(capsys, tmp_path):
     """The one render smoke test: every 5th of 12 frames, both panels drawn, the heat map coloured."""
     from PIL import Image
 
-    from sim.app.jiggle_outputs import PANEL
+    from jiggle.sim.app.jiggle_outputs import PANEL
     code, out, err = run(capsys, "simulate", "--frames", "12", "--every", "5", "--out", str(tmp_path))
     assert code == 0, err
     facts = json.loads((tmp_path / "jiggle.json").read_text())

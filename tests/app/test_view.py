@@ -21,12 +21,12 @@ import tomllib
 import numpy as np
 import pytest
 
-from sim.app.cli import main
-from sim.app.view.page import SKIN_COLOUR, twin
-from sim.app.view.playback import heat_bands
-from sim.app.view.scene_file import toml_text
-from sim.app.view.tuning import Tuning, apply_tuning
-from sim.bake.caches import read_npz
+from jiggle.sim.app.cli import main
+from jiggle.sim.app.view.page import SKIN_COLOUR, twin
+from jiggle.sim.app.view.playback import heat_bands
+from jiggle.sim.app.view.scene_file import toml_text
+from jiggle.sim.app.view.tuning import Tuning, apply_tuning
+from jiggle.sim.bake.caches import read_npz
 
 BROWSER_TIMEOUT = 40.0
 """seconds a browser waits for the page to show what a test expects (software WebGL on 2 busy cores)."""
@@ -58,7 +58,7 @@ def test_twin_and_toml_round_trip():
 
 
 def test_tuning_applies_to_the_named_muscles():
-    from sim.jiggle.params import JiggleSettings, MuscleJiggle, section_goals
+    from jiggle.sim.jiggle.params import JiggleSettings, MuscleJiggle, section_goals
     js = [MuscleJiggle(name=n, frequency_hz=4.0, damping_ratio=0.3, goal=section_goals(0.9, 0.4), density=1000.0)
           for n in ("a", "b")]
     out, settings = apply_tuning(js, JiggleSettings(), Tuning().with_muscle("a", strength=0.25, goal_scale=2.0,
@@ -104,7 +104,7 @@ def bake_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def viewer(bake_dir):
-    from sim.app.commands.view import open_viewer
+    from jiggle.sim.app.commands.view import open_viewer
     page = open_viewer(str(bake_dir), port=0, paused=True, tune=True, log=lambda s: None)
     yield page
     page.stop()
@@ -319,7 +319,7 @@ def test_a_bake_with_keyed_parameters_plays_but_is_not_tuned(tmp_path):
     panel says why it is off, rather than flattening the keys."""
     import json
 
-    from sim.app.view.tuning import NotTunable, Tuner
+    from jiggle.sim.app.view.tuning import NotTunable, Tuner
     out = tmp_path / "keyed"
     assert main(["-q", "demo", "--out", str(out), "--end", "0.3", "--formats", "npz", "--resolution", "3000",
                  "--no-render", "--strength", "belly_fat=[[0, 1], [0.2, 0.3]]"]) == 0
@@ -335,9 +335,9 @@ def test_the_painted_jiggle_map_is_shown_on_the_skin(tmp_path):
 
     from conftest import asset
 
-    from rig.character.load import load_character
-    from rig.character.painted_maps import PaintedMaps, save_maps
-    from sim.app.commands.view import open_viewer
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.character.painted_maps import PaintedMaps, save_maps
+    from jiggle.sim.app.commands.view import open_viewer
     glb = tmp_path / "hero.glb"
     shutil.copy(asset("characters/CesiumMan.glb"), glb)
     V = load_character(str(glb)).num_vertices

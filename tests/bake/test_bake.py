@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.app.cli import main
-from sim.bake.caches import read_npz
+from jiggle.sim.app.cli import main
+from jiggle.sim.bake.caches import read_npz
 
 ROOT = Path(__file__).resolve().parents[2]
 ARM = str(ROOT / "scenes" / "simple_arm.toml")
@@ -86,14 +86,14 @@ def test_usd_read_back_equals_npz(arm_bake):
 
 
 def test_pc2_holds_the_final_skin(arm_bake):
-    from sim.bake.caches import read_pc2
+    from jiggle.sim.bake.caches import read_pc2
     pc = read_pc2(arm_bake / "bake.pc2")
     np.testing.assert_array_equal(pc.points, read_npz(arm_bake / "bake.npz").skin_final)
 
 
 def test_interrupted_bake_resumes_to_the_same_caches(capsys, tmp_path, arm_bake, monkeypatch):
     """Ctrl-C in chunk 3: exit 130, a message naming --resume, no cache; --resume finishes it equal."""
-    from sim.bake import baker as bake_mod
+    from jiggle.sim.bake import baker as bake_mod
     real = bake_mod.Baker.chunk
 
     def chunk(self, c, state):
@@ -123,7 +123,7 @@ def test_interrupted_bake_resumes_to_the_same_caches(capsys, tmp_path, arm_bake,
 @pytest.mark.slow
 def test_killed_bake_resumes_to_the_same_caches(tmp_path, arm_bake):
     """A real kill (SIGKILL, no clean-up at all) between chunks, then --resume in a new process."""
-    cmd = [sys.executable, "-m", "sim.app.cli", "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
+    cmd = [sys.executable, "-m", "jiggle", "bake", ARM, "--out", str(tmp_path), "--fps", "60", "--chunk", "16",
            "--formats", "npz,usda,pc2"]
     env = {**os.environ, "JIGGLE_BAKE_PAUSE": "0.5", "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -194,10 +194,10 @@ def test_a_gltf_character_alone_bakes_its_own_animation(capsys, tmp_path):
     world transforms), to float32 rounding."""
     from conftest import asset
 
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
-    from rig.skin.skinning import pose_character
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.rig.skin.skinning import pose_character
     path = str(asset("characters/CesiumMan.glb"))
     code, out, err = run(capsys, "bake", "--character", path, "--out", str(tmp_path), "--formats", "npz",
                          "--frames", "20")
@@ -221,8 +221,8 @@ def test_a_centimetre_character_with_unit_cm_bakes_as_in_metres(capsys, tmp_path
 
     from conftest import asset
 
-    from rig.character.gltf_write import write_character
-    from rig.character.load import load_character
+    from jiggle.rig.character.gltf_write import write_character
+    from jiggle.rig.character.load import load_character
     path = str(asset("characters/CesiumMan.glb"))
     c = load_character(path)
     bind_world, bind_matrices = np.array(c.bind_world), np.array(c.bind_matrices)
@@ -264,7 +264,7 @@ def test_chunk_size_does_not_change_the_motion(capsys, tmp_path, arm_bake):
 
 
 def test_resume_with_other_parameters_is_refused(capsys, tmp_path, monkeypatch):
-    from sim.bake import baker as bake_mod
+    from jiggle.sim.bake import baker as bake_mod
     real = bake_mod.Baker.chunk
 
     def chunk(self, c, state):
@@ -293,7 +293,7 @@ def test_full_disk_leaves_no_cache_that_looks_complete(capsys, tmp_path, monkeyp
     before it kept; --resume then finishes a bake equal to an unbroken one."""
     import errno
 
-    from sim.bake import caches
+    from jiggle.sim.bake import caches
 
     write = caches.NpzInPlace.write
 
@@ -351,7 +351,7 @@ def test_unknown_scene_key_lists_the_valid_ones(capsys, tmp_path):
 def test_a_nan_skin_stops_the_bake_before_any_cache(capsys, tmp_path, monkeypatch):
     """A skin that turns NaN (say a degenerate deformer) stops at its frame: exit 2 naming the frame,
     the chunks before it kept, no cache written."""
-    from sim.bake import baker as bake_mod
+    from jiggle.sim.bake import baker as bake_mod
     real = bake_mod.skin_frames
 
     def poisoned(skin, world, cvs_sets, curve, frames, defer=False, smooth=False, reuse=False):
@@ -449,7 +449,7 @@ KEYED = ("--strength", "biceps=[[0,1],[0.5,0.3]]", "--frequency", "*=smooth:[[0,
 def test_a_keyed_bake_resumes_bit_for_bit(capsys, tmp_path, monkeypatch):
     """Keyed strength, frequency and goal scale (issue 23): Ctrl-C in chunk 2, --resume, equal to an unbroken
     keyed bake bit for bit; bake.json records the curves; the keys change the motion."""
-    from sim.bake import baker as bake_mod
+    from jiggle.sim.bake import baker as bake_mod
     whole = tmp_path / "whole"
     bake_arm(capsys, whole, *KEYED, "--formats", "npz", "--frames", "60")
     real = bake_mod.Baker.chunk

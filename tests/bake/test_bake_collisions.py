@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from test_bake import ARM, KEYS, run  # noqa: E402 - tests/bake is on the path (rootdir conftest)
 
-from sim.app.cli import main
-from sim.bake.caches import read_npz
+from jiggle.sim.app.cli import main
+from jiggle.sim.bake.caches import read_npz
 
 
 def bake(capsys, out, *extra):
@@ -41,7 +41,7 @@ def test_collisions_reach_bake_json(arm_collide):
 def test_interrupted_bake_with_collisions_resumes_bit_for_bit(capsys, tmp_path, arm_collide, monkeypatch):
     """Ctrl-C in chunk 3 with collisions on, then --resume: the caches equal the unbroken bake's, and so do
     bake.json's contacts (kept with each chunk's state)."""
-    from sim.bake import baker as bake_mod
+    from jiggle.sim.bake import baker as bake_mod
     real = bake_mod.Baker.chunk
 
     def chunk(self, c, state):
@@ -69,7 +69,7 @@ def test_no_collisions_bakes_what_a_bake_without_colliders_bakes(capsys, tmp_pat
     simulate stage called as before issue 21), bit for bit."""
     a = bake(capsys, tmp_path / "a", "--no-collisions", "--frames", "40")
     assert "contacts" not in a and a["params"]["settings"]["collisions"] is False
-    from sim.jiggle import simulate as sim_mod
+    from jiggle.sim.jiggle import simulate as sim_mod
     real = sim_mod.run
 
     def plain(*args, colliders=None, contacts=None, **kw):
@@ -101,7 +101,7 @@ def test_the_jiggle_never_takes_the_skin_into_another_parts_capsule(tmp_path, mo
     without it. The pulled-back vertices moved by no more than their jiggle."""
     from conftest import asset
 
-    from sim.jiggle import colliders as col
+    from jiggle.sim.jiggle import colliders as col
     clip, cesium = str(asset("mocap/cmu_bvh/01_01.bvh")), str(asset("characters/CesiumMan.glb"))
     args = ["bake", "--clip", clip, "--character", cesium, "--start", "6.0", "--end", "7.0", "--formats", "npz"]
     assert main([*args, "--out", str(tmp_path / "on")]) == 0
@@ -129,7 +129,7 @@ def test_muscle_collisions_bake_resumes_bit_for_bit(capsys, tmp_path, monkeypatc
     """--muscle-collisions on the demo scene (28 muscles, 334 pairs of muscles of different bones): bake.json
     says so and names the muscles among what a particle may hit, and a bake interrupted in chunk 2 and
     resumed equals the unbroken bake bit for bit (the particle state after each step is all a step carries)."""
-    from sim.bake import baker as bake_mod
+    from jiggle.sim.bake import baker as bake_mod
     scene = str(Path(__file__).resolve().parents[2] / "scenes" / "default.toml")
     args = ["bake", scene, "--frames", "40", "--chunk", "16", "--formats", "npz", "--muscle-collisions"]
     code, _, err = run(capsys, *args, "--out", str(tmp_path / "a"))

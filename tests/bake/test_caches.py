@@ -8,9 +8,9 @@ import struct
 import numpy as np
 import pytest
 
-import sim.bake.caches as caches
-from rig.base.errors import InputError
-from sim.bake.caches import BakeData, read_npz, read_pc2, write_npz, write_pc2, write_usd
+import jiggle.sim.bake.caches as caches
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.bake.caches import BakeData, read_npz, read_pc2, write_npz, write_pc2, write_usd
 
 T, FPS = 4, 30.0
 # a tetrahedron, outward faces

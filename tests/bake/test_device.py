@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from sim.app.cli import main
+from jiggle.sim.app.cli import main
 
 ARGS = ["--frames", "12", "--formats", "npz", "--resolution", "3000", "--chunk", "4"]
 
@@ -27,7 +27,7 @@ def test_a_device_that_is_not_here_is_exit_2(capsys, tmp_path):
 
 @pytest.mark.slow
 def test_an_explicit_cpu_is_the_default_bit_for_bit(tmp_path):
-    from sim.bake.caches import read_npz
+    from jiggle.sim.bake.caches import read_npz
     assert main(["-q", "bake", "--out", str(tmp_path / "a"), *ARGS]) == 0
     assert main(["-q", "bake", "--out", str(tmp_path / "b"), "--device", "cpu", *ARGS]) == 0
     a, b = read_npz(tmp_path / "a" / "bake.npz"), read_npz(tmp_path / "b" / "bake.npz")
@@ -38,7 +38,7 @@ def test_an_explicit_cpu_is_the_default_bit_for_bit(tmp_path):
 def test_the_cuda_bake_agrees_with_the_cpu_one(tmp_path):
     if not has_cuda():
         pytest.skip("no CUDA device on this machine: the GPU path runs where one exists")
-    from sim.bake.caches import read_npz
+    from jiggle.sim.bake.caches import read_npz
     assert main(["-q", "bake", "--out", str(tmp_path / "cpu"), *ARGS]) == 0
     assert main(["-q", "bake", "--out", str(tmp_path / "gpu"), "--device", "cuda", *ARGS]) == 0
     a, b = read_npz(tmp_path / "cpu" / "bake.npz"), read_npz(tmp_path / "gpu" / "bake.npz")
@@ -68,9 +68,9 @@ def test_a_bake_interrupted_on_the_device_resumes_bit_for_bit(device, tmp_path):
     with each chunk, sim/bake/baker.py)."""
     from pathlib import Path
 
-    from sim.bake.baker import PARTIAL, bake
-    from sim.bake.caches import read_npz, read_pc2
-    from sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.bake.baker import PARTIAL, bake
+    from jiggle.sim.bake.caches import read_npz, read_pc2
+    from jiggle.sim.bake.setup import BakeRequest, prepare
     device = device_or_skip(device)
     arm = str(Path(__file__).resolve().parents[2] / "scenes" / "simple_arm.toml")
     req = BakeRequest(scene=arm, fps=60, chunk=16, formats=("npz", "pc2"), device=device)
@@ -105,9 +105,9 @@ def test_the_jiggle_on_the_device_is_independent_of_the_frame_rate(device):
     clips = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(clips)
     CLIP_S, RATE_TOL, flex_angle, frames = clips.CLIP_S, clips.RATE_TOL, clips.flex_angle, clips.frames
-    from rig.muscle.simple_arm import arm_world, simple_arm
-    from sim.jiggle.params import JiggleSettings, default_jiggles
-    from sim.jiggle.secondary import jiggle_rig
+    from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
+    from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles
+    from jiggle.sim.jiggle.secondary import jiggle_rig
     device = device_or_skip(device)
     arm = simple_arm()
     jiggles = default_jiggles(arm.rig)

@@ -16,8 +16,8 @@ import pytest
 from blender_eval import blender_frames
 from conftest import asset
 
-from sim.app.cli import main
-from sim.bake.caches import read_npz
+from jiggle.sim.app.cli import main
+from jiggle.sim.bake.caches import read_npz
 
 JS = Path(__file__).resolve().parents[1] / "js"
 
@@ -77,10 +77,10 @@ def _json_chunk(path) -> dict:
 def test_the_glb_reads_back_as_the_bake_skinned_it(baked):
     """jiggle's own glTF reader: the file holds CesiumMan's 19 joints and the 51 bones, and its character posed by
     its animation is skin_final within the reported error, frame by frame."""
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
-    from rig.skin.skinning import pose_character
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.rig.skin.skinning import pose_character
     d = read_npz(baked / "bake.npz")
     c = load_character(baked / "bake.glb")
     clip = load_clip(baked / "bake.glb")

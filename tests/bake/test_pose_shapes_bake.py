@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.app.cli import main
+from jiggle.sim.app.cli import main
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 SHAPE = """
@@ -31,8 +31,8 @@ def scene_with(tmp_path, extra: str) -> Path:
 
 @pytest.mark.slow
 def test_a_keyed_quadriceps_grows_with_the_knee_and_nothing_else_changes(tmp_path):
-    from rig.muscle.pose_shapes import SECTIONS
-    from sim.bake.caches import read_npz
+    from jiggle.rig.muscle.pose_shapes import SECTIONS
+    from jiggle.sim.bake.caches import read_npz
     shaped = scene_with(tmp_path, SHAPE)
     assert main(["bake", str(shaped), "--out", str(tmp_path / "shaped"), *ARGS]) == 0
     assert main(["bake", str(SCENES / "default.toml"), "--out", str(tmp_path / "plain"), *ARGS]) == 0

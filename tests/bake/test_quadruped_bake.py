@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from sim.app.cli import main
+from jiggle.sim.app.cli import main
 
 
 def run(capsys, *argv):
@@ -19,7 +19,7 @@ def run(capsys, *argv):
 
 @pytest.fixture(scope="module")
 def dog(tmp_path_factory):
-    from scenes.quadruped import make_quadruped_gltf
+    from jiggle.scenes.quadruped import make_quadruped_gltf
     path = tmp_path_factory.mktemp("dog") / "dog.glb"
     make_quadruped_gltf(path, resolution=6000)
     return str(path)
@@ -27,12 +27,12 @@ def dog(tmp_path_factory):
 
 @pytest.mark.slow
 def test_the_dog_bakes_its_own_trot_with_the_quadruped_template(capsys, tmp_path, dog):
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
-    from rig.skin.quality import SkinQuality
-    from rig.skin.skinning import pose_character
-    from sim.bake.caches import read_npz
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.rig.skin.quality import SkinQuality
+    from jiggle.rig.skin.skinning import pose_character
+    from jiggle.sim.bake.caches import read_npz
     code, out, err = run(capsys, "bake", "--character", dog, "--animation", "trot", "--out", str(tmp_path),
                          "--formats", "npz", "--frames", "30")
     assert code == 0, err

@@ -4,10 +4,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.motion.keyframes import read_keyframes
-from sim.bake.scene import load_scene
-from sim.drive.motion import drive_kinematic
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.keyframes import read_keyframes
+from jiggle.sim.bake.scene import load_scene
+from jiggle.sim.drive.motion import drive_kinematic
 
 SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").glob("*.toml"))
 MOTIONS = sorted((Path(__file__).resolve().parents[2] / "scenes" / "motions").glob("*.toml"))
@@ -35,8 +35,8 @@ def test_scene_bakes_reduced(path, tmp_path):
     a scene without [motion] takes the clip from --clip (a CMU BVH when present, else the demo's)."""
     from conftest import ASSETS
 
-    from sim.app.cli import main
-    from sim.bake.caches import read_npz
+    from jiggle.sim.app.cli import main
+    from jiggle.sim.bake.caches import read_npz
     scene = load_scene(path)
     argv = ["bake", str(path), "--out", str(tmp_path), "--frames", "8", "--formats", "npz"]
     if scene.clip is None and scene.builtin is None:
@@ -115,7 +115,7 @@ def test_scene_without_jiggle_keeps_defaults(tmp_path):
 
 
 def test_jiggle_section_with_keyed_blends(tmp_path):
-    from sim.jiggle.params import BlendCurve, JiggleSettings
+    from jiggle.sim.jiggle.params import BlendCurve, JiggleSettings
     p = _jiggle_scene(tmp_path, """[jiggle]
 substeps = 2
 goal_rate = 240
@@ -150,8 +150,8 @@ goal = [0.9, 0.5, 0.3, 0.5, 0.9]
 
 
 def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
-    from rig.muscle.simple_arm import simple_arm
-    from sim.jiggle.params import default_jiggles
+    from jiggle.rig.muscle.simple_arm import simple_arm
+    from jiggle.sim.jiggle.params import default_jiggles
     arm = simple_arm(rings=8, around=8)
     jiggles = default_jiggles(arm.rig)
     p = _jiggle_scene(tmp_path, "[jiggle.muscles.biceps]\ndamping = 0.9\nblend = [[0.0, 0.0], [1.0, 1.0]]\n")
@@ -209,14 +209,14 @@ def test_motion_file_takes_environment_variables(tmp_path, monkeypatch):
 
 
 def _fake_jiggles(names):
-    from sim.jiggle.params import MuscleJiggle, section_goals
+    from jiggle.sim.jiggle.params import MuscleJiggle, section_goals
     return [MuscleJiggle(n, 7.0, 0.5, section_goals(0.9, 0.4), 1000.0) for n in names]
 
 
 def test_keyed_parameters_and_globs_in_a_scene(tmp_path):
     """Curves (linear, smooth), globs (an exact name beats a glob, a later glob an earlier one) and the global
     strength under the muscles' own tables (issue 23)."""
-    from sim.jiggle.keyed import Curve
+    from jiggle.sim.jiggle.keyed import Curve
     p = _jiggle_scene(tmp_path, '[jiggle]\nstrength = [[0.0, 1.0], [2.0, 0.5]]\n'
                                 '[jiggle.muscles."*_fat"]\ndamping = 0.2\nstrength = 0.8\n'
                                 'goal_scale = {keys = [[0.0, 1.0], [1.0, 0.5]], interpolation = "smooth"}\n'

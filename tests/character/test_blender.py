@@ -41,11 +41,11 @@ import pytest
 from conftest import asset
 from scipy.spatial import cKDTree
 
-from rig.base.errors import JiggleWarning
-from rig.character.gltf_character import read_gltf_character
-from rig.motion.clip import transforms
-from rig.motion.gltf_anim import read_gltf_animation
-from rig.skin.skinning import pose_character
+from jiggle.rig.base.errors import JiggleWarning
+from jiggle.rig.character.gltf_character import read_gltf_character
+from jiggle.rig.motion.clip import transforms
+from jiggle.rig.motion.gltf_anim import read_gltf_animation
+from jiggle.rig.skin.skinning import pose_character
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -184,7 +184,7 @@ def test_centimetre_armature_agrees_with_blender(tmp_path, turn):
     report = compare_with_blender(path, tmp_path, times=[0.0, 0.5, 1.0])
     assert report["height_m"] == pytest.approx(1.67 if turn == -90.0 else 0.28, abs=1e-3)
     # `jiggle inspect` measures the skin Blender imports (not the mesh nodes placed by their own transforms)
-    from sim.app.describe import inspect_file
+    from jiggle.sim.app.describe import inspect_file
     seen = inspect_file(str(path))
     np.testing.assert_allclose(seen["bounds_m"], report["blender_bounds_m"], atol=1e-3)
     assert seen["height_m"] == pytest.approx(report["blender_bounds_m"][5] - report["blender_bounds_m"][2], abs=1e-3)
@@ -193,7 +193,7 @@ def test_centimetre_armature_agrees_with_blender(tmp_path, turn):
 def test_written_character_agrees_with_blender(tmp_path):
     """CesiumMan as jiggle writes it (rig.character.gltf_write, with its animation) plays in Blender as
     jiggle plays it."""
-    from rig.character.gltf_write import write_character
+    from jiggle.rig.character.gltf_write import write_character
     src = asset("characters/CesiumMan.glb")
     c, clip = read_gltf_character(src), read_gltf_animation(src)
     kw = {"animations": {"walk": clip}}

@@ -12,30 +12,30 @@ from conftest import asset
 from meshes import winding_numbers
 from scipy.spatial import cKDTree
 
-from rig.character.body import BodyOptions, generate_body
-from rig.motion import quat
-from rig.skin.skinning import pose_character
+from jiggle.rig.character.body import BodyOptions, generate_body
+from jiggle.rig.motion import quat
+from jiggle.rig.skin.skinning import pose_character
 
 COARSE = 8000  # vertices: enough for shape tests, fast
 
 
 def demo_clip():
-    from sim.bake.scene import load_scene
+    from jiggle.sim.bake.scene import load_scene
     return load_scene("scenes/default.toml").clip
 
 
 def cmu_clip():
-    from rig.motion.bvh import read_bvh
+    from jiggle.rig.motion.bvh import read_bvh
     return read_bvh(asset("mocap/cmu_bvh/01_01.bvh"))
 
 
 def mjcf_clip():
-    from rig.motion.mjcf_skeleton import read_mjcf_skeleton
+    from jiggle.rig.motion.mjcf_skeleton import read_mjcf_skeleton
     return read_mjcf_skeleton(asset("mjcf/humanoid_CMU.xml"))
 
 
 def cesium_clip():
-    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
     return read_gltf_skeleton(asset("characters/CesiumMan.glb")).to_clip()
 
 
@@ -189,7 +189,7 @@ def test_fat_volumes_lie_inside_the_body(name):
 def test_render_mesh_writes_a_png_of_the_requested_size(tmp_path):
     from PIL import Image
 
-    from sim.app.mesh_render import render_mesh
+    from jiggle.sim.app.mesh_render import render_mesh
     clip, body = body_of("demo", resolution=COARSE)
     joints, ends = skeleton_points(body.bind)  # the pose it was built in
     bones = np.array([(joints[p], joints[j]) for j, p in enumerate(clip.parents) if p >= 0])
@@ -208,7 +208,7 @@ def test_render_mesh_writes_a_png_of_the_requested_size(tmp_path):
 
 def _upper_arm_hang_deg(clip) -> list[float]:
     """Angle of each upper arm from straight down, degrees, in the clip's rest pose."""
-    from rig.character.body import _analyse, _upper_arm
+    from jiggle.rig.character.body import _analyse, _upper_arm
     sk = _analyse(clip)
     out = []
     for ch in sk.chains:
@@ -220,7 +220,7 @@ def _upper_arm_hang_deg(clip) -> list[float]:
 
 
 def test_hanging_arms_are_swung_out_for_the_bind_pose():
-    from rig.character.body import bind_pose
+    from jiggle.rig.character.body import bind_pose
     clip = demo_clip()
     assert max(_upper_arm_hang_deg(clip)) < 5, "the demo's arms hang straight down at rest"
     bind = bind_pose(clip, 40.0)
@@ -242,9 +242,9 @@ def test_hanging_arms_are_swung_out_for_the_bind_pose():
 
 def test_generated_character_is_bound_in_its_build_pose():
     """The body's character skins back to its rest skin at the bind pose and follows the clip."""
-    from rig.character.load import body_character
-    from sim.app.skin_pass import skin_motion
-    from sim.drive.motion import drive_kinematic
+    from jiggle.rig.character.load import body_character
+    from jiggle.sim.app.skin_pass import skin_motion
+    from jiggle.sim.drive.motion import drive_kinematic
     clip = demo_clip()
     c = body_character(clip, BodyOptions(resolution=COARSE))
     np.testing.assert_allclose(pose_character(c, c.bind_world), c.vertices, atol=1e-5)

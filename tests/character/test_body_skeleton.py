@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.base.errors import JiggleWarning
-from rig.character.body_skeleton import body_skeleton, original_parents
-from rig.motion import quat
-from rig.motion.body_plan import detect_body_plan, quadruped_roles
-from rig.motion.clip import Clip
-from rig.motion.role_map import resolve_roles
+from jiggle.rig.base.errors import JiggleWarning
+from jiggle.rig.character.body_skeleton import body_skeleton, original_parents
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.body_plan import detect_body_plan, quadruped_roles
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.role_map import resolve_roles
 
 
 def test_ik_helper_bones_are_set_aside_to_read_the_body():
@@ -23,7 +23,7 @@ def test_ik_helper_bones_are_set_aside_to_read_the_body():
     rigs' IK targets do. Read as it is: one limb on the ground, no legs. The body's skeleton
     (rig.character.body_skeleton: weightless helpers set aside, the IK-placed feet hung under their lower legs)
     is a biped, with its own built-in map; CesiumMan's has no helpers and is read as it is."""
-    from rig.character.gltf_character import read_gltf_character
+    from jiggle.rig.character.gltf_character import read_gltf_character
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", JiggleWarning)
         robot = read_gltf_character(asset("characters/RobotExpressive.glb"))
@@ -105,8 +105,8 @@ def test_robot_expressive_bakes_its_own_animation_with_no_flags(tmp_path):
     its own first animation baked (no --template, no map), every cache value finite."""
     import json
 
-    from sim.app.cli import main
-    from sim.bake.caches import read_npz
+    from jiggle.sim.app.cli import main
+    from jiggle.sim.bake.caches import read_npz
     out = tmp_path / "robot"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", JiggleWarning)
@@ -157,7 +157,7 @@ def test_a_clip_retargeted_onto_an_ik_rig_carries_its_feet():
     """A CMU walk retargeted onto RobotExpressive moves its legs; its feet hang off the root as IK targets, which
     the walk does not move. The bake hangs them under the lower legs (rig.character.body_skeleton.hang): in every
     frame each foot keeps its bind-pose place relative to its lower leg, and a foot goes where its leg goes."""
-    from sim.bake.setup import BakeRequest, prepare
+    from jiggle.sim.bake.setup import BakeRequest, prepare
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", JiggleWarning)
         setup = prepare(BakeRequest(clip=str(asset("mocap/cmu_bvh/02_03.bvh")),

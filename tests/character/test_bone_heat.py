@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError
-from rig.character.bone_heat import LEAF_FRACTION, bone_heat_weights, bone_segments, weld
-from rig.character.load import load_character
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.bone_heat import LEAF_FRACTION, bone_heat_weights, bone_segments, weld
+from jiggle.rig.character.load import load_character
 
 # A tube along x, radius 0.1 m, from x = 0 to 1.4 m, capped; a 3-joint chain inside it. Joint 2 is a
 # leaf at x = 1.1, so the tube past it (x > 1.1) can only be weighted through the leaf's own bone.

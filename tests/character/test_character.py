@@ -10,13 +10,13 @@ import pytest
 import trimesh
 from conftest import asset
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.character import Character, bind_clip
-from rig.character.load import auto_weighted, load_character, load_skeleton
-from rig.motion.clip import transforms
-from rig.motion.gltf_anim import read_gltf_animation
-from rig.skin.skinning import pose_character
-from sim.drive.skeleton import Skeleton
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.character import Character, bind_clip
+from jiggle.rig.character.load import auto_weighted, load_character, load_skeleton
+from jiggle.rig.motion.clip import transforms
+from jiggle.rig.motion.gltf_anim import read_gltf_animation
+from jiggle.rig.skin.skinning import pose_character
+from jiggle.sim.drive.skeleton import Skeleton
 
 CHARACTERS = ["CesiumMan", "RiggedFigure"]
 
@@ -140,7 +140,7 @@ def test_unit_auto_reads_centimetres_and_says_so(tmp_path):
     tall.vertices = tall.vertices * 100
     path = tmp_path / "body.stl"
     tall.export(path)
-    from rig.character.mesh_io import read_mesh
+    from jiggle.rig.character.mesh_io import read_mesh
     with pytest.warns(JiggleWarning, match=r"170 units tall: read in centimetres \(1.7 m\); pass --unit m"):
         auto = read_mesh(path)
     assert abs(np.ptp(auto.vertices[:, 2]) - 1.7) < 1e-6 and auto.unit_scale == 0.01
@@ -157,7 +157,7 @@ def test_unit_auto_reads_centimetres_and_says_so(tmp_path):
 
 
 def test_guess_unit():
-    from rig.character.character import guess_unit, resolve_unit
+    from jiggle.rig.character.character import guess_unit, resolve_unit
     assert guess_unit(1.7) is None and guess_unit(0.06) is None and guess_unit(9.0) is None  # plausible: metres
     assert guess_unit(79.03) == "cm" and guess_unit(170.0) == "cm" and guess_unit(1700.0) == "mm"
     assert guess_unit(1e7) is None and guess_unit(float("nan")) is None

@@ -17,15 +17,15 @@ from blender_eval import blender_frames
 from conftest import asset
 from scipy.spatial import cKDTree
 
-from rig.base.errors import JiggleWarning
-from rig.motion.clip import transforms
-from rig.skin.skinning import pose_character
-from sim.app.cli import main
+from jiggle.rig.base.errors import JiggleWarning
+from jiggle.rig.motion.clip import transforms
+from jiggle.rig.skin.skinning import pose_character
+from jiggle.sim.app.cli import main
 
 
 @pytest.fixture(autouse=True)
 def blender(tmp_path, monkeypatch):
-    from rig.motion.fbx import blender_command
+    from jiggle.rig.motion.fbx import blender_command
     if blender_command("x.py") is None:
         pytest.skip("no Blender here (bpy in .venv/blender, JIGGLE_BPY_PYTHON or JIGGLE_BLENDER_EXE): FBX is read "
                     "through its importer")
@@ -33,8 +33,8 @@ def blender(tmp_path, monkeypatch):
 
 
 def read(path):
-    from rig.character.load import load_character
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.mocap import load_clip
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", JiggleWarning)
         return load_character(path), load_clip(path)
@@ -64,7 +64,7 @@ def test_kenney_matches_maya_at_its_frames(frame, form, tmp_path):
     src = asset("characters/fbx/maya_kenney_character_7700_binary.fbx")
     if form == "ascii":
         from fbx_text import ascii_fbx
-        from rig.motion.fbx_tree import read_tree
+        from jiggle.rig.motion.fbx_tree import read_tree
         nodes, version, _ = read_tree(str(src))
         src = tmp_path / "kenney_ascii.fbx"
         src.write_text(ascii_fbx(nodes, version))
@@ -85,7 +85,7 @@ def test_an_fbx61_character_poses_as_its_take_says(tmp_path, form, capsys):
     poses it at the take's key times where the bones put it (within 1e-6 m), and `jiggle inspect` gives its
     height (2 m) from the posed skin."""
     from fbx_text import bar_fbx61
-    from rig.motion.fbx_tree import read_tree, write_binary
+    from jiggle.rig.motion.fbx_tree import read_tree, write_binary
     text, pose = bar_fbx61()
     src = tmp_path / "bar.fbx"
     src.write_text(text)
@@ -125,8 +125,8 @@ def test_a_skeleton_only_fbx_is_a_clip(capsys):
     """Maya's HumanIK skeleton (62 bones, `Character1_*`, no mesh) is a clip: load_clip reads its skeleton and
     its take, the built-in HumanIK map finds its roles, and `jiggle inspect` describes it as a clip. (Its take has curve
     nodes and no key curve: the file holds one pose.)"""
-    from rig.motion.mocap import load_clip
-    from rig.motion.role_map import resolve_roles
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.rig.motion.role_map import resolve_roles
     clip = load_clip(asset("characters/fbx/maya_human_ik_7400_binary.fbx"))
     assert clip.num_joints == 62 and "Character1_Hips" in clip.joint_names
     roles = resolve_roles(clip)
@@ -181,7 +181,7 @@ def test_an_fbx_character_bakes_its_own_take_with_no_flags(tmp_path):
     """`jiggle bake --character CesiumMan_blender5.fbx`: its take baked with the human template; against the bake
     of CesiumMan.glb frame for frame the jiggle (final - static skin) agrees within 1 mm, and the skins within the
     5 mm the FBX's own curves are from the glTF's."""
-    from sim.bake.caches import read_npz
+    from jiggle.sim.bake.caches import read_npz
     for name, path in (("fbx", asset("characters/fbx/CesiumMan_blender5.fbx")), ("glb", asset("characters/CesiumMan.glb"))):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", JiggleWarning)
@@ -213,7 +213,7 @@ def test_the_barbarian_bakes_its_own_take(tmp_path):
     muscles then ride hips > chest): its first take bakes with no flag, the human template fitted."""
     import json
 
-    from sim.bake.caches import read_npz
+    from jiggle.sim.bake.caches import read_npz
     out = tmp_path / "barbarian"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", JiggleWarning)
@@ -243,7 +243,7 @@ bpy.ops.export_scene.fbx(filepath=out, bake_anim=True)
 def test_an_fbx_with_a_nan_key_never_reaches_a_cache(tmp_path, capsys):
     """CesiumMan's FBX with one animation key set to NaN by Blender and written again: the bake refuses it in one
     line naming the file and what is wrong, exit 2, and writes no cache."""
-    from rig.motion.fbx import blender_command
+    from jiggle.rig.motion.fbx import blender_command
     script, poisoned = tmp_path / "poison.py", tmp_path / "nan_key.fbx"
     script.write_text(POISON)
     r = subprocess.run(blender_command(str(script)) + [str(asset("characters/fbx/CesiumMan_blender5.fbx")),

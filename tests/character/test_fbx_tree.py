@@ -8,9 +8,9 @@ import pytest
 from conftest import asset
 from fbx_text import KTIME, ascii_fbx, bar_fbx61
 
-from rig.base.errors import InputError
-from rig.motion.fbx_legacy import _keys, lift
-from rig.motion.fbx_tree import Node, read_tree, split_name, write_binary
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.fbx_legacy import _keys, lift
+from jiggle.rig.motion.fbx_tree import Node, read_tree, split_name, write_binary
 
 
 def same(a: list[Node], b: list[Node], where: str = "") -> None:

@@ -13,14 +13,14 @@ import gltf_reference
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.gltf_character import read_gltf_character
-from rig.character.load import load_character
-from rig.motion.clip import transforms
-from rig.motion.gltf_anim import read_gltf_animation
-from rig.motion.gltf_skeleton import read_gltf_skeleton
-from rig.skin.skinning import pose_character
-from sim.app.cli import main
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.gltf_character import read_gltf_character
+from jiggle.rig.character.load import load_character
+from jiggle.rig.motion.clip import transforms
+from jiggle.rig.motion.gltf_anim import read_gltf_animation
+from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
+from jiggle.rig.skin.skinning import pose_character
+from jiggle.sim.app.cli import main
 
 
 def read(path, **kw):
@@ -203,7 +203,7 @@ def _mutated_cesium(tmp_path, name, change):
 def test_every_index_and_byte_range_is_checked_before_use(tmp_path, capsys, case, change, field, says):
     """A dangling index anywhere in the JSON, or an accessor reading past its buffer, is exit 2 naming the
     JSON path, from inspect and from bake alike: no IndexError from deep inside a reader."""
-    from sim.app.cli import main
+    from jiggle.sim.app.cli import main
     path = _mutated_cesium(tmp_path, f"{case}.glb", change)
     for argv in (["inspect", path], ["bake", "--character", path, "--frames", "2", "--formats", "npz",
                                      "--out", str(tmp_path / "out")]):

@@ -8,12 +8,12 @@ import pygltflib
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.character import Character, bind_clip
-from rig.character.gltf_write import write_character
-from rig.character.load import load_character
-from rig.motion import quat
-from rig.skin.skinning import pose_character
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.character import Character, bind_clip
+from jiggle.rig.character.gltf_write import write_character
+from jiggle.rig.character.load import load_character
+from jiggle.rig.motion import quat
+from jiggle.rig.skin.skinning import pose_character
 
 CESIUM = "characters/CesiumMan.glb"
 
@@ -122,7 +122,7 @@ def test_spec_details(tmp_path):
 
 def test_nodes_rest_pose_is_the_bind_pose(tmp_path):
     """Blender and other viewers show the nodes' TRS: it is the bind pose, the skin undeformed."""
-    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
     c = cesium()
     s = read_gltf_skeleton(write_character(c, tmp_path / "man.glb"))
     np.testing.assert_allclose(s.rest_translations, s.bind_translations, atol=1e-6)
@@ -211,7 +211,7 @@ def test_written_character_is_animatable(tmp_path):
     # glTF skinning of the file (node world @ IBM on the file's vertices) is the same map
     world = bend(c, "leg_joint_R_1")
     g = pygltflib.GLTF2().load(tmp_path / "man.glb")
-    from rig.motion.gltf_io import Z_UP, GltfDocument
+    from jiggle.rig.motion.gltf_io import Z_UP, GltfDocument
     doc = GltfDocument(tmp_path / "man.glb")
     prim = g.meshes[0].primitives[0]
     v = doc.accessor(prim.attributes.POSITION)
@@ -229,11 +229,11 @@ def _tiny_character(scale_bind: bool = False) -> Character:
     vertices = np.array([[xi, y, 0.1 * xi] for xi in x for y in (0.0, 0.2)])
     faces = np.array([[2 * i, 2 * i + 2, 2 * i + 1] for i in range(4)] +
                      [[2 * i + 1, 2 * i + 2, 2 * i + 3] for i in range(4)], np.int32)
-    from rig.character.normals import vertex_normals
+    from jiggle.rig.character.normals import vertex_normals
     names, parents = ("a", "b", "c"), np.array([-1, -1, 0])
     rot = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array([0.3, -0.2, 1.0]))
     pos = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.1], [0.5, 0.1, 0.05]])
-    from rig.motion.clip import transforms
+    from jiggle.rig.motion.clip import transforms
     bind = transforms(rot, pos)
     bind_m = bind @ np.diag([1.2, 0.9, 1.0, 1.0]) if scale_bind else bind
     t = np.clip(vertices[:, 0], 0, 1)
@@ -272,7 +272,7 @@ def test_weights_are_written_normalised_without_repeated_joints(tmp_path):
     weights = c.weights * 0.8
     joints[:, 2], weights[:, 2] = joints[:, 0], 0.1  # the strongest joint again, with more weight
     odd = dataclasses.replace(c, joints=joints, weights=weights)
-    from rig.motion.gltf_io import GltfDocument
+    from jiggle.rig.motion.gltf_io import GltfDocument
     doc = GltfDocument(write_character(odd, tmp_path / "odd.glb"))
     attrs = doc.gltf.meshes[0].primitives[0].attributes
     j, w = doc.accessor(attrs.JOINTS_0).astype(int), doc.accessor(attrs.WEIGHTS_0)
@@ -288,9 +288,9 @@ def test_weights_are_written_normalised_without_repeated_joints(tmp_path):
 
 
 def test_generated_body_round_trips_without_uvs(tmp_path):
-    from rig.character.body import BodyOptions
-    from rig.character.load import body_character
-    from sim.bake.scene import load_scene
+    from jiggle.rig.character.body import BodyOptions
+    from jiggle.rig.character.load import body_character
+    from jiggle.sim.bake.scene import load_scene
     clip = load_scene("scenes/default.toml").clip
     c = body_character(clip, BodyOptions(resolution=2000), k=5)  # k=5: JOINTS_0/1 and WEIGHTS_0/1
     assert c.uvs is None
@@ -329,7 +329,7 @@ def test_bad_input_leaves_no_file(tmp_path, monkeypatch):
     before = open(good, "rb").read()
     with pytest.raises(InputError):
         write_character(dataclasses.replace(c, vertices=v), good)
-    import rig.character.gltf_write as gw
+    import jiggle.rig.character.gltf_write as gw
 
     def broken(path, doc):
         raise RuntimeError("simulated failure after the bytes were written")

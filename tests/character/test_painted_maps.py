@@ -18,11 +18,11 @@ import pytest
 from conftest import asset
 from scipy.spatial import cKDTree
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.gltf_write import write_character
-from rig.character.load import load_character
-from rig.character.painted_maps import PaintedMaps, read_maps, save_maps
-from rig.muscle.simple_arm import simple_arm
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.gltf_write import write_character
+from jiggle.rig.character.load import load_character
+from jiggle.rig.character.painted_maps import PaintedMaps, read_maps, save_maps
+from jiggle.rig.muscle.simple_arm import simple_arm
 
 
 @pytest.fixture(scope="module")
@@ -171,7 +171,7 @@ def test_bad_sidecars_are_input_errors(arm_char, tmp_path, bad, field):
 
 
 def test_bad_map_exits_2_from_the_cli(arm_char, tmp_path):
-    from sim.app.cli import main
+    from jiggle.sim.app.cli import main
     p = write_character(arm_char, tmp_path / "arm.glb", attributes={"_JIGGLE": np.full(arm_char.num_vertices, 1.5)})
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
@@ -183,7 +183,7 @@ def test_bad_map_exits_2_from_the_cli(arm_char, tmp_path):
 @pytest.fixture(scope="module")
 def cesium_fit(tmp_path_factory):
     """`jiggle fit CesiumMan.glb` into a temporary folder: (folder, the character)."""
-    from sim.app.cli import main
+    from jiggle.sim.app.cli import main
     src = asset("characters/CesiumMan.glb")
     out = tmp_path_factory.mktemp("fit")
     with contextlib.redirect_stdout(io.StringIO()):
@@ -193,8 +193,8 @@ def cesium_fit(tmp_path_factory):
 
 @pytest.mark.slow
 def test_fit_writes_a_starting_point_that_reads_back(cesium_fit):
-    from rig.muscle.fit import FitOptions, fit_musculature
-    from rig.skin.painted_maps import shell_regions
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.skin.painted_maps import shell_regions
     out, c = cesium_fit
     painted = quiet_load(out / "CesiumMan.painted.glb")
     assert np.array_equal(painted.vertices, c.vertices) and np.array_equal(painted.faces, c.faces)

@@ -10,15 +10,15 @@ import pytest
 import trimesh
 from meshes import winding_numbers
 
-from rig.character.body import BodyOptions
-from rig.character.gltf_character import read_gltf_character
-from rig.character.quadruped_body import generate_quadruped_body, is_quadruped
-from rig.motion.body_plan import detect_body_plan, quadruped_roles
-from rig.motion.clip import transforms
-from rig.motion.keyframes import read_keyframes
-from rig.motion.mocap import load_clip
-from rig.skin.skinning import pose_character
-from scenes.quadruped import MOTIONS, TROT, WALK, make_quadruped_gltf
+from jiggle.rig.character.body import BodyOptions
+from jiggle.rig.character.gltf_character import read_gltf_character
+from jiggle.rig.character.quadruped_body import generate_quadruped_body, is_quadruped
+from jiggle.rig.motion.body_plan import detect_body_plan, quadruped_roles
+from jiggle.rig.motion.clip import transforms
+from jiggle.rig.motion.keyframes import read_keyframes
+from jiggle.rig.motion.mocap import load_clip
+from jiggle.rig.skin.skinning import pose_character
+from jiggle.scenes.quadruped import MOTIONS, TROT, WALK, make_quadruped_gltf
 
 RESOLUTION = 6000
 LEGS = ("left_front", "right_front", "left_hind", "right_hind")
@@ -45,7 +45,7 @@ def built(tmp_path_factory):
 
 # ------------------------------------------------------------------------------- the motion
 def test_motion_files_are_what_the_generator_writes(tmp_path):
-    from scenes.quadruped import write_gait_toml
+    from jiggle.scenes.quadruped import write_gait_toml
     for p in write_gait_toml(tmp_path):
         assert p.read_text() == (MOTIONS / p.name).read_text(), f"{p.name}: run python -m scenes.quadruped --motions"
 
@@ -67,7 +67,7 @@ def test_skeleton_reads_as_a_quadruped_with_its_named_roles(request, name):
 
 def test_the_skeleton_read_back_from_gltf_keeps_its_roles(built):
     """glTF has no end sites: the head and the paws are childless joints, and still play their roles."""
-    from rig.motion.gltf_skeleton import read_gltf_skeleton
+    from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
     clip = read_gltf_skeleton(built[1]).to_clip()
     assert detect_body_plan(clip).kind == "quadruped" and len(clip.end_parents) == 0
     roles = quadruped_roles(clip)
@@ -218,9 +218,9 @@ def test_gltf_animations_are_named_linear_channels(built):
 
 
 def test_write_refuses_an_animation_on_another_skeleton(built, tmp_path):
-    from rig.base.errors import InputError
-    from rig.character.gltf_write import write_character
-    from rig.motion.keyframes import read_keyframes as rk
+    from jiggle.rig.base.errors import InputError
+    from jiggle.rig.character.gltf_write import write_character
+    from jiggle.rig.motion.keyframes import read_keyframes as rk
     character, _ = built
     human = rk("scenes/motions/jumping_jacks.toml")
     with pytest.raises(InputError, match="not on the character's skeleton"):
@@ -249,7 +249,7 @@ def test_plain_lbs_does_not_crease_the_chest_under_the_gaits(built, request, nam
     """Plain LBS of the walk and the trot: no folded edge on the breast, and few elsewhere beyond the
     rest mesh's own (rig.skin.quality). Measured at 6000 vertices, folds beyond the rest mesh's summed
     over the frames: walk 448, trot 589 (without the keel 622 and 815, 2 and 2 on the breast at worst)."""
-    from rig.skin.quality import SkinQuality
+    from jiggle.rig.skin.quality import SkinQuality
     character, _ = built
     clip = request.getfixturevalue(name)
     quality = SkinQuality(character.vertices, character.faces)

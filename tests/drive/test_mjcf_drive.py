@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError
-from rig.motion import quat
-from rig.motion.acclaim import read_amc, read_asf
-from rig.motion.bvh import read_bvh
-from rig.motion.clip import Clip
-from sim.drive.mjcf_drive import MjcfDrive, hinge_angles
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.acclaim import read_amc, read_asf
+from jiggle.rig.motion.bvh import read_bvh
+from jiggle.rig.motion.clip import Clip
+from jiggle.sim.drive.mjcf_drive import MjcfDrive, hinge_angles
 
 HUMANOID = "mjcf/humanoid_CMU.xml"
 ASF = "mocap/cmu_amc/01.asf"

@@ -7,8 +7,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from sim.app.cli import main
-from sim.drive.skeleton import Skeleton, capsule_geoms
+from jiggle.sim.app.cli import main
+from jiggle.sim.drive.skeleton import Skeleton, capsule_geoms
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -18,7 +18,7 @@ def test_geoms_ride_their_bodies_as_mujoco_places_them():
     local ends equals MuJoCo's own geom_xpos +- the geom's z axis x half length (to 1e-9 m)."""
     from conftest import asset
 
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.motion.mocap import load_clip
     clip = load_clip(str(asset("mocap/cmu_bvh/02_04.bvh")))
     sk = Skeleton(clip)
     g = capsule_geoms(sk.model, sk.body_ids)
@@ -47,8 +47,8 @@ def test_model_capsules_sit_inside_the_skin_and_follow_the_bones():
     from conftest import asset
     from scipy.spatial import cKDTree
 
-    from rig.character.load import load_character
-    from sim.drive.skeleton import model_capsules
+    from jiggle.rig.character.load import load_character
+    from jiggle.sim.drive.skeleton import model_capsules
     ch = load_character(str(asset("characters/CesiumMan.glb")))
     caps, G, kept = model_capsules(ch.skeleton, ch)
     geoms = capsule_geoms(Skeleton(ch.skeleton).model, Skeleton(ch.skeleton).body_ids)

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from conftest import CMU_BVH, asset
 
-from rig.base.errors import InputError
-from rig.motion import quat
-from rig.motion.bone_roles import bone_roles
-from rig.motion.bvh import read_bvh
-from rig.motion.clip import Clip
-from sim.drive.physics_drive import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.bone_roles import bone_roles
+from jiggle.rig.motion.bvh import read_bvh
+from jiggle.rig.motion.clip import Clip
+from jiggle.sim.drive.physics_drive import (
     GRAVITY,
     PhysicsDivergedError,
     PhysicsDrive,
@@ -21,7 +21,7 @@ from sim.drive.physics_drive import (
     estimate_floor,
     find_feet,
 )
-from sim.drive.skeleton import BodyShape, Skeleton
+from jiggle.sim.drive.skeleton import BodyShape, Skeleton
 
 # A two-bone leg standing still: hip (root) -> knee -> ankle, a flat foot bone to a toe end site.
 # The hip sits 8 cm ahead of the ankle so that the centre of mass (~5 cm ahead) lies between the

@@ -5,10 +5,10 @@ import pytest
 from bvh_reference import write_odd_bvh
 from conftest import CMU_BVH, asset
 
-from rig.motion import quat
-from rig.motion.bvh import CMU_UNIT, read_bvh
-from rig.motion.clip import transforms
-from sim.drive.skeleton import Skeleton
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.bvh import CMU_UNIT, read_bvh
+from jiggle.rig.motion.clip import transforms
+from jiggle.sim.drive.skeleton import Skeleton
 
 
 @pytest.mark.slow
@@ -73,7 +73,7 @@ def test_transforms_are_rigid():
 
 @pytest.mark.parametrize("name", ["CesiumMan", "RiggedFigure"])
 def test_exporter_noise_in_translation_keys_makes_no_slide_joints(name):
-    from rig.motion.gltf_anim import read_gltf_animation
+    from jiggle.rig.motion.gltf_anim import read_gltf_animation
     clip = read_gltf_animation(asset(f"characters/{name}.glb"))
     sk = Skeleton(clip)
     # glTF keys every joint's translation; sub-micrometre wobble is noise: only the root moves

@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.muscle.simple_arm import arm_world, simple_arm
-from sim.jiggle.goal_track import build_track
-from sim.jiggle.params import MuscleJiggle, default_jiggles
-from sim.jiggle.particles import ParticleBuilder, muscle_model
-from sim.jiggle.simulate import run, step_times
-from sim.jiggle.solver import ParticleSolver, thread_groups
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
+from jiggle.sim.jiggle.goal_track import build_track
+from jiggle.sim.jiggle.params import MuscleJiggle, default_jiggles
+from jiggle.sim.jiggle.particles import ParticleBuilder, muscle_model
+from jiggle.sim.jiggle.simulate import run, step_times
+from jiggle.sim.jiggle.solver import ParticleSolver, thread_groups
 
 
 def both_paths(model, track, grid, x0=None, v0=None):

@@ -7,20 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.character.capsules import BoneCapsules, segment_distance
-from sim.jiggle.colliders import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.capsules import BoneCapsules, segment_distance
+from jiggle.sim.jiggle.colliders import (
     ColliderModel,
     contact_numpy,
     integrate_contact_numpy,
     muscle_contacts,
     skin_inside_numpy,
 )
-from sim.jiggle.goal_track import build_track
-from sim.jiggle.params import MuscleJiggle, section_goals
-from sim.jiggle.particles import ParticleBuilder
-from sim.jiggle.simulate import run
-from sim.jiggle.solver import ParticleSolver
+from jiggle.sim.jiggle.goal_track import build_track
+from jiggle.sim.jiggle.params import MuscleJiggle, section_goals
+from jiggle.sim.jiggle.particles import ParticleBuilder
+from jiggle.sim.jiggle.simulate import run
+from jiggle.sim.jiggle.solver import ParticleSolver
 
 
 def capsules(ends, radius):
@@ -242,7 +242,7 @@ def test_contact_pass_reference_pushes_onto_the_surface():
 
 def test_skin_inside_kernel_equals_numpy():
     """The skin check's kernel against its NumPy reference on random vertices and capsules."""
-    from sim.jiggle.colliders import SkinCheck
+    from jiggle.sim.jiggle.colliders import SkinCheck
     rng = np.random.default_rng(5)
     ends = rng.normal(scale=0.2, size=(4, 2, 3))
     caps = BoneCapsules(joint=np.zeros(4), child=np.full(4, -1), local=ends, radius=rng.uniform(0.05, 0.15, 4),
@@ -262,7 +262,7 @@ def test_bad_collider_input_is_named():
     with pytest.raises(InputError, match="friction"):
         ColliderModel.from_pairs(capsules([[[0, 0, 0], [1, 0, 0]]], [0.1]), np.array([[True]]), friction=-1.0)
     with pytest.raises(InputError, match="true or false"):
-        from sim.jiggle.params import JiggleSettings
+        from jiggle.sim.jiggle.params import JiggleSettings
         JiggleSettings(collisions="yes")
 
 
@@ -271,7 +271,7 @@ def test_skin_count_culls_nothing_it_should_count():
     the NumPy reference's count, with one cluster per part riding moving joints, without centres, and with
     vertex_clusters' small clusters, on random skins where some parts lie far from every capsule (culled)
     and some overlap them."""
-    from sim.jiggle.colliders import SkinCheck, vertex_clusters
+    from jiggle.sim.jiggle.colliders import SkinCheck, vertex_clusters
     rng = np.random.default_rng(7)
     T, V, C = 4, 900, 5
     ends = rng.normal(scale=0.3, size=(C, 2, 3))
@@ -303,8 +303,8 @@ def test_broad_phase_boxes_hold_the_goal_curves():
     in the hull of its Bezier control points)."""
     from types import SimpleNamespace
 
-    from sim.jiggle.colliders import group_boxes
-    from sim.jiggle.goal_track import hermite
+    from jiggle.sim.jiggle.colliders import group_boxes
+    from jiggle.sim.jiggle.goal_track import hermite
     rng = np.random.default_rng(11)
     S, N = 30, 12
     starts = np.array([0, 5, 9])
@@ -334,7 +334,7 @@ def test_skin_keep_out_pulls_the_jiggle_back_to_the_capsule():
     and the bisection's 2^-24 of the jiggle); a vertex whose static vertex is already inside keeps its
     jiggle; a vertex outside everything is untouched bit for bit. Per frame the final count is then at most
     the static count, and both equal SkinCheck.count's."""
-    from sim.jiggle.colliders import SkinCheck, keep_out_numpy, vertex_clusters
+    from jiggle.sim.jiggle.colliders import SkinCheck, keep_out_numpy, vertex_clusters
     rng = np.random.default_rng(11)
     T, V, C = 3, 1200, 4
     ends = rng.normal(scale=0.25, size=(C, 2, 3))
@@ -379,7 +379,7 @@ def test_the_stepwise_contact_run_equals_the_one_launch_run():
     """The GPU's way with contacts (ParticleSolver.stepwise: per step a launch over the particles and one over
     the muscles, sim/jiggle/step_kernels.py) run here on the CPU: the positions and the contact records of the
     forward bend equal the one-launch run's bit for bit."""
-    from sim.jiggle.solver import ParticleSolver
+    from jiggle.sim.jiggle.solver import ParticleSolver
     model, cm, track, caps = bend_scene()
     times = np.arange(0, 1.2 + 1e-9, 1 / 60)
     out = []

@@ -6,14 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.muscle.simple_arm import arm_world, simple_arm
-from rig.skin.muscle_skin import MuscleSkin
-from sim.jiggle.goal_track import build_track, find_cuts
-from sim.jiggle.params import BlendCurve, JiggleSettings, default_jiggles, override
-from sim.jiggle.particles import muscle_model
-from sim.jiggle.secondary import jiggle_rig, knot_times
-from sim.jiggle.simulate import equilibrium, step_times
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
+from jiggle.rig.skin.muscle_skin import MuscleSkin
+from jiggle.sim.jiggle.goal_track import build_track, find_cuts
+from jiggle.sim.jiggle.params import BlendCurve, JiggleSettings, default_jiggles, override
+from jiggle.sim.jiggle.particles import muscle_model
+from jiggle.sim.jiggle.secondary import jiggle_rig, knot_times
+from jiggle.sim.jiggle.simulate import equilibrium, step_times
 
 
 def flex(t):
@@ -123,7 +123,7 @@ def test_a_still_pose_stays_still_with_and_without_gravity(arm):
 
 
 def test_equilibrium_balances_gravity(arm):
-    from sim.jiggle.solver import spring_force_numpy
+    from jiggle.sim.jiggle.solver import spring_force_numpy
     model = muscle_model(arm.rig, default_jiggles(arm.rig), gravity=True)
     y = equilibrium(model)
     f = spring_force_numpy(model, y, np.zeros_like(y)) - (model.mass * model.goal_k)[:, None] * np.where(

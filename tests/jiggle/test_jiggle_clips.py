@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from conftest import CMU_BVH, asset
 
-from rig.muscle.simple_arm import arm_world, simple_arm
-from sim.jiggle.params import JiggleSettings, default_jiggles, override
-from sim.jiggle.secondary import jiggle_rig, knot_times
+from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
+from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles, override
+from jiggle.sim.jiggle.secondary import jiggle_rig, knot_times
 
 # ---------------------------------------------------------------------------------- frame rate
 # CLIP_S is a whole number of frames at every rate, so every bake's goal track ends at the same time
@@ -107,9 +107,9 @@ BODY_VERTICES = 8000      # a coarse body: the muscles' fit needs no more, and i
 def musculatures():
     """musculature(clip) -> (Musculature, stress jiggles): one generated body and fit per distinct
     skeleton (joint names and rest offsets to the millimetre; 02_03 and 02_04 share one), cached."""
-    from rig.character.body import BodyOptions
-    from rig.character.load import body_character
-    from rig.muscle.fit import fit_musculature
+    from jiggle.rig.character.body import BodyOptions
+    from jiggle.rig.character.load import body_character
+    from jiggle.rig.muscle.fit import fit_musculature
     cache = {}
 
     def musculature(clip):
@@ -125,7 +125,7 @@ def musculatures():
 
 def clip_world(clip):
     """world_at(times) -> (K, J, 4, 4) of `clip` (joints in the clip's order, as its body's)."""
-    from rig.motion.clip import transforms
+    from jiggle.rig.motion.clip import transforms
     return lambda t: transforms(*clip.world(*clip.sample(t)))
 
 
@@ -137,7 +137,7 @@ def offsets(r) -> np.ndarray:
 @pytest.mark.slow
 @pytest.mark.parametrize("rel", CLIPS, ids=[p.split("/")[-1] for p in CLIPS])
 def test_shared_clip_stays_bounded_at_soft_goals(musculatures, rel):
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.motion.mocap import load_clip
     clip = load_clip(asset(rel))
     mus, jiggles = musculatures(clip)
     times = frames(FPS, clip.duration)
@@ -171,7 +171,7 @@ def spliced(world_at, jump: float):
 
 @pytest.fixture(scope="module")
 def cut_scene(musculatures):
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.motion.mocap import load_clip
     clip = load_clip(asset(CUT_CLIP))
     mus, jiggles = musculatures(clip)
     return mus, jiggles, clip_world(clip), frames(FPS, clip.duration)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from rig.base.errors import InputError
-from rig.muscle.simple_arm import FLEX_HOLD, FLEX_RISE, FLEX_START, simple_arm
-from sim.jiggle.goal_flow import expm_batch, goal_flow, goal_flow_batch
-from sim.jiggle.goal_track import build_track
-from sim.jiggle.keyed import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle.simple_arm import FLEX_HOLD, FLEX_RISE, FLEX_START, simple_arm
+from jiggle.sim.jiggle.goal_flow import expm_batch, goal_flow, goal_flow_batch
+from jiggle.sim.jiggle.goal_track import build_track
+from jiggle.sim.jiggle.keyed import (
     Curve,
     goal_springs,
     parse_assignment,
@@ -21,12 +21,12 @@ from sim.jiggle.keyed import (
     parse_text,
     resolve_tables,
 )
-from sim.jiggle.keyed_solver import KeyedSolver, integrate_keyed_numpy
-from sim.jiggle.params import MuscleJiggle, default_jiggles
-from sim.jiggle.particles import ParticleBuilder
-from sim.jiggle.secondary import knot_times
-from sim.jiggle.simulate import goals, run, step_times
-from sim.jiggle.solver import ParticleSolver
+from jiggle.sim.jiggle.keyed_solver import KeyedSolver, integrate_keyed_numpy
+from jiggle.sim.jiggle.params import MuscleJiggle, default_jiggles
+from jiggle.sim.jiggle.particles import ParticleBuilder
+from jiggle.sim.jiggle.secondary import knot_times
+from jiggle.sim.jiggle.simulate import goals, run, step_times
+from jiggle.sim.jiggle.solver import ParticleSolver
 
 
 # ------------------------------------------------------------------------------------------ curves
@@ -206,9 +206,9 @@ def arm():
 def arm_run(arm, fps=120.0, substeps=4, base=None, **curves):
     """The simple arm's fast flex with the biceps' parameters keyed: (times (T,), offsets (T, 40, 3) metres of
     the dynamic CVs from the static ones)."""
-    from rig.muscle.simple_arm import FLEX_DURATION, flex_world
-    from sim.jiggle.params import JiggleSettings
-    from sim.jiggle.particles import muscle_model
+    from jiggle.rig.muscle.simple_arm import FLEX_DURATION, flex_world
+    from jiggle.sim.jiggle.params import JiggleSettings
+    from jiggle.sim.jiggle.particles import muscle_model
     mj = base or default_jiggles(arm.rig)[0]
     kj = keyed_jiggle(mj, **curves)
     model = muscle_model(arm.rig, [reference_jiggle(mj, kj)])
@@ -287,8 +287,8 @@ def test_keyed_run_with_contacts_matches_the_numpy_reference():
     the run (so the reference model's flow is theirs) through 3 capsules and above a floor, against
     integrate_contact_numpy within float32 round-off; and where nothing touches, the keyed run with colliders
     writes the keyed run's positions bit for bit."""
-    from rig.character.capsules import BoneCapsules
-    from sim.jiggle.colliders import ColliderModel, integrate_contact_numpy
+    from jiggle.rig.character.capsules import BoneCapsules
+    from jiggle.sim.jiggle.colliders import ColliderModel, integrate_contact_numpy
     rng = np.random.default_rng(3)
     a = 2 * np.pi * np.arange(8) / 8
     ring = np.stack([np.cos(a) * 0.03, np.zeros(8), np.sin(a) * 0.03], axis=1)

@@ -7,12 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from sim.jiggle.goal_flow import flow_numpy, goal_flow
-from sim.jiggle.goal_track import build_track
-from sim.jiggle.params import BlendCurve, MuscleJiggle, section_goals
-from sim.jiggle.particles import GRAVITY, ParticleBuilder, muscle_springs, section_masses
-from sim.jiggle.solver import ParticleSolver, integrate_numpy, spring_force_numpy, step_numpy
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.jiggle.goal_flow import flow_numpy, goal_flow
+from jiggle.sim.jiggle.goal_track import build_track
+from jiggle.sim.jiggle.params import BlendCurve, MuscleJiggle, section_goals
+from jiggle.sim.jiggle.particles import GRAVITY, ParticleBuilder, muscle_springs, section_masses
+from jiggle.sim.jiggle.solver import ParticleSolver, integrate_numpy, spring_force_numpy, step_numpy
 
 
 def still_track(points, t1=10.0):
@@ -329,7 +329,7 @@ def test_muscle_springs_hold_rings_lines_and_nearest_neighbours():
 
 
 def test_masses_add_up_to_density_times_volume():
-    from rig.muscle.simple_arm import simple_arm
+    from jiggle.rig.muscle.simple_arm import simple_arm
     rig = simple_arm().rig
     m = section_masses(rig.rest_cvs.reshape(5, 8, 3), 1060.0 * rig.rest_volume[0])
     assert m.sum() == pytest.approx(1060.0 * rig.rest_volume[0])

@@ -8,17 +8,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.character.capsules import BoneCapsules
-from sim.jiggle.colliders import ColliderModel, muscle_contacts
-from sim.jiggle.goal_track import build_track
-from sim.jiggle.keyed import parse_curve
-from sim.jiggle.keyed_solver import KeyedSolver
-from sim.jiggle.params import MuscleJiggle, section_goals
-from sim.jiggle.particles import ParticleBuilder
-from sim.jiggle.simulate import run
-from sim.jiggle.solver import ParticleSolver
-from sim.jiggle.tissue_contacts import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.capsules import BoneCapsules
+from jiggle.sim.jiggle.colliders import ColliderModel, muscle_contacts
+from jiggle.sim.jiggle.goal_track import build_track
+from jiggle.sim.jiggle.keyed import parse_curve
+from jiggle.sim.jiggle.keyed_solver import KeyedSolver
+from jiggle.sim.jiggle.params import MuscleJiggle, section_goals
+from jiggle.sim.jiggle.particles import ParticleBuilder
+from jiggle.sim.jiggle.simulate import run
+from jiggle.sim.jiggle.solver import ParticleSolver
+from jiggle.sim.jiggle.tissue_contacts import (
     NO_HIT,
     SHARE,
     TissueContactModel,
@@ -327,11 +327,11 @@ def test_a_fitted_arm_flexing():
     and each one's records name the other."""
     from arm_muscles import ARM_BIND, arm_world, biceps, brachio
 
-    from rig.muscle.model import build_muscle_rig
-    from sim.jiggle.params import JiggleSettings, default_jiggles
-    from sim.jiggle.particles import muscle_model
-    from sim.jiggle.secondary import jiggle_rig
-    from sim.jiggle.tissue_contacts import RADIUS_MAX, tissue_contact_model
+    from jiggle.rig.muscle.model import build_muscle_rig
+    from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles
+    from jiggle.sim.jiggle.particles import muscle_model
+    from jiggle.sim.jiggle.secondary import jiggle_rig
+    from jiggle.sim.jiggle.tissue_contacts import RADIUS_MAX, tissue_contact_model
     rig = build_muscle_rig([biceps(), brachio(bone=1)], ARM_BIND)
     model = muscle_model(rig, default_jiggles(rig))
     tm = tissue_contact_model(rig, model)
@@ -361,7 +361,7 @@ def test_a_step_plan_step_is_integrate_over_that_step(keyed):
     them; what integrate_tissue steps with when there are colliders) equals solver.integrate over
     [grid[k], grid[k + 1]] bit for bit, step after step, positions, velocities and the step's capsule
     records, for the plain and the keyed solver."""
-    from sim.jiggle.simulate import step_times
+    from jiggle.sim.jiggle.simulate import step_times
     jig = [replace(JIGGLE, name="A", frequency_hz=parse_curve([[0, 3.0], [0.5, 5.0]], "frequency")),
            replace(JIGGLE, name="B")] if keyed else None
     model, track, tissue = press_scene(jiggles=jig)

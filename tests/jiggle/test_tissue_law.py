@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from sim.jiggle import particle_kernels, tissue_law
-from sim.jiggle.goal_track import build_track
-from sim.jiggle.params import JiggleSettings, MuscleJiggle
-from sim.jiggle.particles import ParticleBuilder
-from sim.jiggle.simulate import run, step_times
-from sim.jiggle.solver import ParticleSolver, integrate_numpy
+from jiggle.sim.jiggle import particle_kernels, tissue_law
+from jiggle.sim.jiggle.goal_track import build_track
+from jiggle.sim.jiggle.params import JiggleSettings, MuscleJiggle
+from jiggle.sim.jiggle.particles import ParticleBuilder
+from jiggle.sim.jiggle.simulate import run, step_times
+from jiggle.sim.jiggle.solver import ParticleSolver, integrate_numpy
 
 R = 0.02                               # metres: the reach of the test particles
 

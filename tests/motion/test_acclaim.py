@@ -13,11 +13,11 @@ from conftest import asset
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rig.base.errors import InputError
-from rig.motion import quat
-from rig.motion.acclaim import AsfSkeleton, find_asf, read_amc, read_asf
-from rig.motion.bvh import read_bvh
-from rig.motion.mocap import load_clip
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.acclaim import AsfSkeleton, find_asf, read_amc, read_asf
+from jiggle.rig.motion.bvh import read_bvh
+from jiggle.rig.motion.mocap import load_clip
 
 ASF = "mocap/cmu_amc/01.asf"
 AMC = "mocap/cmu_amc/01_01.amc"

@@ -9,16 +9,16 @@ import warnings
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.motion.body_plan import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.body_plan import (
     QUADRUPED_REQUIRED,
     check_roles,
     detect_body_plan,
     quadruped_roles,
     template_for,
 )
-from rig.motion.clip import Clip
-from rig.motion.role_map import resolve_roles
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.role_map import resolve_roles
 
 ASSETS = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "assets")
 
@@ -157,7 +157,7 @@ def human_files():
 
 @pytest.mark.parametrize("path", human_files(), ids=os.path.basename)
 def test_humans_are_bipeds_and_their_maps_pass(path):
-    from rig.character.load import load_skeleton
+    from jiggle.rig.character.load import load_skeleton
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         clip = load_skeleton(path)

@@ -8,8 +8,8 @@ from conftest import CMU_BVH, asset
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rig.base.errors import InputError
-from rig.motion.bvh import CMU_UNIT, read_bvh
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.bvh import CMU_UNIT, read_bvh
 
 
 def test_any_hierarchy_matches_independent_fk(tmp_path):

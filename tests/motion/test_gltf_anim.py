@@ -15,11 +15,11 @@ import pygltflib
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.motion import quat
-from rig.motion.gltf_anim import read_gltf_animation
-from rig.motion.gltf_skeleton import describe_gltf, read_gltf_skeleton
-from rig.motion.mocap import load_clip
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.gltf_anim import read_gltf_animation
+from jiggle.rig.motion.gltf_skeleton import describe_gltf, read_gltf_skeleton
+from jiggle.rig.motion.mocap import load_clip
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # (x, y, z) -> (x, -z, y)
 

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rig.base.errors import InputError
-from rig.motion import quat
-from rig.motion.clip import Clip
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
 
 rng = np.random.default_rng(7)
 

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError
-from rig.motion import quat
-from rig.motion.bvh import read_bvh
-from rig.motion.gltf_anim import read_gltf_animation
-from rig.motion.gltf_skeleton import read_gltf_skeleton
-from rig.motion.retarget import REQUIRED, JointMap, bone_pairs, foot_clearance, presets, retarget
-from sim.drive.skeleton import Skeleton
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.bvh import read_bvh
+from jiggle.rig.motion.gltf_anim import read_gltf_animation
+from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
+from jiggle.rig.motion.retarget import REQUIRED, JointMap, bone_pairs, foot_clearance, presets, retarget
+from jiggle.sim.drive.skeleton import Skeleton
 
 SIDES = ("left", "right")
 
@@ -129,8 +129,8 @@ def test_the_characters_own_skeleton_needs_no_map():
     """A clip of the character's own skeleton (here its own animation) is taken as it is, with no map
     and no retargeting: the same joints, the same local motion; a clip of another skeleton
     still goes through the maps."""
-    from rig.motion.retarget import same_skeleton
-    from rig.motion.retarget_onto import retarget_onto
+    from jiggle.rig.motion.retarget import same_skeleton
+    from jiggle.rig.motion.retarget_onto import retarget_onto
     path = asset("characters/CesiumMan.glb")
     walk = read_gltf_animation(path)
     said = []
@@ -146,7 +146,7 @@ def test_the_characters_own_skeleton_needs_no_map():
 def test_a_skeleton_no_preset_fits_is_mapped_by_its_shape():
     """RiggedFigure's joint names match no preset: its roles are found from its shape and the CMU run
     lands on it with the feet on its floor and the thighs following the clip's."""
-    from rig.motion.retarget_onto import joint_map_for, retarget_onto
+    from jiggle.rig.motion.retarget_onto import joint_map_for, retarget_onto
     path = str(asset("characters/RiggedFigure.glb"))
     character = read_gltf_skeleton(path)
     said = []
@@ -178,7 +178,7 @@ def test_turning_the_clip_turns_the_character(run):
 
 
 def test_cmu_preset_covers_bvh_and_asf_names():
-    from rig.motion.acclaim import read_asf
+    from jiggle.rig.motion.acclaim import read_asf
 
     assert {"cmu", "cesiumman"} <= set(presets())
     cmap = JointMap.load("cmu")

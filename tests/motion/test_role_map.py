@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from conftest import CMU_BVH, asset
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.load import body_character, load_character, load_skeleton
-from rig.motion import quat
-from rig.motion.clip import Clip
-from rig.motion.mocap import load_clip
-from rig.motion.retarget import REQUIRED, ROLES, JointMap
-from rig.motion.role_map import auto_roles, facing, resolve_roles
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.load import body_character, load_character, load_skeleton
+from jiggle.rig.motion import quat
+from jiggle.rig.motion.clip import Clip
+from jiggle.rig.motion.mocap import load_clip
+from jiggle.rig.motion.retarget import REQUIRED, ROLES, JointMap
+from jiggle.rig.motion.role_map import auto_roles, facing, resolve_roles
 
 DEMO = "scenes/motions/jumping_jacks.toml"
 # the demo skeleton's joints by role (l_ is the character's left)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from rig.muscle.conform import conform
-from rig.muscle.ellipsoid import Ellipsoid, fit_ellipsoid, surface_moments
+from jiggle.rig.muscle.conform import conform
+from jiggle.rig.muscle.ellipsoid import Ellipsoid, fit_ellipsoid, surface_moments
 
 
 def tube(radius=0.05, length=0.3, sections=64, rings=60, capped=True):

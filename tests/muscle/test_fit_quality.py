@@ -15,21 +15,21 @@ import pytest
 import trimesh
 from conftest import asset
 
-import rig.muscle.fit as fit
-from rig.base.errors import InputError, JiggleWarning
-from rig.muscle.fit import FitOptions, fit_musculature
-from rig.muscle.fit_quality import INSIDE_OK, RMS_OK, RMS_REFUSE, inside_skin, local_radius, thresholds
-from sim.app.fit_outputs import musculature_facts, quality_line
+import jiggle.rig.muscle.fit as fit
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.muscle.fit import FitOptions, fit_musculature
+from jiggle.rig.muscle.fit_quality import INSIDE_OK, RMS_OK, RMS_REFUSE, inside_skin, local_radius, thresholds
+from jiggle.sim.app.fit_outputs import musculature_facts, quality_line
 
 
 def cesium_man():
-    from rig.character.load import load_character
+    from jiggle.rig.character.load import load_character
     return load_character(asset("characters/CesiumMan.glb")), "auto"
 
 
 def generated_body():
-    from rig.character.load import body_character
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.character.load import body_character
+    from jiggle.rig.motion.mocap import load_clip
     return body_character(load_clip("scenes/motions/jumping_jacks.toml")), "auto"
 
 
@@ -37,8 +37,8 @@ def quadruped():
     """The project's own dog (scenes/quadruped.py), written to glTF and read back, with template auto."""
     import tempfile
 
-    from rig.character.load import load_character
-    from scenes.quadruped import make_quadruped_gltf
+    from jiggle.rig.character.load import load_character
+    from jiggle.scenes.quadruped import make_quadruped_gltf
     path = os.path.join(tempfile.mkdtemp(prefix="jiggle_dog_"), "dog.glb")
     make_quadruped_gltf(path, resolution=8000)
     return load_character(path), "auto"

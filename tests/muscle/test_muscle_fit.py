@@ -19,13 +19,13 @@ import pytest
 from conftest import asset
 from meshes import winding_numbers
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.character.character import Character, bind_clip
-from rig.character.load import body_character, load_character
-from rig.character.normals import vertex_normals
-from rig.muscle.fit import FitOptions, bone_frame, fit_musculature
-from rig.muscle.template import template_from_toml
-from sim.app.cli import main
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.character import Character, bind_clip
+from jiggle.rig.character.load import body_character, load_character
+from jiggle.rig.character.normals import vertex_normals
+from jiggle.rig.muscle.fit import FitOptions, bone_frame, fit_musculature
+from jiggle.rig.muscle.template import template_from_toml
+from jiggle.sim.app.cli import main
 
 CHARACTERS = ["CesiumMan", "RiggedFigure", "generated"]
 FAT = {"left_glute_fat", "right_glute_fat", "belly_fat", "left_love_handle", "right_love_handle"}
@@ -47,10 +47,10 @@ def make_character(name: str) -> Character:
     if name == "RiggedFigure":
         return load_character(asset("characters/RiggedFigure.glb"))
     if name == "generated":
-        from rig.motion.mocap import load_clip
+        from jiggle.rig.motion.mocap import load_clip
         return body_character(load_clip("scenes/motions/jumping_jacks.toml"))
     if name == "cmu":
-        from rig.motion.mocap import load_clip
+        from jiggle.rig.motion.mocap import load_clip
         return body_character(load_clip(asset("mocap/cmu_bvh/02_03.bvh")))
     raise KeyError(name)
 
@@ -175,7 +175,7 @@ def test_partition_plane_holds_even_with_a_long_reach():
     cross it by 2-5 cm on RiggedFigure)."""
     import dataclasses
 
-    from rig.muscle.template import load_template
+    from jiggle.rig.muscle.template import load_template
     c = load_character(asset("characters/RiggedFigure.glb"))
     human = load_template("human")
     pairs_only = dataclasses.replace(human, pairs=tuple(p for p in human.pairs
@@ -263,9 +263,9 @@ def test_volume_is_kept_over_every_frame_of_a_cmu_clip(fits):
     """The template fitted to a body generated around a CMU clip's skeleton, driven by that clip through
     MuJoCo (sim.drive.skeleton.Skeleton) over every frame: the default "exact" rule holds every muscle's
     lofted volume within 1%; the thesis rule (S = Sc Li / Lc, volume ~ Li / Lc) drifts far more."""
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
-    from sim.drive.skeleton import Skeleton
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.sim.drive.skeleton import Skeleton
     c, mus, warned = fits("cmu")
     assert mus.skipped == () and warned == []   # love handles included although LowerBack sits on Hips
     clip = load_clip(asset("mocap/cmu_bvh/02_03.bvh"))

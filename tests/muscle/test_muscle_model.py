@@ -16,10 +16,10 @@ from conftest import asset
 from scipy.interpolate import BSpline, CubicSpline
 from scipy.spatial.transform import Rotation
 
-from rig.base.errors import InputError
-from rig.motion.clip import transforms
-from rig.muscle import loft
-from rig.muscle.model import VOLUME_RULES, build_muscle_rig
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.clip import transforms
+from jiggle.rig.muscle import loft
+from jiggle.rig.muscle.model import VOLUME_RULES, build_muscle_rig
 
 
 @pytest.fixture(scope="module")
@@ -323,7 +323,7 @@ def limb_spec(name, pos, a, b, c, toward, depth=0.035, radii=(0.025, 0.02), span
 
 
 def test_clip_keeps_every_muscles_volume():
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.motion.mocap import load_clip
     clip = load_clip(asset("mocap/cmu_bvh/02_03.bvh")).frames(0, 300)
     bind = transforms(*clip.rest_world())
     world = transforms(*clip.world())

@@ -7,10 +7,10 @@ import importlib.resources
 
 import pytest
 
-from rig.base.errors import InputError
-from rig.motion.retarget import ROLES
-from rig.muscle.shell_params import FAT_SHELL, MODES, MUSCLE_SHELL, ShellParams
-from rig.muscle.template import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.motion.retarget import ROLES
+from jiggle.rig.muscle.shell_params import FAT_SHELL, MODES, MUSCLE_SHELL, ShellParams
+from jiggle.rig.muscle.template import (
     FAT_DEPTH,
     FAT_JIGGLE,
     MUSCLE_JIGGLE,
@@ -186,7 +186,7 @@ def test_built_in_human_template():
     assert "abdomen" in names and "belly_fat" in names
     assert any(lbl.startswith("left_") for lbl in t.labels()) and any(lbl.startswith("right_") for lbl in t.labels())
     # the two shipped forms are the same template
-    folder = importlib.resources.files("rig.muscle") / "templates"
+    folder = importlib.resources.files("jiggle.rig.muscle") / "templates"
     xml = template_from_xml((folder / "human.xml").read_bytes(), "human.xml")
     toml = template_from_toml((folder / "human.toml").read_text(encoding="utf-8"), "human.toml")
     assert xml == toml == t == load_template("human", form=".xml")

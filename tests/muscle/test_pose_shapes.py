@@ -8,13 +8,13 @@ arm). Sculpted poses are the rest tube and the same tube with the front of the u
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.character.character import Character, bind_clip
-from rig.character.normals import vertex_normals
-from rig.muscle import loft
-from rig.muscle.fit import fit_musculature
-from rig.muscle.pose_shapes import PoseShapes, SculptedPose, fit_pose_shapes
-from rig.muscle.template import template_from_toml
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.character import Character, bind_clip
+from jiggle.rig.character.normals import vertex_normals
+from jiggle.rig.muscle import loft
+from jiggle.rig.muscle.fit import fit_musculature
+from jiggle.rig.muscle.pose_shapes import PoseShapes, SculptedPose, fit_pose_shapes
+from jiggle.rig.muscle.template import template_from_toml
 
 TEMPLATE = template_from_toml("""
 name = "arm"
@@ -220,7 +220,7 @@ def bent(arm, deg: float) -> np.ndarray:
 
 def section_radii(rig, shape, m: int) -> np.ndarray:
     """(T, 5) mean distance (m) of muscle m's section CVs from their centres on the action curve."""
-    from rig.muscle.pose_shapes import SECTIONS
+    from jiggle.rig.muscle.pose_shapes import SECTIONS
     cvs = shape.cvs if shape.cvs.ndim == 3 else shape.cvs[None]
     curve = shape.curve if shape.curve.ndim == 4 else shape.curve[None]
     a, b = rig.cv_offsets[m], rig.cv_offsets[m + 1]
@@ -240,7 +240,7 @@ def test_scaled_sections_take_their_keyed_size_at_the_keyed_bend(arm, arm_rig):
     degrees halfway, bent 120 held at the 90-degree key; the triceps and the bind pose are untouched."""
     from dataclasses import replace
 
-    from rig.muscle.pose_shapes import SectionShape, bind_section_shapes
+    from jiggle.rig.muscle.pose_shapes import SectionShape, bind_section_shapes
     keyed = [1.0, 1.2, 1.4, 1.2, 1.0]
     shapes = bind_section_shapes([SectionShape("left_bic*", "elbow", (0.0, 90.0), ((1.0,) * 5, tuple(keyed)))],
                                  arm_rig, arm.joint_names, arm.parents, arm.bind_world)
@@ -275,7 +275,7 @@ def test_scaled_sections_take_their_keyed_size_at_the_keyed_bend(arm, arm_rig):
     (dict(scales=(1.0, float("nan"))), "scales must be in"),
 ])
 def test_bad_section_shapes_name_where_they_were_given(arm, arm_rig, shape, match):
-    from rig.muscle.pose_shapes import SectionShape, bind_section_shapes
+    from jiggle.rig.muscle.pose_shapes import SectionShape, bind_section_shapes
     given = dict(muscle="left_biceps", joint="elbow", angles=(0.0, 90.0), scales=(1.0, 1.3), path="s.toml", line=7)
     with pytest.raises(InputError, match=match) as e:
         bind_section_shapes([SectionShape(**{**given, **shape})], arm_rig, arm.joint_names, arm.parents,

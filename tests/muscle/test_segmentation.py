@@ -5,11 +5,11 @@ import pytest
 import trimesh
 from conftest import asset
 
-from rig.base.errors import InputError
-from rig.character.character import Character, bind_clip
-from rig.character.load import body_character, load_character
-from rig.character.normals import vertex_normals
-from rig.muscle.segmentation import BoneSegments, assign, bone_segments, segment_skin, smoothed_normals
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.character import Character, bind_clip
+from jiggle.rig.character.load import body_character, load_character
+from jiggle.rig.character.normals import vertex_normals
+from jiggle.rig.muscle.segmentation import BoneSegments, assign, bone_segments, segment_skin, smoothed_normals
 
 
 def rig_character(vertices, faces, names, parents, positions, dominant=None):
@@ -209,7 +209,7 @@ def test_rigged_figure_limbs_get_regions():
 
 
 def test_generated_body_limbs_get_regions():
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.motion.mocap import load_clip
     c = body_character(load_clip("scenes/motions/jumping_jacks.toml"))
     seg = segment_skin(c)
     for s in "lr":

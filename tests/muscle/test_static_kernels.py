@@ -18,8 +18,8 @@ from arm_muscles import ARM_BIND, arm_world, biceps, brachio, spec_from_ellipsoi
 from conftest import asset
 from scipy.spatial.transform import Rotation
 
-from rig.muscle import model
-from rig.muscle.model import MIN_BELLY, VOLUME_RULES, build_muscle_rig
+from jiggle.rig.muscle import model
+from jiggle.rig.muscle.model import MIN_BELLY, VOLUME_RULES, build_muscle_rig
 
 TOL = 1e-9   # metres
 
@@ -112,7 +112,7 @@ def test_a_section_along_the_up_vector_takes_the_side_vector_alike():
 
 # ---------------------------------------------------------------------------------- human rigs
 def fitted_human(character):
-    from rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return fit_musculature(character, "human", FitOptions()).rig
@@ -121,9 +121,9 @@ def fitted_human(character):
 @pytest.fixture(scope="module")
 def jumping_jacks():
     """(rig, world (T, J, 4, 4)): the human template on the body generated for the jumping-jacks clip."""
-    from rig.character.load import body_character
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
+    from jiggle.rig.character.load import body_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.mocap import load_clip
     clip = load_clip("scenes/motions/jumping_jacks.toml")
     return fitted_human(body_character(clip)), transforms(*clip.world())
 
@@ -141,7 +141,7 @@ def test_human_rig_turned_at_random(jumping_jacks):
 
 
 def test_cesium_man_turned_at_random():
-    from rig.character.load import load_character
+    from jiggle.rig.character.load import load_character
     c = load_character(asset("characters/CesiumMan.glb"))
     rig = fitted_human(c)
     bind = np.asarray(c.bind_world, dtype=np.float64)

@@ -17,13 +17,13 @@ import warp as wp
 from conftest import asset
 from scipy.spatial.transform import Rotation
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.muscle.shell_params import MODES, ShellParams
-from rig.muscle.simple_arm import simple_arm
-from rig.skin.muscle_skin import MuscleSkin
-from rig.skin.shell.deformer import ShellBatch, ShellDeformer
-from rig.skin.shell.shells import ShellFrames, shell_numpy, shell_table
-from rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.muscle.shell_params import MODES, ShellParams
+from jiggle.rig.muscle.simple_arm import simple_arm
+from jiggle.rig.skin.muscle_skin import MuscleSkin
+from jiggle.rig.skin.shell.deformer import ShellBatch, ShellDeformer
+from jiggle.rig.skin.shell.shells import ShellFrames, shell_numpy, shell_table
+from jiggle.rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy
 
 TOL = 1e-6          # metres: batch against loop (the contract's bound)
 REF_TOL = 1e-5      # metres: float32 kernels against the float64 NumPy references, scenes ~1 m across
@@ -182,10 +182,10 @@ def test_bad_batches_are_named(arm, skins):
 # ---------------------------------------------------------------------------------- CesiumMan
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.motion.mocap import load_clip
-    from rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
     path = asset("characters/CesiumMan.glb")
     ch = load_character(path)
     clip = load_clip(path)
@@ -373,7 +373,7 @@ def test_smooth_skin_and_launch_count(arm, skins, mode, method):
 
 def test_skin_frames_smooth(arm, skins):
     """skin_frames(smooth=True): the sets, then the smooth skin; batched or frame by frame alike."""
-    from rig.skin.muscle_skin import skin_frames
+    from jiggle.rig.skin.muscle_skin import skin_frames
     skin = skins["shell", "lbs"]
     world, cvs, curve, blended = sweep(arm, T=5)
     got = skin_frames(skin, world, (cvs, blended), curve, np.arange(5), smooth=True)
@@ -456,7 +456,7 @@ def test_reuse_rotates_two_generations_of_buffers(arm, mode, spread):
 
 def test_skin_frames_reuse(arm, skins):
     """skin_frames(reuse=True) passes the flag to pose_batch: equal skins; ignored frame by frame."""
-    from rig.skin.muscle_skin import skin_frames
+    from jiggle.rig.skin.muscle_skin import skin_frames
     skin = MuscleSkin(arm.character, arm.rig)
     world, cvs, curve, blended = sweep(arm, T=5)
     want = skin_frames(skin, world, (cvs, blended), curve, np.arange(5), smooth=True)

@@ -3,10 +3,10 @@ pose and rigid motions kept exactly, a crease taken out, and the option reaching
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.character.mesh_graph import mesh_edges
-from rig.skin.delta_mush import DeltaMush
-from rig.skin.quality import SkinQuality
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.mesh_graph import mesh_edges
+from jiggle.rig.skin.delta_mush import DeltaMush
+from jiggle.rig.skin.quality import SkinQuality
 
 
 def tube(rings=24, around=16, length=0.6, radius=0.05):

@@ -16,11 +16,11 @@ from arm_muscles import ARM_BIND, arm_world, biceps, brachio
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.muscle import loft
-from rig.muscle.loft_attach import bind_influence, closest_points, loft_frame, muscle_eps
-from rig.muscle.model import build_muscle_rig
-from rig.skin.influence import InfluenceDeformer, influence_numpy
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.muscle import loft
+from jiggle.rig.muscle.loft_attach import bind_influence, closest_points, loft_frame, muscle_eps
+from jiggle.rig.muscle.model import build_muscle_rig
+from jiggle.rig.skin.influence import InfluenceDeformer, influence_numpy
 
 TOL = 1e-5  # metres, float32 kernel against the float64 reference
 

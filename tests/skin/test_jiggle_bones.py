@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rig.skin import jiggle_bones as jb
+from jiggle.rig.skin import jiggle_bones as jb
 
 
 def two_bone_arm(T=24, seed=0):

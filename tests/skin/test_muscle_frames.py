@@ -15,10 +15,10 @@ import trimesh
 from arm_muscles import ARM_BIND, arm_world, biceps, brachio, fibonacci_sphere, spec_from_ellipsoid
 from scipy.spatial.transform import Rotation
 
-from rig.base.errors import InputError
-from rig.muscle import loft
-from rig.muscle.model import MuscleSpec, build_muscle_rig, curve_basis
-from rig.skin.shell.frames import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle import loft
+from jiggle.rig.muscle.model import MuscleSpec, build_muscle_rig, curve_basis
+from jiggle.rig.skin.shell.frames import (
     REASONS,
     TRAJECTORY_U,
     MuscleFrames,
@@ -31,7 +31,7 @@ from rig.skin.shell.frames import (
     star_tables,
     trajectory,
 )
-from rig.skin.shell.shells import STAR_PHI, STAR_THETA, TRAJECTORY_SAMPLES, ShellFrames, star_lookup
+from jiggle.rig.skin.shell.shells import STAR_PHI, STAR_THETA, TRAJECTORY_SAMPLES, ShellFrames, star_lookup
 
 
 def rigid(rotvec, t) -> np.ndarray:

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from conftest import asset
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.muscle.shell_params import ShellParams
-from rig.muscle.simple_arm import simple_arm
-from rig.skin.muscle_skin import MuscleSkin
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.muscle.shell_params import ShellParams
+from jiggle.rig.muscle.simple_arm import simple_arm
+from jiggle.rig.skin.muscle_skin import MuscleSkin
 
 
 @pytest.fixture(scope="module")
@@ -163,12 +163,12 @@ def test_culling_keeps_only_vertices_near_the_muscle(arm, arm_skins):
 # ---------------------------------------------------------------------------------- CesiumMan
 @pytest.fixture(scope="module")
 def cesium():
-    from rig.character.load import load_character
-    from rig.motion.bvh import read_bvh
-    from rig.motion.clip import transforms
-    from rig.motion.gltf_skeleton import read_gltf_skeleton
-    from rig.motion.retarget import JointMap, retarget
-    from rig.muscle.fit import fit_musculature
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.bvh import read_bvh
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
+    from jiggle.rig.motion.retarget import JointMap, retarget
+    from jiggle.rig.muscle.fit import fit_musculature
     path = asset("characters/CesiumMan.glb")
     clip = read_bvh(asset("mocap/cmu_bvh/02_03.bvh"))
     ch = load_character(path)

@@ -4,9 +4,9 @@ import meshes
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.character.mesh_graph import mesh_edges
-from rig.skin.quality import GRADIENT_FLOOR, JIGGLE_MEASURES, SKIN_MEASURES, SkinQuality
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.mesh_graph import mesh_edges
+from jiggle.rig.skin.quality import GRADIENT_FLOOR, JIGGLE_MEASURES, SKIN_MEASURES, SkinQuality
 
 
 def grid(n=6, size=1.0):

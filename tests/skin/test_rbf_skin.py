@@ -10,9 +10,9 @@ from conftest import asset
 
 @pytest.fixture(scope="module")
 def skin():
-    from rig.character.load import load_character
-    from rig.muscle.fit import fit_musculature
-    from rig.skin.muscle_skin import MuscleSkin
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.muscle.fit import fit_musculature
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
     c = load_character(asset("characters/CesiumMan.glb"))
     mus = fit_musculature(c)
     return c, mus, MuscleSkin.from_musculature(mus, skinning="rbf")
@@ -20,7 +20,7 @@ def skin():
 
 def _turn(c, world, joint: str, axis, degrees: float) -> np.ndarray:
     """world (J, 4, 4) with `joint` and everything below it turned about the joint."""
-    from rig.motion.quat import from_axis_angle, to_matrix
+    from jiggle.rig.motion.quat import from_axis_angle, to_matrix
     w = np.asarray(world, np.float64).copy()
     j = c.index(joint)
     below = [j]
@@ -45,7 +45,7 @@ def test_bind_pose_is_the_artists_skin_and_topology_is_kept(skin):
 
 def test_rigid_motion_of_the_whole_body_is_exact(skin):
     c, mus, sk = skin
-    from rig.motion.quat import from_axis_angle, to_matrix
+    from jiggle.rig.motion.quat import from_axis_angle, to_matrix
     M = np.eye(4)
     M[:3, :3] = to_matrix(from_axis_angle(np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]), 1.1))
     M[:3, 3] = [0.4, -1.2, 0.25]
@@ -95,8 +95,8 @@ def test_the_head_keeps_still_while_the_torso_jiggles(skin):
     """The pipeline's skin stage (skin_frames) on a jiggling belly and pectorals: the torso's skin shows
     the jiggle, the head's none (its zone holds no muscle: jiggle_mask 0), with no step at the neck
     (the mask blends across the zone boundary) and no edge torn by the jiggle."""
-    from rig.skin.muscle_skin import skin_frames
-    from rig.skin.quality import SkinQuality
+    from jiggle.rig.skin.muscle_skin import skin_frames
+    from jiggle.rig.skin.quality import SkinQuality
     c, mus, sk = skin
     rig = mus.rig
     world = c.bind_world[None]
@@ -135,7 +135,7 @@ def test_batch_equals_single_frames(skin):
 
 
 def test_nan_muscle_falls_back_to_its_rest_shape_with_a_warning(skin):
-    from rig.base.errors import JiggleWarning
+    from jiggle.rig.base.errors import JiggleWarning
     c, mus, sk = skin
     st = mus.rig.static(c.bind_world)
     cvs = st.cvs.copy()
@@ -147,7 +147,7 @@ def test_nan_muscle_falls_back_to_its_rest_shape_with_a_warning(skin):
 
 @pytest.mark.slow
 def test_bake_with_rbf_skinning(tmp_path):
-    from sim.app.cli import main
+    from jiggle.sim.app.cli import main
     clip = asset("mocap/cmu_bvh/02_03.bvh")
     character = asset("characters/CesiumMan.glb")
     out = tmp_path / "bake"

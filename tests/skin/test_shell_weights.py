@@ -9,8 +9,8 @@ import warnings
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError, JiggleWarning
-from rig.skin.shell.weights import FORMAT, KEYS, find_weights, load_weights, pair_weights, save_weights, sidecar_path
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.skin.shell.weights import FORMAT, KEYS, find_weights, load_weights, pair_weights, save_weights, sidecar_path
 
 NAMES = ["left_biceps", "left_triceps", "belly_fat"]
 

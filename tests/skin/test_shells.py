@@ -17,10 +17,10 @@ import pytest
 import warp as wp
 from scipy.spatial.transform import Rotation
 
-from rig.base.errors import InputError
-from rig.muscle.shell_params import MODES, ShellParams
-from rig.skin.shell.deformer import ShellDeformer
-from rig.skin.shell.shells import (
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle.shell_params import MODES, ShellParams
+from jiggle.rig.skin.shell.deformer import ShellDeformer
+from jiggle.rig.skin.shell.shells import (
     STAR_PHI,
     STAR_THETA,
     TRAJECTORY_SAMPLES,
@@ -286,7 +286,7 @@ def test_stretch_translation_moves_the_inside_rigidly_and_the_outside_not_at_all
     table = shell_table([ShellParams(sticky=0.4, hard=0.3, drop_off=d, weight=w, slippage=2.0)])
     t = np.array([0.03, -0.02, 0.05])
     # keep |t| under the knee of the drop-off limit (half its reach), where it leaves D unchanged
-    from rig.skin.shell.shells import LIMIT_KNEE, LIMIT_REACH
+    from jiggle.rig.skin.shell.shells import LIMIT_KNEE, LIMIT_REACH
     t *= 0.9 * LIMIT_KNEE * LIMIT_REACH * d * np.linalg.norm(E_ref[0, :3, :3], axis=0).min() / np.linalg.norm(t)
     inside = points_at_local(E_ref[0], unit_dirs(rng, 100) * rng.uniform(0.0, 0.999, 100)[:, None])
     outside = points_at_local(E_ref[0], unit_dirs(rng, 100) * rng.uniform(1 + d, 3.0, 100)[:, None])
@@ -715,7 +715,7 @@ def test_drop_off_limit_keeps_every_move_within_the_drop_off_distance():
         assert np.all(np.linalg.norm(ref - points, axis=1) < reach + 1e-12), mode
         assert np.all(np.linalg.norm(out - points, axis=1) < reach + 1e-5), mode
     # the limit itself: identity below the knee, below reach above it, continuous slope at the knee
-    from rig.skin.shell.shells import LIMIT_KNEE, limit
+    from jiggle.rig.skin.shell.shells import LIMIT_KNEE, limit
     D = np.array([[1.0, 0.0, 0.0]]) * np.linspace(0.0, 10.0, 2001)[:, None]
     n = np.linalg.norm(limit(D, np.ones(len(D))), axis=1)
     x = D[:, 0]

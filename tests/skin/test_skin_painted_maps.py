@@ -13,11 +13,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.character.painted_maps import PaintedMaps
-from rig.muscle.simple_arm import simple_arm
-from rig.skin.muscle_skin import MuscleSkin, skin_frames
-from rig.skin.painted_maps import JiggleMap, painted_pairs, shell_regions
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.painted_maps import PaintedMaps
+from jiggle.rig.muscle.simple_arm import simple_arm
+from jiggle.rig.skin.muscle_skin import MuscleSkin, skin_frames
+from jiggle.rig.skin.painted_maps import JiggleMap, painted_pairs, shell_regions
 
 
 @pytest.fixture(scope="module")

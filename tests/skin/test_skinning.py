@@ -13,10 +13,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from rig.character.character import normalise_weights
-from rig.character.normals import VertexNormals, vertex_normals
-from rig.motion import quat
-from rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy, matrices_to_dual_quats
+from jiggle.rig.character.character import normalise_weights
+from jiggle.rig.character.normals import VertexNormals, vertex_normals
+from jiggle.rig.motion import quat
+from jiggle.rig.skin.skinning import Skinner, dqs_numpy, lbs_numpy, matrices_to_dual_quats
 
 TOL = 1e-5  # metres
 
@@ -510,7 +510,7 @@ def test_vertex_normals_batch_equals_numpy():
     included, for a deforming sphere with a vertex no face touches."""
     import trimesh
 
-    from rig.character.normals import FALLBACK, VertexNormals
+    from jiggle.rig.character.normals import FALLBACK, VertexNormals
     sphere = trimesh.creation.icosphere(subdivisions=3)
     v = np.vstack([sphere.vertices, [[5.0, 5.0, 5.0]]])            # the last vertex is in no face
     rng = np.random.default_rng(3)

@@ -3,10 +3,10 @@ import meshes
 import numpy as np
 import pytest
 
-from rig.base.errors import InputError
-from rig.character.mesh_graph import mesh_neighbours
-from rig.skin.quality import SkinQuality
-from rig.skin.surface_smoothing import BLOCK, SurfaceSmoothing, steps_for_reach
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.character.mesh_graph import mesh_neighbours
+from jiggle.rig.skin.quality import SkinQuality
+from jiggle.rig.skin.surface_smoothing import BLOCK, SurfaceSmoothing, steps_for_reach
 
 
 def grid(n=21, size=0.4):

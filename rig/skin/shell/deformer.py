@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from rig.base.errors import InputError
-from rig.skin.scratch import Scratch
-from rig.skin.shell import kernels
-from rig.skin.shell.shells import ShellFrames, ShellTable
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.skin.scratch import Scratch
+from jiggle.rig.skin.shell import kernels
+from jiggle.rig.skin.shell.shells import ShellFrames, ShellTable
 
 
 @dataclass(frozen=True)

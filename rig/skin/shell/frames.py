@@ -72,12 +72,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.muscle import loft
-from rig.muscle.model import _MIDDLE as BONE_SLOT
-from rig.muscle.model import curve_basis
-from rig.skin.shell.shells import STAR_PHI, STAR_THETA, TRAJECTORY_SAMPLES, ShellFrames
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.muscle import loft
+from jiggle.rig.muscle.model import _MIDDLE as BONE_SLOT
+from jiggle.rig.muscle.model import curve_basis
+from jiggle.rig.skin.shell.shells import STAR_PHI, STAR_THETA, TRAJECTORY_SAMPLES, ShellFrames
 
 MIN_SINGULAR = 1e-3   # a fitted map squashing some direction below this is a collapsed muscle
 MAX_SINGULAR = 1e3    # ... or stretching one beyond this a blown-up one

@@ -19,7 +19,7 @@ import math
 
 import warp as wp
 
-from rig.skin.gather_kernels import csr_span, entry
+from jiggle.rig.skin.gather_kernels import csr_span, entry
 
 # forward only: these kernels are never differentiated (no adjoint code to compile)
 wp.set_module_options({"enable_backward": False})

@@ -72,9 +72,9 @@ from typing import Sequence
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.base.frozen import frozen_array
-from rig.muscle.shell_params import MODES, ShellParams
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.muscle.shell_params import MODES, ShellParams
 
 STAR_THETA = 17
 """Star table rows: polar angles theta_i = pi i / 16, i = 0..16, about the local +z axis."""

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError, JiggleWarning, require_file
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError, JiggleWarning, require_file
 
 FORMAT = "jiggle.shell_weights/1"
 SUFFIX = ".shell_weights.npz"

@@ -6,16 +6,16 @@ from __future__ import annotations
 import os
 import sys
 
-from sim.app.args import bake_options, clip_options, keyed_request, map_options, template_option
-from sim.app.loading import body_overrides
+from jiggle.sim.app.args import bake_options, clip_options, keyed_request, map_options, template_option
+from jiggle.sim.app.loading import body_overrides
 
 
 def bake_request(args):
     """The BakeRequest of `jiggle bake` (or `jiggle demo`) arguments."""
     from types import MappingProxyType
 
-    from sim.bake.scene import parse_formats
-    from sim.bake.setup import BakeRequest
+    from jiggle.sim.bake.scene import parse_formats
+    from jiggle.sim.bake.setup import BakeRequest
     body = body_overrides(args)
     formats = None if getattr(args, "formats", None) is None else parse_formats(args.formats)
     return BakeRequest(
@@ -60,15 +60,21 @@ class JsonProgress:
 
 def run_bake(request, out_dir: str, resume: bool = False, progress: str = "bar") -> dict:
     """Prepare and bake with a progress bar (or, progress="json", a line of JSON per chunk on stdout: see
-    `emit`); on Ctrl-C re-raise KeyboardInterrupt with a message saying what was kept and how to resume (main
+    `emit`; "none": nothing printed); on Ctrl-C re-raise KeyboardInterrupt with a message saying what was kept and how to resume (main
     prints it after "jiggle: interrupted")."""
     from tqdm import tqdm
 
-    from sim.bake.baker import bake
-    from sim.bake.setup import prepare
+    from jiggle.sim.bake.baker import bake
+    from jiggle.sim.bake.setup import prepare
 
     def log(s):
         print(f"  {s}", file=sys.stderr)
+    if progress == "none":                                            # the public API's progress=False
+        setup = prepare(request)
+        try:
+            return bake(setup, out_dir, resume=resume)
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt(interrupted_message(setup, out_dir)) from None
     if progress == "json":
         emit("preparing")
     setup = prepare(request, log)
@@ -101,7 +107,7 @@ def interrupted_message(setup, out_dir: str) -> str:
     stays 0 when stderr is not a terminal), and how to resume."""
     import shlex
 
-    from sim.bake.baker import PARTIAL, chunk_frames, chunk_path, num_chunks
+    from jiggle.sim.bake.baker import PARTIAL, chunk_frames, chunk_path, num_chunks
     n, T = num_chunks(setup), len(setup.times)
     kept = 0
     while kept < n and os.path.isfile(chunk_path(out_dir, kept)):    # chunks are written atomically, in order

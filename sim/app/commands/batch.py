@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import sys
 
-from sim.app.args import bake_settings, count, map_options, template_option
+from jiggle.sim.app.args import bake_settings, count, map_options, template_option
 
 EXIT_SOME_FAILED = 1
 
@@ -14,11 +14,11 @@ EXIT_SOME_FAILED = 1
 def run(args) -> int:
     from tqdm import tqdm
 
-    from sim.app.batch import dashboard_link, dask_client, find_jobs, run_batch
-    from sim.app.commands.bake import bake_request
-    from sim.bake.setup import prepare  # noqa: F401 - fail here, not on a worker, when jiggle is broken
+    from jiggle.sim.app.batch import dashboard_link, dask_client, find_jobs, run_batch
+    from jiggle.sim.app.commands.bake import bake_request
+    from jiggle.sim.bake.setup import prepare  # noqa: F401 - fail here, not on a worker, when jiggle is broken
     if args.scheduler is not None and args.workers is not None:
-        from rig.base.errors import InputError
+        from jiggle.rig.base.errors import InputError
         raise InputError("--workers sizes the local cluster; an existing cluster (--scheduler) has its own "
                          "workers", field="--workers")
     out = os.path.abspath(args.out)
@@ -56,7 +56,7 @@ def run(args) -> int:
 
 
 def _writable(out: str) -> None:
-    from rig.base.errors import InputError
+    from jiggle.rig.base.errors import InputError
     try:
         os.makedirs(out, exist_ok=True)
     except OSError as e:
@@ -66,7 +66,7 @@ def _writable(out: str) -> None:
 
 
 def _finished(out: str, jobs) -> int:
-    from sim.app.batch import _read_record
+    from jiggle.sim.app.batch import _read_record
     return sum((_read_record(os.path.join(out, j.name)) or {}).get("status") == "ok" for j in jobs)
 
 

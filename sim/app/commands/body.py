@@ -5,17 +5,17 @@ from __future__ import annotations
 
 import os
 
-from sim.app.args import character_options
-from sim.app.loading import default_scene, generated_character
+from jiggle.sim.app.args import character_options
+from jiggle.sim.app.loading import default_scene, generated_character
 
 
 def run(args) -> int:
-    from sim.app.body_outputs import write_body_outputs
+    from jiggle.sim.app.body_outputs import write_body_outputs
     if args.skeleton_file is None:
-        from sim.bake.scene import load_scene
+        from jiggle.sim.bake.scene import load_scene
         clip = load_scene(default_scene()).clip
     else:
-        from rig.character.load import load_skeleton
+        from jiggle.rig.character.load import load_skeleton
         clip = load_skeleton(args.skeleton_file)
     character = generated_character(clip, args)
     files = write_body_outputs(character, args.out, render=not args.no_render)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import os
 
-from rig.base.errors import InputError
-from sim.app.args import (
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.app.args import (
     clip_options,
     influences_option,
     map_options,
@@ -15,7 +15,7 @@ from sim.app.args import (
     non_negative,
     template_option,
 )
-from sim.app.loading import load_clip, retarget_onto_character
+from jiggle.sim.app.loading import load_clip, retarget_onto_character
 
 
 def deform_pose(args):
@@ -25,16 +25,16 @@ def deform_pose(args):
         if args.clip is not None:
             raise InputError("--clip needs a CHARACTER; without one the built-in simple arm bends by --angle",
                              field="--clip")
-        from rig.muscle.simple_arm import simple_arm
+        from jiggle.rig.muscle.simple_arm import simple_arm
         arm = simple_arm()
         angle = 90.0 if args.angle is None else args.angle
         return arm.character, arm.rig, arm.world(angle), {"scene": "simple arm", "elbow_deg": angle}
     if args.angle is not None:
         raise InputError("--angle bends the built-in simple arm; pose a CHARACTER with --clip and --time",
                          field="--angle")
-    from rig.character.load import load_character
-    from rig.motion.clip import transforms
-    from rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
     character = load_character(args.character, k=args.influences, unit=args.unit, skin=args.skin)
     if args.clip is None:
         raise InputError("give the pose: --clip FILE (retargeted onto the character) and --time S",
@@ -51,9 +51,9 @@ def deform_pose(args):
 
 
 def run(args) -> int:
-    from rig.muscle.fit import Musculature
-    from rig.skin.muscle_skin import MuscleSkin
-    from sim.app.deform_outputs import write_deform_outputs
+    from jiggle.rig.muscle.fit import Musculature
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
+    from jiggle.sim.app.deform_outputs import write_deform_outputs
     character, rig, world, pose = deform_pose(args)
     if isinstance(rig, Musculature):
         skin = MuscleSkin.from_musculature(rig, skinning=args.skinning, method=args.method, mush=args.mush,
@@ -62,7 +62,7 @@ def run(args) -> int:
     else:
         weights = None
         if args.weights is not None:
-            from rig.skin.shell.weights import load_weights
+            from jiggle.rig.skin.shell.weights import load_weights
             weights = load_weights(args.weights, rig.names, character.num_vertices)
         skin = MuscleSkin(character, rig, skinning=args.skinning, method=args.method, mush=args.mush, weights=weights)
         views = ("side", "back")    # the arm's muscle faces +Y: its profile from the side, its face from +Y

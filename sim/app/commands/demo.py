@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import os
 
-from sim.app.args import bake_options
-from sim.app.commands.bake import bake_request, print_bake, run_bake
-from sim.app.commands.compare import compare_bake
-from sim.app.loading import default_scene
+from jiggle.sim.app.args import bake_options
+from jiggle.sim.app.commands.bake import bake_request, print_bake, run_bake
+from jiggle.sim.app.commands.compare import compare_bake
+from jiggle.sim.app.loading import default_scene
 
 
 def run(args) -> int:

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import os
 
-from sim.app.args import character_options, count, map_options, mesh_options, template_option, unit_interval
-from sim.app.loading import default_scene, generated_character
+from jiggle.sim.app.args import character_options, count, map_options, mesh_options, template_option, unit_interval
+from jiggle.sim.app.loading import default_scene, generated_character
 
 SKELETON_SUFFIXES = (".bvh", ".asf", ".amc", ".toml", ".xml")
 
@@ -20,9 +20,9 @@ SKELETON_SUFFIXES = (".bvh", ".asf", ".amc", ".toml", ".xml")
 def fit_character(path: str | None, args):
     """The character `jiggle fit` works on: a skinned glTF, a mesh with --skeleton, or a body generated
     around a skeleton file (clip, ASF, MJCF, keyframed TOML); None: the demo's generated body."""
-    from rig.character.load import load_character, load_skeleton
+    from jiggle.rig.character.load import load_character, load_skeleton
     if path is None:
-        from sim.bake.scene import load_scene
+        from jiggle.sim.bake.scene import load_scene
         return generated_character(load_scene(default_scene()).clip, args)
     if os.path.splitext(path)[1].lower() in SKELETON_SUFFIXES:
         return generated_character(load_skeleton(path), args)
@@ -39,8 +39,8 @@ def starting_maps(mus):
     back unpainted they give the skin jiggle gives without them."""
     import numpy as np
 
-    from rig.character.painted_maps import PaintedMaps
-    from rig.skin.painted_maps import shell_regions
+    from jiggle.rig.character.painted_maps import PaintedMaps
+    from jiggle.rig.skin.painted_maps import shell_regions
     ch, rig = mus.character, mus.rig
     own = ch.maps
     computed = shell_regions(ch, rig, [m.spec.shell for m in mus.muscles])
@@ -57,8 +57,8 @@ def write_maps(mus, maps, out_dir: str) -> dict:
     """The starting point to paint: ``<stem>.painted.glb`` (the character's glTF with _JIGGLE and
     _SHELL_<MUSCLE> attributes, rig.character.gltf_maps) and ``<stem>.jiggle_map.npz`` (the same maps;
     beside the original character file it is read as its sidecar), in `out_dir`. Returns {kind: path}."""
-    from rig.character.gltf_maps import write_maps_copy
-    from rig.character.painted_maps import SIDECAR, save_maps
+    from jiggle.rig.character.gltf_maps import write_maps_copy
+    from jiggle.rig.character.painted_maps import SIDECAR, save_maps
     ch = mus.character
     stem = os.path.splitext(os.path.basename(ch.source))[0] if ch.source else (ch.name or "body").replace(" ", "_")
     glb = write_maps_copy(ch, os.path.join(out_dir, f"{stem}.painted.glb"), maps)
@@ -70,10 +70,10 @@ def fit_capsules(mus, colliders: str = "bone"):
     """The capsules a bake of this musculature collides with (sim.jiggle.colliders.collider_model: the
     character's bone capsules, or with colliders "model" the capsule geoms of the MuJoCo model of its own
     skeleton kept inside its skin, each shrunk inside the muscles over its bone), or None when it has none."""
-    from sim.jiggle.colliders import collider_model
+    from jiggle.sim.jiggle.colliders import collider_model
     given = None
     if colliders == "model" and mus.character.skeleton is not None:
-        from sim.drive.skeleton import model_capsules
+        from jiggle.sim.drive.skeleton import model_capsules
         given, _, _ = model_capsules(mus.character.skeleton, mus.character)
     caps = collider_model(mus.rig, mus.character, capsules=given).capsules
     return caps if caps.count else None
@@ -82,8 +82,8 @@ def fit_capsules(mus, colliders: str = "bone"):
 def run(args) -> int:
     import numpy as np
 
-    from rig.muscle.fit import FitOptions, fit_musculature
-    from sim.app.fit_outputs import quality_line, write_fit_outputs
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.sim.app.fit_outputs import quality_line, write_fit_outputs
     character = fit_character(args.character, args)
     options = FitOptions(iterations=args.iterations, lam=args.smoothing, volume=args.volume,
                          joint_map=args.character_map, exclude=tuple(args.exclude or ()), strict=args.strict)

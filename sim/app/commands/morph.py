@@ -5,19 +5,19 @@ from __future__ import annotations
 
 import os
 
-from rig.base.errors import InputError
-from sim.app.args import influences_option, map_options, non_negative, positive
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.app.args import influences_option, map_options, non_negative, positive
 
 
 def run(args) -> int:
     """Morph a canonical character to a target from marker positions; or write the canonical's markers."""
     import time
 
-    from rig.anatomy.features import FeatureOptions
-    from rig.anatomy.markers import read_markers, write_markers
-    from rig.anatomy.morph import MorphOptions, morph, prepare_canonical
-    from rig.character.load import load_character
-    from sim.app.morph_outputs import render_morph, side_paths, write_report
+    from jiggle.rig.anatomy.features import FeatureOptions
+    from jiggle.rig.anatomy.markers import read_markers, write_markers
+    from jiggle.rig.anatomy.morph import MorphOptions, morph, prepare_canonical
+    from jiggle.rig.character.load import load_character
+    from jiggle.sim.app.morph_outputs import render_morph, side_paths, write_report
 
     if args.markers is None and args.write_markers is None:
         raise InputError("give --markers FILE (the target's marker positions) or --write-markers FILE (the "
@@ -40,7 +40,7 @@ def run(args) -> int:
             return 0
     target = read_markers(args.markers, canon.markers.names)
     res = morph(canon, target, options)
-    from rig.character.gltf_write import write_character
+    from jiggle.rig.character.gltf_write import write_character
     folder = os.path.dirname(os.path.abspath(args.out))
     if os.path.exists(folder) and not os.path.isdir(folder):
         raise InputError(f"{folder} is a file, not a folder", field="--out")

@@ -6,17 +6,17 @@ from __future__ import annotations
 import os
 import sys
 
-from rig.base.errors import InputError
-from sim.app.args import character_options, clip_options, count, map_options, mesh_options, positive
-from sim.app.loading import generated_character, load_clip, retarget_onto_character
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.app.args import character_options, clip_options, count, map_options, mesh_options, positive
+from jiggle.sim.app.loading import generated_character, load_clip, retarget_onto_character
 
 
 def play_clip(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_map=None, character=None,
           skinning="lbs"):
     from tqdm import tqdm
 
-    from sim.app.play import write_outputs
-    from sim.drive.motion import drive_kinematic, drive_mjcf, drive_physics
+    from jiggle.sim.app.play import write_outputs
+    from jiggle.sim.drive.motion import drive_kinematic, drive_mjcf, drive_physics
 
     if fps is not None:
         clip = clip.resample(fps)
@@ -27,7 +27,7 @@ def play_clip(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_ma
                              "jiggle builds from the clip", field="--drive")
         body_map = None
         if joint_map is not None:
-            from sim.drive.mjcf_drive import read_body_map
+            from jiggle.sim.drive.mjcf_drive import read_body_map
             body_map = read_body_map(joint_map)
         runner = lambda c, t, progress: drive_mjcf(c, t, mjcf, body_map, progress=progress)  # noqa: E731
     else:
@@ -61,8 +61,8 @@ def run(args) -> int:
         clip = clip.with_speed(args.speed)
     character = None
     if args.character is not None:
-        from rig.character.gltf_character import gltf_has_skin
-        from rig.character.load import load_character
+        from jiggle.rig.character.gltf_character import gltf_has_skin
+        from jiggle.rig.character.load import load_character
         if args.character.lower().endswith((".glb", ".gltf")) and gltf_has_skin(args.character):
             character = load_character(args.character, k=args.influences, unit=args.unit, skin=args.skin)
             clip = retarget_onto_character(clip, args, character)

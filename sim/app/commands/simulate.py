@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from rig.base.errors import InputError
-from sim.app.args import (
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.app.args import (
     character_options,
     clip_options,
     collision_option,
@@ -21,7 +21,7 @@ from sim.app.args import (
     positive,
     template_option,
 )
-from sim.app.loading import generated_character, load_clip, retarget_onto_character
+from jiggle.sim.app.loading import generated_character, load_clip, retarget_onto_character
 
 SIMULATE_FPS = 60.0
 
@@ -49,14 +49,14 @@ class SimulateJob:
 def simulate_job(args) -> SimulateJob:
     """The built-in simple arm (nothing given), or a scene's / --clip's motion on a generated body or
     on --character, with the template's muscles fitted."""
-    from rig.motion.clip import transforms
-    from rig.skin.muscle_skin import MuscleSkin
-    from sim.jiggle.params import default_jiggles
+    from jiggle.rig.motion.clip import transforms
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
+    from jiggle.sim.jiggle.params import default_jiggles
     scene = None
     if args.scene is not None:
         if args.clip is not None:
             raise InputError("give a SCENE or --clip, not both (the scene names its motion)", field="--clip")
-        from sim.bake.scene import load_scene
+        from jiggle.sim.bake.scene import load_scene
         scene = load_scene(args.scene)
     if scene is None and args.clip is None and args.character is not None:
         if not args.character.lower().endswith((".glb", ".gltf")):
@@ -67,7 +67,7 @@ def simulate_job(args) -> SimulateJob:
         if args.template is not None:
             raise InputError("--template fits muscles to a character; the built-in simple arm has its own biceps",
                              field="--template")
-        from rig.muscle.simple_arm import FLEX_DURATION, FLEX_PEAK, FLEX_RISE, simple_arm
+        from jiggle.rig.muscle.simple_arm import FLEX_DURATION, FLEX_PEAK, FLEX_RISE, simple_arm
         arm = simple_arm()
         return SimulateJob(
             name="simple arm", rig=arm.rig, jiggles=default_jiggles(arm.rig), world_at=arm.world_at,
@@ -75,10 +75,10 @@ def simulate_job(args) -> SimulateJob:
             skin=lambda: MuscleSkin(arm.character, arm.rig, skinning=args.skinning, method=args.method, mush=args.mush),
             source={"scene": "simple arm (built in)",
                     "motion": f"elbow 0 -> {FLEX_PEAK:g} deg in {FLEX_RISE:g} s, hold, back"}, character=arm.character)
-    from rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
     clip = scene.clip if scene is not None else load_clip(args)
     if args.character is not None:
-        from rig.character.load import load_character
+        from jiggle.rig.character.load import load_character
         character = load_character(args.character, k=args.influences, unit=args.unit, skin=args.skin)
         clip = retarget_onto_character(clip, args, character)
     else:
@@ -106,7 +106,7 @@ def simulate_job(args) -> SimulateJob:
 
 def simulate_times(args, duration: float, fps: float):
     """Output times (T,) seconds: --start..--end (default the whole motion) at fps, the first --frames."""
-    from sim.bake.setup import output_times
+    from jiggle.sim.bake.setup import output_times
     return output_times(duration, fps, args.start, args.end, args.frames)
 
 
@@ -116,9 +116,9 @@ def run(args) -> int:
 
     import numpy as np
 
-    from sim.app.jiggle_outputs import top_muscles, write_jiggle_outputs
-    from sim.jiggle.params import BlendCurve, JiggleSettings
-    from sim.jiggle.secondary import jiggle_rig
+    from jiggle.sim.app.jiggle_outputs import top_muscles, write_jiggle_outputs
+    from jiggle.sim.jiggle.params import BlendCurve, JiggleSettings
+    from jiggle.sim.jiggle.secondary import jiggle_rig
 
     job = simulate_job(args)
     scene = job.scene
@@ -135,7 +135,7 @@ def run(args) -> int:
     if keyed["jiggle"] is not None:   # --strength: every muscle's, over the scene's
         jiggles = [replace(j, strength=settings.strength) for j in jiggles]
     if keyed["muscles"]:              # then NAME=VALUE entries, names and globs
-        from sim.bake.scene import apply_entries
+        from jiggle.sim.bake.scene import apply_entries
         jiggles = apply_entries(jiggles, keyed["muscles"])
     # every muscle's strength is resolved above: jiggle_rig must not put the global one over the entries
     settings = replace(settings, strength=None)
@@ -144,8 +144,8 @@ def run(args) -> int:
     rig = job.rig
     colliders = None
     if settings.collisions:
-        from sim.jiggle.colliders import collider_model, rest_floor
-        from sim.jiggle.secondary import DEFAULT_GOAL_RATE
+        from jiggle.sim.jiggle.colliders import collider_model, rest_floor
+        from jiggle.sim.jiggle.secondary import DEFAULT_GOAL_RATE
         ts = np.linspace(times[0], times[-1], max(2, int((times[-1] - times[0]) * DEFAULT_GOAL_RATE) + 1))
         floor = rest_floor(job.character, float(np.min(np.asarray(job.world_at(ts))[..., 2, 3])))
         given = None
@@ -153,7 +153,7 @@ def run(args) -> int:
             if job.clip is None:
                 raise InputError("the built-in simple arm has no MuJoCo model, so no geoms to collide with; use "
                                  "--colliders bone", field="--colliders")
-            from sim.drive.skeleton import model_capsules
+            from jiggle.sim.drive.skeleton import model_capsules
             given, _, _ = model_capsules(job.clip, job.character)
         colliders = collider_model(rig, job.character, capsules=given, floor=floor, device=settings.device)
     t0 = time.perf_counter()

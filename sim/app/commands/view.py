@@ -21,10 +21,10 @@ def open_viewer(out_dir: str, host: str = "127.0.0.1", port: int = 8080, paused:
                 log=lambda s: print(f"  {s}", file=sys.stderr)):
     """The ViewerPage of the bake in out_dir, serving (InputError for a folder that is not a finished bake
     of this jiggle's format). Tuning rebuilds the setup in a background thread (the page plays meanwhile)."""
-    from sim.app.view.page import ViewerPage
-    from sim.app.view.playback import Playback, open_bake, read_quality
-    from sim.app.view.tuning import NotTunable, Tuner
-    from sim.bake.setup import VERSION
+    from jiggle.sim.app.view.page import ViewerPage
+    from jiggle.sim.app.view.playback import Playback, open_bake, read_quality
+    from jiggle.sim.app.view.tuning import NotTunable, Tuner
+    from jiggle.sim.bake.setup import VERSION
     data, summary = open_bake(out_dir)
     pb = Playback(data, summary, read_quality(out_dir, data.num_frames))
     factory = None

@@ -31,8 +31,8 @@ from typing import Callable
 
 import numpy as np
 
-from sim.app.view.playback import HEAT_BANDS, Playback, band_colours, compact, heat_bands, skin_regions
-from sim.app.view.tuning import NotTunable, Tuning
+from jiggle.sim.app.view.playback import HEAT_BANDS, Playback, band_colours, compact, heat_bands, skin_regions
+from jiggle.sim.app.view.tuning import NotTunable, Tuning
 
 SKIN_COLOUR = (222, 184, 160)
 STATIC_COLOUR = (150, 170, 200)
@@ -589,7 +589,7 @@ class ViewerPage:
         self._sync_sliders()
 
     def _save(self) -> None:
-        from sim.app.view.scene_file import save_tuned_scene
+        from jiggle.sim.app.view.scene_file import save_tuned_scene
         if self.tuner is None:
             return
         path = os.path.abspath(os.path.expanduser(self.g_t_path.value.strip() or "tuned.toml"))

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.base.errors import InputError
-from sim.app.compare import load_bake, muscle_amplitude, skin_displacement
-from sim.bake.caches import BakeData
+from jiggle.rig.base.errors import InputError
+from jiggle.sim.app.compare import load_bake, muscle_amplitude, skin_displacement
+from jiggle.sim.bake.caches import BakeData
 
 HEAT_BANDS = 9
 """Colour bands of the heat map (ColorBrewer's YlOrRd has nine classes)."""
@@ -162,7 +162,7 @@ class Playback:
     def muscle_surfaces(self, k: int, which: str = "final") -> np.ndarray:
         """(M, P, 3) float32 metres: every muscle's loft surface at frame k, from its static or blended
         CVs (triangles: data.muscle_faces)."""
-        from rig.muscle import loft
+        from jiggle.rig.muscle import loft
         cvs = (self.data.muscle_cvs_static if which == "static" else self.cvs_dynamic)[k]
         M = len(self.muscles)
         return loft.points(cvs.reshape(M, loft.SECTIONS, loft.RING, 3).astype(np.float64)).astype(np.float32)

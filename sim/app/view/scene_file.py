@@ -21,11 +21,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from rig.base.atomic import atomic_path
-from rig.base.errors import InputError
-from rig.base.tomlfile import read_toml
-from sim.bake.setup import output_times
-from sim.jiggle.params import RING, SECTIONS, BlendCurve
+from jiggle.rig.base.atomic import atomic_path
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.tomlfile import read_toml
+from jiggle.sim.bake.setup import output_times
+from jiggle.sim.jiggle.params import RING, SECTIONS, BlendCurve
 
 _BODY = ("resolution", "belly", "chest", "glutes", "upper_arms")
 _BARE = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -73,7 +73,7 @@ def toml_text(doc: dict, header: str = "") -> str:
 # ---------------------------------------------------------------------------------------- the scene
 def _absolute(table: dict, keys, scene_path: str, where: str) -> dict:
     """`table` with its path values (keys) made absolute from the scene's folder (${VAR} expanded)."""
-    from sim.bake.scene import expand_path
+    from jiggle.sim.bake.scene import expand_path
     here = os.path.dirname(os.path.abspath(scene_path))
     out = dict(table)
     for k in keys:
@@ -104,9 +104,9 @@ def check_scene(path: str, tuner, setup) -> None:
     """InputError unless the scene at `path` gives every muscle's jiggle and the jiggle settings of `setup`
     (what sim.bake.setup.prepare makes of a scene's [jiggle]: its tables over the template's defaults, then
     the global strength over every muscle's)."""
-    from sim.bake.scene import load_scene
-    from sim.bake.setup import jsonable
-    from sim.jiggle.params import JiggleSettings
+    from jiggle.sim.bake.scene import load_scene
+    from jiggle.sim.bake.setup import jsonable
+    from jiggle.sim.jiggle.params import JiggleSettings
     scene = load_scene(path)
     settings = scene.jiggle if scene.jiggle is not None else JiggleSettings()
     jiggles = scene.apply_jiggle(tuner.default_jiggles())

@@ -23,15 +23,15 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from rig.base.errors import InputError
-from rig.skin.muscle_skin import skin_frames
-from sim.bake.baker import MARGIN, Baker, chunk_frames, num_chunks
-from sim.bake.setup import BakeRequest, BakeSetup, prepare
-from sim.jiggle.blend import blend, blend_weights, needs_simulation
-from sim.jiggle.params import BlendCurve, MuscleJiggle
-from sim.jiggle.particles import muscle_model
-from sim.jiggle.simulate import TIME_EPS, goals, simulate
-from sim.jiggle.solver import ParticleSolver
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.skin.muscle_skin import skin_frames
+from jiggle.sim.bake.baker import MARGIN, Baker, chunk_frames, num_chunks
+from jiggle.sim.bake.setup import BakeRequest, BakeSetup, prepare
+from jiggle.sim.jiggle.blend import blend, blend_weights, needs_simulation
+from jiggle.sim.jiggle.params import BlendCurve, MuscleJiggle
+from jiggle.sim.jiggle.particles import muscle_model
+from jiggle.sim.jiggle.simulate import TIME_EPS, goals, simulate
+from jiggle.sim.jiggle.solver import ParticleSolver
 
 KNOBS = ("strength", "frequency", "damping", "goal_scale")
 """What a slider sets per muscle: jiggle strength J in [0, 1], the goal springs' frequency (Hz) and damping
@@ -141,7 +141,7 @@ def request_from_params(params: dict) -> BakeRequest:
             common["blend"] = float(curve["values"][0])     # --blend (or a constant with no muscle's own)
         if scene and scene.get("builtin"):
             return BakeRequest(scene=scene_path, **common)
-        from sim.bake.scene import load_scene
+        from jiggle.sim.bake.scene import load_scene
         spec = load_scene(scene_path) if scene_path else None
         clip_entry = params["clip"]
         clip = clip_entry.get("file")
@@ -254,7 +254,7 @@ class Tuner:
     def default_jiggles(self) -> list[MuscleJiggle]:
         """Each muscle's jiggle before the scene's tables and the global strength: the template's (or the
         kind's), what a scene's [jiggle.muscles] tables are written against."""
-        from sim.jiggle.params import default_jiggles
+        from jiggle.sim.jiggle.params import default_jiggles
         if self.fitted is not None:
             mus = self.fitted.musculature
             return default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
