@@ -4,7 +4,7 @@ muscles' offsets, with the generated body and with CesiumMan, default settings, 
     .venv/bin/python benchmarks/bench_quality.py [--quick] [--clips 02_03,05_02] [--skinning shell,rbf,influence]
 
 Per clip and character: a default `jiggle bake` (30 fps, npz only) in a temporary folder, then the
-measures of `jiggle compare` (sim.app.skin_quality, rig.skin.quality) on its caches:
+measures of `jiggle compare` (sim.app.report.skin_quality, rig.skin.quality) on its caches:
 
 - folded edges (> 90 degrees) of the LBS skin and of the final skin, most in a frame; the budget
   (the rest mesh's own count + 0.1% of the edges) and whether the final skin stays in it;
@@ -41,8 +41,8 @@ CHARACTERS = {"body": None, "CesiumMan": "characters/CesiumMan.glb"}
 
 def measure(out_dir: str) -> dict:
     """The row of one finished bake in out_dir."""
-    from jiggle.sim.app.skin_quality import measure as skin_measure
-    from jiggle.sim.app.skin_quality import summarise
+    from jiggle.sim.app.report.skin_quality import measure as skin_measure
+    from jiggle.sim.app.report.skin_quality import summarise
     from jiggle.sim.bake.caches import read_npz
     data = read_npz(os.path.join(out_dir, "bake.npz"))
     m = skin_measure(data)

@@ -23,7 +23,7 @@ if not _os.path.isdir(_os.path.join(_here, "rig")):       # a source checkout: t
     __path__.append(_os.path.dirname(_here))               # noqa: F821 (a package's own __path__)
 
 __all__ = ["__version__", "bake", "Bake", "Metrics", "InputError", "load_character", "load_clip", "fit", "simulate",
-           "Muscles", "Simulation"]
+           "Muscles", "Simulation", "Character", "Clip"]
 
 
 def __getattr__(name: str):

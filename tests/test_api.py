@@ -134,10 +134,10 @@ def test_the_version_is_in_one_place():
 
 def test_the_package_installs_as_one_name_with_its_script(tmp_path):
     """The wheel holds `jiggle` alone (rig, sim and scenes under it, their data too), and its entry point."""
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
-                        str(tmp_path), str(ROOT)], capture_output=True, text=True)
-    if r.returncode != 0 and "No module named" in r.stderr:
-        pytest.skip(f"pip cannot build here: {r.stderr.strip().splitlines()[-1]}")
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(ROOT)],
+                       capture_output=True, text=True)
+    if r.returncode != 0 and "satisfies the requirement setuptools" in r.stderr:
+        pytest.skip("pip cannot fetch setuptools to build the wheel (no package index here)")
     assert r.returncode == 0, r.stderr
     wheel = next(tmp_path.glob("jiggle-*.whl"))
     names = zipfile.ZipFile(wheel).namelist()

@@ -1,5 +1,6 @@
 """What a user runs and looks at: the `jiggle` command line and everything that only presents results.
 
 `cli` builds the parser from one module per subcommand (`commands/`) and shared argument groups
-(`args`); `compare` (metrics, plots, renders, the HTML report), `play`, `describe` and the
-`*_outputs` modules write what a person looks at. Imports everything below; nothing imports it."""
+(`args`); `loading` reads what several commands take; `report/` is `jiggle compare`'s report (metrics, skin
+quality, plots, renders, report.html); `outputs/` what each other command writes; `view/` the browser viewer;
+`batch` a library on Dask. Imports everything below; only the public API (jiggle/api.py) imports it."""

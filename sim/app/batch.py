@@ -319,7 +319,7 @@ def run_job(job: Job, out_root: str, report: str = "render", print_fingerprint: 
                        resumed_after_chunks=summary["resumed_after_chunks"],
                        frames_per_s=summary["timings"].get("frames_per_s"))
             if report != "none":
-                from jiggle.sim.app.compare import compare
+                from jiggle.sim.app.report.compare import compare
                 t = time.perf_counter()
                 res = compare(out, render=report == "render", video=False)
                 rec["report_s"] = time.perf_counter() - t
@@ -498,7 +498,7 @@ COLUMNS = (("job", "name", "s"), ("status", "status", "s"), ("frames", "frames",
            ("hard stops", "hard_stops", "n"))
 QUALITY = (("final folds", "final_folded_edges"), ("folds / LBS", "folds_added_over_lbs"),
            ("torn edges", "torn_edges"), ("gradient p99.9", "gradient_p999"))
-"""compare's skin quality targets (sim.app.skin_quality.check_targets), one column each."""
+"""compare's skin quality targets (sim.app.report.skin_quality.check_targets), one column each."""
 
 SORT_JS = """
 document.querySelectorAll('th[data-k]').forEach(function (th) {
@@ -540,7 +540,7 @@ def render_index(doc: dict) -> str:
     """index.html: a table, one row per job, sortable by any column (click its header); a thumbnail of the
     peak frame and a link to the job's report (compare's report.html), both relative to DIR. The page's
     look is compare's (sim.app.report.CSS)."""
-    from jiggle.sim.app.report import CSS
+    from jiggle.sim.app.report.page import CSS
 
     def e(v):
         return "&ndash;" if v is None else html.escape(str(v))

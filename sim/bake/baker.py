@@ -240,7 +240,7 @@ def cache_paths(out_dir: str, formats) -> dict:
 COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "limits.png", "energy.png", "spectrum.png",
                  "displacement.png", "quality.png", "contacts.png", "peak.png", "quality_closeups.png",
                  "glb_closeup.png", "clip.mp4", "clip.gif", "report.html")
-"""The names `jiggle compare` writes beside a bake (sim/app/compare.py) when they are free."""
+"""The names `jiggle compare` writes beside a bake (sim/app/report/compare.py) when they are free."""
 COMPARE_RECORD = "compare.json"
 """`jiggle compare`'s record of the files it wrote into a bake folder: {"format": COMPARE_RECORD_FORMAT,
 "files": [names]} (under compare.jiggle.json, compare.jiggle2.json, ... when the folder holds a

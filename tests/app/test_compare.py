@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from jiggle.rig.base.errors import InputError
-from jiggle.sim.app import compare_render
-from jiggle.sim.app.compare import compare, muscle_energy, muscle_offsets
+from jiggle.sim.app.report.page import compare_render
+from jiggle.sim.app.report.compare import compare, muscle_energy, muscle_offsets
 from jiggle.sim.bake.caches import BakeData, write_npz
 
 FPS, T = 30.0, 60

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_compare import STRICT, T, known_bake  # noqa: E402 - tests/app is on the path (rootdir conftest)
 
-from jiggle.sim.app.compare import collision_metrics, compare
+from jiggle.sim.app.report.compare import collision_metrics, compare
 from jiggle.sim.bake.caches import write_npz
 
 DEPTH_FRAME = 20

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from jiggle.rig.character.capsules import BoneCapsules
-from jiggle.sim.app.fit_outputs import capsule_facts, capsule_meshes
+from jiggle.sim.app.outputs.fit import capsule_facts, capsule_meshes
 
 
 def two_capsules() -> BoneCapsules:

@@ -59,7 +59,7 @@ def test_arm_renders_side_by_side_frames(capsys, tmp_path):
     """The one render smoke test: every 5th of 12 frames, both panels drawn, the heat map coloured."""
     from PIL import Image
 
-    from jiggle.sim.app.jiggle_outputs import PANEL
+    from jiggle.sim.app.outputs.simulate import PANEL
     code, out, err = run(capsys, "simulate", "--frames", "12", "--every", "5", "--out", str(tmp_path))
     assert code == 0, err
     facts = json.loads((tmp_path / "jiggle.json").read_text())

@@ -184,7 +184,7 @@ def test_centimetre_armature_agrees_with_blender(tmp_path, turn):
     report = compare_with_blender(path, tmp_path, times=[0.0, 0.5, 1.0])
     assert report["height_m"] == pytest.approx(1.67 if turn == -90.0 else 0.28, abs=1e-3)
     # `jiggle inspect` measures the skin Blender imports (not the mesh nodes placed by their own transforms)
-    from jiggle.sim.app.describe import inspect_file
+    from jiggle.sim.app.outputs.inspect import inspect_file
     seen = inspect_file(str(path))
     np.testing.assert_allclose(seen["bounds_m"], report["blender_bounds_m"], atol=1e-3)
     assert seen["height_m"] == pytest.approx(report["blender_bounds_m"][5] - report["blender_bounds_m"][2], abs=1e-3)

@@ -189,7 +189,7 @@ def test_fat_volumes_lie_inside_the_body(name):
 def test_render_mesh_writes_a_png_of_the_requested_size(tmp_path):
     from PIL import Image
 
-    from jiggle.sim.app.mesh_render import render_mesh
+    from jiggle.sim.app.report.mesh_render import render_mesh
     clip, body = body_of("demo", resolution=COARSE)
     joints, ends = skeleton_points(body.bind)  # the pose it was built in
     bones = np.array([(joints[p], joints[j]) for j, p in enumerate(clip.parents) if p >= 0])

@@ -19,7 +19,7 @@ import jiggle.rig.muscle.fit as fit
 from jiggle.rig.base.errors import InputError, JiggleWarning
 from jiggle.rig.muscle.fit import FitOptions, fit_musculature
 from jiggle.rig.muscle.fit_quality import INSIDE_OK, RMS_OK, RMS_REFUSE, inside_skin, local_radius, thresholds
-from jiggle.sim.app.fit_outputs import musculature_facts, quality_line
+from jiggle.sim.app.outputs.fit import musculature_facts, quality_line
 
 
 def cesium_man():

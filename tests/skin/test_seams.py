@@ -39,7 +39,7 @@ def test_cesiumman_seams_stay_closed_in_the_bake(tmp_path):
 def test_compare_measures_open_seams():
     """skin_quality's open_seams: the widest gap between seam pairs plain skinning keeps together; a skin that
     opens a seam by 5 mm at one frame fails it, a closed one passes."""
-    from jiggle.sim.app.skin_quality import check_targets, seam_gaps
+    from jiggle.sim.app.report.skin_quality import check_targets, seam_gaps
     rest = np.array([[0, 0, 0], [0, 0, 0], [1, 0, 0]], float)
     lbs = np.repeat(rest[None], 3, axis=0)
     final = lbs.copy()

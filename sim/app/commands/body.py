@@ -10,7 +10,7 @@ from jiggle.sim.app.loading import default_scene, generated_character
 
 
 def run(args) -> int:
-    from jiggle.sim.app.body_outputs import write_body_outputs
+    from jiggle.sim.app.outputs.body import write_body_outputs
     if args.skeleton_file is None:
         from jiggle.sim.bake.scene import load_scene
         clip = load_scene(default_scene()).clip

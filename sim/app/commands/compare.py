@@ -1,5 +1,5 @@
 """`jiggle compare OUT_DIR`: a bake's static and dynamic skins compared in numbers, plots, renders
-and one HTML report (sim/app/compare.py).
+and one HTML report (sim/app/report/compare.py).
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ def run(args) -> int:
 
 
 def compare_bake(out_dir: str, render: bool = True, video: bool = True) -> dict:
-    from jiggle.sim.app.compare import compare
+    from jiggle.sim.app.report.compare import compare
     res = compare(out_dir, render=render, video=video)
     m = res["metrics"]
     skin = m.get("skin", {})
@@ -21,7 +21,7 @@ def compare_bake(out_dir: str, render: bool = True, video: bool = True) -> dict:
     print(f"compared static and dynamic in {out_dir}" + (f": skin moved up to {peak:.1f} mm" if peak is not None else ""))
     targets = (m.get("skin_quality") or {}).get("targets")
     if targets:
-        from jiggle.sim.app.skin_quality import fmt_targets
+        from jiggle.sim.app.report.skin_quality import fmt_targets
         print(f"skin quality: {fmt_targets(targets)}")
     for k, f in res["files"].items():
         print(f"  {k:13s} {f}")

@@ -53,7 +53,7 @@ def deform_pose(args):
 def run(args) -> int:
     from jiggle.rig.muscle.fit import Musculature
     from jiggle.rig.skin.muscle_skin import MuscleSkin
-    from jiggle.sim.app.deform_outputs import write_deform_outputs
+    from jiggle.sim.app.outputs.deform import write_deform_outputs
     character, rig, world, pose = deform_pose(args)
     if isinstance(rig, Musculature):
         skin = MuscleSkin.from_musculature(rig, skinning=args.skinning, method=args.method, mush=args.mush,

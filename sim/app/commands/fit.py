@@ -83,7 +83,7 @@ def run(args) -> int:
     import numpy as np
 
     from jiggle.rig.muscle.fit import FitOptions, fit_musculature
-    from jiggle.sim.app.fit_outputs import quality_line, write_fit_outputs
+    from jiggle.sim.app.outputs.fit import quality_line, write_fit_outputs
     character = fit_character(args.character, args)
     options = FitOptions(iterations=args.iterations, lam=args.smoothing, volume=args.volume,
                          joint_map=args.character_map, exclude=tuple(args.exclude or ()), strict=args.strict)

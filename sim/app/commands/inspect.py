@@ -8,7 +8,7 @@ from jiggle.sim.app.args import animation, clip_options
 
 
 def run(args) -> int:
-    from jiggle.sim.app.describe import format_report, inspect_file
+    from jiggle.sim.app.outputs.inspect import format_report, inspect_file
     report = inspect_file(args.file, skeleton=args.skeleton, animation=animation(args.animation),
                           scale=args.scale, tpose=args.tpose)
     print(json.dumps(report, indent=2) if args.json else format_report(report))

@@ -17,7 +17,7 @@ def run(args) -> int:
     from jiggle.rig.anatomy.markers import read_markers, write_markers
     from jiggle.rig.anatomy.morph import MorphOptions, morph, prepare_canonical
     from jiggle.rig.character.load import load_character
-    from jiggle.sim.app.morph_outputs import render_morph, side_paths, write_report
+    from jiggle.sim.app.outputs.morph import render_morph, side_paths, write_report
 
     if args.markers is None and args.write_markers is None:
         raise InputError("give --markers FILE (the target's marker positions) or --write-markers FILE (the "

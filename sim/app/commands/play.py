@@ -1,5 +1,5 @@
 """`jiggle play CLIP`: a clip on its skeleton through MuJoCo (kinematic, physics or your own MJCF),
-with a character skinned over it, written as pictures, plots and the motion (sim/app/play.py).
+with a character skinned over it, written as pictures, plots and the motion (sim/app/outputs/play.py).
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ def play_clip(clip, out_dir, drive, poses, render, fps=None, mjcf=None, joint_ma
           skinning="lbs"):
     from tqdm import tqdm
 
-    from jiggle.sim.app.play import write_outputs
+    from jiggle.sim.app.outputs.play import write_outputs
     from jiggle.sim.drive.motion import drive_kinematic, drive_mjcf, drive_physics
 
     if fps is not None:

@@ -116,7 +116,7 @@ def run(args) -> int:
 
     import numpy as np
 
-    from jiggle.sim.app.jiggle_outputs import top_muscles, write_jiggle_outputs
+    from jiggle.sim.app.outputs.simulate import top_muscles, write_jiggle_outputs
     from jiggle.sim.jiggle.params import BlendCurve, JiggleSettings
     from jiggle.sim.jiggle.secondary import jiggle_rig
 

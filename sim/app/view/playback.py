@@ -5,7 +5,7 @@ the muscles' surfaces, the skeleton, the muscles' jiggle amplitude and the skin-
 this jiggle's format); `Playback` holds its arrays and, after a re-simulation, the new motion
 (`replace_motion`): the static skin never changes, the final skin and the blended CVs do.
 
-The heat map is the report's (sim.app.compare_render): the final skin coloured by its displacement from
+The heat map is the report's (sim.app.report.compare_render): the final skin coloured by its displacement from
 the static skin, YlOrRd from 0 to the largest displacement of the bake as loaded (kept when the motion is
 re-simulated, so a softer or stronger jiggle shows on the same scale), here in HEAT_BANDS bands of that
 scale (the browser's mesh takes one colour per mesh, so a band is a mesh of the faces whose mean
@@ -20,13 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from jiggle.rig.base.errors import InputError
-from jiggle.sim.app.compare import load_bake, muscle_amplitude, skin_displacement
+from jiggle.sim.app.report.compare import load_bake, muscle_amplitude, skin_displacement
 from jiggle.sim.bake.caches import BakeData
 
 HEAT_BANDS = 9
 """Colour bands of the heat map (ColorBrewer's YlOrRd has nine classes)."""
 CMAP = "YlOrRd"
-"""The report's colour map (sim.app.compare_render.CMAP)."""
+"""The report's colour map (sim.app.report.compare_render.CMAP)."""
 SUMMARY = "bake.json"
 QUALITY_ROWS = (("final", "folded_edges", "folded edges", "{:.0f}"), ("final", "sharp_edges", "sharp edges", "{:.0f}"),
                 ("final", "edge_strain_p99", "edge strain p99", "{:.3f}"),

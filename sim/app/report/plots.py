@@ -54,7 +54,7 @@ def plot_contacts(path: str, times: np.ndarray, collisions: dict) -> str:
     (mm, before the projection corrected it; the summed contact impulse, N s, on the right axis); right,
     the skin vertices inside another body part's capsule per frame, static and final skin.
 
-    times : (T,) seconds. collisions : metrics.json's "collisions" (sim.app.compare.collision_metrics);
+    times : (T,) seconds. collisions : metrics.json's "collisions" (sim.app.report.compare.collision_metrics);
     its "per_frame" lists of T values (a list absent or of another length is left out)."""
     plt = pyplot()
     per = collisions.get("per_frame") or {}

@@ -10,7 +10,7 @@ Both panels share one camera; the dynamic skin is coloured by its displacement f
 bake). The camera looks horizontally across the skin's main motion at the peak (so the jiggle moves in
 the picture plane, not towards the viewer), from the side where the moving skin is, a little from
 above. It frames the whole skin: one fixed box when the body stays in place, else a box of fixed size
-following it (sim.app.jiggle_outputs.focus_boxes). A panel takes the shape of that box as seen (a
+following it (sim.app.outputs.simulate.focus_boxes). A panel takes the shape of that box as seen (a
 standing figure from the side gets a tall panel, not a wide one with empty sides), within
 ASPECT, widened by BAR_ROOM for the colour bar.
 
@@ -30,8 +30,8 @@ import numpy as np
 
 from jiggle.rig.base.atomic import atomic_path
 from jiggle.rig.character.normals import VertexNormals
-from jiggle.sim.app.jiggle_outputs import focus_boxes
-from jiggle.sim.app.mesh_render import SKIN, frame_camera
+from jiggle.sim.app.outputs.simulate import focus_boxes
+from jiggle.sim.app.report.mesh_render import SKIN, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 

@@ -27,7 +27,7 @@ import numpy as np
 from jiggle.rig.base.atomic import atomic_path
 from jiggle.rig.base.errors import InputError
 from jiggle.rig.skin.muscle_skin import skin_frames
-from jiggle.sim.app.mesh_render import SKIN, frame_camera
+from jiggle.sim.app.report.mesh_render import SKIN, frame_camera
 from jiggle.sim.jiggle.keyed import jsonable_value
 from jiggle.sim.jiggle.secondary import JiggleResult
 

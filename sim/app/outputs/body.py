@@ -60,7 +60,7 @@ def write_body_outputs(character: Character, out_dir: str, render: bool = True) 
     os.makedirs(out_dir, exist_ok=True)
     files = {}
     if render:
-        from jiggle.sim.app.mesh_render import render_mesh
+        from jiggle.sim.app.report.mesh_render import render_mesh
         title = f"{character.name}: {character.num_vertices} vertices, {character.height:.2f} m"
         with atomic_path(os.path.join(out_dir, "body.png")) as tmp:
             render_mesh(character.vertices, character.faces, tmp, views=("front", "side", "iso"), title=title,

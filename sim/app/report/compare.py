@@ -15,16 +15,16 @@ energy.png        per-muscle jiggle energy over time
 spectrum.png      per-muscle amplitude spectrum, the dominant frequency marked
 displacement.png  the skin's largest and RMS displacement per frame, and a histogram over vertices
 quality.png       skin quality per frame: folded edges of the LBS, static and final skins, jiggle
-                  tears (sim.app.skin_quality)
+                  tears (sim.app.report.skin_quality)
 contacts.png      for a bake with collisions (its bake.json has "contacts"): the deepest particle
                   penetration per frame and the skin vertices inside another part's capsule per frame,
                   static and final skin (see :func:`collision_metrics`)
-peak.png          static | dynamic skin at the peak frame (sim.app.compare_render), unless render=False
+peak.png          static | dynamic skin at the peak frame (sim.app.report.compare_render), unless render=False
 quality_closeups.png  the worst frames for skin quality, close up, static | final, unless render=False
 glb_closeup.png   for a bake with a glb (--formats glb): its worst frame close up, skin_final | played from the
-                  glb (sim.app.glb_report; metrics.json "glb": the file's fit per frame), unless render=False
+                  glb (sim.app.report.glb; metrics.json "glb": the file's fit per frame), unless render=False
 clip.mp4          the same over the whole clip (clip.gif when ffmpeg fails), unless render/video False
-report.html       one self-contained page with all of it (sim.app.report)
+report.html       one self-contained page with all of it (sim.app.report.page)
 
 Definitions (the bake's muscle CVs are the *blended* ones, so everything here is what the skin gets):
 
@@ -32,7 +32,7 @@ Definitions (the bake's muscle CVs are the *blended* ones, so everything here is
 - muscle amplitude a_m(t): the largest CV distance |dynamic - static| over the muscle's CVs;
   its RMS is sqrt(mean_t a_m(t)^2);
 - jiggle energy (see :func:`muscle_energy`), the dominant frequency (see :func:`muscle_spectrum`);
-- settle time: as `jiggle simulate` (sim.app.jiggle_outputs.settle_time).
+- settle time: as `jiggle simulate` (sim.app.outputs.simulate.settle_time).
 """
 from __future__ import annotations
 
@@ -46,9 +46,9 @@ import numpy as np
 
 from jiggle.rig.base.atomic import atomic_path
 from jiggle.rig.base.errors import InputError
-from jiggle.sim.app import skin_quality
-from jiggle.sim.app.jiggle_outputs import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
-from jiggle.sim.app.plots import plot_contacts, pyplot, save_figure
+from jiggle.sim.app.report import skin_quality
+from jiggle.sim.app.outputs.simulate import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
+from jiggle.sim.app.report.plots import plot_contacts, pyplot, save_figure
 from jiggle.sim.bake.baker import COMPARE_NAMES, COMPARE_RECORD, COMPARE_RECORD_FORMAT, SUMMARY, compare_files, remove_listed
 from jiggle.sim.bake.caches import BakeData, read_npz
 
@@ -583,7 +583,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     render : False skips peak.png and the video (metrics, plots and report.html are still written).
     video : False skips only the video.
     progress : called as progress(n) with the frames just rendered (n = 1 per frame, as tqdm's
-        update), 1 + len(sim.app.compare_render.video_frames(T)) calls in all with render and video.
+        update), 1 + len(sim.app.report.compare_render.video_frames(T)) calls in all with render and video.
     Returns {"files": {key: path}, "metrics": the metrics.json dict}; keys of files: metrics,
     displacement, amplitude, energy, spectrum, displacement_plot, quality_plot, contacts_plot (a bake
     with collisions), peak, video, report.
@@ -641,7 +641,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
 
     video_info = None
     if render and V:
-        from jiggle.sim.app.compare_render import render_outputs
+        from jiggle.sim.app.report.compare_render import render_outputs
         t0 = time.perf_counter()
         rendered = render_outputs(data, peak["frame"], an["disp"], out_dir, video=video, progress=progress,
                                   name=as_name.__getitem__)
@@ -656,7 +656,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         timings["quality_render_s"] = time.perf_counter() - t0
     glb = None
     if "glb" in (read_contacts(out_dir, "files") or {}) and os.path.isfile(os.path.join(out_dir, "bake.glb")):
-        from jiggle.sim.app.glb_report import glb_check
+        from jiggle.sim.app.report.glb import glb_check
         t0 = time.perf_counter()
         glb, drawn = glb_check(out_dir, data, out("glb_closeup.png") if render and V else None)
         if drawn:
@@ -697,7 +697,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     metrics = clean(metrics)
     _write_json(files["metrics"], metrics)
 
-    from jiggle.sim.app.report import write_report
+    from jiggle.sim.app.report.page import write_report
     t0 = time.perf_counter()
     write_report(files["report"], metrics, files)
     timings["report_s"] = time.perf_counter() - t0

@@ -23,7 +23,7 @@ import numpy as np
 
 from jiggle.rig.base.atomic import atomic_path
 from jiggle.rig.muscle.fit import Musculature
-from jiggle.sim.app.mesh_render import SKIN, VIEWS, frame_camera
+from jiggle.sim.app.report.mesh_render import SKIN, VIEWS, frame_camera
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 

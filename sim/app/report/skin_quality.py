@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from jiggle.rig.skin.quality import FOLDED_COS, JIGGLE_MEASURES, SHARP_COS, SKIN_MEASURES, TORN, SkinQuality
-from jiggle.sim.app.plots import pyplot, save_figure
+from jiggle.sim.app.report.plots import pyplot, save_figure
 
 FOLD_BUDGET = 0.001
 """Folded edges the final skin may have beyond the rest mesh's own, as a fraction of all edges."""
@@ -208,7 +208,7 @@ def render_closeups(data, m: dict, frames: list[int], disp: np.ndarray, path: st
     if not frames:
         return None
     from jiggle.rig.character.normals import VertexNormals
-    from jiggle.sim.app.compare_render import SideBySide, write_png
+    from jiggle.sim.app.report.compare_render import SideBySide, write_png
     q = m["quality"]
     top = float(disp.max()) * 1e3 if disp.size else 0.0
     clim = (0.0, top if top > 1e-3 else 1.0)

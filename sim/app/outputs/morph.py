@@ -35,7 +35,7 @@ def render_morph(path: str, canonical_vertices, target_vertices, faces, markers:
     markers (n, 3) as red spheres on the target."""
     import pyvista as pv
 
-    from jiggle.sim.app.mesh_render import frame_camera
+    from jiggle.sim.app.report.mesh_render import frame_camera
 
     f = np.hstack([np.full((len(faces), 1), 3), np.asarray(faces, np.int64)]).ravel()
     a = np.asarray(canonical_vertices, float)

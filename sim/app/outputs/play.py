@@ -25,7 +25,7 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
     motion.npz keys: times (N,) s; joint_names (J,); parents (J,); joint_world (N, J, 4, 4) metres,
     Z-up; end_sites (N, E, 3) metres; fps; plus the drive's `Motion.arrays`. Returns the summary.
     """
-    from jiggle.sim.app.plots import plot_joint_trajectories
+    from jiggle.sim.app.report.plots import plot_joint_trajectories
 
     os.makedirs(out_dir, exist_ok=True)
     files = {}
@@ -42,7 +42,7 @@ def write_outputs(motion: Motion, name: str, out_dir: str, poses: int = 8, rende
                                 tmp, title=f"{name}: joint trajectories ({motion.info['drive']} drive)")
     files["trajectories"] = "trajectories.png"
     if render:
-        from jiggle.sim.app.render import render_skeleton_over_time
+        from jiggle.sim.app.report.render import render_skeleton_over_time
         with atomic_path(os.path.join(out_dir, "skeleton.png")) as tmp:
             render_skeleton_over_time(np.concatenate([motion.positions, motion.end_points], axis=1),
                                       motion.parents, motion.end_parents, times, tmp, poses=poses,
@@ -73,7 +73,7 @@ def _character_outputs(character, motion: Motion, name: str, out_dir: str, poses
     if not np.all(np.isfinite(skinned)):
         raise FloatingPointError("skinning produced non-finite vertices")  # a bug, never user input
     if render:
-        from jiggle.sim.app.render import render_skin_over_time
+        from jiggle.sim.app.report.render import render_skin_over_time
         with atomic_path(os.path.join(out_dir, "character.png")) as tmp:
             render_skin_over_time(skinned, character.faces, motion.times[frames], tmp,
                                   title=f"{name}: {character.name or 'character'} skinned ({method.upper()})")

@@ -28,7 +28,7 @@ def glb_check(out_dir: str, data, png: str | None) -> tuple[dict, str | None]:
 
 
 def _closeup(data, played: np.ndarray, final: np.ndarray, k: int, path: str) -> str:
-    from jiggle.sim.app.compare_render import SideBySide, write_png
+    from jiggle.sim.app.report.compare_render import SideBySide, write_png
     err = np.linalg.norm(played[k] - final[k], axis=1)
     v = int(np.argmax(err))
     extent = np.ptp(final[k], axis=0).max()
