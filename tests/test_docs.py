@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import html
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -77,20 +76,8 @@ def test_the_readme_is_a_landing_page():
 
 @pytest.fixture(scope="module")
 def browser():
-    chromium, driver = shutil.which("chromium"), shutil.which("chromedriver")
-    if not chromium or not driver:
-        pytest.skip("Debian's chromium and chromium-driver are not installed (./dev.sh installs them as root)")
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.options import Options
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        pytest.skip("selenium is not installed (the test extras: pip install -e '.[test]')")
-    opts = Options()
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,900"):
-        opts.add_argument(a)
-    opts.binary_location = chromium
-    drv = webdriver.Chrome(service=Service(driver), options=opts)
+    from browser import headless_chromium
+    drv = headless_chromium(1280, 900)
     yield drv
     drv.quit()
 

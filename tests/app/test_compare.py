@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jiggle.rig.base.errors import InputError
-from jiggle.sim.app.report.page import compare_render
+from jiggle.sim.app.report import compare_render
 from jiggle.sim.app.report.compare import compare, muscle_energy, muscle_offsets
 from jiggle.sim.bake.caches import BakeData, write_npz
 

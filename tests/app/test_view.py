@@ -11,7 +11,6 @@ from __future__ import annotations
 import http.client
 import io
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -184,21 +183,8 @@ def test_ctrl_c_stops_with_130(bake_dir):
 # ---------------------------------------------------------------------------------------- the browser
 @pytest.fixture(scope="module")
 def browser():
-    chromium, driver = shutil.which("chromium"), shutil.which("chromedriver")
-    if not chromium or not driver:
-        pytest.skip("Debian's chromium and chromium-driver are not installed (./dev.sh installs them as root)")
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.options import Options
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        pytest.skip("selenium is not installed (the test extras: pip install -e '.[test]')")
-    opts = Options()
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
-              "--enable-unsafe-swiftshader", "--window-size=1200,800"):
-        opts.add_argument(a)
-    opts.binary_location = chromium
-    drv = webdriver.Chrome(service=Service(driver), options=opts)
+    from browser import headless_chromium
+    drv = headless_chromium()
     yield drv
     drv.quit()
 
