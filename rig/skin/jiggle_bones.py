@@ -184,11 +184,10 @@ def _pruned(joints, weights, skin_mats, rest, tol: float):
     mats = skin_mats[np.unique(np.linspace(0, len(skin_mats) - 1, 48).astype(int))]   # a joint's motion is smooth:
     T, J = mats.shape[:2]                                              # 48 frames show its largest
     lever = np.zeros(j.shape)
-    with wp.ScopedDevice("cpu"):
-        wp.launch(kern.lever, dim=j.shape, inputs=[
-            wp.array(_f64(rest), dtype=wp.vec3d), wp.array(j.astype(np.int32)),
-            wp.array(_f64(mats).reshape(T, J, 16), dtype=wp.mat44d), wp.array(lever, copy=False)])
-        wp.synchronize_device()
+    wp.launch(kern.lever, dim=j.shape, device="cpu", inputs=[
+        _cpu(_f64(rest), wp.vec3d), _cpu(j.astype(np.int32)), _cpu(_f64(mats).reshape(T, J, 16), wp.mat44d),
+        _cpu(lever, copy=False)])
+    wp.synchronize_device("cpu")
     for c in range(1, j.shape[1]):
         drop = np.flatnonzero((w[:, c] > 0) & (lever[:, c] * w[:, c] < tol))
         w[drop, 0] += w[drop, c]
@@ -213,15 +212,12 @@ def _lbs(joints, weights, skin_mats, rest):
     from jiggle.rig.skin import jiggle_bones_kernels as kern
     T, J = skin_mats.shape[:2]
     out = np.empty((T, len(rest), 3))
-    rest_w = wp.array(_f64(rest), dtype=wp.vec3d, device="cpu")
-    joints_w = wp.array(np.asarray(joints, np.int32), device="cpu")
-    weights_w = wp.array(_f64(weights), device="cpu")
+    rest_w, joints_w, weights_w = _cpu(_f64(rest), wp.vec3d), _cpu(np.asarray(joints, np.int32)), _cpu(_f64(weights))
 
     def frames(a, b):                                                  # a launch per core, on its own frames
         wp.launch(kern.smooth_skin, dim=(b - a, len(rest)), device="cpu", inputs=[
-            rest_w, joints_w, weights_w, wp.array(_f64(skin_mats[a:b]).reshape(b - a, J, 16), dtype=wp.mat44d,
-                                                  device="cpu"),
-            wp.array(out[a:b], dtype=wp.vec3d, copy=False, device="cpu")])
+            rest_w, joints_w, weights_w, _cpu(_f64(skin_mats[a:b]).reshape(b - a, J, 16), wp.mat44d),
+            _cpu(out[a:b], wp.vec3d, copy=False)])
 
     from concurrent.futures import ThreadPoolExecutor
     cuts = np.linspace(0, T, min(T, os.cpu_count() or 1) + 1).astype(int)
@@ -344,15 +340,21 @@ def _sweep(p, target, u, R, t, omega) -> None:
         centre[k] = w[offsets[k]:offsets[k + 1]] @ p[members[k]] / mass[k]
     Rw = _f64(R).reshape(T, K1, 9)
     tw = _f64(t)
-    with wp.ScopedDevice("cpu"):
-        wp.launch(kern.sweep, dim=T, inputs=[
-            wp.array(_f64(p), dtype=wp.vec3d), wp.array(_f64(target), dtype=wp.vec3d, copy=False),
-            wp.array(_f64(omega)), wp.array(offsets), wp.array(flat.astype(np.int32)), wp.array(_f64(share)),
-            wp.array(_f64(mass)), wp.array(centre, dtype=wp.vec3d), wp.array(Rw, dtype=wp.mat33d, copy=False),
-            wp.array(tw, dtype=wp.vec3d, copy=False), wp.empty((T, n), dtype=wp.vec3d)])
-        wp.synchronize_device()
+    wp.launch(kern.sweep, dim=T, device="cpu", inputs=[
+        _cpu(_f64(p), wp.vec3d), _cpu(_f64(target), wp.vec3d, copy=False), _cpu(_f64(omega)), _cpu(offsets),
+        _cpu(flat.astype(np.int32)), _cpu(_f64(share)), _cpu(_f64(mass)), _cpu(centre, wp.vec3d),
+        _cpu(Rw, wp.mat33d, copy=False), _cpu(tw, wp.vec3d, copy=False), wp.empty((T, n), wp.vec3d, device="cpu")])
+    wp.synchronize_device("cpu")
     R[...] = Rw.reshape(R.shape)
     t[...] = tw
+
+
+def _cpu(a: np.ndarray, dtype=None, copy: bool = True):
+    """A NumPy array as a Warp array on the CPU; copy=False: a view the kernel writes through. The fit names its
+    device on every array and launch rather than through wp.ScopedDevice, whose default device is process-wide
+    while the groups run on threads."""
+    import warp as wp
+    return wp.array(a, copy=copy, device="cpu", **({} if dtype is None else {"dtype": dtype}))
 
 
 def _f64(a) -> np.ndarray:
@@ -439,15 +441,13 @@ def _shares(p, target, R, t, omega, u0, limit, steps: int = 20):
     n, K1 = u0.shape
     u = _f64(u0).copy()
     C = min(CANDIDATES, K1)
-    with wp.ScopedDevice("cpu"):
-        wp.launch(kern.shares, dim=n, inputs=[
-            wp.array(_f64(p), dtype=wp.vec3d), wp.array(_f64(RtR).reshape(K1, K1, 9), dtype=wp.mat33d),
-            wp.array(_f64(Rtt), dtype=wp.vec3d), wp.array(_f64(tt)), wp.array(_f64(c)),
-            wp.array(np.asarray(limit, np.int32)), steps, wp.array(u, copy=False),
-            wp.empty((n, C), dtype=wp.int32), wp.empty((n, C), dtype=wp.float64),
-            wp.empty((n, C, C), dtype=wp.float64), *(wp.empty((n, C), dtype=wp.float64) for _ in range(2)),
-            wp.empty((n, C), dtype=wp.int32), wp.empty((n, C), dtype=wp.float64)])
-        wp.synchronize_device()
+    scratch = [wp.empty(shape, dtype, device="cpu") for shape, dtype in (
+        ((n, C), wp.int32), ((n, C), wp.float64), ((n, C, C), wp.float64), ((n, C), wp.float64),
+        ((n, C), wp.float64), ((n, C), wp.int32), ((n, C), wp.float64))]         # pick, score, G, cc, uc, mask, g
+    wp.launch(kern.shares, dim=n, device="cpu", inputs=[
+        _cpu(_f64(p), wp.vec3d), _cpu(_f64(RtR).reshape(K1, K1, 9), wp.mat33d), _cpu(_f64(Rtt), wp.vec3d),
+        _cpu(_f64(tt)), _cpu(_f64(c)), _cpu(np.asarray(limit, np.int32)), steps, _cpu(u, copy=False), *scratch])
+    wp.synchronize_device("cpu")
     return u
 
 
