@@ -12,6 +12,7 @@ metres, times seconds.
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import json
 import os
@@ -40,8 +41,7 @@ def _argv(command: str, positional: list, options: dict) -> list[str]:
     """The command line of `command` for keyword options: name -> --name (underscores as dashes); True -> the
     flag, False -> its --no- form (or nothing where there is none), None -> left out, a list -> comma-separated;
     `muscles` -> one NAME=VALUE flag per muscle and parameter. Unknown names are a TypeError, as Python's own."""
-    from jiggle.sim.app.cli import build_parser
-    sub = _subparser(build_parser(), command)
+    sub = _subparser(_parser(), command)
     flags = {s: a for a in sub._actions for s in a.option_strings}
     argv = [command] + [str(p) for p in positional if p is not None]
     for name, value in options.items():
@@ -73,6 +73,8 @@ def _muscle_flags(muscles, flags: dict) -> list[str]:
     if not hasattr(muscles, "items"):
         raise InputError(f"must map a muscle name (or glob) to its parameters, e.g. "
                          f"{{'belly_fat': {{'strength': 0.5}}}}, got {muscles!r}", field="muscles")
+    from jiggle.sim.app.args import KeyedAction
+    keyed = {f: a for f, a in flags.items() if isinstance(a, KeyedAction)}
     out = []
     for pattern, params in muscles.items():
         if not hasattr(params, "items"):
@@ -80,11 +82,10 @@ def _muscle_flags(muscles, flags: dict) -> list[str]:
                              f"{params!r}", field="muscles")
         for key, value in params.items():
             flag = "--" + str(key).replace("_", "-")
-            if flag not in flags or type(flags[flag]).__name__ != "KeyedAction":
-                keyed = sorted(f[2:].replace("-", "_") for f, a in flags.items()
-                               if type(a).__name__ == "KeyedAction" and f != "--jiggle")
-                raise InputError(f"[{pattern!r}]: unknown parameter {key!r}; a muscle takes "
-                                 f"{', '.join(keyed)}", field="muscles")
+            if flag not in keyed:
+                names = sorted(f[2:].replace("-", "_") for f in keyed if f != "--jiggle")
+                raise InputError(f"[{pattern!r}]: unknown parameter {key!r}; a muscle takes {', '.join(names)}",
+                                 field="muscles")
             out += [flag, f"{pattern}={_text(value)}"]
     return out
 
@@ -93,6 +94,13 @@ def _text(value) -> str:
     """A value as the command line writes it (floats exactly: repr round-trips)."""
     return repr(value) if isinstance(value, float) else os.fspath(value) if isinstance(value, os.PathLike) \
         else str(value)
+
+
+@functools.lru_cache(maxsize=1)
+def _parser():
+    """The `jiggle` command's parser (built once: parsing does not change it)."""
+    from jiggle.sim.app.cli import build_parser
+    return build_parser()
 
 
 def _subparser(parser, command: str):
@@ -105,9 +113,8 @@ def _subparser(parser, command: str):
 def _parse(argv: list[str]):
     """The command's arguments, its parser's errors raised as InputError (the message it would print)."""
     from jiggle.sim.app.args import raising_errors
-    from jiggle.sim.app.cli import build_parser
     with raising_errors():
-        return build_parser().parse_args(argv)
+        return _parser().parse_args(argv)
 
 
 @contextlib.contextmanager
