@@ -199,12 +199,8 @@ def bake(clip: str | os.PathLike | None = None, character: str | os.PathLike | N
                                                "template": template, "fps": fps, "strength": strength,
                                                "blend": blend, "muscles": muscles, "collisions": collisions,
                                                "device": device, "formats": formats, **options}))
-        request = bake_request(args)
-        if request.formats is not None and "npz" not in request.formats:
-            from dataclasses import replace
-            request = replace(request, formats=(*request.formats, "npz"))
         with _quiet_warp():
-            run_bake(request, args.out, resume=args.resume, progress="bar" if progress else "none")
+            run_bake(bake_request(args), args.out, resume=args.resume, progress="bar" if progress else "none")
     except BaseException:
         if out is None:
             shutil.rmtree(folder, ignore_errors=True)
@@ -266,7 +262,7 @@ class Bake:
             raise InputError("the bake has no bake.npz: bake again with --formats npz", str(folder))
         summary = json.loads((folder / "bake.json").read_text(encoding="utf-8"))
         with np.load(folder / "bake.npz", allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files if k in cls.ARRAYS or k == "fps"}
+            arrays = {k: z[k] for k in z.files if k in cls.ARRAYS}
         for a in arrays.values():
             a.flags.writeable = False
         return cls(folder, summary, arrays)

@@ -29,11 +29,14 @@ def run(args) -> int:
     with open(summary_path, encoding="utf-8") as fh:
         summary = json.load(fh)
     for form, path in asked:
-        (export_glb if form == "glb" else export_cache)(args, summary, form, path)
+        if form == "glb":
+            export_glb(args, summary, path)
+        else:
+            export_cache(args, form, path)
     return 0
 
 
-def export_cache(args, summary: dict, form: str, path: str) -> None:
+def export_cache(args, form: str, path: str) -> None:
     """--usd, --pc2: the bake's skins from its npz (the USD stage holds skin_static and skin_final, as the bake's
     own, without the muscles' meshes; the pc2 skin_final)."""
     from jiggle.sim.bake.caches import read_npz, write_pc2, write_usd
@@ -46,7 +49,7 @@ def export_cache(args, summary: dict, form: str, path: str) -> None:
           f" MB)")
 
 
-def export_glb(args, summary: dict, form: str, path: str) -> None:
+def export_glb(args, summary: dict, path: str) -> None:
     from jiggle.rig.base.errors import InputError
     from jiggle.sim.app.view.tuning import NotTunable, request_from_params
     from jiggle.sim.bake.glb import write_for_bake
