@@ -24,11 +24,14 @@ upper_leg (shoulder or hip joint), lower_leg (elbow or stifle), foot (carpus or 
 joint, when the chain's last joint sits within TOE_HEIGHT of the leg's height above the ground).
 Legs are read from the paw up, so extra joints at the girdle (a pelvis joint per leg) are ignored.
 
-Checks (:func:`check_roles`), on any role map, human or quadruped, preset, file or automatic:
-each ``left_X`` / ``right_X`` pair mirrors across the body's mid-plane (the plane through the hips
-whose normal is the horizontal left-right direction of the paired upper legs) within MIRROR of the
-limb's length, and each limb's roles follow one chain of the tree down from its girdle in order. A
-map that fails is refused with the roles found and the ones missing, never applied.
+Checks (:func:`check_roles`), on any role map, human or quadruped, preset, file or automatic: each
+limb's roles follow one chain of the tree down from its girdle in order. A map found by shape must also
+mirror: each ``left_X`` / ``right_X`` pair mirrors across the body's mid-plane (the plane through the
+hips whose normal is the horizontal left-right direction of the paired upper legs) within MIRROR of the
+limb's length. A map found by names (a preset, a file) need not: its names say left and right, and a
+bind pose with a foot forward or an arm raised is no reason to refuse them; it is only refused when its
+left leg clearly stands on the character's right (the toes say where the front is; see SWAPPED). A map
+that fails is refused with the roles found and the ones missing, never applied.
 """
 from __future__ import annotations
 
@@ -54,6 +57,10 @@ TOE_HEIGHT = 0.12
 """A leg's last joint within this share of the leg's height above the ground is a toe (paw) joint."""
 MIRROR = 0.25
 """A left role and its right twin mirrored across the mid-plane lie within this share of the limb's length."""
+SWAPPED = 0.5
+"""A name map's left and right are swapped when its left hip stands on the character's right by more than this
+share of the hips' horizontal spacing (cos 60 deg off the left), the front being where the toes point, and only
+when they point clearly (their summed horizontal reach at least this share of their length)."""
 
 SIDES = ("left", "right")
 ENDS = ("front", "hind")
@@ -128,11 +135,15 @@ def _pairs(roles: dict[str, int]) -> list[tuple[str, int, int]]:
             if r.startswith("left_") and "right_" + r[5:] in roles]
 
 
-def check_roles(clip: Clip, roles: dict[str, int], known: tuple[str, ...] | None = None) -> None:
+def check_roles(clip: Clip, roles: dict[str, int], known: tuple[str, ...] | None = None, *,
+                mirror: bool = True) -> None:
     """Refuse a role map the skeleton's geometry contradicts (see the module docstring).
 
     roles : {role: joint index} of `clip`'s skeleton. known : every role the map could hold (for the
     message's list of missing roles); default the human roles or QUADRUPED_ROLES, by the keys.
+    mirror : True for a map found by shape: left and right roles must mirror each other at rest. False for
+        a map found by names (a preset, a file): the bind pose may be asymmetric; only a left hip clearly on
+        the character's right (left and right swapped) is refused.
     Raises InputError naming the first failing pair or chain, the roles found and the ones missing.
     """
     if not roles:
@@ -144,7 +155,11 @@ def check_roles(clip: Clip, roles: dict[str, int], known: tuple[str, ...] | None
     pairs = _pairs(roles)
     paired = {k for k, _, _ in pairs}
     tops = [k for k in ("upper_leg", "hind_upper_leg", "front_upper_leg", "upper_arm") if k in paired]
-    if tops:
+    if not mirror:
+        swapped = _swapped(pos, roles, names)
+        if swapped:
+            problems.append(swapped)
+    elif tops:
         left = np.zeros(3)
         for k, a, b in pairs:
             if k in tops:
@@ -178,6 +193,28 @@ def check_roles(clip: Clip, roles: dict[str, int], known: tuple[str, ...] | None
                          f"{', '.join(f'{r}={names[j]}' for r, j in roles.items())}; missing: "
                          f"{', '.join(missing) or 'none'}. Give a joint map that fits (or the right --template)",
                          clip.source or None, field="roles")
+
+
+def _swapped(pos: np.ndarray, roles: dict[str, int], names: tuple[str, ...]) -> str:
+    """Why a name map's left and right are swapped against the rest pose, or "" when they are not (or the pose
+    cannot tell). The front is where the toes point (ankle to ball, both feet summed: a foot forward or an arm
+    raised leaves it alone); left = up x front; the left hip must not stand clearly on that right side."""
+    keys = ("upper_leg", "foot", "toe")
+    if not all(f"{s}_{k}" in roles for s in SIDES for k in keys):
+        return ""
+    reach = [pos[roles[f"{s}_toe"]] - pos[roles[f"{s}_foot"]] for s in SIDES]
+    toes = np.sum(reach, axis=0)
+    toes[2] = 0.0
+    if np.linalg.norm(toes) < SWAPPED * sum(np.linalg.norm(r) for r in reach):
+        return ""                                       # toes straight down or splayed apart: no front to go by
+    left = np.cross(UP, toes / np.linalg.norm(toes))
+    hips = pos[roles["left_upper_leg"]] - pos[roles["right_upper_leg"]]
+    hips[2] = 0.0
+    if hips @ left < -SWAPPED * np.linalg.norm(hips):
+        a, b = roles["left_upper_leg"], roles["right_upper_leg"]
+        return (f"left_upper_leg ({names[a]}) stands on the character's right of right_upper_leg ({names[b]}), "
+                f"the toes pointing to the front: left and right are swapped")
+    return ""
 
 
 def _limb_length(pos: np.ndarray, roles: dict[str, int]) -> float:

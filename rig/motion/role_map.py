@@ -86,12 +86,16 @@ def resolve_roles(clip: Clip, joint_map: str | os.PathLike | JointMap | None = N
         (rig.motion.body_plan): :func:`auto_roles` for a biped, the quadruped roles for a quadruped. A
         preset name, a TOML path or a JointMap: that map, resolved against the joint names (InputError
         naming the file and key when a joint is missing or the preset/file does not exist).
+
+    Names come first: a map resolved by names (a preset, a file) is checked for its chains' order and
+    for swapped sides only, not for mirror symmetry, so a bind pose with a foot forward or an arm raised
+    keeps its named roles; only a map found by shape must also mirror (check_roles' `mirror`).
     """
     if joint_map is None:
         for name in presets():
             try:
                 roles = JointMap.load(name).resolve(clip.joint_names)
-                check_roles(clip, roles)
+                check_roles(clip, roles, mirror=False)
                 return roles
             except InputError:
                 continue
@@ -104,7 +108,7 @@ def resolve_roles(clip: Clip, joint_map: str | os.PathLike | JointMap | None = N
     jm = joint_map if isinstance(joint_map, JointMap) else JointMap.load(joint_map)
     label = f"of {clip.source or clip.name}" if (clip.source or clip.name) else ""
     roles = jm.resolve(clip.joint_names, label)
-    check_roles(clip, roles)
+    check_roles(clip, roles, mirror=False)
     return roles
 
 

@@ -12,6 +12,7 @@ from conftest import CMU_BVH, asset
 from jiggle.rig.base.errors import InputError, JiggleWarning
 from jiggle.rig.character.load import body_character, load_character, load_skeleton
 from jiggle.rig.motion import quat
+from jiggle.rig.motion.body_plan import check_roles
 from jiggle.rig.motion.clip import Clip
 from jiggle.rig.motion.mocap import load_clip
 from jiggle.rig.motion.retarget import REQUIRED, ROLES, JointMap
@@ -276,3 +277,83 @@ def test_naming_schemes_are_found_by_themselves(preset):
     assert roles == {r: j for r, j in cmu.items() if r in scheme.roles}
     assert len(roles) >= len(REQUIRED)
 
+
+
+def _turn(axis, degrees: float) -> np.ndarray:
+    """(3, 3) rotation by `degrees` about the unit `axis`."""
+    return quat.to_matrix(quat.from_axis_angle(np.asarray(axis, float), np.radians(degrees)))
+
+
+def _mixamo(foot_forward=0.3, arm_raise=60.0, prefix="mixamorig:", swap=False) -> Clip:
+    """A Mixamo-named skeleton (fingers, head-top and toe-end markers as Mixamo exports them), facing -Y with its
+    left at +X; its bind pose has the left foot `foot_forward` metres forward (the leg swung about the hip) and
+    the right arm raised `arm_raise` degrees (about the front axis, at the shoulder joint). swap: the Left and
+    Right names exchanged (the left limbs named Right)."""
+    s = [("Hips", None, (0, 0, 1.0)), ("Spine", "Hips", (0, 0, 1.1)), ("Spine1", "Spine", (0, 0, 1.25)),
+         ("Spine2", "Spine1", (0, 0, 1.4)), ("Neck", "Spine2", (0, 0, 1.5)), ("Head", "Neck", (0, 0, 1.6)),
+         ("HeadTop_End", "Head", (0, 0, 1.78))]
+    for side, x in (("Left", 1), ("Right", -1)):
+        s += [(f"{side}Shoulder", "Spine2", (0.05 * x, 0, 1.45)), (f"{side}Arm", f"{side}Shoulder", (0.18 * x, 0, 1.45)),
+              (f"{side}ForeArm", f"{side}Arm", (0.46 * x, 0, 1.45)), (f"{side}Hand", f"{side}ForeArm", (0.71 * x, 0, 1.45)),
+              (f"{side}HandMiddle1", f"{side}Hand", (0.8 * x, 0, 1.45)),
+              (f"{side}HandMiddle2", f"{side}HandMiddle1", (0.85 * x, 0, 1.45)),
+              (f"{side}UpLeg", "Hips", (0.1 * x, 0, 0.95)), (f"{side}Leg", f"{side}UpLeg", (0.1 * x, -0.02, 0.5)),
+              (f"{side}Foot", f"{side}Leg", (0.1 * x, 0, 0.08)), (f"{side}ToeBase", f"{side}Foot", (0.1 * x, -0.12, 0.02)),
+              (f"{side}Toe_End", f"{side}ToeBase", (0.1 * x, -0.2, 0.02))]
+    pos = {n: np.array(w, float) for n, _, w in s}
+    hip = pos["LeftUpLeg"]
+    swing = _turn((1, 0, 0), -np.degrees(np.arcsin(foot_forward / np.linalg.norm(pos["LeftFoot"] - hip))))
+    for n in ("LeftLeg", "LeftFoot", "LeftToeBase", "LeftToe_End"):
+        pos[n] = hip + swing @ (pos[n] - hip)
+    shoulder = pos["RightArm"]
+    raise_ = _turn((0, 1, 0), arm_raise)                           # +Y axis turns -X (the right arm) up
+    for n in ("RightForeArm", "RightHand", "RightHandMiddle1", "RightHandMiddle2"):
+        pos[n] = shoulder + raise_ @ (pos[n] - shoulder)
+    other = {"Left": "Right", "Right": "Left"}
+    name = lambda n: prefix + (next((other[k] + n[len(k):] for k in other if n.startswith(k)), n) if swap else n)  # noqa: E731
+    return _tree([(name(n), name(p) if p else None, tuple(pos[n])) for n, p, _ in s])
+
+
+def _no_names(clip: Clip) -> Clip:
+    return dataclasses.replace(clip, joint_names=tuple(f"joint{i}" for i in range(clip.num_joints)))
+
+
+def test_names_come_first_on_an_asymmetric_bind_pose():
+    """Issue 43: a Mixamo export whose bind pose is not mirror-symmetric (left foot 0.3 m forward, right arm raised
+    60 deg) keeps the Mixamo preset's joints (its names say left and right; the chains are in order): it was
+    dropped by the mirror test, and the shape's map, shifted one joint along each arm, then refused. An explicit
+    map is not refused for the pose either. The same skeleton without names goes the shape's way, where the
+    mirror test stays."""
+    clip = _mixamo()
+    _, pos = clip.rest_world()
+    i = clip.joint_names.index
+    assert pos[i("mixamorig:LeftFoot"), 1] - pos[i("mixamorig:RightFoot"), 1] == pytest.approx(-0.3)
+    assert pos[i("mixamorig:RightHand"), 2] > pos[i("mixamorig:RightArm"), 2] + 0.4
+    expect = preset_names(clip, "mixamo")
+    assert expect["left_upper_arm"] == "mixamorig:LeftArm" and expect["left_shoulder"] == "mixamorig:LeftShoulder"
+    assert names(clip, resolve_roles(clip)) == expect
+    assert names(clip, resolve_roles(clip, "mixamo")) == expect
+    # without names: the shape's way. The raised hand is the highest point, so no head can be found...
+    bare = _no_names(clip)
+    with pytest.raises(InputError, match="from the skeleton's shape"):
+        resolve_roles(bare)
+    # ...and with the arm down the shape finds the limbs, but the foot forward does not mirror: refused
+    foot = _no_names(_mixamo(arm_raise=0.0))
+    assert names(foot, auto_roles(foot))["left_foot"] == "joint" + str(i("mixamorig:LeftFoot"))
+    with pytest.raises(InputError, match="left_foot .* and right_foot .* do not mirror"):
+        resolve_roles(foot)
+    # a symmetric bind pose without names: the shape's map, the preset's joints
+    still = _no_names(_mixamo(foot_forward=0.0, arm_raise=0.0))
+    assert resolve_roles(still) == auto_roles(still) == JointMap.load("mixamo").resolve(clip.joint_names)
+
+
+def test_names_with_left_and_right_swapped_are_refused():
+    """A name map whose left leg stands clearly on the character's right (the toes say where the front is) is
+    refused, so the preset is passed over and the shape gives the sides; a map that is only asymmetric is not."""
+    clip = _mixamo(foot_forward=0.0, arm_raise=0.0, swap=True)
+    roles = JointMap.load("mixamo").resolve(clip.joint_names)
+    with pytest.raises(InputError, match="left and right are swapped"):
+        check_roles(clip, roles, mirror=False)
+    got = names(clip, resolve_roles(clip))
+    assert got["left_upper_leg"] == "mixamorig:RightUpLeg" and got["left_upper_arm"] == "mixamorig:RightArm"
+    check_roles(_mixamo(), JointMap.load("mixamo").resolve(_mixamo().joint_names), mirror=False)
