@@ -10,7 +10,9 @@ friction, and for every muscle the capsules it collides with, as a CSR list:
 - not a capsule one of its particles already lies in (or within REST_CLEARANCE of) at bind: a
   constraint violated at rest would push the rest shape about.
 
-Every muscle collides with the floor (a half-space z >= floor).
+Every muscle collides with the floor (a half-space z >= floor). A particle is held out of a capsule (or
+above the floor) only as far as its goal is at that moment: the goal's penetration is the pair's
+allowance, and the contact acts on the jiggle beyond it (sim/jiggle/contact_kernels.py says why).
 
 :class:`Colliders` is a ColliderModel with the capsules' ends as a goal track on a run's knots (the
 same knots as the particles' goals, so a capsule's position inside a step is the same Hermite
@@ -602,18 +604,25 @@ def keep_out_numpy(ends: np.ndarray, radius: np.ndarray, static: np.ndarray, fin
 
 
 # ------------------------------------------------------------------------------ NumPy references
-def capsule_push_numpy(x, v, a, b, va, vb, r, friction):
-    """The kernels' capsule_push in float64 for one particle: (x, v, depth)."""
+def axis_distance_numpy(x, a, b):
+    """(t, q, distance) of x (3,) from the segment a-b: its closest point's parameter t in [0, 1] and the point."""
     ab = b - a
     L2 = ab @ ab
     t = float(np.clip((x - a) @ ab / L2, 0.0, 1.0)) if L2 > 0 else 0.0
     q = a + t * ab
-    d = x - q
-    dist = float(np.linalg.norm(d))
-    if dist >= r:
+    return t, q, float(np.linalg.norm(x - q))
+
+
+def capsule_push_numpy(x, v, a, b, va, vb, r, friction, g=None):
+    """The kernels' capsule_push in float64 for one particle: (x, v, depth). g : the particle's goal (3,)
+    metres; the surface it is held outside of has radius min(r, |g - axis|) (None: r, no allowance)."""
+    t, q, dist = axis_distance_numpy(x, a, b)
+    rs = r if g is None else min(r, axis_distance_numpy(g, a, b)[2])
+    if dist >= rs:
         return x, v, 0.0
+    d = x - q
     n = d / dist if dist > 1e-9 else np.array([0.0, 0.0, 1.0])
-    return q + n * r, surface_velocity_numpy(v, va + t * (vb - va), n, friction), r - dist
+    return q + n * rs, surface_velocity_numpy(v, va + t * (vb - va), n, friction), rs - dist
 
 
 def surface_velocity_numpy(v, w, n, friction):
@@ -628,22 +637,27 @@ def surface_velocity_numpy(v, w, n, friction):
 
 
 def contact_numpy(model: ColliderModel, muscle_offsets: np.ndarray, glued: np.ndarray, x: np.ndarray,
-                  v: np.ndarray, ends: np.ndarray, ends_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  v: np.ndarray, ends: np.ndarray, ends_vel: np.ndarray,
+                  goal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The contact pass in float64, every listed pair checked (no broad phase): x, v (N, 3) at a step's
-    end and the capsules' ends (C, 2, 3) and their velocities -> (x, v, depth (N,))."""
+    end, the capsules' ends (C, 2, 3) and their velocities, and the particles' goals (N, 3) then (the rest
+    state that sets each pair's allowance, sim/jiggle/contact_kernels.py; None: no allowance) -> (x, v,
+    depth (N,), beyond the allowance)."""
     x, v = np.array(x, dtype=np.float64), np.array(v, dtype=np.float64)
     depth = np.zeros(len(x))
     for m in range(len(muscle_offsets) - 1):
         for i in range(muscle_offsets[m], muscle_offsets[m + 1]):
             if glued[i]:
                 continue
+            g = None if goal is None else np.asarray(goal[i], dtype=np.float64)
             for c in model.pairs(m):
                 x[i], v[i], d = capsule_push_numpy(x[i], v[i], ends[c, 0], ends[c, 1], ends_vel[c, 0], ends_vel[c, 1],
-                                                   model.capsules.radius[c], model.friction)
+                                                   model.capsules.radius[c], model.friction, g)
                 depth[i] = max(depth[i], d)
-            if model.floor is not None and x[i, 2] < model.floor:
-                depth[i] = max(depth[i], model.floor - x[i, 2])
-                x[i, 2] = model.floor
+            floor = model.floor if model.floor is None or g is None else min(model.floor, g[2])
+            if floor is not None and x[i, 2] < floor:
+                depth[i] = max(depth[i], floor - x[i, 2])
+                x[i, 2] = floor
                 v[i] = surface_velocity_numpy(v[i], np.zeros(3), np.array([0.0, 0.0, 1.0]), model.friction)
     return x, v, depth
 
@@ -680,7 +694,7 @@ def integrate_contact_numpy(model, colliders: ColliderModel, flow, track, cap_tr
         ends, ends_v, _, _ = goal(cap_track, j, s0 + h)
         C = colliders.num_capsules
         xs, vs, d = contact_numpy(colliders, model.group_offsets, model.glued, g1 + y, gv1 + u,
-                                  ends[:2 * C].reshape(C, 2, 3), ends_v[:2 * C].reshape(C, 2, 3))
+                                  ends[:2 * C].reshape(C, 2, 3), ends_v[:2 * C].reshape(C, 2, 3), goal=g1)
         y, u = xs - g1, vs - gv1
         deepest = np.maximum(deepest, d)
         h_kick = 0.5 * h + (0.5 * dts[k + 1] if k + 1 < len(dts) else 0.0)

@@ -4,16 +4,35 @@ inside capsules (sim/jiggle/colliders.py launches them; the NumPy references are
 sim/jiggle/colliders.py: contact_numpy, integrate_contact_numpy and skin_inside_numpy).
 
 Contact is a projection with friction, done after each step's goal flow (the tissue law), on
-the step's end positions: a particle found inside a capsule (or below the floor) is put back on its
-surface along the normal, its velocity relative to the surface loses its inward normal part (an
-inelastic stop: a surface, unlike the tissue's reach, is a wall) and its tangential part is slowed by Coulomb friction
-(|dv_t| <= mu |dv_n|). Why a projection rather than a stiff penalty spring: the goal flow is exact
-for any step, and the only explicit parts are the neighbour springs, kept stable by the solver's
-step limit; a penalty stiff enough to hold a fat pad against a landing (tens of g) would need a step
+the step's end positions: a particle found inside a capsule (or below the floor), deeper than its goal
+lies (see below), is put back on that surface along the normal, its velocity relative to the surface loses
+its inward normal part (an inelastic stop: a surface, unlike the tissue's reach, is a wall) and its
+tangential part is slowed by Coulomb friction (|dv_t| <= mu |dv_n|). Why a projection rather than a
+stiff penalty spring: the goal flow is exact for any step, and the only explicit parts are the neighbour
+springs, kept stable by the solver's step limit; a penalty stiff enough to hold a fat pad against a landing (tens of g) would need a step
 limit of its own, ~10x smaller, and would let the pad sink in by (m a / k) whatever the step; a
 projection never lets a particle end a step inside, costs nothing when nothing touches, and is the
 right thing for a bone or the floor, which do not give. The floor is a half-space, so nothing
 tunnels through it at any speed or step.
+
+The rest state defines the contact. A particle is held outside its capsule only as far as its goal (the
+static shape: the animation's tissue at rest, the bind pose at bind) is: per (particle, capsule) pair at the
+step's end the surface has radius min(r, |goal - axis|), and the floor is at min(floor, goal z). The
+penetration of the goal is the pair's allowance; the contact acts on the jiggle's penetration beyond it,
+never on the animation's. Why: a capsule is a rough stand-in for a bone, fitted once at bind; thin limbs
+with tight capsules, a leg swung against the chest, a gallop's hind leg under the flank put the goals of
+tissue inside another part's capsule, and a surface at the full radius then pushed the particle out by
+that depth, away from its goal, every step: the projection did work against the goal spring and the
+tissue law (the shared horse's gallop pushed a flank 69 mm out of a hind leg's capsule), and the spring
+gave it back as a fling when the capsule moved on. With the allowance, a particle resting on its goal is
+never pushed, a push moves it toward its goal's depth (less spring energy, not more), and the response to
+the velocity keeps its rule: the relative normal velocity into the surface is dropped and friction only
+shortens the tangential part, so no contact leaves a particle faster relative to the collider than it
+came. The allowance is a function of the frozen goal and capsule tracks at the step's end only (no
+history), so a resumed chunk and another frame rate see the same surfaces; it equals the bind-pose depth
+at bind (pairs touching at bind are left out altogether, sim/jiggle/colliders.py) and the first frame's
+when a bake starts settled on it. The skin's side (skin_keep_out_clusters) has the same rule: skin the
+animation puts inside stays, the jiggle is pulled back.
 
 The capsules move with their joints: their two ends are a second goal track on the same knots as the
 particles' goals (cubic Hermite between knots, sim/jiggle/goal_track.py), so a capsule's position at
@@ -60,30 +79,42 @@ NO_HIT = -1.0
 
 
 @wp.func
-def capsule_push(x: wp.vec3, v: wp.vec3, a: wp.vec3, b: wp.vec3, va: wp.vec3, vb: wp.vec3, r: float,
-                 friction: float):
-    """(x, v, depth): x outside the capsule of axis a-b and radius r (moved onto its surface along the
-    normal when inside), v with its inward normal velocity relative to the surface (the axis point's
-    velocity va + t (vb - va)) dropped and its tangential part slowed by friction; depth > 0 how far
-    inside x was, else 0."""
+def axis_point(x: wp.vec3, a: wp.vec3, b: wp.vec3):
+    """(t, q): the parameter t in [0, 1] and the point q = a + t (b - a) of the segment a-b closest to x."""
     ab = b - a
     L2 = wp.dot(ab, ab)
     t = float(0.0)
     if L2 > 0.0:
         t = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
-    q = a + t * ab
+    return t, a + t * ab
+
+
+@wp.func
+def capsule_push(x: wp.vec3, v: wp.vec3, g: wp.vec3, a: wp.vec3, b: wp.vec3, va: wp.vec3, vb: wp.vec3, r: float,
+                 friction: float):
+    """(x, v, depth) against the capsule of axis a-b and radius r for a particle whose goal is g: the surface
+    it is held outside of has radius min(r, |g - axis|) (the allowance: as deep as the goal lies, the
+    animation's tissue at rest, and no deeper; the module says why); x inside it is moved onto it along the
+    normal, v loses its inward normal velocity relative to the capsule (the axis point's velocity
+    va + t (vb - va)) and its tangential part is slowed by friction; depth > 0 how far inside that surface
+    x was, else 0."""
+    t, q = axis_point(x, a, b)
     d = x - q
     d2 = wp.dot(d, d)
-    if d2 >= r * r:                          # outside (most calls): no square root
+    if d2 >= r * r:                          # outside the capsule (most calls): no square root
         return x, v, 0.0
+    _tg, qg = axis_point(g, a, b)
+    rs = wp.min(r, wp.length(g - qg))        # the surface the rest state (the goal) defines
     dist = wp.sqrt(d2)
+    if dist >= rs:
+        return x, v, 0.0
     n = wp.vec3(0.0, 0.0, 1.0)
     if dist > 1.0e-9:
         n = d / dist
-    x_new = q + n * r
+    x_new = q + n * rs
     w = va + t * (vb - va)
     v_new = surface_velocity(v, w, n, friction)
-    return x_new, v_new, r - dist
+    return x_new, v_new, rs - dist
 
 
 @wp.func
@@ -115,23 +146,20 @@ def end_pos(cap_pos: wp.array2d(dtype=wp.vec3), cap_vs: wp.array2d(dtype=wp.vec3
 
 
 @wp.func
-def capsule_contact(x: wp.vec3, v: wp.vec3, a: wp.vec3, b: wp.vec3, cap_pos: wp.array2d(dtype=wp.vec3),
+def capsule_contact(x: wp.vec3, v: wp.vec3, g: wp.vec3, a: wp.vec3, b: wp.vec3, cap_pos: wp.array2d(dtype=wp.vec3),
                     cap_vs: wp.array2d(dtype=wp.vec3), cap_ve: wp.array2d(dtype=wp.vec3), seg: int, c: int, H: float,
                     s: float, r: float, friction: float):
-    """capsule_push against capsule c (ends a, b at s), its ends' velocities evaluated only when x is inside."""
-    ab = b - a
-    L2 = wp.dot(ab, ab)
-    t = float(0.0)
-    if L2 > 0.0:
-        t = wp.clamp(wp.dot(x - a, ab) / L2, 0.0, 1.0)
-    d = x - (a + t * ab)
+    """capsule_push against capsule c (ends a, b at s) of a particle with goal g, its ends' velocities evaluated
+    only when x is inside the capsule."""
+    _t, q = axis_point(x, a, b)
+    d = x - q
     if wp.dot(d, d) >= r * r:
         return x, v, 0.0
     pa, pb, va, vb = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c)
     wa = goal_vel(pa, pb, va, vb, H, s)
     pa, pb, va, vb = segment(cap_pos, cap_vs, cap_ve, seg, 2 * c + 1)
     wb = goal_vel(pa, pb, va, vb, H, s)
-    return capsule_push(x, v, a, b, wa, wb, r, friction)
+    return capsule_push(x, v, g, a, b, wa, wb, r, friction)
 
 
 @wp.func
@@ -209,14 +237,15 @@ def contact_particle(
                 # outside the capsule's box (most particles): no push
                 if x[0] >= clo[0] and x[1] >= clo[1] and x[2] >= clo[2] and \
                         x[0] <= chi[0] and x[1] <= chi[1] and x[2] <= chi[2]:
-                    x, v, depth = capsule_contact(x, v, ends_a[e], ends_b[e], cap_pos, cap_vs, cap_ve,
+                    x, v, depth = capsule_contact(x, v, g1, ends_a[e], ends_b[e], cap_pos, cap_vs, cap_ve,
                                                   seg, c, H, s1, cap_radius[c], friction)
                     if depth > deepest:
                         deepest = depth
                         hit = float(c)
-            elif x[2] < floor:
-                depth = floor - x[2]
-                x = wp.vec3(x[0], x[1], floor)
+            elif x[2] < wp.min(floor, g1[2]):     # the floor, as deep as the goal lies and no deeper
+                fs = wp.min(floor, g1[2])
+                depth = fs - x[2]
+                x = wp.vec3(x[0], x[1], fs)
                 v = surface_velocity(v, wp.vec3(0.0), wp.vec3(0.0, 0.0, 1.0), friction)
                 if depth > deepest:
                     deepest = depth
