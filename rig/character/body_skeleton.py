@@ -16,6 +16,11 @@ Nothing else changes: weightless bones inside the body (end joints, twist helper
 carries skin, or has one weighted child, is read as it is (the same clip object). Only the reading of the body
 plan and roles uses this tree (rig.muscle.fit); the animation still moves the skeleton the file has.
 
+The body's clip carries the skin weight each of its joints carries (``meta["joint_weight"]``, (J,) in its own
+joint order): a quadruped's head end is the end whose off-leg part carries more skin (rig.motion.body_plan), so
+a lowered head, a raised tail, horns or pole bones do not turn it around. A quadruped read as it is therefore
+comes back as a copy of the file's skeleton with that entry; a biped's skeleton read as it is comes back itself.
+
 When the joints alone still give no body plan (rig.motion.body_plan: "other"), the skin gives the bones their
 tips: each chain's last joint without an end site gets one at the farthest skin vertex it moves most. A paw
 whose last joint is the wrist then reaches the ground where its skin does (the glTF Fox's front legs end at
@@ -26,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from jiggle.rig.base.frozen import frozen_array
 from jiggle.rig.motion import quat
 from jiggle.rig.motion.clip import Clip
 
@@ -47,8 +53,9 @@ def joint_weight(character) -> np.ndarray:
 def body_skeleton(character) -> tuple[Clip, np.ndarray]:
     """(clip, order): the skeleton the body plan and roles are read from (see the module) and, for each of its
     joints, the index of that joint in character.skeleton (roles found on `clip` map back through `order`).
-    When no helper is set aside and the joints give a body plan, `clip` is character.skeleton itself and
-    `order` the identity."""
+    clip.meta["joint_weight"] : (J,) the skin weight each of its joints carries (joint_weight, in clip's order).
+    When no helper is set aside and the joints give a biped, `clip` is character.skeleton itself and `order`
+    the identity; a quadruped read as it is is a copy that only adds the weights."""
     clip = character.skeleton
     J = clip.num_joints
     parents = np.asarray(clip.parents).copy()
@@ -89,20 +96,25 @@ def body_skeleton(character) -> tuple[Clip, np.ndarray]:
         for c in placed:                                # a placed part: under the body joint nearest to it
             parents[c] = int(cand[np.argmin(np.linalg.norm(pos[cand] - pos[c], axis=1))])
             changed = True
-        if placed:
-            break
-        r = main
-    body = _reparented(clip, parents) if changed else clip
+        r = main                                        # on down the weightless top (the Horse: a root, then Body)
     order = _order(parents) if changed else np.arange(J)
+    weight = frozen_array(own[order])
+    body = _reparented(clip, parents, weight) if changed else clip
     from jiggle.rig.motion.body_plan import detect_body_plan
-    if detect_body_plan(body).kind == "other":
-        tipped = _skin_tips(body, order, character)
+    kind = detect_body_plan(body, weights=weight).kind
+    if kind == "other":
+        tipped = _skin_tips(body, order, character, weight)
         if tipped is not None and detect_body_plan(tipped).kind != "other":
             return tipped, order
+    if kind == "quadruped" and body is clip:
+        # the head end is read from the skin: the weights travel with the clip (fit reads the plan and roles
+        # from it through detect_body_plan and resolve_roles)
+        import dataclasses
+        body = dataclasses.replace(clip, meta={**clip.meta, "joint_weight": weight})
     return body, order
 
 
-def _skin_tips(clip: Clip, order: np.ndarray, character) -> Clip | None:
+def _skin_tips(clip: Clip, order: np.ndarray, character, weight: np.ndarray) -> Clip | None:
     """`clip` with an end site at the farthest skin vertex of each childless joint that has none (the vertices
     each joint moves most, the character's first influence); None when no joint gets one."""
     J = clip.num_joints
@@ -128,7 +140,7 @@ def _skin_tips(clip: Clip, order: np.ndarray, character) -> Clip | None:
     import dataclasses
     return dataclasses.replace(clip, end_parents=np.concatenate([clip.end_parents, ends]).astype(np.int32),
                                end_offsets=np.concatenate([np.reshape(clip.end_offsets, (-1, 3)), offsets]),
-                               meta={**clip.meta, "body_skeleton": "bone tips from the skin"})
+                               meta={**clip.meta, "body_skeleton": "bone tips from the skin", "joint_weight": weight})
 
 
 def placed_parts(character) -> dict[int, int]:
@@ -195,9 +207,10 @@ def _order(parents: np.ndarray) -> np.ndarray:
     return np.array(out, np.int64)
 
 
-def _reparented(clip: Clip, parents: np.ndarray) -> Clip:
+def _reparented(clip: Clip, parents: np.ndarray, weight: np.ndarray) -> Clip:
     """`clip`'s rest pose (one frame) on the tree `parents`, the joints reordered so parents come first; every
-    joint keeps its rest world rotation and position, every end site its place."""
+    joint keeps its rest world rotation and position, every end site its place. weight : (J,) each joint's skin
+    weight in the new order (meta["joint_weight"])."""
     order = _order(parents)
     new = np.empty(len(order), np.int64)
     new[order] = np.arange(len(order))
@@ -214,4 +227,5 @@ def _reparented(clip: Clip, parents: np.ndarray) -> Clip:
     return Clip(joint_names=[clip.joint_names[j] for j in order], parents=par, offsets=offsets,
                 rest_rotations=local_rot, rotations=local_rot[None], translations=offsets[None], fps=clip.fps,
                 end_parents=new[np.asarray(clip.end_parents, np.int64)], end_offsets=clip.end_offsets,
-                name=clip.name, source=clip.source, meta={**clip.meta, "body_skeleton": "helpers set aside"})
+                name=clip.name, source=clip.source,
+                meta={**clip.meta, "body_skeleton": "helpers set aside", "joint_weight": weight})

@@ -11,9 +11,19 @@ Detection (:func:`detect_body_plan`), from the joint tree and the rest pose only
    steeper than UPRIGHT degrees: a biped. Four ground limbs that pair into two girdles (the pairing
    whose meeting joints lie nearest their paws, the girdles being distinct joints) joined by a spine
    flatter than UPRIGHT: a quadruped. Anything else: other (no template fits it; give one).
-3. Quadruped: the head is the highest point off the legs; the girdle nearer the head is the chest
-   (front legs), the other the hips (hind legs); a tail is a chain that reaches back past the hips
-   by at least TAIL_REACH of the spine's length.
+3. Quadruped: which end is the front. When the skin weight each joint carries is known (``weights``,
+   or ``clip.meta["joint_weight"]``, which rig.character.body_skeleton sets), the head end is the girdle
+   whose off-leg part beyond it (the joints hanging there, not on a leg nor on the spine between the
+   girdles) carries more skin: a head and neck carry most of it, a tail is a thin chain, horns and IK or
+   pole bones carry little or none, so neither a lowered head, a raised tail nor horns turn it around. The
+   head is then read along that end's main line (from the chest, the child carrying the most skin each
+   step): the first joint that carries more skin than its heaviest child's whole subtree (ears, a jaw,
+   horns, a head-top marker hang below it), or the line's last joint. Without weights (a mocap clip), the
+   head is the highest point off the legs, the girdle nearer it the chest. The girdle at the head end is
+   the chest (front legs), the other the hips (hind legs). A tail is a chain that reaches back past the
+   hips by at least TAIL_REACH of the spine's length and starts at the hips (its first joint within
+   TAIL_START of the spine's length of them, so an IK or pole target hung off the root is none); with
+   weights, it carries skin.
 
 Quadruped roles (:data:`QUADRUPED_ROLES`; a role names the joint at the start of its bone, as the
 human ones do): hips (hind girdle), spine (first joint after the hips towards the chest), chest
@@ -55,6 +65,8 @@ TAIL_REACH = 0.15
 """A tail reaches back past the hips by at least this share of the hips-to-chest distance."""
 TOE_HEIGHT = 0.12
 """A leg's last joint within this share of the leg's height above the ground is a toe (paw) joint."""
+TAIL_START = 0.5
+"""A tail's first joint lies within this share of the hips-to-chest distance of the hips."""
 MIRROR = 0.25
 """A left role and its right twin mirrored across the mid-plane lie within this share of the limb's length."""
 SWAPPED = 0.5
@@ -102,15 +114,19 @@ class BodyPlan:
                 "tail": self.tail, "reason": self.reason}
 
 
-def detect_body_plan(clip: Clip) -> BodyPlan:
-    """The body plan of `clip`'s skeleton (its rest pose; see the module docstring)."""
-    return _Plan(clip).plan
+def detect_body_plan(clip: Clip, *, weights: np.ndarray | None = None) -> BodyPlan:
+    """The body plan of `clip`'s skeleton (its rest pose; see the module docstring).
+
+    weights : (J,) the skin weight each joint carries (summed over the vertices; any unit), which tells a
+        quadruped's head end from its tail's; default clip.meta["joint_weight"], else none (geometry only).
+    """
+    return _Plan(clip, weights).plan
 
 
-def quadruped_roles(clip: Clip) -> dict[str, int]:
+def quadruped_roles(clip: Clip, *, weights: np.ndarray | None = None) -> dict[str, int]:
     """{role: joint index} (QUADRUPED_ROLES) of a four-legged skeleton; InputError naming what could not
-    be found when the skeleton is not a quadruped."""
-    p = _Plan(clip)
+    be found when the skeleton is not a quadruped. weights : as detect_body_plan's."""
+    p = _Plan(clip, weights)
     if p.plan.kind != "quadruped":
         raise InputError(f"not a four-legged skeleton: {p.plan.reason}", clip.source or None, field="roles")
     return p.quadruped_roles()
@@ -239,8 +255,12 @@ def _chains(roles: dict[str, int]) -> list[tuple[str, ...]]:
 class _Plan(SkeletonTree):
     """Detection on one skeleton (see the module docstring)."""
 
-    def __init__(self, clip: Clip):
+    def __init__(self, clip: Clip, weights: np.ndarray | None = None):
         super().__init__(clip)
+        w = clip.meta.get("joint_weight") if weights is None else weights
+        # (J,) skin weight per joint, or None: a list of another length belongs to another skeleton
+        self.weight = np.asarray(w, float) if w is not None and len(w) == clip.num_joints else None
+        self.head_joint = -1
         pts = self.pts
         self.floor = float(pts[:, 2].min())
         self.height = float(np.ptp(pts[:, 2]))
@@ -296,37 +316,90 @@ class _Plan(SkeletonTree):
             if ang >= UPRIGHT:
                 return BodyPlan("other", 4, ang, False, f"four limbs to the ground but a spine {ang:.0f} deg above "
                                 f"the horizontal (a quadruped's is flatter than {UPRIGHT:g} deg)")
-            head = self._head_top(own)
-            if head < 0:
-                return BodyPlan("other", 4, ang, False, "four limbs to the ground and no head off them")
-            hp = self.pts[head]
-            near = lambda g: np.linalg.norm((hp - self.pos[g])[:2])  # noqa: E731
-            (chest, front), (hips, hind) = sorted([(g1, p1), (g2, p2)], key=lambda x: near(x[0]))
+            ends = self._head_end(own, g1, g2)
+            if ends is not None:
+                # the skin says which end is the head's
+                first, self.head_joint = ends
+                (chest, front), (hips, hind) = ((g1, p1), (g2, p2)) if first else ((g2, p2), (g1, p1))
+                how = ", the head end carrying more skin"
+            else:
+                head = self._head_top(own)
+                if head < 0:
+                    return BodyPlan("other", 4, ang, False, "four limbs to the ground and no head off them")
+                hp = self.pts[head]
+                near = lambda g: np.linalg.norm((hp - self.pos[g])[:2])  # noqa: E731
+                (chest, front), (hips, hind) = sorted([(g1, p1), (g2, p2)], key=lambda x: near(x[0]))
+                self.head_pt = head
+                how = ", the head end the higher"
             self.girdles = {"chest": chest, "hips": hips}
             self.legs = {"front": [self.limbs[i] for i in front], "hind": [self.limbs[i] for i in hind]}
-            self.head_pt = head
-            self.tail_pt = self._tail(own + [int(self.owner[head])])
+            self.tail_pt = self._tail(own)
             return BodyPlan("quadruped", 4, ang, self.tail_pt >= 0,
                             f"four legs to the ground and a horizontal spine ({ang:.0f} deg)"
-                            + (", a tail" if self.tail_pt >= 0 else ""))
+                            + (", a tail" if self.tail_pt >= 0 else "") + how)
         return BodyPlan("other", n, float("nan"), False, f"{n} limb{'s' if n != 1 else ''} reach the ground at rest "
                         f"(a biped has two, a quadruped four)")
 
-    def _off_limbs(self, feet: list[int]) -> np.ndarray:
-        """(P,) bool: points on no ground limb. A limb starts below the deepest joint where its foot's
-        chain meets another foot's (its girdle)."""
+    def _limb_firsts(self, feet: list[int]) -> set[int]:
+        """The first joint of each ground limb: below the deepest joint where its foot's chain meets another
+        foot's (its girdle)."""
         firsts = set()
         for a in feet:
             g = max((self.lca(a, b) for b in feet if b != a), key=lambda j: self.depth[j])
             firsts.add(self.path(g, a)[0] if g != a else a)
+        return firsts
+
+    def _off_limbs(self, feet: list[int]) -> np.ndarray:
+        """(P,) bool: points on no ground limb."""
+        firsts = self._limb_firsts(feet)
         return ~np.array([any(self.under(int(o), f) for f in firsts) for o in self.owner])
+
+    def _head_end(self, feet: list[int], g1: int, g2: int) -> tuple[bool, int] | None:
+        """(g1 is the head's girdle, head joint) from the skin weights (see the module docstring), or None when
+        no weights are known or the ends carry none."""
+        if self.weight is None:
+            return None
+        firsts = self._limb_firsts(feet)
+        top = self.lca(g1, g2)
+        spine = {top, *self.path(top, g1), *self.path(top, g2)}
+        off = np.array([self.in_tree[j] and not any(self.under(j, f) for f in firsts)
+                        for j in range(len(self.parents))])
+        # each off-leg joint's end: the girdle it hangs from, walking up to the spine (a joint hanging
+        # between the girdles, or above the spine's top, belongs to neither end)
+        mass = {g1: 0.0, g2: 0.0}
+        for j in np.flatnonzero(off):
+            a = int(j)
+            while a >= 0 and a not in spine:
+                a = int(self.parents[a])
+            if a in mass and int(j) != a:
+                mass[a] += self.weight[j]
+        if mass[g1] + mass[g2] <= 0 or mass[g1] == mass[g2]:
+            return None
+        chest = g1 if mass[g1] > mass[g2] else g2
+        # the skin each off-leg joint's subtree carries (deepest joints first)
+        sub = np.where(off, self.weight, 0.0)
+        for j in np.argsort(-self.depth, kind="stable"):
+            if self.parents[j] >= 0 and off[j]:
+                sub[self.parents[j]] += sub[j]
+        line = lambda j: [int(k) for k in self.kids[j] if off[k] and k not in spine]  # noqa: E731
+        kids = line(chest)
+        if not kids:
+            return None
+        head = max(kids, key=lambda k: sub[k])
+        while line(head):
+            nxt = max(line(head), key=lambda k: sub[k])
+            if self.weight[head] > sub[nxt]:
+                break                                   # ears, a jaw, horns or an end marker below the head
+            head = nxt
+        return chest == g1, head
 
     def _head_top(self, feet: list[int]) -> int:
         off = self._off_limbs(feet)
         return int(np.flatnonzero(off)[np.argmax(self.pts[off, 2])]) if off.any() else -1
 
-    def _tail(self, taken: list[int]) -> int:
-        """Point index of the tail's farthest point, or -1 when no chain reaches back past the hips."""
+    def _tail(self, feet: list[int]) -> int:
+        """Point index of the tail's farthest point, or -1 when no chain that starts at the hips (and, with
+        weights, carries skin) reaches back past them."""
         hips, chest = self.girdles["hips"], self.girdles["chest"]
         axis = self.pos[hips] - self.pos[chest]
         length = np.linalg.norm(axis[:2])
@@ -334,20 +407,32 @@ class _Plan(SkeletonTree):
             return -1
         axis = np.array([axis[0], axis[1], 0.0]) / length
         back = (self.pts - self.pos[hips]) @ axis  # metres behind the hips; the spine and head are ahead
-        cand = self._off_limbs(taken[:4]) & (back > TAIL_REACH * length)
-        return int(np.flatnonzero(cand)[np.argmax(back[cand])]) if cand.any() else -1
+        cand = self._off_limbs(feet) & (back > TAIL_REACH * length)
+        for i in np.flatnonzero(cand)[np.argsort(-back[cand], kind="stable")]:
+            chain = self.path(self.lca(hips, int(self.owner[i])), int(self.owner[i]))
+            if not chain:
+                continue
+            if np.linalg.norm(self.pos[chain[0]] - self.pos[hips]) > TAIL_START * length:
+                continue                                # starts away from the hips: an IK or pole target
+            if self.weight is not None and self.weight[chain].sum() <= 0:
+                continue                                # no skin: a helper bone
+            return int(i)
+        return -1
 
     # -------------------------------------------------------------------------------- roles
     def quadruped_roles(self) -> dict[str, int]:
         hips, chest = self.girdles["hips"], self.girdles["chest"]
-        head_joint = int(self.owner[self.head_pt])
         roles: dict[str, int] = {"hips": hips, "chest": chest}
         if self.under(chest, hips):
             spine = self.groups(self.path(hips, chest))
             if len(spine) >= 2:
                 roles["spine"] = spine[0][0]
-        far = self.farthest_below(head_joint)
-        last = int(self.owner[far]) if far >= 0 else head_joint  # the chain goes on to the muzzle's tip
+        if self.head_joint >= 0:
+            last = self.head_joint                      # found by the skin: the head joint itself
+        else:
+            head_joint = int(self.owner[self.head_pt])
+            far = self.farthest_below(head_joint)
+            last = int(self.owner[far]) if far >= 0 else head_joint  # the chain goes on to the muzzle's tip
         neck = self.groups(self.path(chest, last)) if self.under(last, chest) else []
         if not neck:
             raise InputError("cannot find the head below the chest (the front girdle) in the joint tree",

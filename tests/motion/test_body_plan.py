@@ -2,6 +2,7 @@
 skeleton's shape contradicts (rig/motion/body_plan.py)."""
 from __future__ import annotations
 
+import dataclasses
 import glob
 import os
 import warnings
@@ -165,3 +166,77 @@ def test_humans_are_bipeds_and_their_maps_pass(path):
     assert plan.kind == "biped" and plan.spine_deg > 75, plan
     assert template_for(clip, None)[0] == "human"
     check_roles(clip, resolve_roles(clip))  # presets and automatic maps alike
+
+
+# The dog grazing (head lowered below the back), its tail raised above the back, horns on its head and two pole
+# targets (IK helpers, no skin) hung off the pelvis behind the tail: joint, parent, world position at rest.
+GRAZING = {"neck": (0.0, -0.38, 0.45), "head": (0.0, -0.45, 0.3),
+           "tail1": (0.0, 0.3, 0.6), "tail2": (0.0, 0.38, 0.75), "tail3": (0.0, 0.45, 0.9)}
+COW = [(n, p, GRAZING.get(n, w)) for n, p, w in DOG] + [
+    ("l_horn", "head", (0.06, -0.42, 0.4)), ("r_horn", "head", (-0.06, -0.42, 0.4)),
+    ("pole_l", "pelvis", (0.1, 0.9, 0.3)), ("pole_r", "pelvis", (-0.1, 0.9, 0.3))]
+COW_ENDS = [("head", (0.0, -0.6, 0.22)), ("tail3", (0.0, 0.5, 1.0))] + DOG_ENDS[2:] + [
+    ("l_horn", (0.1, -0.4, 0.5)), ("r_horn", (-0.1, -0.4, 0.5))]
+# skin weight per joint (summed over the vertices): the head and neck carry most, a tail little, poles none
+COW_SKIN = {"head": 10.0, "neck": 4.0, "l_horn": 0.3, "r_horn": 0.3, "tail1": 0.6, "tail2": 0.4, "tail3": 0.3,
+            "pole_l": 0.0, "pole_r": 0.0}
+
+
+def test_the_skin_tells_the_head_end_of_a_grazing_horned_quadruped():
+    """Issue 43: with the head lowered, the tail raised above it, horns and pole targets, the highest point is the
+    tail's tip; the skin weight says the head end is the other one (it carries more skin beyond its girdle), the
+    head is the head joint (the horns below it carry less than it does), and the tail is the chain from the hips,
+    not a pole target. The weights come as a keyword or in clip.meta["joint_weight"] (as body_skeleton gives)."""
+    cow = skeleton(COW, COW_ENDS, name="cow")
+    weights = np.array([COW_SKIN.get(n, 2.0) for n in cow.joint_names])
+    plan = detect_body_plan(cow, weights=weights)
+    assert plan.kind == "quadruped" and plan.tail and "carrying more skin" in plan.reason, plan
+    roles = named(cow, quadruped_roles(cow, weights=weights))
+    dog = named(skeleton(DOG, DOG_ENDS), quadruped_roles(skeleton(DOG, DOG_ENDS)))
+    assert roles == dog            # every role where the upright dog has it: head, tail, girdles, sides
+    carried = dataclasses.replace(cow, meta={"joint_weight": weights})
+    assert named(carried, quadruped_roles(carried)) == roles
+    assert named(carried, resolve_roles(carried)) == roles
+
+
+def test_pole_targets_are_no_tail():
+    """Without weights (geometry only) a pole target hung off the pelvis behind the tail's tip is not the tail:
+    a tail starts at the hips."""
+    rows = DOG + [("pole_l", "pelvis", (0.1, 0.9, 0.3)), ("pole_r", "pelvis", (-0.1, 0.9, 0.3))]
+    dog = skeleton(rows, DOG_ENDS)
+    assert named(dog, quadruped_roles(dog))["tail"] == "tail1"
+    bare = skeleton([r for r in rows if not r[0].startswith("tail")], [e for e in DOG_ENDS if e[0] != "tail3"])
+    assert "tail" not in quadruped_roles(bare) and not detect_body_plan(bare).tail
+
+
+ZOO = {"Cow": "a lowered head, horns, a tail above the head", "Horse": "head up, ears"}
+
+
+@pytest.mark.parametrize("name", sorted(ZOO))
+def test_zoo_quadrupeds_face_their_heads(name):
+    """The shared Quaternius Cow and Horse (CC0; IK feet and pole targets, a seven-joint tail): the body's skeleton
+    (rig.character.body_skeleton, with its skin weights) is a quadruped with its head at Head, its tail at Tail1
+    and its legs on their own sides; the Cow's tail once turned it around (the head found as the highest point
+    off the legs)."""
+    path = os.path.join(ASSETS, "characters", "zoo", f"{name}.glb")
+    if not os.path.isfile(path):
+        pytest.skip(f"shared asset {path} is absent")
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.rig.character.body_skeleton import body_skeleton
+    from jiggle.rig.character.gltf_character import read_gltf_character
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        character = read_gltf_character(path)
+    body, order = body_skeleton(character)
+    plan = detect_body_plan(body)
+    assert plan.kind == "quadruped" and plan.tail, plan.reason
+    names = character.joint_names
+    roles = {r: names[order[j]] for r, j in resolve_roles(body).items()}
+    expect = {"hips": "Back", "spine": "Torso", "chest": "Torso2", "neck": "Torso3", "head": "Head", "tail": "Tail1"}
+    for s, c in (("left", "L"), ("right", "R")):
+        expect.update({f"{s}_front_shoulder": f"FrontShoulder.{c}", f"{s}_front_upper_leg": f"FrontUpperLeg.{c}",
+                       f"{s}_front_lower_leg": f"FrontLowerLeg.{c}", f"{s}_front_foot": f"IKFrontLeg.{c}",
+                       f"{s}_front_toe": f"FF.{c}", f"{s}_hind_upper_leg": f"BackUpperLeg.{c}",
+                       f"{s}_hind_lower_leg": f"BackLowerLeg.{c}", f"{s}_hind_foot": f"IKBackLeg.{c}",
+                       f"{s}_hind_toe": f"FFB.{c}"})
+    assert roles == expect
