@@ -9,11 +9,11 @@ lies (see below), is put back on that surface along the normal, its velocity rel
 its inward normal part (an inelastic stop: a surface, unlike the tissue's reach, is a wall) and its
 tangential part is slowed by Coulomb friction (|dv_t| <= mu |dv_n|). Why a projection rather than a
 stiff penalty spring: the goal flow is exact for any step, and the only explicit parts are the neighbour
-springs, kept stable by the solver's step limit; a penalty stiff enough to hold a fat pad against a landing (tens of g) would need a step
-limit of its own, ~10x smaller, and would let the pad sink in by (m a / k) whatever the step; a
-projection never lets a particle end a step inside, costs nothing when nothing touches, and is the
-right thing for a bone or the floor, which do not give. The floor is a half-space, so nothing
-tunnels through it at any speed or step.
+springs, kept stable by the solver's step limit; a penalty stiff enough to hold a fat pad against a
+landing (tens of g) would need a step limit of its own, ~10x smaller, and would let the pad sink in by
+(m a / k) whatever the step; a projection never lets a particle end a step inside, costs nothing when
+nothing touches, and is the right thing for a bone or the floor, which do not give. The floor is a
+half-space, so nothing tunnels through it at any speed or step.
 
 The rest state defines the contact. A particle is held outside its capsule only as far as its goal (the
 static shape: the animation's tissue at rest, the bind pose at bind) is: per (particle, capsule) pair at the
