@@ -1,7 +1,8 @@
 """A skeleton's body plan (biped, quadruped, other) from its rest pose's geometry, the roles of a
 four-legged skeleton, and the geometric checks every role map must pass before it is used.
 
-Detection (:func:`detect_body_plan`), from the joint tree and the rest pose only (no names):
+Detection (:func:`detect_body_plan`), from the joint tree and the rest pose (no names), and the skin
+weight per joint when it is known:
 
 1. Ground limbs: tips (end sites, childless joints) within GROUND of the skeleton's height above its
    lowest point, grouped by limb: two tips are on different limbs when their chains part at least
@@ -14,15 +15,19 @@ Detection (:func:`detect_body_plan`), from the joint tree and the rest pose only
 3. Quadruped: which end is the front. When the skin weight each joint carries is known (``weights``,
    or ``clip.meta["joint_weight"]``, which rig.character.body_skeleton sets), the head end is the girdle
    whose off-leg part beyond it (the joints hanging there, not on a leg nor on the spine between the
-   girdles) carries more skin: a head and neck carry most of it, a tail is a thin chain, horns and IK or
-   pole bones carry little or none, so neither a lowered head, a raised tail nor horns turn it around. The
-   head is then read along that end's main line (from the chest, the child carrying the most skin each
-   step): the first joint that carries more skin than its heaviest child's whole subtree (ears, a jaw,
-   horns, a head-top marker hang below it), or the line's last joint. Without weights (a mocap clip), the
-   head is the highest point off the legs, the girdle nearer it the chest. The girdle at the head end is
-   the chest (front legs), the other the hips (hind legs). A tail is a chain that reaches back past the
-   hips by at least TAIL_REACH of the spine's length and starts at the hips (its first joint within
-   TAIL_START of the spine's length of them, so an IK or pole target hung off the root is none); with
+   girdles) carries at least SKIN_DECIDES times the other's skin: a head and neck carry most of it, a
+   tail is a thin chain, horns and IK or pole bones carry little or none, so neither a lowered head, a
+   raised tail nor horns turn it around. Without weights, or when neither end clearly carries more (a
+   skin spread evenly over the joints), the head end is the one nearer the highest point off the legs.
+   With weights, the head is then read along that end's main line, from the chest: the line goes on
+   into the child whose subtree carries HEAD_BRANCH times the skin of its siblings' together (the only
+   child with skin, or the neck past a mane's bone) and stops where it ends or branches into comparable
+   parts (two ears, two horns): that joint is the head (a skinless head-top marker does not count; a
+   lone jaw joint below the head is read as the head, as the chain to the muzzle's tip was before);
+   without, the head is the last joint of the chain to the farthest point past the highest one. The girdle
+   at the head end is the chest (front legs), the other the hips (hind legs). A tail is a chain that reaches
+   back past the hips by at least TAIL_REACH of the spine's length and starts at the hips (its first joint
+   within TAIL_START of the spine's length of them, so an IK or pole target hung off the root is none); with
    weights, it carries skin.
 
 Quadruped roles (:data:`QUADRUPED_ROLES`; a role names the joint at the start of its bone, as the
@@ -65,6 +70,10 @@ TAIL_REACH = 0.15
 """A tail reaches back past the hips by at least this share of the hips-to-chest distance."""
 TOE_HEIGHT = 0.12
 """A leg's last joint within this share of the leg's height above the ground is a toe (paw) joint."""
+SKIN_DECIDES = 2.0
+"""The skin decides which end is the head's when one end carries at least this many times the other's skin."""
+HEAD_BRANCH = 3.0
+"""The neck's line goes on into a child whose subtree carries this many times the skin of its siblings together."""
 TAIL_START = 0.5
 """A tail's first joint lies within this share of the hips-to-chest distance of the hips."""
 MIRROR = 0.25
@@ -260,7 +269,8 @@ class _Plan(SkeletonTree):
         w = clip.meta.get("joint_weight") if weights is None else weights
         # (J,) skin weight per joint, or None: a list of another length belongs to another skeleton
         self.weight = np.asarray(w, float) if w is not None and len(w) == clip.num_joints else None
-        self.head_joint = -1
+        self.head_joint = -1                            # found by the skin, else
+        self.head_pt = -1                               # the head end's highest point
         pts = self.pts
         self.floor = float(pts[:, 2].min())
         self.height = float(np.ptp(pts[:, 2]))
@@ -316,11 +326,10 @@ class _Plan(SkeletonTree):
             if ang >= UPRIGHT:
                 return BodyPlan("other", 4, ang, False, f"four limbs to the ground but a spine {ang:.0f} deg above "
                                 f"the horizontal (a quadruped's is flatter than {UPRIGHT:g} deg)")
-            ends = self._head_end(own, g1, g2)
-            if ends is not None:
+            ends = self._ends(own, g1, g2)
+            if ends is not None and max(ends[g1], ends[g2]) >= SKIN_DECIDES * min(ends[g1], ends[g2]):
                 # the skin says which end is the head's
-                first, self.head_joint = ends
-                (chest, front), (hips, hind) = ((g1, p1), (g2, p2)) if first else ((g2, p2), (g1, p1))
+                (chest, front), (hips, hind) = ((g1, p1), (g2, p2)) if ends[g1] > ends[g2] else ((g2, p2), (g1, p1))
                 how = ", the head end carrying more skin"
             else:
                 head = self._head_top(own)
@@ -331,6 +340,8 @@ class _Plan(SkeletonTree):
                 (chest, front), (hips, hind) = sorted([(g1, p1), (g2, p2)], key=lambda x: near(x[0]))
                 self.head_pt = head
                 how = ", the head end the higher"
+            if ends is not None:
+                self.head_joint = self._head_line(chest, ends["off"], ends["spine"])
             self.girdles = {"chest": chest, "hips": hips}
             self.legs = {"front": [self.limbs[i] for i in front], "hind": [self.limbs[i] for i in hind]}
             self.tail_pt = self._tail(own)
@@ -354,9 +365,9 @@ class _Plan(SkeletonTree):
         firsts = self._limb_firsts(feet)
         return ~np.array([any(self.under(int(o), f) for f in firsts) for o in self.owner])
 
-    def _head_end(self, feet: list[int], g1: int, g2: int) -> tuple[bool, int] | None:
-        """(g1 is the head's girdle, head joint) from the skin weights (see the module docstring), or None when
-        no weights are known or the ends carry none."""
+    def _ends(self, feet: list[int], g1: int, g2: int) -> dict | None:
+        """{g1: skin, g2: skin} beyond each girdle (off the legs and the spine between them), "off": (J,) bool
+        off-leg joints, "spine": the joints from one girdle to the other}; None when no weights are known."""
         if self.weight is None:
             return None
         firsts = self._limb_firsts(feet)
@@ -373,25 +384,27 @@ class _Plan(SkeletonTree):
                 a = int(self.parents[a])
             if a in mass and int(j) != a:
                 mass[a] += self.weight[j]
-        if mass[g1] + mass[g2] <= 0 or mass[g1] == mass[g2]:
-            return None
-        chest = g1 if mass[g1] > mass[g2] else g2
+        return {**mass, "off": off, "spine": spine}
+
+    def _head_line(self, chest: int, off: np.ndarray, spine: set[int]) -> int:
+        """The head joint along the head end's main line from the chest (see the module docstring), or -1
+        when nothing with skin hangs beyond the chest."""
         # the skin each off-leg joint's subtree carries (deepest joints first)
         sub = np.where(off, self.weight, 0.0)
         for j in np.argsort(-self.depth, kind="stable"):
             if self.parents[j] >= 0 and off[j]:
                 sub[self.parents[j]] += sub[j]
-        line = lambda j: [int(k) for k in self.kids[j] if off[k] and k not in spine]  # noqa: E731
+        line = lambda j: [int(k) for k in self.kids[j] if off[k] and k not in spine and sub[k] > 0]  # noqa: E731
         kids = line(chest)
         if not kids:
-            return None
+            return -1
         head = max(kids, key=lambda k: sub[k])
         while line(head):
             nxt = max(line(head), key=lambda k: sub[k])
-            if self.weight[head] > sub[nxt]:
-                break                                   # ears, a jaw, horns or an end marker below the head
-            head = nxt
-        return chest == g1, head
+            if sub[nxt] < HEAD_BRANCH * (sub[line(head)].sum() - sub[nxt]):
+                break                                   # two ears, two horns: the line branches at the head
+            head = nxt                                  # the neck goes on (past a mane's or a dewlap's bone)
+        return head
 
     def _head_top(self, feet: list[int]) -> int:
         off = self._off_limbs(feet)
@@ -427,12 +440,14 @@ class _Plan(SkeletonTree):
             spine = self.groups(self.path(hips, chest))
             if len(spine) >= 2:
                 roles["spine"] = spine[0][0]
-        if self.head_joint >= 0:
+        if self.head_joint >= 0 and self.under(self.head_joint, chest):
             last = self.head_joint                      # found by the skin: the head joint itself
-        else:
+        elif self.head_pt >= 0:
             head_joint = int(self.owner[self.head_pt])
             far = self.farthest_below(head_joint)
             last = int(self.owner[far]) if far >= 0 else head_joint  # the chain goes on to the muzzle's tip
+        else:
+            last = chest                                # no head: refused below
         neck = self.groups(self.path(chest, last)) if self.under(last, chest) else []
         if not neck:
             raise InputError("cannot find the head below the chest (the front girdle) in the joint tree",

@@ -293,12 +293,16 @@ def _mixamo(foot_forward=0.3, arm_raise=60.0, prefix="mixamorig:", swap=False) -
          ("Spine2", "Spine1", (0, 0, 1.4)), ("Neck", "Spine2", (0, 0, 1.5)), ("Head", "Neck", (0, 0, 1.6)),
          ("HeadTop_End", "Head", (0, 0, 1.78))]
     for side, x in (("Left", 1), ("Right", -1)):
-        s += [(f"{side}Shoulder", "Spine2", (0.05 * x, 0, 1.45)), (f"{side}Arm", f"{side}Shoulder", (0.18 * x, 0, 1.45)),
-              (f"{side}ForeArm", f"{side}Arm", (0.46 * x, 0, 1.45)), (f"{side}Hand", f"{side}ForeArm", (0.71 * x, 0, 1.45)),
+        s += [(f"{side}Shoulder", "Spine2", (0.05 * x, 0, 1.45)),
+              (f"{side}Arm", f"{side}Shoulder", (0.18 * x, 0, 1.45)),
+              (f"{side}ForeArm", f"{side}Arm", (0.46 * x, 0, 1.45)),
+              (f"{side}Hand", f"{side}ForeArm", (0.71 * x, 0, 1.45)),
               (f"{side}HandMiddle1", f"{side}Hand", (0.8 * x, 0, 1.45)),
               (f"{side}HandMiddle2", f"{side}HandMiddle1", (0.85 * x, 0, 1.45)),
-              (f"{side}UpLeg", "Hips", (0.1 * x, 0, 0.95)), (f"{side}Leg", f"{side}UpLeg", (0.1 * x, -0.02, 0.5)),
-              (f"{side}Foot", f"{side}Leg", (0.1 * x, 0, 0.08)), (f"{side}ToeBase", f"{side}Foot", (0.1 * x, -0.12, 0.02)),
+              (f"{side}UpLeg", "Hips", (0.1 * x, 0, 0.95)),
+              (f"{side}Leg", f"{side}UpLeg", (0.1 * x, -0.02, 0.5)),
+              (f"{side}Foot", f"{side}Leg", (0.1 * x, 0, 0.08)),
+              (f"{side}ToeBase", f"{side}Foot", (0.1 * x, -0.12, 0.02)),
               (f"{side}Toe_End", f"{side}ToeBase", (0.1 * x, -0.2, 0.02))]
     pos = {n: np.array(w, float) for n, _, w in s}
     hip = pos["LeftUpLeg"]
@@ -310,7 +314,10 @@ def _mixamo(foot_forward=0.3, arm_raise=60.0, prefix="mixamorig:", swap=False) -
     for n in ("RightForeArm", "RightHand", "RightHandMiddle1", "RightHandMiddle2"):
         pos[n] = shoulder + raise_ @ (pos[n] - shoulder)
     other = {"Left": "Right", "Right": "Left"}
-    name = lambda n: prefix + (next((other[k] + n[len(k):] for k in other if n.startswith(k)), n) if swap else n)  # noqa: E731
+
+    def name(n):
+        side = next((k for k in other if n.startswith(k)), None)
+        return prefix + (other[side] + n[len(side):] if swap and side else n)
     return _tree([(name(n), name(p) if p else None, tuple(pos[n])) for n, p, _ in s])
 
 
