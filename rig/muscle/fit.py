@@ -148,7 +148,10 @@ class Musculature:
     same order), skipped ((name, reason), ...) template muscles that could not be fitted or were refused,
     timings {stage: seconds}, plan (rig.motion.body_plan.BodyPlan) the skeleton's body plan,
     quality (tuple of rig.muscle.fit_quality.MuscleQuality, same order as muscles) how well each fits,
-    refused (tuple of MuscleQuality) the muscles the quality check dropped from the rig (also in skipped).
+    refused (tuple of MuscleQuality) the muscles the quality check dropped from the rig (also in skipped),
+    why : one sentence saying why this template was used (the body plan's, the generic one and why, or the
+    user's), parts (tuple of rig.muscle.generic.Part) how the generic template judged each body part (empty
+    for the other templates).
     """
 
     character: Character
@@ -164,6 +167,8 @@ class Musculature:
     plan: object = None
     quality: tuple = ()
     refused: tuple = ()
+    why: str = ""
+    parts: tuple = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -243,8 +248,10 @@ def _collapsed_into(parents: np.ndarray, pos: np.ndarray, j: int) -> int:
 
 def fit_musculature(character: Character, template="auto", options: FitOptions = FitOptions(), *,
                     roles: dict | None = None, front: np.ndarray | None = None) -> Musculature:
-    """Fit `template` (a Template, a built-in name or a path; "auto" or None: the built-in one of the
-    skeleton's body plan, rig.motion.body_plan.template_for) to `character`.
+    """Fit `template` (a Template, a built-in name or a path; "generic": tissue on the skin's segmentation
+    by bone, rig.muscle.generic; "auto" or None: the built-in one of the skeleton's body plan,
+    rig.motion.body_plan, and the generic one when no plan fits or the plan's roles cannot be read off the
+    joints without a joint map) to `character`.
 
     roles : {role: joint index}; default: rig.motion.role_map.resolve_roles of the body's skeleton (rig.character.body_skeleton: helper bones set aside), options.joint_map.
     front : (3,) the character's front; default: from the legs (rig.motion.role_map.facing).
@@ -262,8 +269,9 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     import trimesh
 
     from jiggle.rig.character.body_skeleton import body_skeleton, original_parents
-    from jiggle.rig.motion.body_plan import detect_body_plan, template_for
+    from jiggle.rig.motion.body_plan import detect_body_plan
     from jiggle.rig.motion.role_map import facing, resolve_roles
+    from jiggle.rig.muscle.generic import GENERIC, generic_front, generic_parts, generic_template
     from jiggle.rig.muscle.model import MuscleSpec, build_muscle_rig
     from jiggle.rig.muscle.segmentation import segment_skin
     from jiggle.rig.muscle.template import Template, check_labels, load_template
@@ -273,25 +281,46 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     # the body plan and roles are read off the body's skeleton: helper bones (IK and pole targets off a
     # weightless root) set aside, IK-placed feet hung under their legs (rig/character/body_skeleton.py)
     body, order = body_skeleton(character)
+    plan = detect_body_plan(body)
+    generic = isinstance(template, str) and template == GENERIC
+    why = "asked for (--template generic)" if generic else ""
     if not isinstance(template, Template) and template in (None, "auto"):
-        template, plan = template_for(body, template)
-    else:
-        plan = detect_body_plan(body)
-    tpl = template if isinstance(template, Template) else load_template(template)
-    if roles is None:
-        roles = {r: int(order[j]) for r, j in resolve_roles(body, options.joint_map).items()}
-    else:
-        roles = dict(roles)
-    if "spine" not in roles and "hips" in roles and "chest" in roles:
-        # no joint between the pelvis and the chest (a game rig's two-bone trunk): the trunk's bone starts at the
-        # hips, as on CMU skeletons, whose spine joint sits at the hips' place
-        roles["spine"] = roles["hips"]
+        if plan.template is None:
+            generic, why = True, f"no built-in body plan fits ({plan.reason})"
+        else:
+            template = plan.template
+            why = f"the {plan.kind}'s built-in template ({plan.reason})"
+    auto = not generic and why != ""
+    if not generic:
+        tpl = template if isinstance(template, Template) else load_template(template)
+        try:
+            if roles is None:
+                roles = {r: int(order[j]) for r, j in resolve_roles(body, options.joint_map).items()}
+            else:
+                roles = dict(roles)
+            if "spine" not in roles and "hips" in roles and "chest" in roles:
+                # no joint between the pelvis and the chest (a game rig's two-bone trunk): the trunk's bone starts
+                # at the hips, as on CMU skeletons, whose spine joint sits at the hips' place
+                roles["spine"] = roles["hips"]
+            tpl = _without_optional(tpl, roles)
+            check_labels(tpl, roles, character.joint_names, plan)
+        except InputError as e:
+            if not auto or options.joint_map is not None:
+                raise       # the user named the template or the joint map: their choice fails, say so
+            # the skeleton looked like a biped or quadruped, but its joints do not play the roles: tissue anyway
+            generic, why = True, f"the {tpl.name} template's roles do not fit ({e.message})"
+            warnings.warn(f"placing tissue with the generic template: {why}", JiggleWarning, stacklevel=2)
+    if generic:
+        roles = {}
     shape = character if body is character.skeleton else \
         replace(character, parents=original_parents(body, order))   # the skin's bones on that tree
-    tpl = _without_optional(tpl, roles)
-    check_labels(tpl, roles, character.joint_names, plan)
     pos = character.bind_positions
-    front = facing(pos, roles)[0] if front is None else np.asarray(front, float) / np.linalg.norm(front)
+    if front is not None:
+        front = np.asarray(front, float) / np.linalg.norm(front)
+    elif generic:
+        front = generic_front(character)
+    else:
+        front = facing(pos, roles)[0]
     seg = segment_skin(shape, iterations=options.iterations, lam=options.lam, exclude=options.exclude,
                        overrides=options.overrides)
     timings["segmentation"] = time.perf_counter() - t0
@@ -303,15 +332,30 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # area-weighted
     skin = trimesh.Trimesh(V, F, process=False)
     names = character.joint_names
+    size = max(float(np.ptp(V, axis=0).max()), 1e-9)
 
     fitted: list[FittedMuscle] = []
     skipped: list[tuple[str, str]] = []
+    parts: tuple = ()
 
     def skip(name: str, reason: str) -> None:
         skipped.append((name, reason))
         warnings.warn(f"muscle {name!r} skipped: {reason}", JiggleWarning, stacklevel=3)
 
-    for pair in tpl.pairs:
+    if generic:
+        segs = seg.segments
+        parts = tuple(generic_parts(V, F, face_region, segs, character.normals, seg.region))
+        tpl, where = generic_template(parts, names)
+        for pair in tpl.pairs:
+            m = pair.muscles[0]
+            p = parts[where[m.name]]
+            start, end = segs.start[p.segments[0]], segs.end[p.segments[-1]]
+            bone = _Bone(label=p.label, parent=p.joint, child=p.child, start=start, end=end,
+                         frame=bone_frame(start, end, front),
+                         faces=np.flatnonzero(np.isin(face_region, p.segments)))
+            fitted.append(_fit_one(m.name, m, pair, bone, bone.faces, None, V, F, normals, skin, roles, options,
+                                   group=p.label, belly=False))
+    for pair in (() if generic else tpl.pairs):
         p_joint, c_joint = roles[pair.parent], roles[pair.child]
         label = f"{names[p_joint]}>{names[c_joint]}"
         chain = _chain(shape.parents, p_joint, c_joint)
@@ -320,7 +364,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
                              f"{names[c_joint]!r} is not below {names[p_joint]!r}", tpl.source or None,
                              field=f"bone {pair.parent}>{pair.child}")
         start, end = pos[p_joint], pos[c_joint]
-        if np.linalg.norm(end - start) < 1e-4:
+        if np.linalg.norm(end - start) < 1e-4 * size:
             for m in pair.muscles:
                 skip(m.name, f"its bone {label} has zero length")
             continue
@@ -390,7 +434,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     timings["total"] = time.perf_counter() - t0
     return Musculature(character=character, template=tpl, roles=roles, segmentation=seg, front=front,
                        skin=(V, F, region), muscles=tuple(fitted), rig=rig, skipped=tuple(skipped), timings=timings,
-                       plan=plan, quality=tuple(quality), refused=tuple(refused))
+                       plan=plan, quality=tuple(quality), refused=tuple(refused), why=why, parts=parts)
 
 
 AXIS_SAMPLES = 21  # points along a fitted ellipsoid's major axis tested against the skin

@@ -309,6 +309,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     timings["character_s"] = time.perf_counter() - t
 
     from jiggle.rig.muscle.fit import FitOptions, fit_musculature
+    from jiggle.rig.muscle.generic import GENERIC
     from jiggle.rig.skin.muscle_skin import MuscleSkin
     from jiggle.sim.jiggle.params import default_jiggles
     t = time.perf_counter()
@@ -338,11 +339,14 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
 
     fps = float(req.fps or (scene.fps if scene is not None else None) or BAKE_FPS)
     times = output_times(clip.duration, fps, req.start, req.end, req.frames)
-    settings, jiggles = _settings(req, scene, jiggles)
-    knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, fps))
+    goal_rate = _settings(req, scene, jiggles)[0].goal_rate     # the muscles' settings follow the drive
+    knots = knot_times(times, goal_rate or max(DEFAULT_GOAL_RATE, fps))
     t = time.perf_counter()
     world_at = _drive(clip, drive, knots, log)
     timings["drive_s"] = time.perf_counter() - t
+    if mus.template.name == GENERIC:
+        jiggles = _to_motion(jiggles, mus, character, clip, drive, world_at, knots, log)
+    settings, jiggles = _settings(req, scene, jiggles)
     if source is clip:
         joints_at, joint_names = world_at, tuple(clip.joint_names)
     else:
@@ -375,8 +379,9 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                                   "scales": [list(r) for r in sh.scales]} for sh in skin.rig.pose_shapes.shapes]
     floor = capsules = None
     if settings.collisions:
-        floor = _floor(character, drive, world_at, knots)
-        params["collisions"] = {"capsules": settings.colliders, "floor_m": round(floor, 6)}
+        # a body that stands at rest has a floor; a flying or floating one (no limb on the ground) has none
+        floor = _floor(character, drive, world_at, knots) if mus.plan.ground_limbs > 0 else None
+        params["collisions"] = {"capsules": settings.colliders, "floor_m": None if floor is None else round(floor, 6)}
         if settings.colliders == "model":
             capsules, params["collisions"]["model_geoms"] = _model_capsules(clip, character, log)
     return BakeSetup(name=scene.name if scene is not None else source.name, skin=skin, jiggles=tuple(jiggles),
@@ -384,6 +389,23 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
                      chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
                      capsules=capsules, glb=_glb(req))
+
+
+def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.ndarray, log) -> list:
+    """The generic template's tissue tuned to how the clip moves it (sim.jiggle.params.tune_to_motion), measured on the whole clip sampled at MOTION_RATE (the knots under
+    the physics drive), so neither the output rate nor the frame range changes it."""
+    from jiggle.sim.jiggle.params import MOTION_RATE, motion_accelerations, tune_to_motion
+    if drive == "physics":
+        ts = knots
+    else:
+        ts = np.linspace(0.0, clip.duration, max(int(round(clip.duration * MOTION_RATE)), 2) + 1)
+    dt = float(ts[1] - ts[0]) if len(ts) > 1 else 1.0
+    rig = mus.rig
+    acc = motion_accelerations(rig.static(world_at(ts)).cvs, dt)
+    out, tuned = tune_to_motion(jiggles, rig.kinds, acc, dt, rig.mean_radii(rig.rest_cvs), rig.cv_offsets)
+    for name, (a, b) in tuned.items():
+        log(f"{name}: goal springs {a:.2g} -> {b:.2g} Hz for the clip's motion (the generic template's default)")
+    return out
 
 
 def _model_capsules(clip, character, log):

@@ -346,3 +346,79 @@ class JiggleSettings:
             except InputError as e:
                 raise InputError(f"jiggle {e.message}", field="strength") from None
 
+
+
+SWING_RADII = 0.15
+"""The generic template's tissue (rig.muscle.generic) swings at most about this share of its mean radius on its
+clip: enough to see on a hovering body, far inside its reach on a hopping blob (tune_to_motion)."""
+MOTION_RATE = 60.0
+"""Hz: the clip is sampled at this rate to measure how a muscle moves (so the result does not depend on the
+bake's output rate)."""
+MOTION_FREQUENCY_HZ = {"fat": (1.5, 15.0), "muscle": (3.0, 30.0)}
+"""Hz: the range tune_to_motion keeps each kind's goal springs in (soft enough to be tissue, stiff enough that
+a part held in a game's snappiest keys does not ring for seconds)."""
+TUNE_STEPS = 8
+"""Integration steps per motion sample of the oscillators tune_to_motion tries (semi-implicit Euler: stable to
+w dt < 2, here w dt <= 0.4 at the highest frequency)."""
+
+
+def motion_accelerations(static_cvs: np.ndarray, dt: float) -> np.ndarray:
+    """(T - 2, N, 3) m/s^2: the second difference of the static CVs (T, N, 3) metres, dt seconds apart: how
+    the clip drives every particle's goal (the bones' motion and the muscles' own change of shape)."""
+    x = np.asarray(static_cvs, np.float64)
+    if len(x) < 3:
+        return np.zeros((0,) + x.shape[1:])
+    return (x[2:] - 2.0 * x[1:-1] + x[:-2]) / dt ** 2
+
+
+def oscillator_peaks(acceleration: np.ndarray, dt: float, frequency_hz: np.ndarray, damping: np.ndarray,
+                     passes: int = 1) -> np.ndarray:
+    """(K, M) metres: the largest |x| of damped oscillators x'' + 2 zeta w x' + w^2 x = -a(t), one per
+    frequency (K,) Hz and muscle (damping (M,) ratios), driven by `acceleration` (T, M, 3) m/s^2 sampled dt
+    seconds apart, from rest, over `passes` plays of it in a row (a cycle's steady state shows in the second)."""
+    a = np.tile(np.asarray(acceleration, np.float64), (passes, 1, 1))
+    w = 2.0 * np.pi * np.asarray(frequency_hz, np.float64)[:, None, None]             # (K, 1, 1)
+    c = 2.0 * np.asarray(damping, np.float64)[None, :, None] * w                      # (K, M, 1)
+    h = dt / TUNE_STEPS
+    x = np.zeros((len(w),) + a.shape[1:])
+    v = np.zeros_like(x)
+    peak = np.zeros(x.shape[:2])
+    for at in a:
+        for _ in range(TUNE_STEPS):
+            v += h * (-at[None] - c * v - w * w * x)
+            x += h * v
+        peak = np.maximum(peak, np.linalg.norm(x, axis=2))
+    return peak
+
+
+def tune_to_motion(jiggles: list[MuscleJiggle], kinds, acceleration: np.ndarray, dt: float, radius: np.ndarray,
+                   cv_offsets: np.ndarray, swing: float = SWING_RADII
+                   ) -> tuple[list[MuscleJiggle], dict[str, tuple[float, float]]]:
+    """(jiggles, tuned): each muscle's goal-spring frequency set to the lowest in MOTION_FREQUENCY_HZ of its kind
+    (`kinds` (M,) "fat" | "muscle") at which damped oscillators driven by its CVs' goal `acceleration`
+    (T, N, 3) m/s^2 (dt seconds apart; motion_accelerations; muscle m's CVs are rows cv_offsets[m]:
+    cv_offsets[m + 1]) swing no more than `swing` of its `radius` (M,) metres, and none above it swing more
+    (a resonance is stepped over, not landed on). Size and motion together set the default: a gently
+    hovering body softens until it visibly sways, a hopping blob stiffens instead of flapping past its reach,
+    and since the swing scales with the body, the file's unit does not change the choice.
+    tuned : {name: (from Hz, to Hz)}."""
+    M = len(jiggles)
+    acceleration = np.asarray(acceleration, np.float64)
+    if M == 0 or len(acceleration) == 0:
+        return list(jiggles), {}
+    owner = np.repeat(np.arange(M), np.diff(np.asarray(cv_offsets)))
+    tuned = {}
+    for kind, (lo, hi) in MOTION_FREQUENCY_HZ.items():
+        rows = [m for m in range(M) if (kinds[m] if kinds[m] in MOTION_FREQUENCY_HZ else "muscle") == kind]
+        if not rows:
+            continue
+        f = np.geomspace(lo, hi, 33)
+        cvs = np.flatnonzero(np.isin(owner, rows))
+        peaks = oscillator_peaks(acceleration[:, cvs], dt, f, [jiggles[m].damping_ratio for m in owner[cvs]])
+        for m in rows:
+            over = peaks[:, owner[cvs] == m].max(axis=1) > swing * float(radius[m])    # (K,)
+            k = int(np.flatnonzero(over)[-1]) + 1 if over.any() else 0                  # above the last one over
+            tuned[m] = float(f[min(k, len(f) - 1)])
+    out = [replace(mj, frequency_hz=tuned[m]) if tuned[m] != mj.frequency_hz else mj for m, mj in enumerate(jiggles)]
+    return out, {jiggles[m].name: (jiggles[m].frequency_hz, f) for m, f in sorted(tuned.items())
+                 if f != jiggles[m].frequency_hz}
