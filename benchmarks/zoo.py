@@ -1,0 +1,494 @@
+"""The zoo: every shared character on every cycle it loops, baked with the defaults, measured by `jiggle compare`,
+in one table (issue 43, part 5).
+
+    .venv/bin/python benchmarks/zoo.py [--out out/zoo] [--jobs 2] [--characters Horse,Frog] [--quick]
+
+For each character under ../shared/assets/characters/ (zoo/*.glb, *.glb, fbx/*.fbx with an animation) and each
+of its cycles (the animations a game loops: Walk, Run, Gallop, Idle*, Flying_Idle, Fast_Flying, Dance; a file's
+only animation when none is so named), plus a CMU run (09_11) retargeted onto every biped (inspect's body plan),
+or the CMU run alone for a character without animations:
+
+    jiggle bake --character FILE --animation NAME --out DIR --formats npz -q
+    jiggle compare DIR --no-video -q
+
+then reads DIR/metrics.json, DIR/bake.json and DIR/bake.npz. A bake the command refuses (exit code 2) is a row
+"refused" with its one-line "jiggle: error: ..." message; any other failure is "crashed" with the last line of
+its stderr. Nothing here stops the table.
+
+Columns: peak jiggle (metrics skin.max_mm: the largest |skin_final - skin_static| over vertices and frames) as a
+percentage of the character's size (the largest extent of the rest skin's bounding box, bake.npz skin_rest, in
+the bake's metres); torn edges, gradient p99.9, folds over LBS, hard stops, the percentage of muscle-frames near
+the reach (metrics.json); the loop wrap (`loop_wrap`: the jump of the jiggle offset d = skin_final - skin_static
+from the last frame to the first, max over vertices, in mm and over the median frame-to-frame step of d); the
+bake's and compare's wall time. `pass` checks issue 43's targets: baked, 0 torn edges, gradient p99.9 <= 0.5,
+folds <= 1.1x LBS, peak <= 1.5% of the size and, on each zoo character's most vigorous cycle (Run, Gallop,
+Fast_Flying, else Walk), peak >= 0.3% of the size.
+
+Writes RESULTS.md and RESULTS.json (default benchmarks/results/zoo; with --quick OUT/zoo) and, unless --quick,
+the Gallery page of the docs: docs/gallery.md and one downsized peak.png per character in docs/images/gallery/.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ASSETS = Path(os.environ.get("JIGGLE_ASSETS", ROOT.parent / "shared" / "assets"))
+CHARACTERS = ASSETS / "characters"
+CMU_CLIP = ASSETS / "mocap" / "cmu_bvh" / "09_11.bvh"            # subject 9: run, 1.4 s
+
+# Cycles: the animations a game plays in a loop, matched on the name's last "|" part (FBX takes are
+# "Armature|Armature|idle"), case-insensitive; hit reactions are not cycles.
+CYCLE = re.compile(r"^(walk|walking|run|running|gallop|idle(_\d+|_headlow)?|flying_idle|fast_flying|dance)$", re.I)
+# The most vigorous cycle of a zoo character, first found wins: peak >= 0.3% of its size is asked there.
+VIGOROUS = ("run", "running", "gallop", "fast_flying", "walk", "walking")
+
+# Issue 43's targets.
+TARGETS = {"torn_edges": 0, "gradient_p999": 0.5, "folds_over_lbs": 1.1, "peak_max_pct": 1.5, "peak_min_pct": 0.3}
+
+BAKE_TIMEOUT_S = 900
+
+
+@dataclass
+class Job:
+    """One bake: a character on a clip."""
+    character: str                      # display name: the file's stem
+    file: str                           # the character file
+    clip: str                           # display name: the animation, or "CMU 09_11 (run)"
+    animation: str | None = None        # --animation NAME (the character's own clip)
+    clip_file: str | None = None        # --clip FILE (a retargeted clip)
+    zoo: bool = False                   # a zoo/ character
+    vigorous: bool = False              # its most vigorous cycle: peak >= 0.3% asked
+
+    @property
+    def slug(self) -> str:
+        return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{self.character}__{self.clip}").strip("_")
+
+
+@dataclass
+class Row:
+    character: str
+    clip: str
+    status: str                         # baked | refused | crashed | timeout
+    message: str | None = None          # the refusal's or crash's one line
+    frames: int | None = None
+    vertices: int | None = None
+    muscles: int | None = None
+    size_m: float | None = None
+    peak_mm: float | None = None
+    peak_pct: float | None = None
+    peak_frame: int | None = None
+    torn_edges: int | None = None
+    gradient_p999: float | None = None
+    folds_over_lbs: float | None = None  # compare's ratio; when LBS has none, the final skin's own count
+    folds_final: int | None = None      # folded edges summed over the clip: the final skin's, LBS's
+    folds_lbs: int | None = None
+    hard_stops: int | None = None
+    near_limit_pct: float | None = None
+    wrap_mm: float | None = None
+    wrap_ratio: float | None = None
+    wrap_from: str | None = None        # "metrics" (compare's loop key) or "bake.npz"
+    bake_s: float | None = None
+    compare_s: float | None = None
+    seconds: float | None = None
+    vigorous: bool = False
+    zoo: bool = False
+    passed: bool = False
+    fails: list = field(default_factory=list)
+    compare_error: str | None = None
+    out: str | None = None
+
+
+def jiggle_command() -> list[str]:
+    """The `jiggle` of this interpreter's environment (JIGGLE_CMD overrides it: a command line)."""
+    if os.environ.get("JIGGLE_CMD"):
+        return os.environ["JIGGLE_CMD"].split()
+    exe = Path(sys.executable).parent / "jiggle"
+    return [str(exe)] if exe.exists() else [shutil.which("jiggle") or "jiggle"]
+
+
+def code_version(cmd: list[str]) -> str:
+    """Which jiggle was measured: JIGGLE_CODE when set (with JIGGLE_CMD, e.g. a snapshot of a commit), else this
+    checkout's commit, marked when rig/, sim/ or jiggle/ have uncommitted changes."""
+    if os.environ.get("JIGGLE_CODE"):
+        return os.environ["JIGGLE_CODE"]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=30).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "rig", "sim", "jiggle"], cwd=ROOT,
+                               capture_output=True, text=True, timeout=30).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    where = " ".join(cmd) if os.environ.get("JIGGLE_CMD") else "this checkout"
+    return f"{head}{' + uncommitted changes' if dirty and not os.environ.get('JIGGLE_CMD') else ''} ({where})"
+
+
+def loop_wrap(skin_final: np.ndarray, skin_static: np.ndarray) -> tuple[float, float]:
+    """The pop a looping cycle shows where it wraps.
+
+    skin_final, skin_static: (T, V, 3) float, metres. d = skin_final - skin_static, the jiggle offset.
+    Returns (wrap_mm, ratio): wrap_mm = max over vertices of |d[T-1] - d[0]| in mm; ratio = wrap_mm over the median
+    over t of max over vertices |d[t+1] - d[t]| (mm), the clip's typical frame-to-frame step (inf when that is 0
+    and the wrap is not, 0 when both are). Fewer than 2 frames: (0, 0).
+    """
+    d = np.asarray(skin_final, np.float64) - np.asarray(skin_static, np.float64)
+    if d.shape[0] < 2:
+        return 0.0, 0.0
+    wrap = float(np.linalg.norm(d[-1] - d[0], axis=-1).max()) * 1e3
+    steps = np.linalg.norm(np.diff(d, axis=0), axis=-1).max(axis=1) * 1e3        # (T-1,) mm
+    step = float(np.median(steps))
+    if step == 0.0:
+        return wrap, (0.0 if wrap == 0.0 else math.inf)
+    return wrap, wrap / step
+
+
+def inspect(path: Path, cmd: list[str]) -> dict:
+    # no -q: `inspect --json -q` prints nothing
+    p = subprocess.run(cmd + ["inspect", "--json", str(path)], capture_output=True, text=True, timeout=300)
+    try:
+        return json.loads(p.stdout)
+    except ValueError:
+        return {"kind": "error", "error": last_line(p.stderr) or f"inspect: exit code {p.returncode}"}
+
+
+def character_files() -> list[tuple[Path, bool]]:
+    """(file, is_zoo) for every shared character file, zoo first."""
+    out = [(p, True) for p in sorted((CHARACTERS / "zoo").glob("*.glb"))]
+    out += [(p, False) for p in sorted(CHARACTERS.glob("*.glb"))]
+    out += [(p, False) for p in sorted((CHARACTERS / "fbx").glob("*.fbx"))]
+    return out
+
+
+def cycles_of(animations: list[str]) -> list[str]:
+    """The looping cycles among a file's animations: by name, one per last "|" part (the first in sorted
+    order: FBX's shape-key actions "Key|Armature|idle" come after "Armature|Armature|idle"), or its only one."""
+    seen, out = set(), []
+    for name in sorted(animations):
+        short = name.split("|")[-1].lower()
+        if CYCLE.match(short) and short not in seen:
+            seen.add(short)
+            out.append(name)
+    if not out and len(animations) == 1:
+        out = list(animations)
+    order = {"run": 0, "running": 0, "gallop": 0, "fast_flying": 0, "walk": 1, "walking": 1}
+    return sorted(out, key=lambda n: (order.get(n.split("|")[-1].lower(), 2), n))
+
+
+def plan(characters: set[str] | None, quick: bool, cmd: list[str]) -> tuple[list[Job], list[dict]]:
+    """The bakes to run, and the files left out with why."""
+    jobs, skipped = [], []
+    for path, zoo in character_files():
+        if characters and path.stem.lower() not in characters:
+            continue
+        info = inspect(path, cmd)
+        if info.get("kind") != "character":
+            skipped.append({"file": str(path.relative_to(CHARACTERS)), "why": info.get("error") or
+                            f"not a character ({info.get('kind')}: no mesh)"})
+            continue
+        names = [a["name"] for a in info.get("animations", [])]
+        cyc = cycles_of(names)
+        vig = next((n for v in VIGOROUS for n in cyc if n.split("|")[-1].lower() == v), None) if zoo else None
+        mine = [Job(path.stem, str(path), n.split("|")[-1], animation=n, zoo=zoo, vigorous=(n == vig)) for n in cyc]
+        biped = (info.get("body_plan") or {}).get("kind") == "biped"
+        if (biped or not names) and CMU_CLIP.is_file():
+            mine.append(Job(path.stem, str(path), "CMU 09_11 (run)", clip_file=str(CMU_CLIP), zoo=zoo))
+        if quick:
+            mine = mine[:1]
+        jobs += mine
+    return jobs, skipped
+
+
+def last_line(text: str, prefix: str | None = None) -> str:
+    lines = [ln.strip() for ln in (text or "").splitlines() if ln.strip()]
+    if prefix:
+        hits = [ln for ln in lines if ln.startswith(prefix)]
+        if hits:
+            return hits[-1]
+    return lines[-1] if lines else ""
+
+
+def short_paths(text: str) -> str:
+    """Asset paths in a message, relative to the assets folder (the table is read on other machines)."""
+    for root in {str(ASSETS), str(ASSETS.resolve()), os.path.relpath(ASSETS)}:
+        text = text.replace(root.rstrip("/") + "/", "")
+    return text
+
+
+def run_job(job: Job, out_root: Path, cmd: list[str], frames: int | None) -> Row:
+    out = out_root / job.slug
+    if out.exists():
+        shutil.rmtree(out)
+    row = Row(job.character, job.clip, "baked", vigorous=job.vigorous, zoo=job.zoo, out=str(out))
+    args = cmd + ["bake", "--character", job.file, "--out", str(out), "--formats", "npz", "-q"]
+    if job.animation is not None:
+        args += ["--animation", job.animation]
+    if job.clip_file is not None:
+        args += ["--clip", job.clip_file]
+    if frames:
+        args += ["--frames", str(frames)]
+    t = time.perf_counter()
+    try:
+        p = subprocess.run(args, capture_output=True, text=True, timeout=BAKE_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        row.status, row.message = "timeout", f"the bake ran past {BAKE_TIMEOUT_S} s"
+        row.bake_s = row.seconds = round(time.perf_counter() - t, 1)
+        return row
+    row.bake_s = round(time.perf_counter() - t, 1)
+    if p.returncode != 0:
+        row.status = "refused" if p.returncode == 2 else "crashed"
+        row.message = short_paths(last_line(p.stderr, "jiggle: error:") or f"exit code {p.returncode}")
+        row.seconds = row.bake_s
+        row.fails = [row.status]
+        return row
+    t = time.perf_counter()
+    c = subprocess.run(cmd + ["compare", str(out), "--no-video", "-q"], capture_output=True, text=True,
+                       timeout=BAKE_TIMEOUT_S)
+    row.compare_s = round(time.perf_counter() - t, 1)
+    row.seconds = round(row.bake_s + row.compare_s, 1)
+    if c.returncode != 0:
+        row.compare_error = last_line(c.stderr, "jiggle: error:") or f"exit code {c.returncode}"
+    measure(row, out)
+    judge(row)
+    return row
+
+
+def measure(row: Row, out: Path) -> None:
+    """Fill the row's figures from the bake's files and the compare's metrics.json (when it ran)."""
+    with np.load(out / "bake.npz") as z:
+        rest = z["skin_rest"] if "skin_rest" in z.files else z["skin_static"][0]
+        final, static = z["skin_final"], z["skin_static"]
+        row.frames, row.vertices = int(final.shape[0]), int(final.shape[1])
+        row.size_m = float((rest.max(axis=0) - rest.min(axis=0)).max())
+        row.muscles = int(len(z["muscle_names"])) if "muscle_names" in z.files else None
+        wrap, ratio = loop_wrap(final, static)
+        if row.peak_mm is None:
+            diff = np.linalg.norm(final.astype(np.float64) - static, axis=-1)
+            row.peak_mm = float(diff.max()) * 1e3
+    row.wrap_mm, row.wrap_ratio, row.wrap_from = wrap, ratio, "bake.npz"
+    mpath = out / "metrics.json"
+    if not mpath.is_file():
+        row.peak_pct = 100 * row.peak_mm / 1e3 / row.size_m if row.size_m else None
+        return
+    m = json.loads(mpath.read_text())
+    g = lambda d, *keys: _get(d, keys)                                   # noqa: E731
+    row.peak_mm = g(m, "skin", "max_mm")
+    row.peak_frame = g(m, "skin", "max_frame")
+    row.torn_edges = g(m, "skin_quality", "worst", "jiggle", "torn_edges_max")
+    row.gradient_p999 = g(m, "skin_quality", "worst", "jiggle", "gradient_p999_max")
+    folds = g(m, "skin_quality", "targets", "folds_added_over_lbs")
+    row.folds_over_lbs = folds.get("value") if isinstance(folds, dict) else None
+    for attr, skin in (("folds_final", "final"), ("folds_lbs", "lbs")):
+        mean = g(m, "skin_quality", "worst", skin, "folded_edges_mean")
+        setattr(row, attr, None if mean is None or row.frames is None else int(round(mean * row.frames)))
+    row.hard_stops = g(m, "limits", "hard_stops_total")
+    near = g(m, "limits", "near_limit_fraction_all")
+    row.near_limit_pct = None if near is None else 100 * near
+    loop = m.get("loop")                                                  # compare's own, when it has one
+    if isinstance(loop, dict) and loop.get("wrap_mm") is not None:
+        row.wrap_mm, row.wrap_ratio, row.wrap_from = loop["wrap_mm"], loop.get("wrap_ratio"), "metrics"
+    if row.peak_mm is not None and row.size_m:
+        row.peak_pct = 100 * row.peak_mm / 1e3 / row.size_m
+
+
+def _get(d, keys):
+    for k in keys:
+        if not isinstance(d, dict) or k not in d:
+            return None
+        d = d[k]
+    return d
+
+
+def judge(row: Row) -> None:
+    f = []
+    if row.compare_error:
+        f.append("compare failed")
+    if row.torn_edges is None or row.torn_edges > TARGETS["torn_edges"]:
+        f.append(f"torn {row.torn_edges}")
+    if row.gradient_p999 is None or not row.gradient_p999 <= TARGETS["gradient_p999"]:
+        f.append(f"gradient {fmt(row.gradient_p999, 2)}")
+    if row.folds_over_lbs is not None and not row.folds_over_lbs <= TARGETS["folds_over_lbs"]:
+        f.append(f"folds {folds_text(row)}")
+    if row.peak_pct is None or not math.isfinite(row.peak_pct) or row.peak_pct > TARGETS["peak_max_pct"]:
+        f.append(f"peak {fmt(row.peak_pct, 2)}% > {TARGETS['peak_max_pct']}%")
+    elif row.vigorous and row.peak_pct < TARGETS["peak_min_pct"]:
+        f.append(f"peak {fmt(row.peak_pct, 2)}% < {TARGETS['peak_min_pct']}% on its most vigorous cycle")
+    row.fails, row.passed = f, not f
+
+
+def folds_text(r: Row) -> str:
+    """The folds column: compare's ratio, or "N (LBS 0)" when LBS folds nothing (the ratio is then a count)."""
+    if r.folds_lbs == 0:
+        return f"{fmt(r.folds_final)} (LBS 0)"
+    return f"{fmt(r.folds_over_lbs, 2)}x"
+
+
+def fmt(v, nd=1) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return str(v)
+        return f"{v:.{nd}f}"
+    return str(v)
+
+
+HEAD = ["character", "clip", "bake", "peak (% size)", "peak mm / size m", "torn edges", "gradient p99.9",
+        "folds / LBS", "hard stops", "near reach (%)", "loop wrap mm (x step)", "s", "pass"]
+
+
+def md_row(r: Row, picture: str | None = None) -> str:
+    name = r.character + (" *" if r.vigorous else "")
+    if r.status != "baked":
+        msg = (r.message or "").replace("|", "\\|")
+        msg = msg if len(msg) <= 220 else msg[:217] + "..."
+        cells = [name, r.clip, f"**{r.status}**: {msg}"] + ["-"] * 8 + [fmt(r.seconds), "fail"]
+    else:
+        wrap = "-" if r.wrap_mm is None else f"{r.wrap_mm:.1f} ({fmt(r.wrap_ratio, 1)}x)"
+        cells = [name, r.clip, "baked", fmt(r.peak_pct, 2), f"{fmt(r.peak_mm, 1)} / {fmt(r.size_m, 2)}",
+                 fmt(r.torn_edges), fmt(r.gradient_p999, 2), folds_text(r), fmt(r.hard_stops),
+                 fmt(r.near_limit_pct, 1), wrap, fmt(r.seconds),
+                 "pass" if r.passed else "fail: " + "; ".join(r.fails)]
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def table(rows: list[Row]) -> list[str]:
+    return ["| " + " | ".join(HEAD) + " |", "|" + " --- |" * len(HEAD)] + [md_row(r) for r in rows]
+
+
+def summary(rows: list[Row]) -> str:
+    n = sum(r.passed for r in rows)
+    counts = {s: sum(r.status == s for r in rows) for s in ("baked", "refused", "crashed", "timeout")}
+    extra = ", ".join(f"{v} {k}" for k, v in counts.items() if v)
+    return f"{n} of {len(rows)} bakes pass ({extra})"
+
+
+LEGEND = """\
+Columns: **peak** is the largest |skin_final - skin_static| over vertices and frames (compare's `skin.max_mm`), as a
+percentage of the character's size (the largest extent of its rest skin's bounding box, in the bake's metres);
+**torn edges** the most edges the jiggle stretches or squeezes past their length in one frame; **gradient
+p99.9** the worst frame's 99.9th percentile of the jiggle's displacement gradient; **folds / LBS** the final
+skin's folded edges summed over the clip over LBS's (where LBS folds none: the final skin's count, "N (LBS 0)"); **hard stops** substeps where tissue stopped dead at its
+reach; **near reach** the percentage of muscle-frames with a CV at >= 0.9 x its reach; **loop wrap** the jump of
+the jiggle offset (final - static) from the last frame to the first, max over vertices, and that over the
+median frame-to-frame step; **s** the bake's and the compare's wall time. * marks a zoo character's most
+vigorous cycle, where the peak must also reach 0.3% of the size. **pass**: issue 43's targets (baked, 0 torn
+edges, gradient p99.9 <= 0.5, folds <= 1.1x LBS, peak <= 1.5% of the size).
+"""
+
+
+def write_results(stem: Path, rows: list[Row], skipped: list[dict], meta: dict) -> None:
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    lines = ["# The zoo: every shared character, every cycle", "",
+             f"`{meta['command']}` on {meta['machine']}: {meta['bakes']} bakes in {meta['wall_s']:.0f} s "
+             f"(jobs {meta['jobs']}), jiggle {meta['code']}. {summary(rows)}.", "", *table(rows), "", LEGEND]
+    if skipped:
+        lines += ["Left out: " + "; ".join(f"{s['file']} ({s['why']})" for s in skipped) + ".", ""]
+    stem.with_suffix(".md").write_text("\n".join(lines))
+    stem.with_suffix(".json").write_text(json.dumps({"meta": meta, "targets": TARGETS, "skipped": skipped,
+                                                     "rows": [clean(asdict(r)) for r in rows]}, indent=1))
+
+
+def clean(d: dict) -> dict:
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+
+def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
+    """docs/gallery.md and docs/images/gallery/<character>.png (the compare's peak.png, downsized)."""
+    from PIL import Image
+    img_dir = docs / "images" / "gallery"
+    img_dir.mkdir(parents=True, exist_ok=True)
+    pictures = {}
+    for name in dict.fromkeys(r.character for r in rows):
+        mine = [r for r in rows if r.character == name and r.out and (Path(r.out) / "peak.png").is_file()]
+        mine.sort(key=lambda r: (not r.vigorous, r.clip.startswith("CMU")))
+        if not mine:
+            continue
+        im = Image.open(Path(mine[0].out) / "peak.png").convert("RGB")
+        w = 900
+        im = im.resize((w, round(im.height * w / im.width)), Image.LANCZOS)
+        im = im.quantize(colors=128, method=Image.Quantize.MEDIANCUT)
+        im.save(img_dir / f"{name}.png", optimize=True)
+        pictures[name] = mine[0].clip
+    lines = ["# Gallery", "",
+             "Every character of the shared test assets (`../shared/assets/characters/`: the zoo of CC0 game "
+             "characters, CesiumMan, RiggedFigure, RobotExpressive and the FBX files) baked on every cycle it "
+             "loops, with the defaults, by `benchmarks/zoo.py`; the proof of *every body, every cycle* "
+             "(see [Design](design.md)). A refusal is a row too.", "",
+             f"{summary(rows)}. Run: {meta['date']}, {meta['wall_s']:.0f} s on {meta['machine']}.", "",
+             "```", "python benchmarks/zoo.py --jobs 2", "```", "", *table(rows), "", LEGEND, "## Pictures", "",
+             "Each baked character at the frame of its peak jiggle: static skin (left) and the jiggled skin "
+             "coloured by how far it moved (right), from `jiggle compare`.", ""]
+    for name, clip in pictures.items():
+        lines += [f"### {name}", "", f"![{name} on {clip}](images/gallery/{name}.png)", "",
+                  f"*{name} on {clip}.*", ""]
+    refused = sorted({r.character for r in rows} - set(pictures))
+    if refused:
+        lines += ["No picture (no bake): " + ", ".join(refused) + ".", ""]
+    (docs / "gallery.md").write_text("\n".join(lines))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="out/zoo", help="the bakes' folder (default: out/zoo)")
+    ap.add_argument("--quick", action="store_true", help="a small subset: 2 characters, 1 cycle each, 12 frames")
+    ap.add_argument("--characters", default=None, help="comma-separated file stems (Horse,Frog,CesiumMan)")
+    ap.add_argument("--jobs", type=int, default=1, help="bakes in parallel processes (default: 1)")
+    ap.add_argument("--frames", type=int, default=None, help="only the first N frames of each bake")
+    ap.add_argument("--results", default=None,
+                    help="write RESULTS.md and .json (default: benchmarks/results/zoo; with --quick OUT/zoo)")
+    ap.add_argument("--gallery", default=None,
+                    help="a docs folder to write gallery.md and images/gallery/ into (default: docs; none with "
+                         "--quick)")
+    a = ap.parse_args(argv)
+    if not CHARACTERS.is_dir():
+        print(f"zoo: no shared characters at {CHARACTERS}", file=sys.stderr)
+        return 1
+    cmd = jiggle_command()
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    chars = {c.strip().lower() for c in a.characters.split(",")} if a.characters else None
+    if a.quick and not chars:
+        chars = {"horse", "cesiumman"}
+    frames = a.frames or (12 if a.quick else None)
+    t0 = time.perf_counter()
+    jobs, skipped = plan(chars, a.quick, cmd)
+    print(f"zoo: {len(jobs)} bakes of {len({j.character for j in jobs})} characters, jobs {a.jobs}", flush=True)
+
+    def one(job):
+        r = run_job(job, out, cmd, frames)
+        tail = r.message if r.status != "baked" else ("pass" if r.passed else "fail: " + "; ".join(r.fails))
+        print(f"  {r.character:16s} {r.clip:18s} {r.status:8s} {fmt(r.peak_pct, 2):>6s}%  {fmt(r.seconds):>6s} s"
+              f"  {tail}", flush=True)
+        return r
+
+    with ThreadPoolExecutor(max_workers=max(1, a.jobs)) as ex:
+        rows = list(ex.map(one, jobs))
+    wall = time.perf_counter() - t0
+    meta = {"command": "python benchmarks/zoo.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+            "machine": f"{os.cpu_count()} CPU cores", "jobs": a.jobs, "bakes": len(rows), "frames": frames,
+            "wall_s": round(wall, 1), "code": code_version(cmd), "date": time.strftime("%Y-%m-%d"),
+            "summary": summary(rows)}
+    print("\n".join(table(rows)))
+    print(summary(rows) + f"; {wall:.0f} s")
+    stem = Path(a.results) if a.results else (out / "zoo" if a.quick else ROOT / "benchmarks" / "results" / "zoo")
+    write_results(stem, rows, skipped, meta)
+    docs = Path(a.gallery) if a.gallery else (None if a.quick else ROOT / "docs")
+    if docs is not None:
+        write_gallery(docs, rows, meta)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

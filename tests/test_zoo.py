@@ -1,0 +1,108 @@
+"""benchmarks/zoo.py, the zoo as a benchmark: its loop-wrap measure on arrays whose answer is known, its choice of
+cycles, a refusal kept as a row, and its quick subset (Horse on Gallop and CesiumMan on its walk, 12 frames each)
+run end to end through `jiggle bake` and `jiggle compare`: a table with a row per bake and every column, finite
+figures for the bakes, the gallery page and its pictures."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def zoo():
+    path = ROOT / "benchmarks" / "zoo.py"
+    spec = importlib.util.spec_from_file_location("_bench_zoo", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module                  # dataclasses look their module up there
+    try:
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.modules.pop(spec.name, None)
+
+
+def test_loop_wrap_on_a_known_offset(zoo):
+    # d[t] = A sin(2 pi t / T) on one vertex, zero elsewhere, sampled t = 0..n-1 with the last frame short of a
+    # full period: the wrap |d[n-1] - d[0]| and every step |d[t+1] - d[t]| are known in closed form.
+    n, period, amp = 20, 25.0, 0.010                      # frames, frames per period, metres
+    t = np.arange(n)
+    static = np.zeros((n, 3, 3))
+    final = static.copy()
+    final[:, 1, 2] = amp * np.sin(2 * np.pi * t / period)
+    wrap_mm, ratio = zoo.loop_wrap(final, static)
+    want_wrap = abs(amp * np.sin(2 * np.pi * (n - 1) / period)) * 1e3
+    steps = np.abs(np.diff(amp * np.sin(2 * np.pi * t / period))) * 1e3
+    assert wrap_mm == pytest.approx(want_wrap, rel=1e-9)
+    assert ratio == pytest.approx(want_wrap / np.median(steps), rel=1e-9)
+    # a static skin moved by a constant offset never pops; a still clip with a jump at the end: ratio inf
+    assert zoo.loop_wrap(static + 0.003, static) == (0.0, 0.0)
+    jump = final * 0
+    jump[-1, 0, 0] = 0.002
+    w, r = zoo.loop_wrap(jump, static)
+    assert w == pytest.approx(2.0) and r == math.inf
+
+
+def test_cycles_are_the_looping_animations(zoo):
+    horse = ["Attack_Kick", "Death", "Eating", "Gallop", "Gallop_Jump", "Idle", "Idle_2", "Idle_Headlow",
+             "Idle_HitReact_Left", "Walk"]
+    assert zoo.cycles_of(horse) == ["Gallop", "Walk", "Idle", "Idle_2", "Idle_Headlow"]
+    robot = ["Dance", "Death", "Idle", "Jump", "Running", "Sitting", "Walking", "WalkJump", "Wave"]
+    assert zoo.cycles_of(robot) == ["Running", "Walking", "Dance", "Idle"]
+    # an FBX's shape-key actions repeat the armature's; a file's only animation is its cycle
+    barbarian = ["Armature|Armature|idle", "Key.001|Armature|idle", "Key|Armature|idle"]
+    assert zoo.cycles_of(barbarian) == ["Armature|Armature|idle"]
+    assert zoo.cycles_of(["animation0"]) == ["animation0"]
+
+
+def test_a_refusal_is_a_row(zoo, tmp_path):
+    bad = tmp_path / "not_a_character.glb"
+    bad.write_bytes(b"this is not a glTF file")
+    row = zoo.run_job(zoo.Job("Bad", str(bad), "Walk", animation="Walk"), tmp_path / "out", zoo.jiggle_command(), 4)
+    assert row.status == "refused" and row.message.startswith("jiggle: error:") and "\n" not in row.message
+    assert not row.passed and zoo.md_row(row).count("|") == len(zoo.HEAD) + 1
+
+
+@pytest.mark.slow
+def test_quick_zoo_writes_one_table(zoo, tmp_path):
+    for rel in ("characters/zoo/Horse.glb", "characters/CesiumMan.glb"):
+        if not (zoo.ASSETS / rel).is_file():
+            pytest.skip(f"shared asset {rel} not found under {zoo.ASSETS} (../shared/assets is absent)")
+    docs = tmp_path / "docs"
+    assert zoo.main(["--quick", "--out", str(tmp_path / "bakes"), "--results", str(tmp_path / "zoo"),
+                     "--gallery", str(docs)]) == 0
+    data = json.loads((tmp_path / "zoo.json").read_text())
+    rows = data["rows"]
+    assert [(r["character"], r["clip"]) for r in rows] == [("Horse", "Gallop"), ("CesiumMan", "animation0")]
+    md = (tmp_path / "zoo.md").read_text()
+    head = next(ln for ln in md.splitlines() if ln.startswith("| character"))
+    assert [c.strip() for c in head.strip("|").split("|")] == zoo.HEAD
+    body = [ln for ln in md.splitlines() if ln.startswith("| ") and not ln.startswith(("| character", "| ---"))]
+    assert len(body) == len(rows) and all(ln.count("|") == len(zoo.HEAD) + 1 for ln in body)
+    assert "bakes pass" in md
+    for r in rows:
+        assert r["status"] == "baked", r
+        assert r["frames"] == 12
+        for k in ("size_m", "peak_mm", "peak_pct", "gradient_p999", "folds_over_lbs", "near_limit_pct", "wrap_mm",
+                  "wrap_ratio", "bake_s", "compare_s"):
+            assert r[k] is not None and math.isfinite(r[k]), (r["character"], k, r[k])
+        assert r["torn_edges"] >= 0 and r["hard_stops"] >= 0
+        assert 0 < r["peak_pct"] < 100 and r["size_m"] > 0.5
+        # the wrap the table reports is the one loop_wrap finds in the bake's own arrays
+        with np.load(Path(r["out"]) / "bake.npz") as z:
+            wrap, ratio = zoo.loop_wrap(z["skin_final"], z["skin_static"])
+        if r["wrap_from"] == "bake.npz":
+            assert r["wrap_mm"] == pytest.approx(wrap) and r["wrap_ratio"] == pytest.approx(ratio)
+    assert rows[0]["vigorous"] and not rows[1]["vigorous"]
+    page = (docs / "gallery.md").read_text()
+    for name in ("Horse", "CesiumMan"):
+        pic = docs / "images" / "gallery" / f"{name}.png"
+        assert pic.is_file() and pic.stat().st_size < 150_000
+        assert f"images/gallery/{name}.png" in page
