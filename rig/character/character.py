@@ -140,6 +140,24 @@ class Character:
                              self.source or None, field="joints")
         return np.array([lookup[n] for n in self.joint_names])
 
+    def scaled(self, factor: float) -> "Character":
+        """The same character with every length times `factor` (skin, joints, skeleton; rotations, weights and
+        maps kept); meta["unit_scale"] (metres per file unit) is scaled alike."""
+        if factor == 1.0:
+            return self
+        f = float(factor)
+
+        def moved(m):
+            m = np.array(m)
+            m[..., :3, 3] *= f
+            return m
+        sk = self.skeleton
+        skeleton = replace(sk, offsets=np.asarray(sk.offsets) * f, translations=np.asarray(sk.translations) * f,
+                           end_offsets=np.asarray(sk.end_offsets) * f)
+        return replace(self, vertices=np.asarray(self.vertices) * f, bind_world=moved(self.bind_world),
+                       bind_matrices=moved(self.bind_matrices), skeleton=skeleton,
+                       meta={**self.meta, "unit_scale": self.meta.get("unit_scale", 1.0) * f})
+
     def with_weights(self, joints: np.ndarray, weights: np.ndarray, how: str) -> "Character":
         """The same character with other skin weights (V, k); `how` is recorded in meta["weights"]."""
         return replace(self, joints=joints, weights=weights, meta={**self.meta, "weights": how})
@@ -167,6 +185,21 @@ def check_height(height: float, path: str | None, unit_option: str = "--unit") -
     where = f"{path}: " if path else ""
     warnings.warn(f"{where}the character is {height:.4g} m tall, outside the plausible {lo:g}-{hi:g} m{hint}",
                   JiggleWarning, stacklevel=3)
+
+
+TEMPLATE_HEIGHT_M = {"human": (1.7, 1.0, 2.5)}
+"""metres: (the size a template's defaults are made for, the least and the most height it takes as it is). A
+character its template calls human but whose file says 0.22 m or 4.5 m tall is simulated at 1.7 m and its
+result scaled back (sim.bake.setup); quadrupeds (a cat to a horse) and the generic template take any size."""
+
+
+def template_scale(template: str, height: float) -> float:
+    """The factor that brings a character `height` metres tall to the size its template's defaults are made for
+    (TEMPLATE_HEIGHT_M), or 1.0 when its height is within the template's range or the template has none."""
+    if template not in TEMPLATE_HEIGHT_M or not np.isfinite(height) or height <= 0:
+        return 1.0
+    nominal, lo, hi = TEMPLATE_HEIGHT_M[template]
+    return 1.0 if lo <= height <= hi else nominal / height
 
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}

@@ -246,6 +246,75 @@ def _collapsed_into(parents: np.ndarray, pos: np.ndarray, j: int) -> int:
     return j
 
 
+@dataclass(frozen=True, eq=False)
+class TemplateChoice:
+    """Which template a character gets, and why (choose_template).
+
+    template : the Template to fit, or None for the generic one (rig.muscle.generic).
+    plan : the skeleton's body plan (rig.motion.body_plan.BodyPlan); why : one sentence saying why.
+    roles : {role: joint index} in the character's joints ({} for the generic template); front : (3,) its
+        front, or None for the generic template. body, order : rig.character.body_skeleton.body_skeleton's.
+    """
+
+    template: object
+    plan: object
+    roles: dict
+    front: np.ndarray | None
+    why: str
+    body: object
+    order: np.ndarray
+
+
+def choose_template(character: Character, template="auto", joint_map: str | None = None,
+                    roles: dict | None = None, front: np.ndarray | None = None) -> TemplateChoice:
+    """The template `character` gets: `template` when it is a Template, a built-in name or a path (its roles must
+    fit: InputError otherwise), the generic one for "generic"; for "auto" or None the built-in template of the
+    skeleton's body plan, or the generic one when no plan fits or the plan's roles (found without a joint map)
+    do not fit the joints. The roles are read off the body's skeleton (rig.character.body_skeleton: helper bones
+    such as IK and pole targets set aside, IK-placed feet hung under their legs). `front` given: the character's
+    front is not read from its roles."""
+    from jiggle.rig.character.body_skeleton import body_skeleton
+    from jiggle.rig.motion.body_plan import detect_body_plan
+    from jiggle.rig.motion.role_map import facing, resolve_roles
+    from jiggle.rig.muscle.generic import GENERIC
+    from jiggle.rig.muscle.template import Template, check_labels, load_template
+    body, order = body_skeleton(character)
+    plan = detect_body_plan(body)
+
+    def generic(why: str) -> TemplateChoice:
+        return TemplateChoice(None, plan, {}, None, why, body, order)
+    if isinstance(template, str) and template == GENERIC:
+        return generic("asked for (--template generic)")
+    auto = not isinstance(template, Template) and template in (None, "auto")
+    if auto:
+        if plan.template is None:
+            return generic(f"no built-in body plan fits ({plan.reason})")
+        template, why = plan.template, f"the {plan.kind}'s built-in template ({plan.reason})"
+    else:
+        why = "asked for (--template)"
+    tpl = template if isinstance(template, Template) else load_template(template)
+    try:
+        if roles is None:
+            roles = {r: int(order[j]) for r, j in resolve_roles(body, joint_map).items()}
+        else:
+            roles = dict(roles)
+        if "spine" not in roles and "hips" in roles and "chest" in roles:
+            # no joint between the pelvis and the chest (a game rig's two-bone trunk): the trunk's bone starts
+            # at the hips, as on CMU skeletons, whose spine joint sits at the hips' place
+            roles["spine"] = roles["hips"]
+        tpl = _without_optional(tpl, roles)
+        check_labels(tpl, roles, character.joint_names, plan)
+        front = facing(character.bind_positions, roles)[0] if front is None else front
+    except InputError as e:
+        if not auto or joint_map is not None:
+            raise       # the user named the template or the joint map: their choice fails, say so
+        # the skeleton looked like a biped or quadruped, but its joints do not play the roles: tissue anyway
+        why = f"the {tpl.name} template's roles do not fit ({e.message})"
+        warnings.warn(f"placing tissue with the generic template: {why}", JiggleWarning, stacklevel=3)
+        return generic(why)
+    return TemplateChoice(tpl, plan, roles, front, why, body, order)
+
+
 def fit_musculature(character: Character, template="auto", options: FitOptions = FitOptions(), *,
                     roles: dict | None = None, front: np.ndarray | None = None) -> Musculature:
     """Fit `template` (a Template, a built-in name or a path; "generic": tissue on the skin's segmentation
@@ -268,50 +337,17 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     """
     import trimesh
 
-    from jiggle.rig.character.body_skeleton import body_skeleton, original_parents
-    from jiggle.rig.motion.body_plan import detect_body_plan
-    from jiggle.rig.motion.role_map import facing, resolve_roles
-    from jiggle.rig.muscle.generic import GENERIC, generic_front, generic_parts, generic_template
+    from jiggle.rig.character.body_skeleton import original_parents
+    from jiggle.rig.muscle.generic import generic_front, generic_parts, generic_template
     from jiggle.rig.muscle.model import MuscleSpec, build_muscle_rig
     from jiggle.rig.muscle.segmentation import segment_skin
-    from jiggle.rig.muscle.template import Template, check_labels, load_template
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    # the body plan and roles are read off the body's skeleton: helper bones (IK and pole targets off a
-    # weightless root) set aside, IK-placed feet hung under their legs (rig/character/body_skeleton.py)
-    body, order = body_skeleton(character)
-    plan = detect_body_plan(body)
-    generic = isinstance(template, str) and template == GENERIC
-    why = "asked for (--template generic)" if generic else ""
-    if not isinstance(template, Template) and template in (None, "auto"):
-        if plan.template is None:
-            generic, why = True, f"no built-in body plan fits ({plan.reason})"
-        else:
-            template = plan.template
-            why = f"the {plan.kind}'s built-in template ({plan.reason})"
-    auto = not generic and why != ""
-    if not generic:
-        tpl = template if isinstance(template, Template) else load_template(template)
-        try:
-            if roles is None:
-                roles = {r: int(order[j]) for r, j in resolve_roles(body, options.joint_map).items()}
-            else:
-                roles = dict(roles)
-            if "spine" not in roles and "hips" in roles and "chest" in roles:
-                # no joint between the pelvis and the chest (a game rig's two-bone trunk): the trunk's bone starts
-                # at the hips, as on CMU skeletons, whose spine joint sits at the hips' place
-                roles["spine"] = roles["hips"]
-            tpl = _without_optional(tpl, roles)
-            check_labels(tpl, roles, character.joint_names, plan)
-        except InputError as e:
-            if not auto or options.joint_map is not None:
-                raise       # the user named the template or the joint map: their choice fails, say so
-            # the skeleton looked like a biped or quadruped, but its joints do not play the roles: tissue anyway
-            generic, why = True, f"the {tpl.name} template's roles do not fit ({e.message})"
-            warnings.warn(f"placing tissue with the generic template: {why}", JiggleWarning, stacklevel=2)
-    if generic:
-        roles = {}
+    choice = choose_template(character, template, options.joint_map, roles, front)
+    body, order, plan, roles, why = choice.body, choice.order, choice.plan, choice.roles, choice.why
+    generic = choice.template is None
+    tpl = choice.template
     shape = character if body is character.skeleton else \
         replace(character, parents=original_parents(body, order))   # the skin's bones on that tree
     pos = character.bind_positions
@@ -320,7 +356,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     elif generic:
         front = generic_front(character)
     else:
-        front = facing(pos, roles)[0]
+        front = choice.front
     seg = segment_skin(shape, iterations=options.iterations, lam=options.lam, exclude=options.exclude,
                        overrides=options.overrides)
     timings["segmentation"] = time.perf_counter() - t0

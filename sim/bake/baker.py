@@ -68,6 +68,10 @@ PAUSE_ENV = "JIGGLE_BAKE_PAUSE"
 CACHE_NAMES = {"npz": "bake.npz", "usdc": "bake.usdc", "usda": "bake.usda", "pc2": "bake.pc2"}
 
 
+SCALED_KEYS = ("skin_static", "skin_final", "skin_lbs", "cvs_static", "cvs_dynamic", "skin_pulled_m", "contact_depth")
+"""A chunk's arrays that are lengths of the character (metres), written at the file's size (BakeSetup.scale)."""
+
+
 def chunk_path(out_dir: str, c: int) -> str:
     return os.path.join(out_dir, PARTIAL, f"chunk_{c:05d}.npz")
 
@@ -181,7 +185,12 @@ class Baker:
                 kept = self.skin_check.keep_out(world, skin_static, skin_final, s.settings.device)
                 arrays["inside_static"], arrays["inside_final"] = kept["static"], kept["final"]
                 arrays["skin_kept_out"], arrays["skin_pulled_m"] = kept["kept"], kept["pulled_m"]
-            return {**arrays, "skin_static": skin_static, "skin_final": skin_final}
+            arrays = {**arrays, "skin_static": skin_static, "skin_final": skin_final}
+            if s.scale != 1.0:          # simulated at its template's size: written at the file's (BakeSetup.scale)
+                for k in SCALED_KEYS:
+                    if k in arrays:
+                        arrays[k] = (arrays[k] * np.float32(s.scale)).astype(arrays[k].dtype)
+            return arrays
         if self.defer:
             out["finish"] = finish
             return out

@@ -165,7 +165,10 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
     rig = setup.rig
     muscle_joint = np.asarray(rig.joints)[:, 8] if getattr(rig, "joints", None) is not None and \
         len(rig.joints) == len(data.muscle_names) else None
-    rep = export_glb(setup.character, world, data, out, bones=budget, max_influences=max_influences,
+    if setup.scale != 1.0:      # the caches hold the file's size (BakeSetup.scale): so do the skin and its bones
+        world = np.array(world)
+        world[..., :3, 3] *= setup.scale
+    rep = export_glb(setup.character.scaled(setup.scale), world, data, out, bones=budget, max_influences=max_influences,
                      source=source, fps=setup.fps, muscle_joint=muscle_joint)
     summary_path = os.path.join(out_dir, "bake.json")
     if os.path.isfile(summary_path) and path is None:

@@ -111,6 +111,9 @@ class BakeSetup:
     floor : metres, world z of the floor the particles collide with (settings.collisions), None: none.
     capsules : the bone capsules (rig.character.capsules.BoneCapsules) the particles collide with, None:
         the character's own (built by the baker).
+    scale : the file's metres per simulated metre: a character simulated at its template's size
+        (rig.character.character.template_scale) is written back at its file's size (every position of the
+        caches times `scale`); 1.0 for the others.
     """
 
     name: str
@@ -131,6 +134,7 @@ class BakeSetup:
     floor: float | None = None
     capsules: object = None
     glb: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    scale: float = 1.0
 
     @property
     def rig(self):
@@ -295,19 +299,24 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                                    skin=pick("skin", 0))
     else:
         character = body_character(clip, body, k=pick("influences", 4))
-    if character_file is not None:
+    def onto(character):
+        """The clip on `character`'s skeleton, at its scale."""
+        if character_file is None:
+            return source
         from jiggle.rig.motion.retarget_onto import retarget_onto
         from jiggle.rig.character.body_skeleton import hang, placed_parts
         placed = placed_parts(character)
-        clip = retarget_onto(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
+        return retarget_onto(source, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
                              scale=character.meta.get("unit_scale", 1.0),
                              follow=(lambda c: hang(c, placed, character.bind_world)) if placed else None)
+    clip = onto(character)
     what = os.path.basename(character_file) if character_file is not None else "generated body"
     reused = "reused, " if cached is not None else ""
     log(f"character: {what}, {character.num_vertices} vertices, {character.num_joints} joints "
         f"({reused}{time.perf_counter() - t:.1f} s)")
     timings["character_s"] = time.perf_counter() - t
 
+    from jiggle.rig.character.character import TEMPLATE_HEIGHT_M, template_scale
     from jiggle.rig.muscle.fit import FitOptions, fit_musculature
     from jiggle.rig.muscle.generic import GENERIC
     from jiggle.rig.skin.muscle_skin import MuscleSkin
@@ -319,6 +328,19 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         mus = given[2]
     else:
         mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
+        if character_file is not None and pick("unit", None) in (None, "auto"):
+            # defaults are made for the template's size: a 0.22 m human is simulated at 1.7 m, scaled back
+            height = float(np.ptp(np.asarray(character.vertices)[:, 2]))
+            k = template_scale(mus.template.name, height)
+            if k != 1.0:
+                log(f"size: {height:.3g} m tall by the file, outside the {mus.template.name} template's "
+                    f"{TEMPLATE_HEIGHT_M[mus.template.name][1]:g}-{TEMPLATE_HEIGHT_M[mus.template.name][2]:g} m: "
+                    f"simulated at {height * k:.3g} m, the result scaled back to the file's size (--unit says "
+                    f"the file's unit instead)")
+                character = character.scaled(k)
+                character = replace(character, meta={**character.meta, "template_scale": k})
+                clip = onto(character)
+                mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
     if template == "auto":
         template = mus.template.name
     log(f"body plan: {mus.plan.kind} ({mus.plan.reason})")
@@ -367,6 +389,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "template": template if not os.path.isfile(str(template)) else
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "body_plan": mus.plan.to_json(),
+        "template_why": mus.why or None,
+        "size_scale": character.meta.get("template_scale", 1.0),
         "vertices": character.num_vertices,
         "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
         "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush},
@@ -388,7 +412,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
                      chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
-                     capsules=capsules, glb=_glb(req))
+                     capsules=capsules, glb=_glb(req), scale=1.0 / character.meta.get("template_scale", 1.0))
 
 
 def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.ndarray, log) -> list:

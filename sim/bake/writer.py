@@ -67,7 +67,7 @@ class BakeWriter:
         if not smooth:
             del shapes["skin_lbs"]
         self.head = BakeData(skin_static=np.zeros((1, V, 3), np.float32), skin_final=np.zeros((1, V, 3), np.float32),
-                             skin_rest=character.vertices, faces=character.faces, fps=setup.fps, times=setup.times[:1],
+                             skin_rest=np.asarray(character.vertices) * setup.scale, faces=character.faces, fps=setup.fps, times=setup.times[:1],
                              joint_names=setup.joint_names, joint_world=np.tile(np.eye(4, dtype=np.float32), (1, J, 1, 1)),
                              muscle_names=tuple(rig.names), muscle_cvs_static=np.zeros((1, N, 3), np.float32),
                              muscle_cvs_dynamic=np.zeros((1, N, 3), np.float32), muscle_cv_offsets=rig.cv_offsets,
