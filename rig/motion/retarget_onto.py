@@ -37,7 +37,7 @@ def joint_map_for(given, skeleton: Clip, option: str, owner: str) -> JointMap:
 
 
 def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=None, log=print, scale=1.0,
-                  follow=None):
+                  follow=None, character_roles: JointMap | None = None):
     """`clip` retargeted onto the skeleton of a skinned glTF (joint maps given, built-in presets, or roles
     found from the skeletons' shapes: :func:`joint_map_for`).
     A clip of the character's own skeleton (the same joints by name and parent, e.g. the character's
@@ -46,7 +46,10 @@ def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=Non
         as the character is read with: the skeleton the clip lands on is scaled alike, so the skin and
         its bones agree.
     follow : None, or a function applied to the retargeted clip (not to the character's own animation): the
-        bake hangs an IK rig's placed feet under its legs with it (rig.character.body_skeleton.hang)."""
+        bake hangs an IK rig's placed feet under its legs with it (rig.character.body_skeleton.hang).
+    character_roles : the character's roles as the fit found them on its body (helper bones set aside, IK feet
+        hung under their legs), used for the character's side when no character_map is given, before presets
+        and the roles of its raw skeleton (which an IK rig's feet off the root can hide)."""
     from jiggle.rig.motion.fbx import fbx_to_gltf, is_fbx
     from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
     skeleton_file = fbx_to_gltf(character_file) if is_fbx(character_file) else character_file
@@ -57,7 +60,8 @@ def retarget_onto(clip, character_file, skin=0, clip_map=None, character_map=Non
             log(f"{clip.name!r} moves the skeleton of {os.path.basename(character_file)}: no retargeting")
             return identity(clip, idx, character.parents, scale)
     cmap = joint_map_for(clip_map, clip, "--clip-map", clip.source or clip.name)
-    chmap = joint_map_for(character_map, character.to_clip(), "--character-map", character_file)
+    chmap = character_roles if character_map is None and character_roles is not None else \
+        joint_map_for(character_map, character.to_clip(), "--character-map", character_file)
     out = retarget(clip, cmap, character, chmap)
     if follow is not None:      # parts an IK rig places (its feet) ride the body joints they hang under
         out = follow(out)

@@ -299,17 +299,24 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                                    skin=pick("skin", 0))
     else:
         character = body_character(clip, body, k=pick("influences", 4))
-    def onto(character):
-        """The clip on `character`'s skeleton, at its scale."""
+
+    def onto(character, mus):
+        """The clip on `character`'s skeleton, at its scale, through the roles its fit found (`mus`)."""
         if character_file is None:
             return source
-        from jiggle.rig.motion.retarget_onto import retarget_onto
         from jiggle.rig.character.body_skeleton import hang, placed_parts
+        from jiggle.rig.motion.retarget import ROLES, JointMap
+        from jiggle.rig.motion.retarget_onto import retarget_onto
         placed = placed_parts(character)
+        roles = None
+        if mus.roles and all(r in ROLES for r in mus.roles):
+            seen = {}              # the fit may alias a missing spine to the hips: one role a joint
+            for r, j in mus.roles.items():
+                seen.setdefault(j, r)
+            roles = JointMap(roles={r: (character.joint_names[j],) for j, r in seen.items()}, name="the fit's roles")
         return retarget_onto(source, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
-                             scale=character.meta.get("unit_scale", 1.0),
+                             scale=character.meta.get("unit_scale", 1.0), character_roles=roles,
                              follow=(lambda c: hang(c, placed, character.bind_world)) if placed else None)
-    clip = onto(character)
     what = os.path.basename(character_file) if character_file is not None else "generated body"
     reused = "reused, " if cached is not None else ""
     log(f"character: {what}, {character.num_vertices} vertices, {character.num_joints} joints "
@@ -339,8 +346,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                     f"the file's unit instead)")
                 character = character.scaled(k)
                 character = replace(character, meta={**character.meta, "template_scale": k})
-                clip = onto(character)
                 mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
+    clip = onto(character, mus)
     if template == "auto":
         template = mus.template.name
     log(f"body plan: {mus.plan.kind} ({mus.plan.reason})")

@@ -109,6 +109,9 @@ def read_params(text: str, names) -> tuple[dict, list[dict]]:
     params = params if isinstance(params, dict) else {}
     table = params.get("muscles")
     table = table if isinstance(table, dict) else {}
+    # a character simulated at its template's size has its caches at the file's size (bake.json size_scale: the
+    # simulated metres per file metre); its reach, a simulated length, is compared with them at the file's size
+    size = _number(params.get("size_scale")) or 1.0
     muscles = []
     for name in names:
         entry = table.get(name)
@@ -116,7 +119,8 @@ def read_params(text: str, names) -> tuple[dict, list[dict]]:
         kind = entry.get("kind")
         # bake.json names them frequency and damping (the scene's keys); older bakes frequency_hz, damping_ratio.
         # A keyed value (a curve) is no one number: None
-        muscles.append({"mass_kg": _number(entry.get("mass_kg")), "reach_m": _number(entry.get("reach_m")),
+        reach = _number(entry.get("reach_m"))
+        muscles.append({"mass_kg": _number(entry.get("mass_kg")), "reach_m": None if reach is None else reach / size,
                         "strength": _number(entry.get("strength"), strict=False),
                         "frequency_hz": _number(entry.get("frequency", entry.get("frequency_hz"))),
                         "damping_ratio": _number(entry.get("damping", entry.get("damping_ratio")), strict=False),
