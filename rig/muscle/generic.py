@@ -38,6 +38,8 @@ THIN = 0.2
 """A region whose radius about its bone is under this share of the largest part's is thin (a tail, a finger)."""
 SMALL = 0.01
 """A region with under this share of the skin's area is too small to hold tissue."""
+FEW = 12
+"""A region with fewer skin vertices than this is not judged flat (its normals are too few to tell)."""
 THIN_NAMES = ("wing", "ear", "fin", "tail", "cape", "hair", "feather", "antenna", "tentacle", "ponytail", "whisker",
               "cloth", "skirt", "horn")
 """Words in a joint's name that say its part is a membrane or an appendage, not tissue: a bone named so, and the
@@ -146,9 +148,11 @@ def _roundness(normals: np.ndarray, along: np.ndarray) -> float:
     blob's skin faces every way (~1); a membrane's two sides face one way and its opposite (~0: a wing, a fin,
     an ear, a cape). The sign of a normal does not count, so neither does a triangle's winding, and the
     overlapping shells of a low-poly game model do not either."""
+    n = np.asarray(normals, np.float64)
+    if len(n) < FEW:
+        return 1.0              # a few normals cannot tell a membrane; a part this coarse is not one
     a = np.asarray(along, np.float64)
     a = a / max(np.linalg.norm(a), 1e-300)
-    n = np.asarray(normals, np.float64)
     p = n - np.outer(n @ a, a)
     w = np.linalg.eigvalsh(p.T @ p)           # ascending; w[0] ~ 0 along the bone
     return float(w[1] / w[2]) if w[2] > 0 else 0.0

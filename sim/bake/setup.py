@@ -350,7 +350,10 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     clip = onto(character, mus)
     if template == "auto":
         template = mus.template.name
-    log(f"body plan: {mus.plan.kind} ({mus.plan.reason})")
+    log(f"body plan: {mus.plan.kind} ({mus.plan.reason}); template {mus.template.name}: {mus.why}")
+    for p in mus.parts:             # the generic template: what each body part got, and why
+        if p.segments or p.kind is None:
+            log(f"  {p.label}: {p.kind or 'no tissue'} ({p.reason})")
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if cached is None:
         skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file,
@@ -397,6 +400,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "body_plan": mus.plan.to_json(),
         "template_why": mus.why or None,
+        "parts": [p.to_json() for p in mus.parts] or None,
         "size_scale": character.meta.get("template_scale", 1.0),
         "vertices": character.num_vertices,
         "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),

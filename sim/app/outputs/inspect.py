@@ -51,7 +51,33 @@ def body_plan(clip: Clip) -> dict:
     """The skeleton's body plan (rig.motion.body_plan) and the template `--template auto` picks for it."""
     from jiggle.rig.motion.body_plan import detect_body_plan
     plan = detect_body_plan(clip)
-    return {**plan.to_json(), "template": plan.template or "none built in (give --template FILE)"}
+    return {**plan.to_json(), "template": plan.template or "generic (tissue from the skin's segmentation by bone)"}
+
+
+def tissue_plan(path: str) -> dict:
+    """The template a bake with the defaults gives the character in `path` and why (rig.muscle.fit.choose_template),
+    and the size it is simulated at when its file's size contradicts that template
+    (rig.character.character.template_scale)."""
+    import warnings
+
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.rig.character.character import TEMPLATE_HEIGHT_M, template_scale
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.muscle.fit import choose_template
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        character = load_character(path)
+        choice = choose_template(character)
+    name = "generic" if choice.template is None else choice.template.name
+    out = {"template": name, "why": choice.why}
+    height = float(np.ptp(np.asarray(character.vertices)[:, 2]))
+    k = template_scale(name, height)
+    if k != 1.0:
+        nominal, lo, hi = TEMPLATE_HEIGHT_M[name]
+        out["size"] = (f"{height:.3g} m tall as read, outside the {name} template's {lo:g}-{hi:g} m: simulated at "
+                       f"{nominal:g} m and the result scaled back to the file's size (--unit sets the file's unit "
+                       f"instead)")
+    return out
 
 
 def unit_note(height: float) -> dict:
@@ -115,6 +141,10 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
             out.update(unit_note(out["height_m"]))
         if out.get("skins"):
             out["body_plan"] = body_plan(_body_clip(p))
+            try:
+                out["tissue"] = tissue_plan(p)
+            except InputError as e:
+                out["tissue"] = {"template": None, "why": f"no tissue: {e.message}"}
         if out.get("animations"):
             out["clip"] = describe_clip(load_clip(p, animation=animation))
             if "body_plan" in out:      # the animation moves the character's own skeleton: its body, as read above

@@ -1,0 +1,150 @@
+"""Tissue on any body (rig.muscle.generic) and defaults that depend on the body's shape and motion, not its file.
+
+- the parts' judgement: roundness (a ring of normals vs a two-sided membrane), appendage names, and on the shared
+  zoo: a blob's stacked joints are one fat mass, a winged creature's wings get no tissue and its body does;
+- choose_template: auto falls back to the generic template where no plan fits, a named template that does not fit
+  is refused with the reason;
+- tune_to_motion: the oscillators it tries against the step response x_max = 2 a / w^2, and its choice does not
+  depend on the unit (accelerations and radii scaled alike give the same frequency);
+- the human template's size: a CesiumMan written at 0.12 of its size bakes the same relative jiggle.
+"""
+import json
+import warnings
+
+import numpy as np
+import pytest
+from conftest import asset
+
+from jiggle.rig.base.errors import InputError, JiggleWarning
+from jiggle.rig.character.character import template_scale
+from jiggle.rig.character.load import load_character
+from jiggle.rig.muscle.fit import choose_template, fit_musculature
+from jiggle.rig.muscle.generic import _roundness, _thin_name
+from jiggle.sim.jiggle.params import MOTION_FREQUENCY_HZ, oscillator_peaks
+
+
+def quiet(f, *a, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        return f(*a, **kw)
+
+
+def test_roundness_tells_a_ring_from_a_membrane():
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    ring = np.stack([np.cos(t), np.sin(t), np.zeros_like(t)], 1)           # a limb around the z bone
+    assert _roundness(ring, [0, 0, 1]) > 0.95
+    sheet = np.repeat([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]], 20, axis=0)    # both sides of a wing along z
+    sheet[:, 1] += np.random.default_rng(0).normal(0, 0.05, 40)
+    assert _roundness(sheet, [0, 0, 1]) < 0.05
+    assert _roundness(sheet[:5], [0, 0, 1]) == 1.0                          # too few to call it flat
+
+
+@pytest.mark.parametrize("name, word", [("Wing1.L", "wing"), ("LeftEar", "ear"), ("Tail3", "tail"),
+                                        ("mixamorig:LeftForeArm", None), ("Forearm", None), ("Head", None),
+                                        ("hair_02", "hair"), ("FinBack", "fin"), ("Finger1", None)])
+def test_appendage_names(name, word):
+    assert _thin_name(name) == word
+
+
+@pytest.fixture(scope="module")
+def cat():
+    return quiet(load_character, asset("characters/zoo/Cat.glb"))
+
+
+def test_a_blob_gets_one_fat_mass_over_its_stacked_joints(cat):
+    mus = quiet(fit_musculature, cat)
+    assert mus.template.name == "generic" and "no built-in body plan fits" in mus.why
+    assert [m.kind for m in mus.muscles] == ["fat"]
+    core = [p for p in mus.parts if p.segments]
+    assert len(core) == 1 and len(core[0].segments) == 4          # Armature > Head > Head2 > Head3 > end
+    assert all("merged into" in p.reason for p in mus.parts if not p.segments)
+    # sizes from the skin, none in metres: the fat layer is a share of the part's radius
+    assert mus.muscles[0].spec.depth == pytest.approx(0.15 * core[0].radius)
+
+
+def test_the_generic_template_is_the_same_at_any_scale(cat):
+    a, b = quiet(fit_musculature, cat), quiet(fit_musculature, cat.scaled(0.01))
+    assert [p.kind for p in a.parts] == [p.kind for p in b.parts]
+    assert [m.spec.jiggle.frequency_hz for m in a.muscles] == pytest.approx([m.spec.jiggle.frequency_hz
+                                                                             for m in b.muscles])
+    assert b.muscles[0].spec.depth == pytest.approx(0.01 * a.muscles[0].spec.depth)
+
+
+def test_wings_get_no_tissue_and_the_body_does():
+    demon = quiet(load_character, asset("characters/zoo/Demon.glb"))
+    mus = quiet(fit_musculature, demon)
+    wings = [p for p in mus.parts if p.label.startswith("Wing")]
+    assert wings and all(p.kind is None and "wing" in p.reason for p in wings)
+    assert {"fat", "muscle"} <= {m.kind for m in mus.muscles}
+    names = demon.joint_names
+    assert not any(names[m.bone].startswith("Wing") for m in mus.muscles)
+
+
+def test_choose_template_falls_back_only_when_asked_for_auto(cat):
+    assert quiet(choose_template, cat).template is None
+    with pytest.raises(InputError):                                 # the user named it: say why it does not fit
+        quiet(choose_template, cat, "human")
+    man = quiet(load_character, asset("characters/CesiumMan.glb"))
+    assert quiet(choose_template, man).template.name == "human"
+    assert quiet(choose_template, man, "generic").template is None
+
+
+def test_oscillator_step_response():
+    # x'' + w^2 x = -a0 from rest (a step of acceleration): x = a0 / w^2 (cos wt - 1), |x| peaks at 2 a0 / w^2
+    dt, a0, f = 1 / 60, 3.0, np.array([2.0, 5.0])
+    acc = np.zeros((120, 1, 3))
+    acc[:, 0, 0] = a0
+    peak = oscillator_peaks(acc, dt, f, [0.0])[:, 0]
+    w = 2 * np.pi * f
+    np.testing.assert_allclose(peak, 2 * a0 / w ** 2, rtol=0.03)
+    damped = oscillator_peaks(acc, dt, f, [0.5])[:, 0]
+    assert (damped < peak).all()                                     # damping takes the overshoot
+
+
+def test_tuned_frequencies_do_not_depend_on_the_unit():
+    from jiggle.sim.jiggle.params import MuscleJiggle, tune_to_motion
+    rng = np.random.default_rng(1)
+    acc = rng.normal(0, 4.0, (90, 80, 3))                            # two muscles of 40 CVs, m/s^2
+    base = [MuscleJiggle(name=n, frequency_hz=4.0, damping_ratio=0.3, goal=np.full(40, 0.5), density=900.0)
+            for n in ("a", "b")]
+    offsets = np.array([0, 40, 80])
+    one, _ = tune_to_motion(base, ["fat", "muscle"], acc, 1 / 60, np.array([0.2, 0.05]), offsets)
+    big, _ = tune_to_motion(base, ["fat", "muscle"], 100 * acc, 1 / 60, np.array([20.0, 5.0]), offsets)
+    assert [j.frequency_hz for j in one] == pytest.approx([j.frequency_hz for j in big])
+    for j, kind in zip(one, ("fat", "muscle")):
+        lo, hi = MOTION_FREQUENCY_HZ[kind]
+        assert lo <= j.frequency_hz <= hi
+    harder, _ = tune_to_motion(base, ["fat", "muscle"], 4 * acc, 1 / 60, np.array([0.2, 0.05]), offsets)
+    assert all(h.frequency_hz >= o.frequency_hz for h, o in zip(harder, one))
+
+
+def test_template_scale():
+    assert template_scale("human", 1.5) == 1.0
+    assert template_scale("human", 0.22) == pytest.approx(1.7 / 0.22)
+    assert template_scale("generic", 0.22) == 1.0 and template_scale("quadruped", 8.0) == 1.0
+
+
+def _relative_peak(out) -> float:
+    z = np.load(out / "bake.npz")
+    d = np.linalg.norm(z["skin_final"] - z["skin_static"], axis=2).max()
+    return float(d / np.ptp(z["skin_rest"][:, 2]))
+
+
+def test_a_small_human_jiggles_as_much_as_a_full_size_one(tmp_path):
+    """CesiumMan written at 0.12 of its size (0.18 m): simulated at the human template's size and written back at
+    the file's, its relative jiggle on a CMU run is within 5% of the unscaled one's."""
+    from jiggle.rig.character.gltf_write import write_character
+    from jiggle.sim.app.cli import main
+    man = quiet(load_character, asset("characters/CesiumMan.glb"))
+    small = tmp_path / "small.glb"
+    write_character(man.scaled(0.12), small)
+    clip = asset("mocap/cmu_bvh/09_11.bvh")
+    for name, character in (("full", asset("characters/CesiumMan.glb")), ("small", small)):
+        assert main(["bake", "--clip", str(clip), "--character", str(character), "--out", str(tmp_path / name),
+                     "--formats", "npz", "-q"]) == 0
+    params = json.loads((tmp_path / "small" / "bake.json").read_text())["params"]
+    assert params["size_scale"] == pytest.approx(1.7 / 0.1808, rel=0.01)
+    z = np.load(tmp_path / "small" / "bake.npz")
+    np.testing.assert_allclose(z["skin_rest"], 0.12 * np.asarray(man.vertices), atol=1e-6)   # the file's size
+    full, scaled = _relative_peak(tmp_path / "full"), _relative_peak(tmp_path / "small")
+    assert scaled == pytest.approx(full, rel=0.05), (full, scaled)
