@@ -151,12 +151,22 @@ def write_pc2(path: str, frames, start: float, rate: float) -> None:
     os.replace(tmp, path)
 
 
+def file_unit(data) -> float:
+    """Metres per unit of the baked character's file (bake.npz's params "file_unit_m"; 1 for older bakes): the bake
+    reads a file in centimetres as metres, and Blender imported its glTF a unit a Blender unit."""
+    import json
+    try:
+        return float(json.loads(str(data["params"])).get("file_unit_m") or 1.0)
+    except (KeyError, ValueError, TypeError, AttributeError):
+        return 1.0
+
+
 def vertex_map(context, mesh, data, frame: int):
     """(pick (V_blender,): the bake's vertex each Blender vertex is, the mesh's world matrix (4, 4)): where each
     stood at the bake's first frame (the glTF splits vertices at UV seams; the copies move alike)."""
     import numpy as np
     from mathutils.kdtree import KDTree
-    first = data["skin_lbs"][0] if "skin_lbs" in data.files else data["skin_static"][0]
+    first = (data["skin_lbs"][0] if "skin_lbs" in data.files else data["skin_static"][0]) / file_unit(data)
     context.scene.frame_set(frame)
     ev = mesh.evaluated_get(context.evaluated_depsgraph_get())
     me = ev.to_mesh()
@@ -186,7 +196,7 @@ def mesh_caches(context, mesh, out: str, frame_start: int) -> tuple[str, str]:
     inv = np.linalg.inv(world)
     paths = []
     for key, name in (("skin_final", FINAL_CACHE), ("skin_static", STATIC_CACHE)):
-        skin = data[key][:, pick].astype(np.float64)
+        skin = data[key][:, pick].astype(np.float64) / file_unit(data)
         local = skin @ inv[:3, :3].T + inv[:3, 3]
         path = os.path.join(out, f"{mesh.name}.{name}")
         write_pc2(path, local, 0.0, 1.0)              # sample k at cache frame k: the modifier maps the scene

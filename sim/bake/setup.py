@@ -402,6 +402,9 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "template_why": mus.why or None,
         "parts": [p.to_json() for p in mus.parts] or None,
         "size_scale": character.meta.get("template_scale", 1.0),
+        # metres per unit of the character's file, as its caches are written: a DCC that imported the file as it
+        # is (Blender: a glTF unit a Blender unit) divides the caches' positions by it to land on its mesh
+        "file_unit_m": character.meta.get("unit_scale", 1.0) / character.meta.get("template_scale", 1.0),
         "vertices": character.num_vertices,
         "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
         "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush},

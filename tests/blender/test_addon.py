@@ -109,14 +109,15 @@ def jiggle_exe() -> str:
 
 
 def in_blender(addon, body: str, out, tmp_path, jiggle: str | None = None, setup: str = SETUP,
-               args: tuple = ()) -> tuple[dict, np.ndarray | None]:
-    """Run setup + body in Blender (its user folder in tmp_path), with the zip, CesiumMan, `out`, the jiggle
-    command and RESULT as its last arguments (after `args`): (RESULT.json, RESULT.npy or None)."""
+               args: tuple = (), glb=None) -> tuple[dict, np.ndarray | None]:
+    """Run setup + body in Blender (its user folder in tmp_path), with the zip, the character (`glb`, default
+    CesiumMan), `out`, the jiggle command and RESULT as its last arguments (after `args`): (RESULT.json,
+    RESULT.npy or None)."""
     from jiggle.rig.motion.fbx import blender_command
     script, result = tmp_path / "script.py", tmp_path / "result"
     script.write_text(setup + body)
     r = subprocess.run(blender_command(str(script)) + [*map(str, args), str(addon),
-                                                        str(asset("characters/CesiumMan.glb")), str(out),
+                                                        str(glb or asset("characters/CesiumMan.glb")), str(out),
                                                         jiggle or jiggle_exe(), str(result)],
                        capture_output=True, text=True, timeout=900,
                        env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
@@ -166,6 +167,38 @@ def test_bake_from_blender_plays_the_baked_skin(addon, tmp_path):
     assert code == 0
     e = read_npz(again / "bake.npz")
     assert np.array_equal(e.skin_final, d.skin_final) and np.array_equal(e.skin_static, d.skin_static)
+
+
+@pytest.mark.parametrize("scale, unit_m", [(100.0, 0.01), (0.12, 1.0)])
+def test_a_character_in_centimetres_or_tiny_plays_on_its_own_mesh(addon, tmp_path, scale, unit_m):
+    """CesiumMan written 100 times larger (a glTF in centimetres: 150 units tall, which the bake reads as 1.5 m)
+    and 0.12 times smaller (0.18 m, which the bake simulates at the human template's 1.7 m): imported and baked
+    in Blender, its evaluated mesh is the bake's skin_final brought back to the file's units (params' file_unit_m)
+    within 0.1 mm of the mesh's size, on its own mesh."""
+    import warnings
+
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.rig.character.gltf_write import write_character
+    from jiggle.rig.character.load import load_character
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        man = load_character(asset("characters/CesiumMan.glb"))
+    from dataclasses import replace
+
+    from jiggle.rig.motion.mocap import load_clip
+    walk = load_clip(asset("characters/CesiumMan.glb"))
+    walk = replace(walk, offsets=walk.offsets * scale, translations=walk.translations * scale)
+    glb = tmp_path / "scaled.glb"
+    write_character(man.scaled(scale), glb, animations={"walk": walk})
+    out = tmp_path / "bake"
+    rep, skins = in_blender(addon, DRIVE, out, tmp_path, glb=glb)
+    assert rep["result"] == ["FINISHED"], rep
+    d = read_npz(out / "bake.npz")
+    params = json.loads(d.params)
+    assert params["file_unit_m"] == pytest.approx(unit_m)
+    for k, f in enumerate(rep["frames"]):
+        baked = d.skin_final[f] / unit_m
+        assert cKDTree(baked).query(skins[k])[0].max() < 1e-4 * scale, f
 
 
 def test_a_missing_or_failing_jiggle_is_a_report_and_changes_nothing(addon, tmp_path):
