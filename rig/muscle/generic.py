@@ -8,9 +8,9 @@ whose roles cannot be read), the fit still has the first step of the outside-in 
   and their roundness (how evenly the skin's normals face every way around the bone: a membrane's do not);
 - a part holds volume when it is neither flat (FLAT: wings, ears, fins, capes), nor thin (its radius under
   THIN of the body's largest part: tails, antennae, fingers), nor small (under SMALL of the skin's area);
-- parts holding volume get one tissue mass fitted to their whole region: fat on the body's soft core (a
-  radius at least CORE of the largest: a blob's body, a belly, a head as big as the body), muscle on the
-  others (limbs, a neck); the core's stacked bones along a straight, unbranched chain are one mass (a blob's
+- parts holding volume get one tissue mass fitted to their whole region: fat on the body's soft core (at
+  least CORE of the bulkiest part's volume, skin area x radius: a blob's body, a belly, a head as big as the
+  body), muscle on the others (limbs, a neck); the core's stacked bones along a straight, unbranched chain are one mass (a blob's
   body and head joints), so no seam runs through it;
 - sizes come from the skin: a fat layer FAT_DEPTH_RADII and the thinnest muscle THICKNESS_RADII of the part's
   radius, so the template has no length in metres and gives the same shapes at any scale;
@@ -44,8 +44,9 @@ THIN_NAMES = ("wing", "ear", "fin", "tail", "cape", "hair", "feather", "antenna"
               "cloth", "skirt", "horn")
 """Words in a joint's name that say its part is a membrane or an appendage, not tissue: a bone named so, and the
 bones below it, get none whatever their shape (a wing's thick leading edge looks round)."""
-CORE = 0.6
-"""Parts with at least this share of the largest part's radius are the body's soft core: they get fat."""
+CORE = 0.5
+"""Parts holding at least this share of the bulkiest part's volume (skin area x radius about the bone) are the
+body's soft core: they get fat (a blob's body, a big head, a belly)."""
 STRAIGHT = np.cos(np.radians(35.0))
 """Consecutive bones of a soft core within 35 degrees of each other are one body (a blob's stacked joints)."""
 FAT_DEPTH_RADII = 0.15
@@ -111,8 +112,10 @@ def generic_parts(vertices: np.ndarray, faces: np.ndarray, face_region: np.ndarr
         r = local_radius(V, F[mine], segments.start[s], segments.end[s])
         rows.append((s, a, r, _roundness(np.asarray(normals)[vertex_region == s],
                                           segments.end[s] - segments.start[s])))
-    core = [r for s, a, r, f in rows if a >= SMALL * total and f >= FLAT]
-    biggest = max(core, default=0.0)
+    round_ = [(a, r) for s, a, r, f in rows if a >= SMALL * total and f >= FLAT and not _thin_name(
+        segments.labels[s].split(">")[0])]
+    biggest = max((r for a, r in round_), default=0.0)
+    bulk = max((a * r for a, r in round_), default=0.0)     # ~ the volume the skin holds (area x radius)
     parts = []
     names = segments.labels
     for s, a, r, solid in rows:
@@ -125,10 +128,11 @@ def generic_parts(vertices: np.ndarray, faces: np.ndarray, face_region: np.ndarr
             kind, why = None, f"flat (roundness {solid:.2f}): a wing, fin or ear follows its bones"
         elif r < THIN * biggest:
             kind, why = None, f"thin (radius {r / biggest:.2f} of the body's): a tail or finger follows its bones"
-        elif r >= CORE * biggest:
-            kind, why = "fat", f"the body's soft core (radius {r / biggest:.2f} of the largest part)"
+        elif a * r >= CORE * bulk:
+            kind, why = "fat", f"the body's soft core ({a * r / bulk:.2f} of the bulkiest part's volume)"
         else:
-            kind, why = "muscle", f"holds volume (radius {r / biggest:.2f} of the largest part)"
+            kind, why = "muscle", f"holds volume ({a * r / bulk:.2f} of the bulkiest part's, radius " \
+                                  f"{r / biggest:.2f} of the largest)"
         child = int(segments.child[s])
         parts.append(Part(segment=s, label=segments.labels[s], joint=int(segments.parent[s]),
                           child=child if child >= 0 else int(segments.parent[s]), area=a, radius=r,
@@ -159,8 +163,9 @@ def _roundness(normals: np.ndarray, along: np.ndarray) -> float:
 
 
 def _merge_chains(parts: list[Part], segments) -> list[Part]:
-    """Fat parts with a run of fat segments along an unbranched, straight chain (within STRAIGHT) merged into the run's first part: it
-    covers them all and ends where the run ends; the others keep their judgement but no tissue ("merged")."""
+    """A fat part and the tissue parts after it along an unbranched, straight chain (within STRAIGHT) merged into
+    the run's first part: it covers them all and ends where the run ends; the others keep their judgement but no
+    tissue ("merged")."""
     starts: dict[int, list[int]] = {}
     for p in parts:
         starts.setdefault(p.joint, []).append(p.segment)
@@ -173,7 +178,7 @@ def _merge_chains(parts: list[Part], segments) -> list[Part]:
         # the next segment of the run: the only bone leaving this one's end joint, of the same kind
         while last.child != last.joint and len(starts.get(last.child, [])) == 1:
             nxt = out[starts[last.child][0]]
-            if nxt.kind != p.kind or nxt.segment in absorbed or nxt.segment in run:
+            if nxt.kind is None or nxt.segment in absorbed or nxt.segment in run:
                 break
             a = segments.end[last.segment] - segments.start[last.segment]
             b = segments.end[nxt.segment] - segments.start[nxt.segment]

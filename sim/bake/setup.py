@@ -378,6 +378,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     timings["drive_s"] = time.perf_counter() - t
     if mus.template.name == GENERIC:
         jiggles = _to_motion(jiggles, mus, character, clip, drive, world_at, knots, log)
+        if drive == "kinematic":
+            jiggles = _to_size(jiggles, skin, _settings(req, scene, jiggles)[0], character, clip, world_at, log)
     settings, jiggles = _settings(req, scene, jiggles)
     if source is clip:
         joints_at, joint_names = world_at, tuple(clip.joint_names)
@@ -444,6 +446,46 @@ def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.nd
     for name, (a, b) in tuned.items():
         log(f"{name}: goal springs {a:.2g} -> {b:.2g} Hz for the clip's motion (the generic template's default)")
     return out
+
+
+PEAK_SIZE = 0.008
+"""The generic template's tissue is calibrated so that its skin's largest jiggle on the clip is about this share of
+the body's size (its rest skin's largest extent): visible on a blob's hop or a hovering creature, far from a flap."""
+PROBE_FPS, PROBE_SECONDS, PROBE_ROUNDS = 30.0, 4.0, 2
+"""The calibration's probe bakes: this rate over the clip's first seconds (so neither the bake's rate nor its frame
+range changes the result), this many rounds."""
+
+
+def _to_size(jiggles, skin, settings, character, clip, world_at, log) -> list:
+    """The generic template's goal springs scaled alike (the ratios tune_to_motion found kept, each kind's range
+    MOTION_FREQUENCY_HZ kept) until a probe bake of the clip (no collisions, PROBE_FPS over its first
+    PROBE_SECONDS) jiggles the skin about PEAK_SIZE of the body's size (within 20%, or at a range's end): the skin's response, not a model of it,
+    since how much of a muscle's swing reaches the skin depends on the body (a blob's one fat mass moves its whole
+    skin, a creature's limbs a part of theirs). The quasi-static swing goes as 1 / f^2, so f scales by
+    sqrt(peak / target)."""
+    from jiggle.sim.bake.baker import bake_in_memory
+    from jiggle.sim.jiggle.params import MOTION_FREQUENCY_HZ
+    times = np.arange(0.0, min(clip.duration, PROBE_SECONDS) + 1e-9, 1.0 / PROBE_FPS)
+    if len(times) < 3:
+        return jiggles
+    knots = knot_times(times, settings.goal_rate or DEFAULT_GOAL_RATE)
+    target = PEAK_SIZE * float(np.ptp(np.asarray(character.vertices), axis=0).max())
+    kinds = skin.rig.kinds
+    for _ in range(PROBE_ROUNDS):
+        probe = BakeSetup(name="probe", skin=skin, jiggles=tuple(jiggles), settings=replace(settings, collisions=False),
+                          times=times, fps=PROBE_FPS, knots=knots, world_at=world_at, joints_at=world_at,
+                          joint_names=tuple(character.joint_names), formats=("npz",), chunk=len(times),
+                          params={"probe": True}, key="probe", timings={})
+        data = bake_in_memory(probe)
+        peak = float(np.linalg.norm(np.asarray(data.skin_final) - np.asarray(data.skin_static), axis=2).max())
+        g = math.sqrt(peak / target)
+        if peak <= 1e-6 * target or abs(g - 1.0) < 0.1:
+            break
+        jiggles = [replace(j, frequency_hz=float(np.clip(j.frequency_hz * g, *MOTION_FREQUENCY_HZ.get(
+            k, MOTION_FREQUENCY_HZ["muscle"])))) for j, k in zip(jiggles, kinds)]
+        log(f"generic tissue: {1e3 * peak:.3g} mm on a probe of the clip, for {1e3 * target:.3g} mm "
+            f"({100 * PEAK_SIZE:g}% of the body): goal springs x {g:.2f}")
+    return jiggles
 
 
 def _model_capsules(clip, character, log):
