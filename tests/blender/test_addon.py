@@ -201,6 +201,25 @@ def test_a_character_in_centimetres_or_tiny_plays_on_its_own_mesh(addon, tmp_pat
         assert cKDTree(baked).query(skins[k])[0].max() < 1e-4 * scale, f
 
 
+ANY_BODY = ["zoo/Cat.glb", "zoo/Orc.glb", "zoo/Demon.glb", "zoo/Goleling.glb", "zoo/Hywirl.glb", "zoo/Frog.glb",
+            "zoo/Horse.glb", "zoo/Cow.glb", "RobotExpressive.glb"]
+
+
+@pytest.mark.parametrize("name", ANY_BODY)
+def test_any_character_bakes_from_blender_on_its_own_mesh(addon, tmp_path, name):
+    """Every shared zoo character and RobotExpressive, imported into Blender and baked with the defaults from the
+    add-on (the glTF Blender exports of it, with its active action): baked, not refused, and Blender's evaluated
+    mesh is the bake's skin_final (in the file's units) at the first, middle and last frame."""
+    out = tmp_path / "bake"
+    rep, skins = in_blender(addon, DRIVE, out, tmp_path, glb=asset(f"characters/{name}"))
+    assert rep["result"] == ["FINISHED"], rep
+    d = read_npz(out / "bake.npz")
+    unit = json.loads(d.params).get("file_unit_m", 1.0)
+    size = float(np.ptp(d.skin_rest, axis=0).max()) / unit
+    for k, f in enumerate(rep["frames"]):
+        assert cKDTree(d.skin_final[f] / unit).query(skins[k])[0].max() < 1e-4 * max(size, 1.0), (name, f)
+
+
 def test_a_missing_or_failing_jiggle_is_a_report_and_changes_nothing(addon, tmp_path):
     """No jiggle command at the given path: an error report saying so, no modifier, no folder. A jiggle that
     fails (a rig it refuses): its own one-line message as the report, no modifier, the folder it made removed."""
