@@ -285,8 +285,9 @@ def collision_option(g) -> None:
 
 def template_option(g) -> None:
     """--template: the muscle template that commands fitting muscles to a character take."""
-    g.add_argument("--template", metavar="T", help="muscle template: auto, a built-in name (human, quadruped) or "
-                   ".toml/.xml (default: auto: human or quadruped by the skeleton's body plan)")
+    g.add_argument("--template", metavar="T", help="muscle template: auto, a built-in name (human, quadruped), "
+                   "generic (tissue on any body, from the skin's segmentation by bone) or .toml/.xml (default: auto: "
+                   "human or quadruped by the skeleton's body plan, generic where neither fits)")
 
 
 def muscle_skin_options(g) -> None:
