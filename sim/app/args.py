@@ -169,6 +169,11 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
     g.add_argument("--end", type=non_negative("--end"), metavar="E", help="last frame, seconds of the clip "
                    "(default: its end)")
     g.add_argument("--frames", type=count("--frames"), metavar="N", help="only the first N output frames")
+    g.add_argument("--loop", choices=["auto", "on", "off"], default=None, help="a game cycle baked in its periodic "
+                   "steady state: warmed up over repeated cycles, then one period written whose last frame repeats "
+                   "the first (pose and jiggle), so it loops without a pop; auto: when the clip's last pose repeats its "
+                   "first within 1%% of the character's height (root travel off), or the character's own animation "
+                   "ends one key step before its start (default: auto)")
     g.add_argument("--drive", choices=["kinematic", "physics"], help="kinematic: MuJoCo poses the skeleton from the "
                    "clip; physics: MuJoCo simulates the body on a floor following it (default: the scene's, else "
                    "kinematic)")

@@ -24,6 +24,11 @@ the parameter set's key; resuming with other parameters is refused, naming what 
 A resumed bake reopens the caches in .partial at the last finished chunk (the npz and pc2 are filled
 in place, the USD is written again from the npz: sim/bake/writer.py).
 
+A looping bake (sim/bake/loop.py, BakeSetup.loop) first warms up: the cycle simulated until the state at its
+start repeats, stored in OUT/.partial/loop.npz (a resumed bake reads it back); its first chunk goes on from that
+state as any later chunk goes on from the one before, and bake.json's "loop" records the decision, the warm-up and
+the seam (the jiggle offset's jump from the last frame to the first).
+
 A folder holds either a finished bake (its caches and bake.json) or an unfinished one (.partial/):
 starting a new bake removes first the files the old bake and `jiggle compare` recorded writing (bake.json's
 "files", the manifest's "files", compare's record COMPARE_RECORD) and nothing else: a user's own files
@@ -60,6 +65,8 @@ MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "jiggle.partial/2"
 """/2: chunk files hold the particle state and the caches' progress; the frames are in the caches (sim/bake/writer.py)."""
 SUMMARY = "bake.json"
+LOOP_STATE = "loop.npz"
+"""In .partial: a looping bake's steady state at the cycle's start and its warm-up record (sim/bake/loop.py)."""
 MARGIN = 3
 """Goal knots past each end of a chunk (>= 2: a knot velocity needs its two neighbours, a cut test
 an interval's two neighbours)."""
@@ -140,8 +147,11 @@ class Baker:
                 track = goals(rig, kt, static.cvs, s.settings)
                 colliders = None if self.colliders is None else self.colliders.at(kt, world_k, track.cut)
                 sink = {}
+                # a loop's first chunk goes on from the cycle's steady state (sim/bake/loop.py), as a later chunk
+                # goes on from the one before
+                given = state if c > 0 or s.loop is not None else None
                 dyn, new_state = simulate(self.model, track, times[a:f1], s.settings, solver=self.solver,
-                                          preroll=None if c == 0 else 0.0, start=state if c > 0 else None,
+                                          preroll=0.0 if given is not None else None, start=given,
                                           colliders=colliders, contacts=sink, tissue=self.tissue)
                 dyn = dyn[1:] if c > 0 else dyn
                 if colliders is not None:
@@ -257,7 +267,7 @@ compare.json of its own). A bake or compare removes or overwrites only files suc
 COMPARE_RECORD_FORMAT = "jiggle.compare-files/1"
 COMPARE_FORMAT = "jiggle.compare/1"
 """metrics.json's format: its "files" are the record of a compare from before COMPARE_RECORD existed."""
-_PARTIAL_FILE = re.compile(r"manifest\.json|chunk_\d{5}\.npz|\..+\.tmp.*")
+_PARTIAL_FILE = re.compile(r"manifest\.json|chunk_\d{5}\.npz|loop\.npz|\..+\.tmp.*")
 
 
 def _read_json(path: str):
@@ -407,6 +417,11 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         progress(chunk_frames(setup, done - 1)[1])
     contact_parts = _resumed_contacts(out_dir, done) if done else {}
     baker = Baker(setup, defer=True)
+    warmup = None
+    if setup.loop is not None and baker.model is not None:
+        warmup, loop_state = _warm_up(setup, baker, os.path.join(partial, LOOP_STATE), log)
+        if not done:
+            state = loop_state
     t = time.perf_counter()
     writer = BakeWriter(setup, partial, None if not done else (crcs, chunk_frames(setup, done - 1)[1]),
                         smooth=baker.smooth)
@@ -451,6 +466,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
             done_chunk.result()
         loop_s = time.perf_counter() - t_start
         t = time.perf_counter()
+        seam = _seam(setup, writer) if setup.loop is not None else None
         files = writer.finish(out_dir, {f: os.path.basename(p) for f, p in cache_paths(out_dir, setup.formats).items()})
         write_s = time.perf_counter() - t
     finally:
@@ -460,6 +476,10 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         worker.shutdown(wait=True)
         writer.close()
     summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
+    if setup.loop is not None:
+        summary["loop"] = {**setup.loop.to_json(), "warmup": warmup, "seam": seam}
+    else:
+        summary["loop"] = setup.params.get("loop") if isinstance(setup.params, dict) else None
     if baker.model is not None:
         summary["tissue"] = _tissue_json(setup, contact_parts)
     if baker.colliders is not None:
@@ -474,6 +494,37 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         summary["glb"] = {k: v for k, v in rep.items() if k != "bone_names"}
         summary["files"]["glb"] = rep["file"]
     return summary
+
+
+def _warm_up(setup: BakeSetup, baker: Baker, path: str, log) -> tuple[dict, tuple]:
+    """(the warm-up's record, the steady state (x, v)) of a looping bake: read from .partial/loop.npz when an
+    interrupted bake left it (the same parameters: the manifest's key says so), else reached
+    (sim.bake.loop.warm_up) and stored there."""
+    from jiggle.sim.bake.loop import warm_up
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return json.loads(str(z["record"])), (z["state_x"], z["state_v"])
+    except Exception:  # noqa: BLE001 - none, or damaged: reached again (the same arithmetic)
+        pass
+    t = time.perf_counter()
+    state, rec = warm_up(setup, baker.model, baker.solver, baker.colliders, baker.tissue, MARGIN, log)
+    rec["seconds"] = round(time.perf_counter() - t, 3)
+    _save_chunk(path, {"state_x": state[0], "state_v": state[1], "record": np.array(json.dumps(rec))})
+    return rec, state
+
+
+def _seam(setup: BakeSetup, writer: BakeWriter) -> dict | None:
+    """bake.json's loop "seam" from the finished frames (sim.bake.loop.wrap_figures on frames 0, T-2, T-1): the
+    jiggle offset's jump from the last frame to the first (wrap_mm, ideally 0: the last frame repeats the first)
+    and from the second-to-last to the first (wrap_step_mm, one ordinary step), in mm; None for a bake cut short
+    by --frames (it holds no seam)."""
+    T = len(setup.times)
+    if T != len(setup.loop.cycle_times) or T < 3:
+        return None
+    d = [writer.npz.read("skin_final", f, f + 1)[0].astype(np.float64) - writer.npz.read("skin_static", f, f + 1)[0]
+         for f in (0, T - 2, T - 1)]
+    return {"wrap_mm": round(float(np.linalg.norm(d[2] - d[0], axis=-1).max()) * 1e3, 5),
+            "wrap_step_mm": round(float(np.linalg.norm(d[0] - d[1], axis=-1).max()) * 1e3, 5)}
 
 
 CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final", "skin_kept_out",

@@ -55,6 +55,7 @@ class BakeRequest:
     method ("lbs"/"dqs"), clip_map, character_map (the character's roles, for the template and for
     retargeting), skin, unit: as `jiggle simulate`; mush:
     Delta Mush steps on the smooth skin (0: off).
+    loop : "auto" (None too), "on" or "off": a cycle baked in its periodic steady state (sim/bake/loop.py).
     device : the Warp device every kernel of the bake runs on ("cpu", "cuda", "cuda:N"; None: "cpu").
     """
 
@@ -94,6 +95,7 @@ class BakeRequest:
     skin: int | None = None
     unit: str | None = None
     mush: int | None = None
+    loop: str | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,6 +137,8 @@ class BakeSetup:
     capsules: object = None
     glb: Mapping = field(default_factory=lambda: MappingProxyType({}))
     scale: float = 1.0
+    loop: object = None
+    """sim.bake.loop.Loop: whether the bake loops, its period and how it was judged; None: a plain bake."""
 
     @property
     def rig(self):
@@ -389,6 +393,14 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         sk = Skeleton(source)
         joints_at = lambda ts: transforms(*sk.world(np.asarray(ts)))  # noqa: E731
         joint_names = tuple(source.joint_names)
+    from jiggle.sim.bake.loop import judge      # a game cycle: its times, knots and drive extended periodically
+    loop = judge(req.loop, clip=clip, drive=drive, world_at=world_at, height=float(np.ptp(np.asarray(
+        character.vertices)[:, 2])), times=times, fps=fps, end=req.end, frames=req.frames, own=character_file is not None
+        and os.path.abspath(character_file) == clip_source, goal_rate=goal_rate,
+        joints_at=None if source is clip else joints_at, log=log)
+    if loop.on:
+        fps, times, knots, world_at = loop.fps, loop.times, loop.knots, loop.world_at
+        joints_at = world_at if source is clip else loop.joints_at
 
     params = {
         "jiggle_bake": VERSION,
@@ -413,6 +425,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "settings": jsonable(settings),
         "muscles": _muscle_params(mus.rig, jiggles),
         "chunk": _chunk(req, scene),
+        "loop": loop.to_json(),
     }
     if skin.rig.pose_shapes is not None:
         params["pose_shapes"] = [{"muscle": sh.muscle, "joint": sh.joint, "angles_deg": list(sh.angles),
@@ -428,7 +441,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
                      chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
-                     capsules=capsules, glb=_glb(req), scale=1.0 / character.meta.get("template_scale", 1.0))
+                     capsules=capsules, glb=_glb(req), scale=1.0 / character.meta.get("template_scale", 1.0),
+                     loop=loop if loop.on else None)
 
 
 def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.ndarray, log) -> list:
@@ -529,6 +543,9 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
         raise InputError(f"the built-in scene {scene.builtin!r} has no MuJoCo model, so no geoms to collide with; "
                          "use --colliders bone", field="--colliders")
     knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, fps))
+    if req.loop == "on":
+        raise InputError(f"the built-in scene {scene.builtin!r} is a single motion, not a cycle: drop --loop on",
+                         field="--loop")
     log(f"built-in scene {scene.builtin}: {arm.character.num_vertices} vertices, {arm.rig.M} muscle")
     floor = _floor(arm.character, "kinematic", arm.world_at, knots) if settings.collisions else None
     params = {

@@ -31,7 +31,8 @@ def bake_request(args):
         jiggle_bones=getattr(args, "jiggle_bones", None), max_influences=getattr(args, "max_influences", 4),
         skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),
         character_map=getattr(args, "character_map", None),
-        skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None))
+        skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None),
+        loop=getattr(args, "loop", None))
 
 
 def emit(event: str, **fields) -> None:

@@ -679,6 +679,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         "skin": skin, "peak": peak, "skin_quality": quality,
         **({"collisions": collisions} if collisions is not None else {}),
         **({"glb": glb} if glb is not None else {}),
+        "loop": loop_metrics(data, params),
         "amplitude": "largest CV distance |dynamic - static| (the bake's blended CVs); rms: over time",
         "energy": "per muscle, sum over its CVs of 0.5 m_cv (|v|^2 + w^2 |d|^2); d = dynamic - static, "
                   "v = dd/dt (central differences), m_cv = mass_kg / CVs, w = 2 pi frequency_hz "
@@ -712,6 +713,24 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     _write_json(os.path.join(out_dir, as_name[COMPARE_RECORD]), {"format": COMPARE_RECORD_FORMAT,
                                                                "files": sorted(written)})
     return {"files": files, "metrics": metrics}
+
+
+def loop_metrics(data, params: dict) -> dict:
+    """metrics.json's "loop": how the bake wraps when played as a cycle (sim.bake.loop.wrap_figures on the jiggle
+    offset d = skin_final - skin_static, mm): wrap_mm, the jump from the last frame to the first, over the median
+    frame-to-frame step (wrap_ratio) and the largest (step_max_mm). A loop bake (`jiggle bake --loop`, params
+    "loop" on) writes one period with its last frame repeating the first: wrap_mm is then the seam's mismatch
+    (0 when the steady state was reached) and wrap_step_mm, from the second-to-last frame to the first, the step
+    a player looping frames 0..T-2 takes there (an ordinary one). A plain bake's wrap_mm is the pop it would show
+    looped."""
+    from jiggle.sim.bake.loop import wrap_figures
+    lp = params.get("loop") if isinstance(params.get("loop"), dict) else {}
+    on = bool(lp.get("on"))
+    out = wrap_figures(data.skin_final, data.skin_static, repeats_first=on)
+    return {"looped": on, "kind": lp.get("kind"), "why": lp.get("why"), "repeats_first": on, **out,
+            "rule": "d = skin_final - skin_static; wrap = max over vertices |d[T-1] - d[0]|; step = max over vertices "
+                    "|d[t+1] - d[t]|; a loop bake's frame T-1 repeats frame 0, so its wrap is the seam's mismatch and "
+                    "wrap_step_mm = max |d[0] - d[T-2]| the step across it"}
 
 
 def _names(out_dir: str, own: set[str]) -> dict:
