@@ -178,9 +178,14 @@ def jsonable(x):
     return x
 
 
+UNKEYED = ("template_why",)
+"""params entries that say why, not what: the same bake asked for in other words (a template named rather than found
+by auto, as export and the viewer rebuild it) has the same key."""
+
+
 def params_key(params: dict) -> str:
-    """A short hash of the canonical JSON of `params`."""
-    text = json.dumps(params, sort_keys=True, separators=(",", ":"))
+    """A short hash of the canonical JSON of `params` (less UNKEYED)."""
+    text = json.dumps({k: v for k, v in params.items() if k not in UNKEYED}, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
