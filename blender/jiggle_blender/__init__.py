@@ -307,6 +307,8 @@ def add_jiggle_bones(context, arm, meshes, glb: str, first: int) -> int:
         if node in jig:
             keys[(node, path)] = acc(samplers[ch["sampler"]]["output"])
     times = acc(samplers[0]["input"])[:, 0]
+    # a looping bake (jiggle bake --loop): the glb's extras say so (asset.extras.jiggle.loop)
+    looped = bool((((doc.get("asset") or {}).get("extras") or {}).get("jiggle") or {}).get("loop", {}).get("on"))
     action = bpy.data.actions.new(f"{arm.name}.jiggle")
     slot = action.slots.new(id_type="OBJECT", name=arm.name)
     from bpy_extras.anim_utils import action_ensure_channelbag_for_slot
@@ -333,6 +335,8 @@ def add_jiggle_bones(context, arm, meshes, glb: str, first: int) -> int:
                 fc.keyframe_points.add(len(frames))
                 fc.keyframe_points.foreach_set("co", np.c_[frames, values[:, c]].ravel().tolist())
                 fc.keyframe_points.foreach_set("interpolation", [1] * len(frames))       # LINEAR, as the glb
+                if looped:      # one period whose last key repeats the first: the keys repeat past both ends
+                    fc.modifiers.new(type="CYCLES")
                 fc.update()
     ad = arm.animation_data or arm.animation_data_create()
     track = ad.nla_tracks.new()

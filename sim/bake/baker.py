@@ -514,17 +514,18 @@ def _warm_up(setup: BakeSetup, baker: Baker, path: str, log) -> tuple[dict, tupl
 
 
 def _seam(setup: BakeSetup, writer: BakeWriter) -> dict | None:
-    """bake.json's loop "seam" from the finished frames (sim.bake.loop.wrap_figures on frames 0, T-2, T-1): the
-    jiggle offset's jump from the last frame to the first (wrap_mm, ideally 0: the last frame repeats the first)
-    and from the second-to-last to the first (wrap_step_mm, one ordinary step), in mm; None for a bake cut short
-    by --frames (it holds no seam)."""
+    """bake.json's loop "seam" from the finished frames 0, T-2, T-1 (as sim.bake.loop.wrap_figures): the jiggle
+    offset's jump from the last frame to the first (wrap_mm: ideally 0 where the last frame repeats the first, an
+    ordinary step for an open cycle) and the step a player looping the cycle takes across the seam (wrap_step_mm:
+    second-to-last to first where the last repeats the first), in mm; None for a bake cut short by --frames."""
     T = len(setup.times)
-    if T != len(setup.loop.cycle_times) or T < 3:
+    if T != setup.loop.frames or T < 3:
         return None
     d = [writer.npz.read("skin_final", f, f + 1)[0].astype(np.float64) - writer.npz.read("skin_static", f, f + 1)[0]
          for f in (0, T - 2, T - 1)]
-    return {"wrap_mm": round(float(np.linalg.norm(d[2] - d[0], axis=-1).max()) * 1e3, 5),
-            "wrap_step_mm": round(float(np.linalg.norm(d[0] - d[1], axis=-1).max()) * 1e3, 5)}
+    wrap = round(float(np.linalg.norm(d[2] - d[0], axis=-1).max()) * 1e3, 5)
+    step = round(float(np.linalg.norm(d[0] - d[1], axis=-1).max()) * 1e3, 5) if setup.loop.repeats_first else wrap
+    return {"wrap_mm": wrap, "wrap_step_mm": step}
 
 
 CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final", "skin_kept_out",

@@ -5,7 +5,9 @@ The file holds the character's rest skin (its material copied from its glTF when
 the drive's world transforms at every output frame (what the bake skinned), and the jiggle bones
 (rig.skin.jiggle_bones: fitted to skin_final - skin_lbs, hung under the joints they ride with, named
 `<muscle>_jiggle_<k>`, one animation channel each); JOINTS_0/WEIGHTS_0 (and _1 with 8 influences) hold the
-character's weights with the bones' shares. One animation, "jiggle", LINEAR keys at the output frames.
+character's weights with the bones' shares. One animation, "jiggle", LINEAR keys at the output frames. A looping
+bake's (sim/bake/loop.py) runs from 0 to the period, its last key the first pose and jiggle again, so an engine
+looping it (three.js LoopRepeat, Unity/Unreal loop time) wraps without a jump; extras.jiggle.loop records it.
 
 What it reports (bake.json "glb", and returned): per frame the RMS, 99th percentile and largest distance in mm
 between the skin the file plays (the file read back: its own quantized weights and keys, `played_from_file`) and
@@ -38,7 +40,7 @@ def default_bones(template: str | None, muscles: int, vertices: int) -> int:
 
 
 def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max_influences: int = 4,
-               source: str | None = None, fps: float | None = None, muscle_joint=None) -> dict:
+               source: str | None = None, fps: float | None = None, muscle_joint=None, loop: dict | None = None) -> dict:
     """Write the glb (module docstring) and return its report.
 
     character : the bake's character (rig.character.character.Character). world : (T, J, 4, 4) its joints' world
@@ -46,6 +48,8 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
     CVs). path : the .glb to write (atomically). bones : the jiggle bone budget. max_influences : 4 or 8.
     source : the glTF the character came from (its material is copied), None for a plain one.
     muscle_joint : (M,) the joint each muscle rides (the rig's middle slot), None: unknown.
+    loop : a looping bake's record (sim.bake.loop.Loop.to_json), kept in the file's extras (jiggle.loop) for a
+        client to know the animation is one period whose last key repeats the first; None: a plain bake.
     """
     from jiggle.rig.skin import jiggle_bones as jb
     if max_influences not in (4, 8):
@@ -80,7 +84,8 @@ def export_glb(character, world: np.ndarray, data, path: str, *, bones: int, max
         write_character(ext, path, source=source, name=c.name or "character", animations={"jiggle": clip},
                         compact=True,
                         extras={"jiggle": {"from": os.path.basename(c.source) if c.source else "",
-                                           "jiggle_bones": list(fitted.names)}})
+                                           "jiggle_bones": list(fitted.names),
+                                           **({"loop": loop} if loop else {})}})
     except OSError as e:
         raise InputError(f"cannot write: {e.strerror or e}", path) from None
     played = played_from_file(path, len(world))
@@ -156,6 +161,9 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
     from jiggle.sim.bake.caches import read_npz
     data = read_npz(os.path.join(out_dir, "bake.npz"))
     world = setup.world_at(np.asarray(data.times, np.float64))
+    loop = getattr(setup, "loop", None)
+    if loop is not None and not loop.repeats_first and len(data.times) == loop.frames:
+        data, world = _period_end(data, world, setup)
     template = setup.params.get("template") if isinstance(setup.params, dict) else None
     template = template.get("file") if isinstance(template, dict) else template
     budget = default_bones(template, len(data.muscle_names), setup.character.num_vertices) if bones is None \
@@ -169,7 +177,8 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
         world = np.array(world)
         world[..., :3, 3] *= setup.scale
     rep = export_glb(setup.character.scaled(setup.scale), world, data, out, bones=budget, max_influences=max_influences,
-                     source=source, fps=setup.fps, muscle_joint=muscle_joint)
+                     source=source, fps=setup.fps, muscle_joint=muscle_joint,
+                     loop=setup.loop.to_json() if getattr(setup, "loop", None) is not None else None)
     summary_path = os.path.join(out_dir, "bake.json")
     if os.path.isfile(summary_path) and path is None:
         with open(summary_path, encoding="utf-8") as fh:
@@ -179,6 +188,26 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
         with atomic_path(summary_path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
             json.dump(summary, fh, indent=1)
     return rep
+
+
+def _period_end(data, world: np.ndarray, setup):
+    """An open cycle's frames 0..n-1 (sim/bake/loop.py) with the key at the period added: frame 0 again, moved by
+    the root travel (its jiggle is frame 0's in the steady state), so the glb's keys run from 0 to the period and an
+    engine looping them wraps with an ordinary step. (data, world) with T + 1 frames."""
+    import dataclasses
+    lp = setup.loop
+    P = float(lp.cycle_times[-1])
+    shift = (np.asarray(lp.delta, np.float64) * setup.scale).astype(np.float32)
+    more = {}
+    for k in ("skin_static", "skin_final", "skin_lbs", "muscle_cvs_static", "muscle_cvs_dynamic"):
+        a = getattr(data, k)
+        if a is not None:
+            more[k] = np.concatenate([a, (a[:1] + shift).astype(a.dtype)])
+    jw = np.array(data.joint_world[:1])
+    jw[..., :3, 3] += shift
+    more["joint_world"] = np.concatenate([data.joint_world, jw.astype(data.joint_world.dtype)])
+    more["times"] = np.r_[np.asarray(data.times, np.float64), P]
+    return dataclasses.replace(data, **more), np.concatenate([world, setup.world_at(np.array([P]))])
 
 
 def _material_source(character) -> str | None:

@@ -17,12 +17,14 @@ the first, and the period is the clip's length plus one key step. Anything else 
 physics drive, a built-in scene) is baked plainly. **on** loops whatever the judge says (a clip whose ends
 do not meet pops at the seam in its pose, not only in its jiggle); **off** never.
 
-What a loop writes: frames 0..n over one period [a, a + P] at n = round(P x fps) equal steps (fps nudged by
-at most half a frame per period, so a whole number of frames spans it; bake.json records the rate asked
-for and the one used), the last frame at a + P. The joints there are the first frame's shifted by the
-root travel, so the last frame repeats the first, pose and (in the steady state) jiggle: a glb's keys run
-from 0 to the period and an engine looping them wraps from a pose to the same pose; a DCC playing frames
-0..n-1 in a loop steps from frame n-1 to frame 0 as from n-1 to n, one ordinary frame step.
+What a loop writes follows the clip's own convention, over one period [a, a + P] at n = round(P x fps) equal
+steps (fps nudged by at most half a frame per period, so a whole number of frames spans it; bake.json
+records the rate asked for and the one used). A closed cycle: frames 0..n, the last at a + P, its joints the
+first frame's shifted by the root travel, so the last frame repeats the first, pose and (in the steady
+state) jiggle, as the clip's last key repeats its first: an engine looping it wraps from a pose to the same
+pose. An open cycle: frames 0..n-1, the clip's own frames; a DCC looping them steps from frame n-1 to frame 0
+as from any frame to the next; its glb adds the key at the period (frame 0 again, sim/bake/glb.py), so an
+engine's keys run from 0 to the period either way.
 
 The physics of one cycle is the physics of the clip repeated with its root offset by the travel each time
 (goal knots, capsules and floor all translated alike, and the jiggle is invariant to that translation): the
@@ -91,6 +93,16 @@ class Loop:
     world_at: Callable | None = None
     joints_at: Callable | None = None
 
+    @property
+    def repeats_first(self) -> bool:
+        """Whether the frames written end with the first again (closed, forced), else one frame before it (open)."""
+        return self.on and self.kind != "open"
+
+    @property
+    def frames(self) -> int:
+        """Frames one whole period writes: n + 1 (both ends) or n (an open cycle's)."""
+        return len(self.cycle_times) - (0 if self.repeats_first else 1)
+
     def to_json(self) -> dict:
         """bake.json's (and the params') "loop": the decision, the time base."""
         out = {"mode": self.mode, "on": self.on, "kind": self.kind,
@@ -101,11 +113,14 @@ class Loop:
         if self.on:
             n = len(self.cycle_times) - 1
             out.update({"start_s": self.start, "period_s": self.period, "fps_asked": self.fps_asked,
-                        "fps": self.fps, "cycle_frames": n,
+                        "fps": self.fps, "cycle_frames": n, "repeats_first": self.repeats_first,
                         "root_travel_m": [round(float(x), 6) + 0.0 for x in self.delta],
-                        "frames_written": f"0..{n}: one period, both ends; frame {n} repeats frame 0 (pose and, in "
-                                          f"the steady state, jiggle), so a player wraps from frame {n} to frame 0, "
-                                          f"or from frame {n - 1} to frame 0 as one ordinary step"})
+                        "frames_written": f"0..{n}: one period, both ends; frame {n} repeats frame 0 (pose moved by "
+                                          f"the root travel and, in the steady state, jiggle), as the clip's last key "
+                                          f"repeats its first" if self.repeats_first else
+                                          f"0..{n - 1}: one period without its end, as the clip's own keys; frame 0 "
+                                          f"follows frame {n - 1} as one ordinary step (a glb adds the key at the "
+                                          f"period, frame 0 again)"})
         return out
 
 
@@ -187,9 +202,10 @@ def judge(mode: str | None, *, clip, drive: str, world_at: Callable, height: flo
     eps = 1e-9
     knots = merge_times(inner[inner < a + period - eps][-KNOT_MARGIN:] - period, inner,
                         inner[inner > a + eps][:KNOT_MARGIN] + period)
+    full = cycle if kind != "open" else cycle[:-1]      # an open clip's own frames: the period's end not among them
     lp = Loop(mode=mode, on=True, kind=kind, why=why, start=a, period=period, fps_asked=float(fps), fps=used,
               delta=travel, gap=gap, step=step, own=own, cycle_times=cycle,
-              times=cycle if frames is None else cycle[:frames], knots=knots,
+              times=full if frames is None else full[:frames], knots=knots,
               world_at=periodic(source, a, period, travel))
     if joints_at is not None:                  # the clip's own skeleton travels in its own space
         je = np.asarray(joints_at(np.array([a, b])), np.float64)[:, :, :3, 3]
@@ -294,7 +310,8 @@ def wrap_figures(skin_final: np.ndarray, skin_static: np.ndarray, repeats_first:
     wrap_mm : max over vertices |d[T-1] - d[0]|: the seam a player shows when it goes from the last frame to the
     first. For a loop whose last frame repeats the first (repeats_first) that is the mismatch of the steady
     state, ideally 0, and `wrap_step_mm`, |d[0] - d[T-2]|, is the step a player looping frames 0..T-2 takes
-    across the seam (one ordinary frame step when the loop is right). step_median_mm, step_max_mm : the median
+    across the seam (one ordinary frame step when the loop is right); otherwise (a plain bake, an open cycle's
+    frames 0..n-1) wrap_step_mm is wrap_mm, the step from the last frame to the first. step_median_mm, step_max_mm : the median
     and largest over t of max over vertices |d[t+1] - d[t]|. wrap_ratio : wrap_mm / step_median_mm (inf when the
     median step is 0 and the wrap is not, 0 when both are).
     """
@@ -309,4 +326,6 @@ def wrap_figures(skin_final: np.ndarray, skin_static: np.ndarray, repeats_first:
     out = {"wrap_mm": wrap, "wrap_ratio": ratio, "step_median_mm": med, "step_max_mm": float(steps.max())}
     if repeats_first and T >= 3:
         out["wrap_step_mm"] = float(np.linalg.norm(d[0] - d[-2], axis=-1).max()) * 1e3
+    else:
+        out["wrap_step_mm"] = wrap
     return out

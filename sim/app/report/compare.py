@@ -719,18 +719,20 @@ def loop_metrics(data, params: dict) -> dict:
     """metrics.json's "loop": how the bake wraps when played as a cycle (sim.bake.loop.wrap_figures on the jiggle
     offset d = skin_final - skin_static, mm): wrap_mm, the jump from the last frame to the first, over the median
     frame-to-frame step (wrap_ratio) and the largest (step_max_mm). A loop bake (`jiggle bake --loop`, params
-    "loop" on) writes one period with its last frame repeating the first: wrap_mm is then the seam's mismatch
-    (0 when the steady state was reached) and wrap_step_mm, from the second-to-last frame to the first, the step
-    a player looping frames 0..T-2 takes there (an ordinary one). A plain bake's wrap_mm is the pop it would show
-    looped."""
+    "loop" on) of a closed cycle writes one period with its last frame repeating the first: wrap_mm is then the
+    seam's mismatch (0 when the steady state was reached) and wrap_step_mm, from the second-to-last frame to the
+    first, the step a player looping frames 0..T-2 takes there (an ordinary one); an open cycle's frames end one
+    before the first again, so its wrap_mm (= wrap_step_mm) is that ordinary step. A plain bake's wrap_mm is the
+    pop it would show looped."""
     from jiggle.sim.bake.loop import wrap_figures
     lp = params.get("loop") if isinstance(params.get("loop"), dict) else {}
     on = bool(lp.get("on"))
-    out = wrap_figures(data.skin_final, data.skin_static, repeats_first=on)
-    return {"looped": on, "kind": lp.get("kind"), "why": lp.get("why"), "repeats_first": on, **out,
+    first = on and bool(lp.get("repeats_first", True))
+    out = wrap_figures(data.skin_final, data.skin_static, repeats_first=first)
+    return {"looped": on, "kind": lp.get("kind"), "why": lp.get("why"), "repeats_first": first, **out,
             "rule": "d = skin_final - skin_static; wrap = max over vertices |d[T-1] - d[0]|; step = max over vertices "
-                    "|d[t+1] - d[t]|; a loop bake's frame T-1 repeats frame 0, so its wrap is the seam's mismatch and "
-                    "wrap_step_mm = max |d[0] - d[T-2]| the step across it"}
+                    "|d[t+1] - d[t]|; where frame T-1 repeats frame 0 (repeats_first) the wrap is the seam's mismatch "
+                    "and wrap_step_mm = max |d[0] - d[T-2]| the step across it, else wrap_step_mm = wrap_mm"}
 
 
 def _names(out_dir: str, own: set[str]) -> dict:
