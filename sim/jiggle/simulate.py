@@ -188,17 +188,11 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
     control = track.to_device(model.device)
     grid = step_times(np.concatenate([start, out_times]) if preroll > 0 else out_times, track.times, substeps,
                       solver.max_step)
-    state, nxt = model.state(), model.state()
     if given is not None:
         x, v = (np.asarray(a, dtype=np.float32) for a in given)
         if x.shape != (model.num_particles, 3) or v.shape != x.shape:
             raise InputError(f"a start state must be two ({model.num_particles}, 3) arrays, got {x.shape} and "
                              f"{v.shape}", field="start")
-        state.assign(x, v)
-    elif preroll > 0:
-        state.assign(model.rest, np.zeros_like(model.rest))
-    else:
-        restart(model, solver, state, control, t0)
     out = np.empty((len(out_times), model.num_particles, 3))
     records = None
     if colliders is not None or tissue is not None:
@@ -217,6 +211,29 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
             k = int(ks[r])
             raise FloatingPointError(f"{model.group_of(int(p))}: the simulation produced NaN at frame {k} "
                                      f"(t = {out_times[k]:.4f} s)")
+
+    graph = getattr(solver, "graph", None)
+    if graph is not None and graph.supports(solver):
+        # the chunk as one device program (sim/jiggle/graph.py): nothing read back until its end
+        if tissue is not None:
+            from jiggle.sim.jiggle.tissue_contacts import _check
+            _check(model, tissue)
+        how = ("given", (x, v)) if given is not None else ("rest",) if preroll > 0 else ("restart", t0)
+        frames, recs, end = graph.run(track, control, grid, out_times, wanted, is_out, how, colliders, tissue)
+        save(np.arange(len(out_times)), frames)
+        if records is not None:
+            records[...] = recs
+        if return_state:
+            return out, end
+        return out
+
+    state, nxt = model.state(), model.state()
+    if given is not None:
+        state.assign(x, v)
+    elif preroll > 0:
+        state.assign(model.rest, np.zeros_like(model.rest))
+    else:
+        restart(model, solver, state, control, t0)
 
     def record(g: int, x) -> None:
         if is_out[g]:

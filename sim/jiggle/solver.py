@@ -79,6 +79,37 @@ def thread_groups(model: ParticleModel) -> np.ndarray:
     return b
 
 
+class FreshArrays:
+    """Where a run's per-call device arrays come from on the plain path: new ones each call. The chunk graph
+    (sim/jiggle/graph.py: GraphArrays) gives the same calls buffers that keep their place from chunk to chunk."""
+
+    def __init__(self, device):
+        self.device = device
+
+    def upload(self, a, dtype, pad: bool = False) -> wp.array:
+        """A device copy of the host array `a` (pad: the graph's may be longer, zero-filled, for a list whose
+        length varies from chunk to chunk and that the kernels index through offsets)."""
+        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device)
+
+    def empty(self, shape, dtype) -> wp.array:
+        return wp.empty(shape, dtype=dtype, device=self.device)
+
+    def zeros(self, shape, dtype) -> wp.array:
+        return wp.zeros(shape, dtype=dtype, device=self.device)
+
+
+class RunPlan:
+    """A run of steps prepared on the device, not launched (ParticleSolver.run_plan): its kernel, K steps,
+    each step's recorded frame (K,) int32 (-1: none), the kernel's arguments, and its outputs on the device:
+    frames (max(R, 1), N) vec3 and, with colliders, records (max(R, 1), N) vec3; R recorded steps."""
+
+    __slots__ = ("kernel", "K", "frame", "args", "frames", "records", "R")
+
+    def __init__(self, kernel, K, frame, args, frames, records, R):
+        self.kernel, self.K, self.frame, self.args = kernel, K, frame, args
+        self.frames, self.records, self.R = frames, records, R
+
+
 class ParticleSolver:
     """Steps a ParticleModel; owns only scratch buffers and the exact-flow coefficients per step length."""
 
@@ -98,6 +129,7 @@ class ParticleSolver:
         self._edges = wp.array(edges, dtype=kernels.Edge, device=dev)
         self._recorded: dict[str, tuple] = {}
         self._contact_scratch: dict = {}
+        self._fixed = None
         self.contact_records = np.zeros((0, model.num_particles, 3), np.float32)
         """(R, N, 3) float32: the contact records of the recorded steps of the last :meth:`integrate` with
         colliders."""
@@ -123,6 +155,14 @@ class ParticleSolver:
         self.max_step = min(STEP_OMEGA / omega if omega > 0 else math.inf,
                             STEP_OMEGA / gamma if gamma > 0 else math.inf)
         """seconds: the longest step the spring kicks take (inf without springs)."""
+        self.graph = None
+        """None, or the sim.jiggle.graph.ChunkGraph that steps a chunk of sim.jiggle.simulate.run as one device
+        program (captured once per chunk shape as a CUDA graph and replayed): made for a plain solver on a CUDA
+        device (sim.jiggle.graph.default_graph: JIGGLE_GRAPHS=0 turns it off); None on the CPU, whose path is
+        the launches as they are."""
+        if type(self) is ParticleSolver and not wp.get_device(dev).is_cpu:
+            from jiggle.sim.jiggle.graph import default_graph
+            self.graph = default_graph(self)
 
     def flow(self, h: float) -> tuple[np.ndarray, tuple[wp.array, wp.array]]:
         """Tissue rows (N, tissue_law.ROW) float64 for step h (sim.jiggle.tissue_law.rows: the exact goal flow over
@@ -163,11 +203,13 @@ class ParticleSolver:
                 wp.array(lev, dtype=kernels.flow_row, device=dev)]
         return table, np.array([index[k] for k in keys], dtype=np.int32)[inverse.reshape(-1)]
 
-    def _run_steps(self, control: GoalControl, grid: np.ndarray, record):
+    def _run_steps(self, control: GoalControl, grid: np.ndarray, record, arrays=None):
         """What a run of the steps `grid` (K + 1,) needs on the host: (ks, seg, s0, H, dts, h_kick, frame,
         frames, dev_array); or its result when there is nothing to step (None, or zero frames (R, N, 3)).
-        InputError for recorded steps that are not increasing indices in 1..K."""
+        InputError for recorded steps that are not increasing indices in 1..K. arrays : where the device
+        arrays come from (FreshArrays: new ones; the chunk graph's keep their place)."""
         m, dev = self.model, self.model.device
+        arrays = arrays or FreshArrays(dev)
         grid = np.asarray(grid, dtype=np.float64)
         ks = np.zeros(0, np.int64) if record is None else np.asarray(record, dtype=np.int64).reshape(-1)
         K = len(grid) - 1
@@ -182,11 +224,8 @@ class ParticleSolver:
         h_kick[1:] += 0.5 * dts[:-1]
         frame = np.full(K, -1, np.int32)
         frame[ks - 1] = np.arange(len(ks), dtype=np.int32)
-        frames = wp.empty((max(len(ks), 1), m.num_particles), dtype=wp.vec3, device=dev)
-
-        def dev_array(a, dtype):
-            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
-        return ks, seg, s0, H, dts, h_kick, frame, frames, dev_array
+        frames = arrays.empty((max(len(ks), 1), m.num_particles), wp.vec3)
+        return ks, seg, s0, H, dts, h_kick, frame, frames, arrays.upload
 
     def integrate(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl,
                   grid: np.ndarray, record=None, colliders=None) -> np.ndarray | None:
@@ -207,26 +246,42 @@ class ParticleSolver:
             impulse N s, hit id; see sim.jiggle.colliders.muscle_contacts). Where nothing touches, the
             positions are those of a run without colliders bit for bit.
         """
+        plan = self.run_plan(state_in, state_out, control, grid, record, colliders)
+        if not isinstance(plan, RunPlan):
+            return plan
+        self._run_or_step(plan.kernel, plan.K, plan.frame, plan.args)
+        if plan.records is not None:
+            self.contact_records = plan.records.numpy()[:plan.R]
+        if record is None:
+            return None
+        return plan.frames.numpy()[:plan.R] if plan.R else np.zeros((0, self.model.num_particles, 3), np.float32)
+
+    def run_plan(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl, grid: np.ndarray,
+                 record=None, colliders=None, arrays=None):
+        """The run :meth:`integrate` launches, prepared on the device and not launched (a :class:`RunPlan`; its
+        launches are :meth:`launch_list`), or integrate's result where there is nothing to step. arrays : where
+        its device arrays come from (None: new ones; sim.jiggle.graph.GraphArrays: the chunk graph's buffers)."""
         m = self.model
-        run = self._run_steps(control, grid, record)
+        run = self._run_steps(control, grid, record, arrays)
         if isinstance(run, np.ndarray) or run is None:
             return run
         ks, seg, s0, H, dts, h_kick, frame, frames, dev_array = run
         table, flow_index = self._flow_table(dts)
         Y, U = self._y, self._u
         if colliders is not None:
-            out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
-                                          dev_array(flow_index, wp.int32), frame, frames, ks, dev_array)
-            return None if record is None else out
-        self._run_or_step(kernels.integrate_run, len(seg), frame, [
+            kernel, args, records = self._integrate_contact(
+                state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, table,
+                dev_array(flow_index, wp.int32), frame, frames, ks, dev_array, plan=True, arrays=arrays, records=True)
+            return RunPlan(kernel, len(seg), frame, args, frames, records, len(ks))
+        args = [
             self._params, *table, m.wp_adj_offsets, self._edges, self._gravity, self._groups,
             control.pos, control.vel_start, control.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
             dev_array(h_kick.astype(np.float32), float), dev_array(flow_index, wp.int32), dev_array(frame, wp.int32),
             float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), state_in.x, state_in.v, Y[0], U[0], Y[1], U[1],
-            self._cubics, frames, state_out.x, state_out.v, self.stops])
-        return None if record is None else frames.numpy()[:len(ks)]
+            self._cubics, frames, state_out.x, state_out.v, self.stops]
+        return RunPlan(kernels.integrate_run, len(seg), frame, args, frames, None, len(ks))
 
     def hard_stops(self) -> np.ndarray:
         """(N,) int64: each particle's hard stops counted in :attr:`stops`."""
@@ -247,12 +302,16 @@ class ParticleSolver:
         return StepPlan(self, control, grid, colliders)
 
     def _integrate_contact(self, state_in, state_out, control, colliders, seg, s0, H, dts, h_kick, flows,
-                           step_flow, frame, frames, ks, dev_array, kernel=None, plan: bool = False):
+                           step_flow, frame, frames, ks, dev_array, kernel=None, plan: bool = False, arrays=None,
+                           records: bool = False):
         """:meth:`integrate` with contacts (the integrate_run_contact kernel, the broad phase from
         sim.jiggle.colliders.Colliders.active). flows : the kernel's flow arguments after the packed
         model ([flows, levels], or the keyed rows, levels and reaches); step_flow : each step's device index into them
         (K,), or the keyed row bases (K, G); kernel : None for integrate_run_contact, or the keyed one
-        (sim/jiggle/keyed_kernels.py). plan : return (kernel, args, records) without launching (StepPlan)."""
+        (sim/jiggle/keyed_kernels.py). plan : return (kernel, args, record) without launching (StepPlan; with
+        `records`, the frames' records array in place of the step's record: ParticleSolver.run_plan). arrays :
+        None, or the chunk graph's buffers (sim.jiggle.graph.GraphArrays): the broad phase's lists and the
+        capsules' ends in them (padded: their length varies from chunk to chunk), not in the solver's cache."""
         from jiggle.sim.jiggle import contact_kernels as ck
         m, dev, cm = self.model, self.model.device, colliders.model
         if colliders.control.track.num_knots != control.track.num_knots or \
@@ -262,28 +321,28 @@ class ParticleSolver:
             raise InputError(f"the colliders are for {len(cm.pair_offsets) - 1} muscles, the model has "
                              f"{len(m.group_offsets) - 1}", field="colliders")
         key = (id(colliders), id(control.track))
-        if self._contact_scratch.get("key") != key:
+        if arrays is not None:
+            offsets, ids = colliders.active(m, control.track)
+            act_offsets = arrays.upload(offsets, wp.int32)
+            act_ids = arrays.upload(ids if len(ids) else np.zeros(1, np.int32), wp.int32, pad=True)
+            A = act_ids.shape[0]
+            ends = [arrays.zeros(A, wp.vec3) for _ in range(4)]
+        elif self._contact_scratch.get("key") != key:
             offsets, ids = colliders.active(m, control.track)
             A = max(len(ids), 1)
-            scratch = self._contact_scratch.get("fixed")
-            if scratch is None:
-                groups = self._groups.numpy()
-                scratch = (wp.zeros(m.num_particles, dtype=wp.vec3, device=dev),
-                           wp.zeros(len(m.group_offsets) - 1, dtype=wp.int32, device=dev),
-                           wp.array(np.searchsorted(m.group_offsets, groups).astype(np.int32), dtype=wp.int32,
-                                    device=dev),
-                           wp.array(m.group_offsets.astype(np.int32), dtype=wp.int32, device=dev))
             self._contact_scratch = {
-                "key": key, "hold": (colliders, control.track), "fixed": scratch,
+                "key": key, "hold": (colliders, control.track),
                 "active": (dev_array(offsets, wp.int32), dev_array(ids if len(ids) else np.zeros(1, np.int32), wp.int32)),
                 "ends": [wp.zeros(A, dtype=wp.vec3, device=dev) for _ in range(4)]}
-        sc = self._contact_scratch
-        record, dirty, group_muscles, muscle_offsets = sc["fixed"]
-        act_offsets, act_ids = sc["active"]
-        ea, eb, eva, evb = sc["ends"]
+        if arrays is None:
+            sc = self._contact_scratch
+            act_offsets, act_ids = sc["active"]
+            ends = sc["ends"]
+        record, dirty, group_muscles, muscle_offsets = self._fixed_contact_scratch()
+        ea, eb, eva, evb = ends
         none = np.zeros((max(len(ks), 1), m.num_particles, 3), np.float32)
         none[..., 2] = ck.NO_HIT
-        records = wp.array(none, dtype=wp.vec3, device=dev)
+        records_out = (arrays or FreshArrays(dev)).upload(none, wp.vec3)
         cc = colliders.control
         floor = cm.floor if cm.floor is not None else NO_FLOOR
         Y, U = self._y, self._u
@@ -296,12 +355,26 @@ class ParticleSolver:
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
             dev_array(h_kick.astype(np.float32), float), step_flow, dev_array(frame, wp.int32),
             float(s0[-1] + dts[-1]), float(0.5 * dts[-1]), *_xv(state_in), Y[0], U[0], Y[1], U[1],
-            self._cubics, ea, eb, eva, evb, record, dirty, frames, records, *_xv(state_out)]
+            self._cubics, ea, eb, eva, evb, record, dirty, frames, records_out, *_xv(state_out)]
         if plan:
-            return kernel or ck.integrate_run_contact, args, record
+            return kernel or ck.integrate_run_contact, args, records_out if records else record
         self._run_or_step(kernel or ck.integrate_run_contact, len(seg), frame, args)
-        self.contact_records = records.numpy()[:len(ks)]
+        self.contact_records = records_out.numpy()[:len(ks)]
         return frames.numpy()[:len(ks)] if len(ks) else np.zeros((0, m.num_particles, 3), np.float32)
+
+    def _fixed_contact_scratch(self) -> tuple:
+        """The contact runs' scratch that does not depend on the run (made once per solver): each particle's record
+        (N,) vec3, each muscle's dirty flag (M,) int32, each thread group's first muscle (G + 1,) int32 and the
+        muscles' particle offsets (M + 1,) int32."""
+        if self._fixed is None:
+            m, dev = self.model, self.model.device
+            groups = self._groups.numpy()
+            self._fixed = (wp.zeros(m.num_particles, dtype=wp.vec3, device=dev),
+                           wp.zeros(len(m.group_offsets) - 1, dtype=wp.int32, device=dev),
+                           wp.array(np.searchsorted(m.group_offsets, groups).astype(np.int32), dtype=wp.int32,
+                                    device=dev),
+                           wp.array(m.group_offsets.astype(np.int32), dtype=wp.int32, device=dev))
+        return self._fixed
 
     def integrate_steps(self, state_in: ParticleState, state_out: ParticleState, control: GoalControl,
                         grid: np.ndarray, on_step=None) -> None:
@@ -350,49 +423,55 @@ class ParticleSolver:
         else:
             self._run(kernel, self.num_groups, args)
 
-    def _run_stepwise(self, kernel, K: int, args: list, frame: np.ndarray) -> None:
-        """A one-launch run (kernels.integrate_run or contact_kernels.integrate_run_contact over `args`) as a
-        launch per step, a thread per particle (and per muscle for the contacts): sim/jiggle/step_kernels.py,
-        the GPU's way (:attr:`stepwise`). Each kernel is recorded once per run and only its step index set
-        between launches."""
+    def launch_list(self, kernel, K: int, frame: np.ndarray, args: list) -> list:
+        """The launches of a one-launch run (`kernel` over `args`, K steps; frame (K,) each step's recorded frame or
+        -1), in order, as (kernel, dim, args): the one launch, a thread per group; or where :attr:`stepwise` (the plain
+        and contact runs) a launch per step, a thread per particle (and per muscle for the contacts):
+        sim/jiggle/step_kernels.py, the GPU's way, each step kernel with its step index first. What
+        :meth:`_run_or_step` launches and what the chunk graph (sim/jiggle/graph.py) captures: one list."""
         from jiggle.sim.jiggle import contact_kernels as ck
         from jiggle.sim.jiggle import step_kernels as sk
+        if not (self.stepwise and kernel in (kernels.integrate_run, ck.integrate_run_contact)):
+            return [(kernel, self.num_groups, args)]
         m = self.model
         N, M = m.num_particles, len(m.group_offsets) - 1
         if kernel is kernels.integrate_run:
             opening, steps, closing = [(sk.run_open, N)], [(sk.run_one, N)], (sk.run_close, N)
-        elif kernel is ck.integrate_run_contact:
+        else:
             opening = [(sk.contact_open, N), (sk.contact_clear, M)]
             steps = [(sk.contact_one, N), (sk.contact_gather, M), (sk.contact_each, N)]
             closing = (sk.contact_close, N)
-        else:
-            raise ValueError(f"no stepwise run for {kernel.key}")
-        dev = m.device
         extra = self._contact_extras() if kernel is ck.integrate_run_contact else []
         wide = {sk.contact_gather.key, sk.contact_each.key, sk.contact_flush.key}
-        recorded = {}
-        for kern, n in opening + steps + [closing] + ([(sk.contact_flush, N)] if extra else []):
-            if n > 0 and kern.key not in recorded:
-                more = extra if kern.key in wide else []
-                recorded[kern.key] = wp.launch(kern, dim=n, inputs=[0, *args, *more], device=dev, record_cmd=True)
-        for kern, n in opening:
-            if n > 0:
-                recorded[kern.key].launch()
+
+        def op(kern, n: int, k: int) -> tuple:
+            return kern, n, [k, *args, *(extra if kern.key in wide else [])]
+        out = [op(kern, n, 0) for kern, n in opening if n > 0]
         recorded_steps = np.asarray(frame) >= 0
         for k in range(K):
-            for kern, n in steps:
-                if n > 0:
-                    launch = recorded[kern.key]
-                    launch.set_param_at_index(0, k)
-                    launch.launch()
+            out += [op(kern, n, k) for kern, n in steps if n > 0]
             if extra and N > 0 and recorded_steps[k]:
-                launch = recorded[sk.contact_flush.key]
-                launch.set_param_at_index(0, k)
-                launch.launch()
-                self.launches += 1
+                out.append(op(sk.contact_flush, N, k))
         if N > 0:
-            recorded[closing[0].key].launch()
-        self.launches += len(opening) + K * len(steps) + 1
+            out.append(op(closing[0], N, 0))
+        return out
+
+    def _run_stepwise(self, kernel, K: int, args: list, frame: np.ndarray) -> None:
+        """A one-launch run (kernels.integrate_run or contact_kernels.integrate_run_contact over `args`) as a
+        launch per step (:meth:`launch_list`), a thread per particle (and per muscle for the contacts):
+        sim/jiggle/step_kernels.py, the GPU's way (:attr:`stepwise`). Each kernel is recorded once per run and
+        only its step index set between launches."""
+        recorded = {}
+        ops = self.launch_list(kernel, K, frame, args)
+        for kern, n, a in ops:
+            launch = recorded.get(kern.key)
+            if launch is None:
+                launch = recorded[kern.key] = wp.launch(kern, dim=n, inputs=a, device=self.model.device,
+                                                        record_cmd=True)
+            else:
+                launch.set_param_at_index(0, a[0])
+            launch.launch()
+        self.launches += len(ops)
 
     def _contact_extras(self) -> list:
         """The per-particle contact kernels' own arrays: per muscle the shared union box and floor, per particle
@@ -418,13 +497,17 @@ class ParticleSolver:
         m = self.model
         if m.num_particles == 0:
             return
+        self.launches += 1
+        kernel, dim, args = self.glue_launch(state, control, t)
+        wp.launch(kernel, dim=dim, device=m.device, inputs=args)
+
+    def glue_launch(self, state: ParticleState, control: GoalControl, t: float) -> tuple:
+        """:meth:`glue`'s launch as (kernel, dim, args), not launched (the chunk graph's, sim/jiggle/graph.py)."""
         track = control.track
         j = track.interval(t)
-        self.launches += 1
-        wp.launch(kernels.glue, dim=m.num_particles, device=m.device,
-                  inputs=[control.pos, control.vel_start, control.vel_end, j, float(track.times[j + 1] - track.times[j]),
-                          float(t - track.times[j])],
-                  outputs=[state.x, state.v])
+        return kernels.glue, self.model.num_particles, [
+            control.pos, control.vel_start, control.vel_end, j, float(track.times[j + 1] - track.times[j]),
+            float(t - track.times[j]), state.x, state.v]
 
 
 def recorded_launch(recorded: dict, kernel, dim: int, args: list, device) -> None:
@@ -463,11 +546,11 @@ class StepPlan:
     _X_IN, _V_IN = -17, -16
     _X_OUT, _V_OUT = -2, -1
 
-    def __init__(self, solver: ParticleSolver, control: GoalControl, grid: np.ndarray, colliders):
+    def __init__(self, solver: ParticleSolver, control: GoalControl, grid: np.ndarray, colliders, arrays=None):
         self.solver = solver
         grid = np.asarray(grid, dtype=np.float64)
         self.K = len(grid) - 1
-        run = solver._run_steps(control, grid, None)
+        run = solver._run_steps(control, grid, None, arrays)
         if run is None:
             self.kernel = None
             return
@@ -477,15 +560,18 @@ class StepPlan:
         opening = (0.5 * dts).astype(np.float32)
         self.kernel, self.args, self.record = solver._integrate_contact(
             None, None, control, colliders, seg, s0, H, dts, opening, flows, step_flow,
-            np.full(len(dts), -1, np.int32), frames, ks, dev_array, kernel=kernel, plan=True)
+            np.full(len(dts), -1, np.int32), frames, ks, dev_array, kernel=kernel, plan=True, arrays=arrays)
         first = len(self.args) - self._STEPS
         self._first = first
         full = self.args[first:first + 7]                            # seg, H, s0, h, kick, flow, frame (K, ...)
         # the launch reads one-step arrays, filled per step: on the CPU through their NumPy views (a wp.array
         # view per step and argument costs ~25 us of Python), elsewhere by a device copy of the step's row
         self._full = full
-        self._one = [wp.empty((1,) + tuple(a.shape[1:]), dtype=a.dtype, device=a.device) for a in full]
-        self._cpu = all(a.device.is_cpu for a in full)
+        self._one = [(arrays.empty if arrays is not None else
+                      lambda shape, dtype, d=a.device: wp.empty(shape, dtype=dtype, device=d))((1,) + tuple(a.shape[1:]),
+                                                                                               a.dtype) for a in full]
+        # the chunk graph's plan (arrays given) copies on the device everywhere: its steps are replayed launches
+        self._cpu = arrays is None and all(a.device.is_cpu for a in full)
         if self._cpu:
             self._host = [a.numpy() for a in full]
             self._views = [o.numpy() for o in self._one]
@@ -504,12 +590,24 @@ class StepPlan:
             for one, a in zip(self._one, self._full):
                 row = one.size
                 wp.copy(one, a, src_offset=k * row, count=row)
+        self.solver._run(self.kernel, self.solver.num_groups, self._step_args(k, state_in, state_out))
+
+    def _step_args(self, k: int, state_in, state_out) -> list:
         args = self.args
         f = self._first
         args[f + 7], args[f + 8] = self._ends[k]
         args[self._X_IN], args[self._V_IN] = state_in.x, state_in.v
         args[self._X_OUT], args[self._V_OUT] = state_out.x, state_out.v
-        self.solver._run(self.kernel, self.solver.num_groups, args)
+        return args
+
+    def step_ops(self, k: int, state_in, state_out) -> list:
+        """Step k as the chunk graph's operations (sim/jiggle/graph.py), not run: the copies of its row of each
+        step array on the device, then its launch: [("copy", dst, src, dst_offset, src_offset, count), ...,
+        ("launch", kernel, dim, args)]. Equal to :meth:`step` (a plan made with the graph's arrays)."""
+        if self.kernel is None:
+            return []
+        ops = [("copy", one, a, 0, k * one.size, one.size) for one, a in zip(self._one, self._full)]
+        return ops + [("launch", self.kernel, self.solver.num_groups, list(self._step_args(k, state_in, state_out)))]
 
 
 # ---------------------------------------------------------------------------------- NumPy reference

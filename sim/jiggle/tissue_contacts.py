@@ -206,18 +206,36 @@ class TissuePass:
         """The pass on the step's end (x, v) into (x_out, v_out), its records merged with self.caps into
         self.acc (started afresh when `fresh`). The hash grid is built only when some muscle is near another
         it may touch (the M flags read back: a copy on the CPU, a sync on a GPU)."""
+        boxes, near, contact = self._launches(inv_mass, x, v, fresh, hit_base, x_out, v_out, self.caps)
+        for kernel, dim, args in (boxes, near):
+            self._launch(kernel, dim, args)
+        if self.near.numpy().any():
+            self.grid.build(x, self.tissue.query_radius)
+        self._launch(*contact)
+
+    def _launches(self, inv_mass, x, v, fresh: bool, hit_base: float, x_out, v_out, caps) -> tuple:
+        """The pass's three launches as (kernel, dim, args): the muscles' boxes, their near boxes, the contact."""
         tm = self.tissue
         lo, hi, near_lo, near_hi = self.boxes
         R = tm.query_radius
-        self._launch(kernels.muscle_boxes, tm.num_muscles, [self.offsets, x, lo, hi])
-        self._launch(kernels.near_boxes, tm.num_muscles, [tm.wp_mask, tm.num_muscles, R, lo, hi, near_lo, near_hi,
-                                                          self.near])
-        if self.near.numpy().any():
-            self.grid.build(x, R)
-        self._launch(kernels.tissue_contact, tm.num_particles, [
-            self.grid.id, R, inv_mass, tm.wp_radius, tm.wp_muscle, self.offsets, tm.wp_rest, tm.wp_mask,
-            tm.num_muscles, tm.share, tm.friction, float(hit_base), x, v, near_lo, near_hi, self.caps, int(fresh),
-            x_out, v_out, self.acc])
+        return ((kernels.muscle_boxes, tm.num_muscles, [self.offsets, x, lo, hi]),
+                (kernels.near_boxes, tm.num_muscles, [tm.wp_mask, tm.num_muscles, R, lo, hi, near_lo, near_hi,
+                                                      self.near]),
+                (kernels.tissue_contact, tm.num_particles, [
+                    self.grid.id, R, inv_mass, tm.wp_radius, tm.wp_muscle, self.offsets, tm.wp_rest, tm.wp_mask,
+                    tm.num_muscles, tm.share, tm.friction, float(hit_base), x, v, near_lo, near_hi, caps, int(fresh),
+                    x_out, v_out, self.acc]))
+
+    def pass_ops(self, inv_mass, x, v, fresh: bool, hit_base: float, x_out, v_out, caps, any_near) -> list:
+        """:meth:`run` as the chunk graph's operations (sim/jiggle/graph.py), with nothing read back: the M near
+        flags reduced on the device into any_near (1,) int32 and the hash grid built under
+        ("if", any_near, [("grid", ...)]) (a conditional node in a CUDA graph); caps : the step's capsule
+        records (self.caps, or a step plan's)."""
+        from jiggle.sim.jiggle.graph_kernels import any_flag
+        boxes, near, contact = self._launches(inv_mass, x, v, fresh, hit_base, x_out, v_out, caps)
+        tm = self.tissue
+        return [("launch", *boxes), ("launch", *near), ("launch", any_flag, 1, [self.near, tm.num_muscles, any_near]),
+                ("if", any_near, [("grid", self.grid, x, tm.query_radius)]), ("launch", *contact)]
 
     def _launch(self, kernel, dim: int, args: list) -> None:
         """Launch `kernel`, recorded once; only changed arguments packed again (sim.jiggle.solver.recorded_launch)."""
