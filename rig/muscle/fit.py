@@ -381,7 +381,7 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     if generic:
         segs = seg.segments
         parts = tuple(generic_parts(V, F, face_region, segs, character.normals, seg.region))
-        tpl, where = generic_template(parts, names)
+        tpl, where = generic_template(parts)
         for pair in tpl.pairs:
             m = pair.muscles[0]
             p = parts[where[m.name]]

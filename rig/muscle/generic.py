@@ -63,9 +63,10 @@ class Part:
 
     segment : index into the segmentation's bone segments; label : its "parent>child" label.
     joint, child : the segment's start and end joints (child = joint for a leaf bone ending at its tip).
-    segments : the segments the part's tissue covers: its own, then those merged into it (a run of the same
-        kind along an unbranched chain is one body: a blob's stacked joints jiggle as one mass, without seams).
-    area : metres^2 of skin; radius : metres, its local radius about the bone; flatness : its roundness about
+    segments : the segments the part's tissue covers: its own, then those merged into it (a fat core and the
+        tissue after it along a straight unbranched chain are one body: a blob's stacked joints jiggle as one
+        mass, without seams); () for a part without tissue.
+    area : metres^2 of skin; radius : metres, its local radius about the bone; roundness : its roundness about
         the bone (0 a membrane .. 1 round, see _roundness).
     kind : "fat", "muscle" or None (no tissue); reason : one phrase saying why.
     """
@@ -76,14 +77,14 @@ class Part:
     child: int
     area: float
     radius: float
-    flatness: float
+    roundness: float
     kind: str | None
     reason: str
     segments: tuple[int, ...] = ()
 
     def to_json(self) -> dict:
         return {"part": self.label, "tissue": self.kind or "none", "why": self.reason,
-                "radius_m": round(self.radius, 5), "flatness": round(self.flatness, 3),
+                "radius_m": round(self.radius, 5), "roundness": round(self.roundness, 3),
                 "segments": len(self.segments)}
 
 
@@ -136,7 +137,7 @@ def generic_parts(vertices: np.ndarray, faces: np.ndarray, face_region: np.ndarr
         child = int(segments.child[s])
         parts.append(Part(segment=s, label=segments.labels[s], joint=int(segments.parent[s]),
                           child=child if child >= 0 else int(segments.parent[s]), area=a, radius=r,
-                          flatness=solid, kind=kind, reason=why, segments=(s,)))
+                          roundness=solid, kind=kind, reason=why, segments=(s,)))
     return _merge_chains(parts, segments)
 
 
@@ -175,7 +176,7 @@ def _merge_chains(parts: list[Part], segments) -> list[Part]:
         if p.kind != "fat" or p.segment in absorbed:
             continue
         run, last = [p.segment], p
-        # the next segment of the run: the only bone leaving this one's end joint, of the same kind
+        # the next segment of the run: the only bone leaving this one's end joint, holding tissue
         while last.child != last.joint and len(starts.get(last.child, [])) == 1:
             nxt = out[starts[last.child][0]]
             if nxt.kind is None or nxt.segment in absorbed or nxt.segment in run:
@@ -211,7 +212,7 @@ def _frequency(kind: str, radius: float, radii: list[float]) -> float:
     return float(np.clip(lo * np.sqrt(max(radii) / max(radius, 1e-12)), lo, hi))
 
 
-def muscle_name(label: str, kind: str, taken: set[str]) -> str:
+def _muscle_name(label: str, kind: str, taken: set[str]) -> str:
     """A muscle name (letters, digits, _) from a segment label: "Body>Head" fat -> "body_fat"."""
     joint = label.split(">")[0]
     base = re.sub(r"[^A-Za-z0-9]+", "_", joint).strip("_").lower() or "part"
@@ -224,7 +225,7 @@ def muscle_name(label: str, kind: str, taken: set[str]) -> str:
     return name
 
 
-def generic_template(parts: list[Part], joint_names) -> tuple[Template, dict[str, int]]:
+def generic_template(parts: list[Part]) -> tuple[Template, dict[str, int]]:
     """(template, segments): a Template with one pair per part that holds volume, whose one muscle takes the
     whole region, and {muscle name: segment index}. Labels are joint names (a leaf's child label is
     "<joint>>end"), read by rig.muscle.fit through the segments, not through roles."""
@@ -235,7 +236,7 @@ def generic_template(parts: list[Part], joint_names) -> tuple[Template, dict[str
             continue
         base = default_jiggle(p.kind)
         jiggle = replace(base, frequency_hz=_frequency(p.kind, p.radius, radii[p.kind]))
-        name = muscle_name(p.label, p.kind, taken)
+        name = _muscle_name(p.label, p.kind, taken)
         m = MuscleTemplate(name=name, kind=p.kind, type="single",
                            depth=FAT_DEPTH_RADII * p.radius if p.kind == "fat" else 0.0,
                            thickness_min=THICKNESS_RADII * p.radius, jiggle=jiggle)
