@@ -223,7 +223,7 @@ def test_three_js_loops_the_glb_without_a_jump(tmp_path):
     keys = d.times[1:-1]
     times = [P - e, P + e, e, P + 3 * h, 3 * h] + [float(t) + s for t in keys for s in (-e, e)]
     res = tmp_path / "played.json"
-    p = subprocess.run(["node", str(JS / "play_glb_loop.mjs"), str(out / "bake.glb"), json.dumps(times), str(res)],
+    p = subprocess.run(["node", str(JS / "play_glb.mjs"), str(out / "bake.glb"), json.dumps(times), str(res), "loop"],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     got = json.loads(res.read_text())

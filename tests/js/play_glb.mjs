@@ -1,10 +1,11 @@
 // three.js plays a glb's first animation and writes the skinned vertex positions at the given times, as an
-// engine does: node play_glb.mjs FILE.glb '[t0, t1, ...]' OUT.json  ->  OUT.json: [[x, y, z, ...], ...] (glTF axes)
+// engine does: node play_glb.mjs FILE.glb '[t0, t1, ...]' OUT.json [loop]  ->  OUT.json: [[x, y, z, ...], ...]
+// (glTF axes); with "loop", in a loop (LoopRepeat, as a game loops a cycle), else once.
 import fs from 'node:fs';
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 
-const [, , file, timesJson, outFile] = process.argv;
+const [, , file, timesJson, outFile, mode] = process.argv;
 const data = withoutImages(fs.readFileSync(file));
 const loader = new GLTFLoader();
 loader.parse(data, '', (gltf) => {
@@ -13,8 +14,12 @@ loader.parse(data, '', (gltf) => {
   if (!mesh || gltf.animations.length === 0) { console.error('no skinned mesh or no animation'); process.exit(3); }
   const mixer = new THREE.AnimationMixer(gltf.scene);
   const action = mixer.clipAction(gltf.animations[0]);
-  action.setLoop(THREE.LoopOnce, 1);      // the last key is the last frame, not the first again
-  action.clampWhenFinished = true;
+  if (mode === 'loop') {
+    action.setLoop(THREE.LoopRepeat, Infinity);   // as an engine loops a cycle: past the end, from the start again
+  } else {
+    action.setLoop(THREE.LoopOnce, 1);      // the last key is the last frame, not the first again
+    action.clampWhenFinished = true;
+  }
   action.play();
   const out = [];
   const v = new THREE.Vector3();
