@@ -85,6 +85,11 @@ class MuscleSkin:
     device : Warp device.
     mush : Delta Mush smoothing steps on the smooth skin (rig.skin.delta_mush; on the RBF skin for
         "rbf"): 0 (default) off; a clean-up for skins whose weights crease under LBS.
+    rigid : rig.character.gear.RigidParts, the gear and hard shells (shell and influence skinning), or
+        None (default: all tissue). No deformer acts on them and the spread cannot reach them; each
+        rigid piece follows plain skinning (its bone, for a shell bound to one joint) plus one
+        translation, the mean displacement of the soft skin under it (rig.character.gear.Ride), in
+        the static and the jiggling skin alike: it rides the body beneath without being stretched.
     spread : how far the skin spreads what the muscles do to it (shell and influence: their
         displacement from the smooth skin, static and jiggling alike, rig.skin.surface_smoothing), a
         fraction of the character's largest extent (default JIGGLE_REACH; 0: not at all).
@@ -93,7 +98,7 @@ class MuscleSkin:
     def __init__(self, character: Character, rig: MuscleRig, shells: Sequence[ShellParams] | None = None, *,
                  skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
                  margin: float = 0.25, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
-                 roles=None, spread: float = JIGGLE_REACH, mush: int = 0):
+                 roles=None, spread: float = JIGGLE_REACH, mush: int = 0, rigid=None):
         if skinning not in SKINNING:
             raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
         if method not in ("lbs", "dqs"):
@@ -125,6 +130,10 @@ class MuscleSkin:
         self.jiggle_map = None if jm is None or jm.identity else jm
         """rig.skin.painted_maps.JiggleMap of the character's painted jiggle map (skin_frames: the final
         skin's jiggle scaled by it, applied last), or None (none, or 1 everywhere)."""
+        self.rigid = rigid if rigid is not None and rigid.any and skinning != "rbf" else None
+        """rig.character.gear.RigidParts of the gear and hard shells the deformers leave alone, or None."""
+        self.ride = None
+        """rig.character.gear.Ride of the rigid pieces on the tissue under them, or None."""
         self.launches = 0
         """Warp launches pose_batch has made so far (skinning, Delta Mush, shells, influence objects, RBF)."""
         self._slots, self._turn = ({}, {}), 0          # pose_batch(reuse=True)'s kept host buffers
@@ -157,6 +166,13 @@ class MuscleSkin:
         # pair they cover (NaN where they keep it)
         offsets, muscle, influence = painted_pairs(offsets, muscle, self._influence_table())
         vertex = np.repeat(np.arange(V), np.diff(offsets))
+        if self.rigid is not None:      # gear and hard shells: no pair, so no deformer and no spread moves them
+            from jiggle.rig.character.gear import ride
+            keep = ~self.rigid.mask[vertex]
+            muscle, vertex = muscle[keep], vertex[keep]
+            influence = None if influence is None else influence[keep]
+            offsets = np.concatenate([[0], np.cumsum(np.bincount(vertex, minlength=V))]).astype(offsets.dtype)
+            self.ride = ride(character, self.rigid)
         pair_w = painted[vertex, muscle]
         self.pair_offsets, self.pair_muscle = offsets, muscle
         if skinning == "shell":
@@ -229,11 +245,16 @@ class MuscleSkin:
         return list(pool().map(one, skins)) if threads and len(skins) > 1 else [one(k) for k in skins]
 
     @classmethod
-    def from_musculature(cls, mus, *, weights=None, character_path=None, **kw) -> "MuscleSkin":
+    def from_musculature(cls, mus, *, weights=None, character_path=None, rigid="auto", **kw) -> "MuscleSkin":
         """The skin of a fitted musculature (rig.muscle.fit), each muscle's deformer from its template
         entry. `weights`: a painted weights file (.npz, rig.skin.shell.weights), an array (V, M), or None for
-        the file beside `character_path` when there is one, else 1. Other keywords as the constructor."""
+        the file beside `character_path` when there is one, else 1. `rigid`: the gear and hard shells,
+        "auto" (default: found from the skin, rig.character.gear.find_rigid), "none", a --rigid list
+        (rig.character.gear.parse_rigid) or a RigidParts. Other keywords as the constructor."""
+        from jiggle.rig.character.gear import parse_rigid
         from jiggle.rig.skin.shell.weights import find_weights, load_weights
+        if kw.get("skinning", "shell") != "rbf":
+            kw["rigid"] = parse_rigid(mus.character, rigid)
         names = mus.rig.names
         if weights is None and character_path is not None:
             weights = find_weights(character_path)
@@ -311,7 +332,10 @@ class MuscleSkin:
                 cvs = np.where(np.repeat(bad, self.rig.CVS_PER_MUSCLE)[:, None], ref, cvs)
             out = self.deformer.launch(points, cvs, ref)
         base = points.numpy()
-        return self._spread(base[None], [out.numpy()[None]])[0][0].copy()
+        skin = self._spread(base[None], [out.numpy()[None]])[0]
+        if self.ride is not None:
+            self.ride.apply(base[None], [skin])
+        return skin[0].copy()
 
     def lbs_batch(self, world: np.ndarray) -> np.ndarray:
         """Smooth skinning alone of T frames, (T, V, 3) float32 metres, for joint world transforms
@@ -413,7 +437,7 @@ class MuscleSkin:
 
             def finish():
                 return [sk.numpy() for sk in skins] + ([base] if smooth else [])
-            return finish if defer else finish()
+            return self._finish(finish, base, S, defer)
         out = out.numpy()
         if hold and self.skinning != "shell":
             out = _copy_into(self._host(slot, "moved", out.shape), out)
@@ -431,7 +455,19 @@ class MuscleSkin:
 
             def finish():
                 return sets
-        return finish if defer else finish()
+        return self._finish(finish, base, S, defer)
+
+    def _finish(self, finish, base: np.ndarray, S: int, defer: bool):
+        """pose_batch's end: `finish` (or a function doing it, `defer`), with the rigid pieces set on
+        the smooth skin `base` (T, V, 3) plus their ride (rig.character.gear.Ride) in its S sets."""
+        if self.ride is None:
+            return finish if defer else finish()
+
+        def done():
+            out = finish()
+            self.ride.apply(base, out[:S])
+            return out
+        return done if defer else done()
 
     def _launch_count(self) -> int:
         """Warp launches made so far by the skinner, the Delta Mush and the deformer."""
