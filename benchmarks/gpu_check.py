@@ -24,6 +24,12 @@ Sections (each "ours" figure is measured with --device D and with the CPU, in on
              1,000,000 particles (benchmarks/bench_particles.py's model, copied). Target: >= 1 G/s on the GPU.
   batch      16 bakes of CesiumMan (150 frames each, `jiggle batch --no-report` on Dask's LocalCluster) with 16
              worker processes sharing the device, against one worker baking them one after another.
+  graph      (issue 45) the particle stage of the bake as a CUDA graph per chunk (sim/jiggle/graph.py) against the
+             plain launches, same run, same model: 1,600 particles and 1,000,000 particles (a few frames: the
+             1M particle-steps row), particle-steps/s and the largest difference; and 16 bakes packed into one
+             process's one particle array (sim/jiggle/packed.py: CesiumMan's muscles at 16 jiggle strengths, each
+             chunk one packed run) against one bake alone: bakes per second of the particle stage.
+             On the CPU (--device cpu) the graph rows launch directly (the CPU's one-launch runs, no capture).
 
 --precompile ARCH (benchmarks/gpu_pack.sh): no check; tiny CPU bakes of every case load every Warp module the
 check uses (compiling their CPU kernels into the kernel cache, WARP_CACHE_PATH), then each module is compiled
@@ -54,9 +60,11 @@ LONG_CLIP = ASSETS / "mocap" / "cmu_bvh" / "05_02.bvh"
 """9.4 s (281 frames at 30 fps): the speed runs' CesiumMan clip (02_03 lasts 1.5 s)"""
 DEFAULT = ROOT / "scenes" / "default.toml"
 
-SECTIONS = {"env": 20, "tests": 60, "agree": 60, "speed": 180, "particles": 70, "batch": 80}
+SECTIONS = {"env": 20, "tests": 50, "agree": 50, "speed": 170, "particles": 50, "batch": 50, "graph": 80}
 """Each section's time limit, seconds: 470 in all, so the whole check ends inside 8 minutes (an H200 machine took
 26 s for the tests, 36 for the agreement; a section cut by its limit still gives the rows it finished)."""
+SPEED_FRAMES_100K = 91
+"""Frames of the 100k body in the speed section (run 2's 301 frames did not fit its limit)."""
 FORMATS = ("npz", "usdc", "pc2")
 AGREE_MM = 0.1
 TARGETS = {"loop_fps_30k": 1000.0, "caches_fps_30k": 900.0, "lbs_ratio": 3.0, "steps_per_s": 1e9}
@@ -74,6 +82,8 @@ def cases(quick: bool, long: str | None = None) -> dict:
     out["body30k"] = {"scene": scene, "fps": 30, "body": MappingProxyType({"resolution": 30000})}
     if not quick:
         out["body100k"] = {"scene": scene, "fps": 30, "body": MappingProxyType({"resolution": 100000})}
+        if long:                   # the speed runs: fewer frames of the 100k body, so that it fits the limit
+            out["body100k"]["frames"] = SPEED_FRAMES_100K
     return out
 
 
@@ -129,7 +139,7 @@ def section_env(device: str, quick: bool) -> dict:
 def section_tests(device: str, quick: bool, out_dir: Path) -> dict:
     xml = out_dir / "tests.xml"
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs", "--junitxml", str(xml),
-           "tests/bake/test_device.py"]
+           "tests/bake/test_device.py", "tests/jiggle/test_graph.py"]
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(
         [str(ROOT), os.environ.get("PYTHONPATH", "")])})
     print(r.stdout[-6000:], r.stderr[-3000:])
@@ -261,7 +271,7 @@ def section_particles(device: str, quick: bool, out_dir: Path) -> dict:
     wp.init()
     arm = simple_arm()
     res = {}
-    for copies in (COPIES, 25_000):
+    for copies in (COPIES,):          # 1,000,000 particles: the graph section (fewer frames)
         for dev in dict.fromkeys((device, "cpu")):
             # the CPU's 1M run covers fewer frames: the rates are per step
             big = copies > COPIES
@@ -324,6 +334,126 @@ def section_batch(device: str, quick: bool, out_dir: Path) -> dict:
     return res
 
 
+def _graph_rows(arm, copies: int, seconds: float, device: str, repeats: int) -> dict:
+    """The particle stage of a bake of `copies` swinging arms (benchmarks/bench_particles.py) with the chunk graph
+    and with the plain launches, on one device: particle-steps/s of each, the largest difference (m), the graphs
+    captured and replayed."""
+    import numpy as np
+    from bench_jiggle import copied_model, swinging_goals
+    from bench_particles import FPS, SUBSTEPS, bake_chunks, bake_particles
+    from timing import best
+
+    from jiggle.sim.jiggle.graph import ChunkGraph
+    from jiggle.sim.jiggle.params import JiggleSettings
+    from jiggle.sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times
+    from jiggle.sim.jiggle.solver import ParticleSolver
+    model, offsets = copied_model(arm, copies, device)
+    settings = JiggleSettings(substeps=SUBSTEPS, device=device)
+    times = np.arange(int(round(seconds * FPS)) + 1) / FPS
+    knots = knot_times(times, settings.goal_rate or max(DEFAULT_GOAL_RATE, FPS))
+    static = swinging_goals(arm, offsets, knots)
+    row, out = {"particles": model.num_particles, "frames": len(times) - 1}, {}
+    for mode in ("plain", "graph"):
+        solver = ParticleSolver(model)
+        solver.graph = ChunkGraph(solver) if mode == "graph" else None
+        chunks = bake_chunks(times, knots, static, settings, solver)
+        steps = sum(len(ch.grid) - 1 for ch in chunks)
+        out[mode] = bake_particles(model, solver, chunks, times, settings)       # warm-up: compiles, captures
+        launches = solver.launches
+        t, _ = best(lambda: bake_particles(model, solver, chunks, times, settings), repeats=repeats, warmup=False)
+        row[f"{mode}_steps_per_s"] = model.num_particles * steps / t
+        row[f"{mode}_ms_per_chunk"] = 1e3 * t / len(chunks)
+        row[f"{mode}_launches_per_chunk"] = launches / len(chunks)
+        row["steps"], row["chunks"] = steps, len(chunks)
+        if mode == "graph":
+            g = solver.graph
+            row.update({"graph_capture": g.capture, "graphs_captured": g.captures, "graph_replays": g.replays})
+    row["graph_over_plain"] = row["graph_steps_per_s"] / row["plain_steps_per_s"]
+    row["max_diff_m"] = float(np.abs(out["graph"] - out["plain"]).max())
+    return row
+
+
+def _packed_rows(device: str, quick: bool, jobs: int) -> dict:
+    """`jobs` bakes of CesiumMan (the demo body without the assets) at jiggle strengths 0.5..1 packed into one
+    particle array (sim/jiggle/packed.py), chunk after chunk, against one bake alone: seconds of the particle stage
+    and bakes per second, and bake 0's largest difference from its run alone."""
+    from dataclasses import replace as dc_replace
+
+    import numpy as np
+    from timing import best
+
+    from jiggle.sim.bake.baker import MARGIN, chunk_frames, num_chunks
+    from jiggle.sim.bake.setup import prepare
+    from jiggle.sim.jiggle.packed import PackedBakes
+    from jiggle.sim.jiggle.particles import muscle_model
+    from jiggle.sim.jiggle.simulate import TIME_EPS, goals, run
+    from jiggle.sim.jiggle.solver import ParticleSolver
+    kw = cases(True, long=str(DEFAULT)).get("cesium") or {"scene": str(DEFAULT), "fps": 30,
+                                                           "body": MappingProxyType({"resolution": 3000})}
+    s = prepare(request({**kw, "frames": 61 if quick else 121, "chunk": 30, "collisions": False, "preroll": 0.0,
+                         "loop": "off"},
+                        device, formats=("npz",)))
+    strengths = np.linspace(0.5, 1.0, jobs)
+    models = [muscle_model(s.rig, [dc_replace(j, strength=float(a)) for j in s.jiggles], device,
+                           gravity=s.settings.gravity) for a in strengths]
+    chunks = []
+    for c in range(num_chunks(s)):
+        f0, f1 = chunk_frames(s, c)
+        a = max(f0 - 1, 0)
+        ka = max(0, int(np.searchsorted(s.knots, s.times[a] - TIME_EPS)) - MARGIN)
+        kb = min(len(s.knots), int(np.searchsorted(s.knots, s.times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
+        kt = s.knots[ka:kb]
+        static = s.rig.static(np.asarray(s.world_at(kt), dtype=np.float64), device=device)
+        chunks.append((goals(s.rig, kt, static.cvs, s.settings), s.times[a:f1]))
+    sub = s.settings.substeps
+    packed = PackedBakes(models, device=device)
+    alone = ParticleSolver(models[0])
+
+    def one():
+        state, out = None, []
+        for track, t in chunks:
+            x, state = run(models[0], track, t, sub, 0.0, alone, start=state, return_state=True)
+            out.append(x)
+        return out
+
+    def many():
+        states, out = [None] * jobs, []
+        for track, t in chunks:
+            got = packed.simulate([track] * jobs, [t] * jobs, sub, states)
+            states = [g[1] for g in got]
+            out.append(got[0][0])
+        return out
+    x1, xs = one(), many()                                              # warm-up (compiles, captures)
+    t1, _ = best(one, 2 if quick else 3)
+    tn, _ = best(many, 2 if quick else 3)
+    return {"bakes": jobs, "frames": len(s.times), "particles_per_bake": models[0].num_particles,
+            "chunks": len(chunks), "one_bake_s": t1, "packed_s": tn, "one_bakes_per_s": 1.0 / t1,
+            "packed_bakes_per_s": jobs / tn, "packed_over_one": jobs * t1 / tn,
+            "packed_runs": packed.packed_runs, "alone_runs": packed.alone_runs,
+            "bake0_max_diff_m": float(max(np.abs(a - b).max() for a, b in zip(x1, xs)))}
+
+
+def section_graph(device: str, quick: bool, out_dir: Path) -> dict:
+    import warp as wp
+
+    from jiggle.rig.muscle.simple_arm import simple_arm
+    wp.init()
+    arm = simple_arm()
+    res = {}
+    # 1,600 particles over 2 s (1 s quick); 1,000,000 particles over 0.2 s (6 frames; 100,000 particles on a CPU)
+    for name, copies, seconds, repeats in (("1600", 40, 1.0 if quick else 2.0, 2 if quick else 3),
+                                           ("1M", 25_000 if device != "cpu" else 2_500, 0.1 if quick else 0.2, 1)):
+        row = _graph_rows(arm, copies, seconds, device, repeats)
+        print("graph", name, json.dumps(row, default=float), flush=True)
+        res[f"graph/{name}"] = row
+        keep(res)
+    row = _packed_rows(device, quick, 4 if quick else 16)
+    print("packed", json.dumps(row, default=float), flush=True)
+    res["packed"] = row
+    keep(res)
+    return res
+
+
 # ---------------------------------------------------------------------------------------- precompile
 def precompile(arch: int, out_dir: Path) -> None:
     """Load every Warp module the check uses with tiny CPU bakes, then compile each for sm_`arch` ahead of time."""
@@ -342,7 +472,7 @@ def precompile(arch: int, out_dir: Path) -> None:
                              "cpu")), os.path.join(tmp, "arm"))
     import bench_jiggle  # noqa: F401  (their modules, for the particle section)
     from jiggle.rig.skin import smoothing_kernels  # noqa: F401  (a GPU's spread and steps: not loaded on the CPU)
-    from jiggle.sim.jiggle import particle_kernels, step_kernels  # noqa: F401
+    from jiggle.sim.jiggle import graph_kernels, particle_kernels, step_kernels  # noqa: F401  (graphs: CUDA only)
     from warp._src.context import user_modules
     done = []
     for name, module in list(user_modules.items()):
@@ -434,6 +564,28 @@ def table(r: dict, device: str) -> str:
             L += ["| device / workers | done | wall s | bakes per minute |", "| --- | --- | --- | --- |"]
             L += [f"| {k} | {c['done']}/{c['jobs']} | {c['wall_s']} | {c['bakes_per_min']:.1f} |" for k, c in b.items()
                   if isinstance(c, dict)]
+        L.append("")
+    gr = r.get("graph", {})
+    if isinstance(gr, dict) and gr and "error" not in gr:
+        L += [f"## Chunk graphs and packed bakes on {device} (issue 45)", "",
+              "| particles | frames | steps | plain M steps/s | graph M steps/s | graph / plain | launches per chunk "
+              "(plain) | ms per chunk plain, graph | graphs captured, replays | largest difference m |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for key, c in gr.items():
+            if not key.startswith("graph/") or not isinstance(c, dict):
+                continue
+            L.append(f"| {c['particles']:,} | {c['frames']} | {c['steps']} | {c['plain_steps_per_s'] / 1e6:,.1f} | "
+                     f"{c['graph_steps_per_s'] / 1e6:,.1f} | {c['graph_over_plain']:.2f}x | "
+                     f"{c['plain_launches_per_chunk']:.0f} | {c['plain_ms_per_chunk']:.2f}, {c['graph_ms_per_chunk']:.2f} | "
+                     f"{c['graphs_captured']}, {c['graph_replays']}{'' if c['graph_capture'] else ' (no capture)'} | "
+                     f"{c['max_diff_m']:.2g} |")
+        pk = gr.get("packed")
+        if isinstance(pk, dict):
+            L += ["", f"Packed: {pk['bakes']} bakes ({pk['particles_per_bake']:,} particles each, {pk['frames']} frames, "
+                  f"{pk['chunks']} chunks) in one process: {pk['packed_bakes_per_s']:.2f} bakes/s of the particle stage "
+                  f"against {pk['one_bakes_per_s']:.2f} for one bake alone ({pk['packed_over_one']:.2f}x); "
+                  f"{pk['packed_runs']} packed runs, {pk['alone_runs']} alone (warm-up and repeats); bake 0 differs from its run alone by "
+                  f"{pk['bake0_max_diff_m']:.2g} m."]
         L.append("")
     for name in SECTIONS:
         e = r.get(name, {})

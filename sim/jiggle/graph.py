@@ -40,7 +40,6 @@ The keyed solver (sim/jiggle/keyed_solver.py) runs the plain path.
 """
 from __future__ import annotations
 
-import os
 import warnings
 from collections import OrderedDict
 
@@ -50,17 +49,8 @@ import warp as wp
 from jiggle.sim.jiggle import graph_kernels
 from jiggle.sim.jiggle.goal_track import GoalControl
 
-GRAPHS_ENV = "JIGGLE_GRAPHS"
-"""Environment variable: "0" turns the chunk graph off (a CUDA solver then takes the plain path)."""
 MAX_GRAPHS = 8
 """Captured graphs kept per solver (the chunks of a bake have two or three shapes: the first, the others, the last)."""
-
-
-def default_graph(solver) -> "ChunkGraph | None":
-    """The chunk graph a solver on a CUDA device gets (ParticleSolver.graph), None where JIGGLE_GRAPHS=0."""
-    if os.environ.get(GRAPHS_ENV, "1") == "0":
-        return None
-    return ChunkGraph(solver)
 
 
 class GraphArrays:
@@ -182,10 +172,13 @@ class ChunkGraph:
 
     # ------------------------------------------------------------------------------------------ phase 1
     def prepare(self, track, control, grid: np.ndarray, out_times: np.ndarray, wanted: np.ndarray, is_out: np.ndarray,
-                start, colliders=None, tissue=None):
+                start, colliders=None, tissue=None, offsets=None):
         """The chunk's operations and where its outputs land: (ops, outputs, end_state). start : ("given", (x, v))
         float32 arrays, ("rest",) the bind pose at rest (a preroll), or ("restart", t0); outputs : (device array,
-        rows (R,) of it, output frames (R,), kind "x" or "records"); end_state : the ParticleState holding the end."""
+        rows (R,) of it, output frames (R,), kind "x" or "records"); end_state : the ParticleState holding the end.
+        offsets(t) -> (y, vel) (N, 3) float64: a (re)start's quasi-static offsets and the goals' velocities at t
+        (sim.jiggle.simulate.start_offsets)."""
+        self._offsets = offsets
         from jiggle.sim.jiggle.colliders import Colliders
         s, m, A = self.solver, self.solver.model, self.arrays
         A.begin()
@@ -247,11 +240,8 @@ class ChunkGraph:
 
     def _restart_ops(self, state, ctrl, t: float) -> list:
         """sim.jiggle.simulate.restart on the device: the glue launch, then the offsets (from the track, uploaded)."""
-        from jiggle.sim.jiggle import tissue_law
-        from jiggle.sim.jiggle.simulate import equilibrium, start_motion
         m = self.solver.model
-        vel, acc = start_motion(ctrl.track, t)
-        y = tissue_law.equilibrium_numpy(equilibrium(m, acc), m.goal_k, np.asarray(m.reach, dtype=np.float64))
+        y, vel = self._offsets(t)
         A = self.arrays
         return [("launch", *self.solver.glue_launch(state, ctrl, t)),
                 ("launch", graph_kernels.restart_offsets, m.num_particles,
@@ -349,11 +339,11 @@ class ChunkGraph:
         wp.capture_launch(graph)
 
     # ------------------------------------------------------------------------------------------ all three
-    def run(self, track, control, grid, out_times, wanted, is_out, start, colliders=None, tissue=None):
+    def run(self, track, control, grid, out_times, wanted, is_out, start, colliders=None, tissue=None, offsets=None):
         """A chunk's stepping (sim.jiggle.simulate.run's loop): (positions (T, N, 3) float32 at out_times,
         contact records (T, N, 3) float32 (zeros and -1 where none), end state (x, v) (N, 3) float32)."""
         ops, outputs, end = self.prepare(track, control, np.asarray(grid, np.float64), out_times, wanted, is_out,
-                                         start, colliders, tissue)
+                                         start, colliders, tissue, offsets)
         self.launch(ops)
         # phase 3: read back once (the first read waits for the chunk; the rest are copies)
         T, N = len(out_times), self.solver.model.num_particles

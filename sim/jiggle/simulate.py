@@ -28,6 +28,7 @@ import numpy as np
 from jiggle.rig.base.errors import InputError
 from jiggle.sim.jiggle import tissue_law
 from jiggle.sim.jiggle.goal_track import GoalTrack, build_track
+from jiggle.sim.jiggle.graph import ChunkGraph
 from jiggle.sim.jiggle.params import JiggleSettings
 from jiggle.sim.jiggle.particles import GRAVITY, ParticleModel
 from jiggle.sim.jiggle.solver import ParticleSolver
@@ -129,9 +130,16 @@ def restart(model: ParticleModel, solver: ParticleSolver, state, control, t: flo
         model = solver.model_at(t)
     solver.glue(state, control, t)
     x, v = state.numpy()
-    vel, acc = start_motion(control.track, t)
-    y = tissue_law.equilibrium_numpy(equilibrium(model, acc), model.goal_k, np.asarray(model.reach, dtype=np.float64))
+    y, vel = start_offsets(model, control.track, t)
     state.assign(x + y, np.where(model.glued[:, None], v, vel))
+
+
+def start_offsets(model: ParticleModel, track: GoalTrack, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(y, vel) (N, 3) float64: :func:`restart`'s offsets from the goals (m) and velocities (m/s) at time t, from the
+    model and the track alone (the chunk graph adds them on the device, sim/jiggle/graph.py)."""
+    vel, acc = start_motion(track, t)
+    y = tissue_law.equilibrium_numpy(equilibrium(model, acc), model.goal_k, np.asarray(model.reach, dtype=np.float64))
+    return y, vel
 
 
 def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps: int = 4,
@@ -212,6 +220,8 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
             raise FloatingPointError(f"{model.group_of(int(p))}: the simulation produced NaN at frame {k} "
                                      f"(t = {out_times[k]:.4f} s)")
 
+    if getattr(solver, "use_graph", False) and solver.graph is None:
+        solver.graph = ChunkGraph(solver)
     graph = getattr(solver, "graph", None)
     if graph is not None and graph.supports(solver):
         # the chunk as one device program (sim/jiggle/graph.py): nothing read back until its end
@@ -219,7 +229,8 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
             from jiggle.sim.jiggle.tissue_contacts import _check
             _check(model, tissue)
         how = ("given", (x, v)) if given is not None else ("rest",) if preroll > 0 else ("restart", t0)
-        frames, recs, end = graph.run(track, control, grid, out_times, wanted, is_out, how, colliders, tissue)
+        frames, recs, end = graph.run(track, control, grid, out_times, wanted, is_out, how, colliders, tissue,
+                                      lambda t: start_offsets(model, track, t))
         save(np.arange(len(out_times)), frames)
         if records is not None:
             records[...] = recs

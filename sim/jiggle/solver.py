@@ -27,6 +27,7 @@ with one launch per step.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import warp as wp
@@ -39,6 +40,8 @@ from jiggle.sim.jiggle.particles import ParticleModel, ParticleState
 
 NO_FLOOR = -1.0e30
 """metres: the floor height of colliders without a floor (no float32 position is below it)."""
+GRAPHS_ENV = "JIGGLE_GRAPHS"
+"""Environment variable: "0" turns the chunk graph (sim/jiggle/graph.py) off: a CUDA solver takes the plain path."""
 STEP_OMEGA = 0.5
 """Largest omega h (and gamma h) of the neighbour springs in one step; stability ends at 2."""
 
@@ -157,12 +160,12 @@ class ParticleSolver:
         """seconds: the longest step the spring kicks take (inf without springs)."""
         self.graph = None
         """None, or the sim.jiggle.graph.ChunkGraph that steps a chunk of sim.jiggle.simulate.run as one device
-        program (captured once per chunk shape as a CUDA graph and replayed): made for a plain solver on a CUDA
-        device (sim.jiggle.graph.default_graph: JIGGLE_GRAPHS=0 turns it off); None on the CPU, whose path is
-        the launches as they are."""
-        if type(self) is ParticleSolver and not wp.get_device(dev).is_cpu:
-            from jiggle.sim.jiggle.graph import default_graph
-            self.graph = default_graph(self)
+        program (captured once per chunk shape as a CUDA graph and replayed); sim.jiggle.simulate.run makes it on
+        its first chunk where :attr:`use_graph`."""
+        self.use_graph = type(self) is ParticleSolver and not wp.get_device(dev).is_cpu and \
+            os.environ.get(GRAPHS_ENV, "1") != "0"
+        """Whether runs make and use the chunk graph: a plain solver on a CUDA device unless JIGGLE_GRAPHS=0; on the
+        CPU the launches as they are (the keyed solver: always)."""
 
     def flow(self, h: float) -> tuple[np.ndarray, tuple[wp.array, wp.array]]:
         """Tissue rows (N, tissue_law.ROW) float64 for step h (sim.jiggle.tissue_law.rows: the exact goal flow over
