@@ -203,6 +203,9 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
                    "smooth skin, N smoothing steps (default: the scene's, else 0: off)")
     g.add_argument("--influences", type=count("--influences"), metavar="K", help="skin weights kept per vertex "
                    "(default: 4)")
+    g.add_argument("--rigid", metavar="LIST", help="gear and hard shells that ride the body without jiggle: auto "
+                   "(default: pieces bound rigidly to one joint, parts named like gear), none, or a comma-separated "
+                   "list of parts (glTF node names) or joints to add, -NAME to leave soft (write --rigid=-NAME)")
     g.add_argument("--resolution", type=count("--resolution"), metavar="N",
                    help="generated body: target vertex count (default: the scene's, else 20000)")
     for name in ("belly", "chest", "glutes", "upper-arms"):

@@ -80,6 +80,29 @@ def tissue_plan(path: str) -> dict:
     return out
 
 
+def rigid_parts(path: str) -> dict:
+    """The gear and hard shells a bake with the defaults keeps rigid (rig.character.gear.find_rigid): what,
+    on which joints and why, and how --rigid overrides it."""
+    import warnings
+
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.rig.character.gear import find_rigid
+    from jiggle.rig.character.load import load_character
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        r = find_rigid(load_character(path))
+    if not r.any:
+        return {"parts": "none: all the skin is tissue (--rigid NAME[,NAME] makes parts or joints rigid)"}
+    out = {"vertices": f"{r.count} of {len(r.mask)}, {r.pieces} piece(s), following their bones without jiggle",
+           "parts": list(r.parts) or "none wholly"}
+    if r.partly:
+        out["partly"] = {k: f"{v:.0%}" for k, v in r.partly.items()}
+    out["joints"] = list(r.joints)
+    out["why"] = ", ".join(f"{k}: {v} vertices" for k, v in r.why.items())
+    out["override"] = "--rigid none, --rigid=-NAME (a part or joint left soft), --rigid NAME (made rigid)"
+    return out
+
+
 def unit_note(height: float) -> dict:
     """What `--unit auto` makes of a character `height` file units tall (read as metres)."""
     from jiggle.rig.character.character import PLAUSIBLE_HEIGHT_M, UNIT_NAMES, UNITS, guess_unit
@@ -145,6 +168,7 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
                 out["tissue"] = tissue_plan(p)
             except InputError as e:
                 out["tissue"] = {"template": None, "why": f"no tissue: {e.message}"}
+            out["rigid"] = rigid_parts(p)
         if out.get("animations"):
             out["clip"] = describe_clip(load_clip(p, animation=animation))
             if "body_plan" in out:      # the animation moves the character's own skeleton: its body, as read above
