@@ -130,9 +130,11 @@ def find_rigid(character) -> RigidParts:
     - The Quaternius zoo (Horse, Cow, Frog, Cat, Orc, Demon, Goleling, Hywirl): the body is one piece
       skinned over 4-45 joints with 0-33% of its vertices rigid (Horse 20%, Frog 13%, Cat 0%, Orc 0.7%),
       so it stays tissue. The pieces rigid to one joint are eyes (pairs of 202-vertex balls on Head),
-      and the Orc's and Cat's small head pieces (65-278 vertices on Head / Head3): hard in the file's
-      own skinning, and hard here. Demon's, Hywirl's and Cow's eyes carry a second small weight (max
-      weight < 0.99 everywhere): they stay tissue, as the file skins them.
+      and the Orc's, Cat's and Goleling's small head pieces (tongue, teeth, crest, ears: 38-278
+      vertices on Head / Head3): hard in the file's own skinning, and hard here; they ride the soft
+      head they sit on (:func:`ride`), so the zoo's jiggle is what it was (max 16-81 mm, unchanged).
+      Demon's, Hywirl's and Cow's eyes share their weight with the neck (Head 0.5-0.95): they stay
+      tissue, as the file skins them.
     - CesiumMan and RiggedFigure are one piece over 19 joints (14% / 10% rigid): nothing is hard.
     - A piece rigid to one bone counts even when it is large (the robot's head, 1742 vertices over 30
       pieces): what makes it hard is that the file's artist bound it so, and a separate piece has no
