@@ -477,31 +477,37 @@ range changes the result), this many rounds."""
 
 def _to_size(jiggles, skin, settings, character, clip, world_at, log) -> list:
     """The generic template's goal springs scaled alike (the ratios tune_to_motion found kept, each kind's range
-    MOTION_FREQUENCY_HZ kept) until a probe bake of the clip (no collisions, PROBE_FPS over its first
-    PROBE_SECONDS) jiggles the skin about PEAK_SIZE of the body's size (within 20%, or at a range's end): the skin's response, not a model of it,
-    since how much of a muscle's swing reaches the skin depends on the body (a blob's one fat mass moves its whole
-    skin, a creature's limbs a part of theirs). The quasi-static swing goes as 1 / f^2, so f scales by
-    sqrt(peak / target)."""
-    from jiggle.sim.bake.baker import bake_in_memory
+    MOTION_FREQUENCY_HZ kept) until a probe of the clip (the bake's stages in one go, without collisions, at
+    PROBE_FPS over its first PROBE_SECONDS) jiggles the skin about PEAK_SIZE of the body's size (within 20%, or at
+    a range's end): the skin's response, not a model of it, since how much of a muscle's swing reaches the skin
+    depends on the body (a blob's one fat mass moves its whole skin, a creature's limbs a part of theirs). The
+    quasi-static swing goes as 1 / f^2, so f scales by sqrt(peak / target)."""
+    from jiggle.rig.skin.muscle_skin import skin_frames
+    from jiggle.sim.jiggle.keyed_solver import make_solver
     from jiggle.sim.jiggle.params import MOTION_FREQUENCY_HZ
+    from jiggle.sim.jiggle.particles import muscle_model
+    from jiggle.sim.jiggle.simulate import goals, simulate
     times = np.arange(0.0, min(clip.duration, PROBE_SECONDS) + 1e-9, 1.0 / PROBE_FPS)
     if len(times) < 3:
         return jiggles
+    settings = replace(settings, collisions=False)
+    rig = skin.rig
     knots = knot_times(times, settings.goal_rate or DEFAULT_GOAL_RATE)
+    world_k = np.asarray(world_at(knots), np.float64)
+    static = rig.static(world_k, device=settings.device)
+    at = np.clip(np.searchsorted(knots, times - 1e-9), 0, len(knots) - 1)       # the frames among the knots
+    track = goals(rig, knots, static.cvs, settings)
     target = PEAK_SIZE * float(np.ptp(np.asarray(character.vertices), axis=0).max())
-    kinds = skin.rig.kinds
     for _ in range(PROBE_ROUNDS):
-        probe = BakeSetup(name="probe", skin=skin, jiggles=tuple(jiggles), settings=replace(settings, collisions=False),
-                          times=times, fps=PROBE_FPS, knots=knots, world_at=world_at, joints_at=world_at,
-                          joint_names=tuple(character.joint_names), formats=("npz",), chunk=len(times),
-                          params={"probe": True}, key="probe", timings={})
-        data = bake_in_memory(probe)
-        peak = float(np.linalg.norm(np.asarray(data.skin_final) - np.asarray(data.skin_static), axis=2).max())
+        model = muscle_model(rig, list(jiggles), settings.device, gravity=settings.gravity)
+        dyn, _ = simulate(model, track, times, settings, solver=make_solver(model, jiggles))
+        st, fin = skin_frames(skin, world_k[at], (static.cvs[at], dyn), static.curve[at], np.arange(len(times)))
+        peak = float(np.linalg.norm(np.asarray(fin) - np.asarray(st), axis=2).max())
         g = math.sqrt(peak / target)
         if peak <= 1e-6 * target or abs(g - 1.0) < 0.1:
             break
         jiggles = [replace(j, frequency_hz=float(np.clip(j.frequency_hz * g, *MOTION_FREQUENCY_HZ.get(
-            k, MOTION_FREQUENCY_HZ["muscle"])))) for j, k in zip(jiggles, kinds)]
+            k, MOTION_FREQUENCY_HZ["muscle"])))) for j, k in zip(jiggles, rig.kinds)]
         log(f"generic tissue: {1e3 * peak:.3g} mm on a probe of the clip, for {1e3 * target:.3g} mm "
             f"({100 * PEAK_SIZE:g}% of the body): goal springs x {g:.2f}")
     return jiggles
