@@ -95,6 +95,7 @@ class BakeRequest:
     skin: int | None = None
     unit: str | None = None
     mush: int | None = None
+    rigid: str | None = None
     loop: str | None = None
 
 
@@ -222,6 +223,7 @@ def fitted_key(req: BakeRequest, pick: Callable, character_file: str | None, bod
     return params_key({"jiggle_bake": VERSION, "character": character, "influences": pick("influences", 4),
                        "template": named(str(template)), "character_map": named(req.character_map),
                        "skinning": [pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)],
+                       **({"rigid": req.rigid} if req.rigid not in (None, "auto") else {}),
                        **({"device": req.device} if req.device not in (None, "cpu") else {})})
 
 
@@ -366,7 +368,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
     if cached is None:
         skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file,
-                                           mush=mush, device=warp_device(req.device or "cpu"))
+                                           mush=mush, device=warp_device(req.device or "cpu"), rigid=req.rigid or "auto")
         if rigs is not None:
             rigs[rig_key] = FittedRig(character, mus, skin)
     if scene is not None and scene.pose_shapes:
@@ -374,6 +376,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         skin = copy.copy(skin)
         skin.rig = scene.apply_pose_shapes(mus.rig, character)
         log(f"pose shapes: {len(skin.rig.pose_shapes.shapes)} muscle(s) shaped by joint bends")
+    rigid = getattr(skin, "rigid", None)
+    log(rigid.describe() if rigid is not None else "rigid parts: none; all the skin is tissue")
     log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
         f"pairs ({reused}{time.perf_counter() - t:.1f} s)")
     timings["fit_s"] = time.perf_counter() - t
@@ -419,6 +423,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "body_plan": mus.plan.to_json(),
         "template_why": mus.why or None,
+        "rigid": {"option": req.rigid or "auto", "parts": rigid.to_json() if rigid is not None else None},
         "parts": [p.to_json() for p in mus.parts] or None,
         "size_scale": character.meta.get("template_scale", 1.0),
         # metres per unit of the character's file, as its caches are written: a DCC that imported the file as it

@@ -32,7 +32,7 @@ def bake_request(args):
         skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),
         character_map=getattr(args, "character_map", None),
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None),
-        loop=getattr(args, "loop", None))
+        loop=getattr(args, "loop", None), rigid=getattr(args, "rigid", None))
 
 
 def emit(event: str, **fields) -> None:

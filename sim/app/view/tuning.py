@@ -162,8 +162,10 @@ def request_from_params(params: dict) -> BakeRequest:
         template = params.get("template")
         if isinstance(template, dict):
             template = _same_file(template, "template")
+        rigid = (params.get("rigid") or {}).get("option")
         return BakeRequest(scene=scene_path, clip=clip, character=char_file, template=template, body=body,
-                           drive=params["drive"], influences=params["skinning"]["influences"], **common)
+                           drive=params["drive"], influences=params["skinning"]["influences"],
+                           rigid=None if rigid in (None, "auto") else rigid, **common)
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise NotTunable(f"bake.json lacks what a rebuild needs ({type(e).__name__}: {e})") from None
 
