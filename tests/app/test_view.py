@@ -281,7 +281,9 @@ def test_slider_resimulates_and_the_saved_scene_bakes_the_same(viewer, browser, 
     assert viewer.wait_tuned(), "the last values did not re-simulate"
     assert viewer.tuning.blend == 0.9 and viewer.tuning.muscles[name]["goal_scale"] == 0.8
     assert viewer.tuning.muscles[name]["damping"] == 0.2
-    new = viewer.pb.skin_final.copy()
+    shown = viewer.shown                                        # the motion on the page, tagged with its values
+    assert shown.generation == viewer.generation and shown.tuning == viewer.tuning
+    assert viewer.pb.skin_final is shown.skin_final and viewer.pb.cvs_dynamic is shown.cvs_dynamic
     scene = tmp_path / "tuned.toml"
     _type(_until(lambda: browser.find_element(By.XPATH, "//*[normalize-space(text())='scene file']"
                                                         "/ancestor::*[.//input][1]//input")), str(scene))
@@ -291,12 +293,72 @@ def test_slider_resimulates_and_the_saved_scene_bakes_the_same(viewer, browser, 
     save.click()
     assert _until(lambda: scene.exists() and getattr(viewer, "saved", None)), viewer.g_t_result.content
     _, args = viewer.saved
+    assert viewer.saved_motion is shown                         # the scene holds the values of the motion shown
     out = tmp_path / "rebake"
     assert main(["-q", "bake", str(scene), *args, "--out", str(out), "--formats", "npz"]) == 0
     again = read_npz(out / "bake.npz")
-    assert np.array_equal(again.skin_final, new)                # bit for bit: the bake of the tuned value
-    assert np.array_equal(again.muscle_cvs_dynamic, viewer.pb.cvs_dynamic)
+    assert np.array_equal(again.skin_final, shown.skin_final)   # bit for bit: the bake of the tuned value
+    assert np.array_equal(again.muscle_cvs_dynamic, shown.cvs_dynamic)
+    assert viewer.shown is shown and viewer.pb.skin_final is shown.skin_final, "the page re-simulated meanwhile"
     os.remove(scene)
+
+
+@pytest.mark.slow
+def test_slider_moves_at_once_all_reach_the_motion_shown_and_the_saved_scene(viewer, bake_dir, tmp_path,
+                                                                            monkeypatch):
+    """viser runs each GUI callback in a pool of threads, several at once and in any order, each reading its
+    slider when it runs. Moves of several sliders sent together (each box typed key by key: "0", then the
+    value), while building a tuning is slow (a thread preempted mid-edit), all reach the tuning asked for,
+    the motion then shown is that tuning's and tagged with it, and no run is left over; "save scene" asked
+    while a run is pending waits for it and writes the values of the motion shown."""
+    import random
+    from concurrent.futures import ThreadPoolExecutor
+
+    from jiggle.sim.app.view.page import ViewerPage
+    from jiggle.sim.app.view.playback import Playback, open_bake
+    assert viewer.wait_tuner(), viewer.tune_error
+    page = ViewerPage(Playback(*open_bake(str(bake_dir))), str(bake_dir), port=0, paused=True,
+                      tuner_factory=lambda: viewer.tuner, formats=("npz",))    # the module's rebuilt setup
+    try:
+        assert page.wait_tuner(), page.tune_error
+        name = page.g_t_muscle.value
+        slow_muscle, slow_blend = Tuning.with_muscle, Tuning.with_blend
+        monkeypatch.setattr(Tuning, "with_muscle", lambda self, *a, **k: (time.sleep(random.uniform(0, 0.004)),
+                                                                          slow_muscle(self, *a, **k))[1])
+        monkeypatch.setattr(Tuning, "with_blend", lambda self, v: (time.sleep(random.uniform(0, 0.004)),
+                                                                   slow_blend(self, v))[1])
+        random.seed(0)
+        pool = ThreadPoolExecutor(max_workers=32)
+
+        def browser_sends(handle, value):               # as viser's event loop: the value set, then the callbacks
+            handle._impl.value = value
+            for cb in handle._impl.update_cb:
+                pool.submit(cb, None)
+        moves = ((page.g_t_strength, "strength", 0.7), (page.g_t_damping, "damping", 0.25),
+                 (page.g_t_goal, "goal_scale", 0.6), (page.g_t_blend, None, 0.85))
+        for handle, _, value in moves:
+            browser_sends(handle, 0.0)
+            browser_sends(handle, value)
+        pool.shutdown(wait=True)
+        assert page.wait_tuned(), "the last values did not re-simulate"
+        knobs = page.tuning.muscles[name]
+        assert [knobs.get(k) if k else page.tuning.blend for _, k, _ in moves] == [v for *_, v in moves]
+        shown = page.shown
+        assert shown.generation == page.generation and shown.tuning == page.tuning
+        assert page.pb.skin_final is shown.skin_final
+        motion = page.tuner.run(page.tuning)
+        assert np.array_equal(motion.skin_final, shown.skin_final)
+        assert np.array_equal(motion.cvs_dynamic, shown.cvs_dynamic)
+
+        page.g_t_damping.value = 0.4                    # as the browser would, and "save scene" at once
+        scene = tmp_path / "pending.toml"
+        page.g_t_path.value = str(scene)
+        page._save()
+        assert page.saved_motion is page.shown and page.shown.generation == page.generation, page.g_t_result.content
+        assert page.saved_motion.tuning.muscles[name]["damping"] == 0.4
+        assert tomllib.loads(scene.read_text())["jiggle"]["muscles"][name]["damping"] == 0.4
+    finally:
+        page.stop()
 
 
 @pytest.mark.slow

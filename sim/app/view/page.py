@@ -18,6 +18,16 @@ Playback runs in a thread that advances the frame slider at the bake's fps times
 callback draws the frame (so a scrub and a tick draw the same way). A slider of the Tune panel records the
 value and wakes the re-simulation thread, which runs the latest tuning (moves made while it ran collapse into
 one run) and swaps the motion in.
+
+Threads. viser calls a GUI callback in a pool of threads, several at once and in any order, each reading
+its slider when it runs. So every edit of the tuning (a knob, the blend, reset, the sliders synced to a
+muscle) is one step under one lock (`_wanted`): it reads the slider then, builds on the latest tuning, and
+hands the tuning and its number (`generation`, +1 per request that changes a value) to the re-simulation
+thread in the same step; a request that changes nothing is no request. The motion on the page is tagged
+with the request it answers (`shown`: ShownMotion, generation, tuning and the arrays drawn); a run's result
+is shown when it is done (a slider dragged meanwhile shows each step it reached) and never replaces a newer
+one. "save scene" waits until no run is pending, then writes the tuning of the motion shown: the scene
+bakes to exactly the frames on the page (`wait_tuned` is the same wait for a caller).
 """
 from __future__ import annotations
 
@@ -27,6 +37,7 @@ import io
 import os
 import threading
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -47,6 +58,8 @@ FREQUENCY_RANGE = (0.5, 20.0)
 """Hz: the frequency slider's range."""
 DAMPING_RANGE = (0.0, 2.0)
 GOAL_SCALE_RANGE = (0.0, 2.0)
+SAVE_WAIT_S = 300.0
+"""seconds "save scene" waits for a pending re-simulation before it gives up (and says so)."""
 CAMERA_FOV = np.radians(40.0)
 """The first view: 40 degrees vertically, from the front (figures face -Y), a little from the right and above."""
 
@@ -57,6 +70,22 @@ def twin(name: str, names) -> str | None:
         if name.startswith(a) and b + name[len(a):] in names:
             return b + name[len(a):]
     return None
+
+
+@dataclass(frozen=True, eq=False)
+class ShownMotion:
+    """The motion on the page and what made it.
+
+    generation : the request it answers (0: the bake's own motion; ViewerPage.generation numbers the
+        requests). tuning : the view.tuning.Tuning it was simulated with.
+    cvs_dynamic : (T, N, 3) float32 metres, the blended CVs; skin_final : (T, V, 3) float32 metres: the arrays
+        the page draws (Playback's), never written once shown.
+    """
+
+    generation: int
+    tuning: Tuning
+    cvs_dynamic: np.ndarray
+    skin_final: np.ndarray
 
 
 class ViewerPage:
@@ -77,19 +106,28 @@ class ViewerPage:
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.tuner = None
         self.tuning = Tuning()
+        """The latest Tuning asked for (the sliders'); request number `generation`."""
+        self.generation = 0
+        """Numbers the requests: 0 the bake's values, +1 per request that changes a value."""
+        self.shown = ShownMotion(0, self.tuning, playback.cvs_dynamic, playback.skin_final)
+        """The motion on the page, with the request and Tuning it came from."""
+        self.saved_motion: ShownMotion | None = None
+        """The motion whose values "save scene" wrote last (with `saved`: the path and extra bake arguments)."""
         self.regions = None
         self.selected: int | None = None
         self.motion_version = 0
         """Counts the motions shown: 0 the bake's, +1 per re-simulation swapped in."""
-        self.shown_tuning = self.tuning
-        """The Tuning of the motion shown (`tuning` is the latest asked for)."""
         self.last_run_s: float | None = None
         self.tune_error: str | None = None
         self._draw_lock = threading.RLock()
         self._syncing = False
         self._stop = threading.Event()
-        self._wanted = threading.Condition()
-        self._pending: Tuning | None = None
+        self._tuner_done = threading.Event()
+        # the tuning, its generation, the request pending and the run's state change together under this lock
+        # (re-entrant: syncing the sliders calls their callbacks in the same thread); never take _draw_lock
+        # while holding it (the drawing side takes _draw_lock, then this)
+        self._wanted = threading.Condition(threading.RLock())
+        self._pending: tuple[int, Tuning] | None = None
         self._busy = False
         self._band_handles: list = []
         self._map_handles: list = []
@@ -108,6 +146,7 @@ class ViewerPage:
         else:
             self.tune_error = "tuning is off (--no-tune)"
             self._set_tune_status(self.tune_error)
+            self._tuner_done.set()
         for t in self._threads:
             t.start()
 
@@ -124,31 +163,32 @@ class ViewerPage:
         self.server.stop()
 
     def wait_tuner(self, timeout: float = 120.0) -> bool:
-        """Block until the setup is rebuilt (True) or known not to be (False)."""
-        end = time.time() + timeout
-        while time.time() < end and self.tuner is None and self.tune_error is None:
-            time.sleep(0.05)
-        return self.tuner is not None
+        """Block until the setup is rebuilt and the Tune panel is ready, its sliders showing the bake's values
+        (True), or known not to be (False)."""
+        self._tuner_done.wait(timeout)
+        return self._tuner_done.is_set() and self.tuner is not None
+
+    @property
+    def shown_tuning(self) -> Tuning:
+        """The Tuning of the motion shown (`tuning` is the latest asked for)."""
+        return self.shown.tuning
+
+    def _idle(self) -> bool:
+        """No run pending or running (the caller holds _wanted)."""
+        return not self._busy and self._pending is None
 
     def wait_tuned(self, timeout: float = 60.0) -> bool:
-        """Block until the motion shown is the one of the latest tuning asked for."""
-        end = time.time() + timeout
-        while time.time() < end:
-            if self.shown_tuning is self.tuning:
-                return True
-            time.sleep(0.02)
-        return False
+        """Block until no run is pending; True when the motion shown is then the one of the latest tuning asked
+        for (its generation), False when those values could not re-simulate (the panel says why) or after
+        `timeout` seconds."""
+        with self._wanted:
+            self._wanted.wait_for(lambda: self._idle() or self._stop.is_set(), timeout)
+            return self._idle() and self.shown.generation == self.generation
 
     def wait_motion(self, version: int, timeout: float = 60.0) -> bool:
-        """Block until a motion newer than `version` is shown and no run is pending."""
-        end = time.time() + timeout
-        while time.time() < end:
-            with self._wanted:
-                idle = not self._busy and self._pending is None
-            if self.motion_version > version and idle:
-                return True
-            time.sleep(0.02)
-        return False
+        """Block until a motion newer than `version` (motion_version) is shown and no run is pending."""
+        with self._wanted:
+            return self._wanted.wait_for(lambda: self.motion_version > version and self._idle(), timeout)
 
     # ------------------------------------------------------------------ scene
     def _build_scene(self) -> None:
@@ -260,8 +300,8 @@ class ViewerPage:
         self.g_t_muscle.on_update(lambda _: self._sync_sliders())
         for knob, h in (("strength", self.g_t_strength), ("frequency", self.g_t_frequency),
                         ("damping", self.g_t_damping), ("goal_scale", self.g_t_goal)):
-            h.on_update(lambda _, knob=knob, h=h: self._knob_moved(knob, float(h.value)))
-        self.g_t_blend.on_update(lambda _: self._blend_moved(float(self.g_t_blend.value)))
+            h.on_update(lambda _, knob=knob, h=h: self._knob_moved(knob, h))
+        self.g_t_blend.on_update(lambda _: self._blend_moved())
         self.g_t_reset.on_click(lambda _: self._reset())
         self.g_t_save.on_click(lambda _: self._save())
 
@@ -487,6 +527,22 @@ class ViewerPage:
             self.tune_error = f"{type(e).__name__}: {e}"
             self._set_tune_status(f"tuning is off: the setup did not rebuild ({html.escape(self.tune_error)})")
             return
+        finally:
+            if self.tune_error is not None:
+                self._tuner_done.set()
+        try:
+            self._open_tuning(tuner)
+        except Exception as e:  # noqa: BLE001 - as above
+            self.tune_error = f"{type(e).__name__}: {e}"
+            self._set_tune_status(f"tuning is off: {html.escape(self.tune_error)}")
+            return
+        finally:
+            self._tuner_done.set()
+        self._run_requests(tuner)
+
+    def _open_tuning(self, tuner) -> None:
+        """The rebuilt setup's skin regions, bones and painted map on the page; the Tune panel's sliders set to the
+        bake's values, then opened."""
         pb = self.pb
         self.regions = skin_regions(tuner.setup.skin, pb.V, len(pb.muscles))
         ch = tuner.setup.character
@@ -496,51 +552,69 @@ class ViewerPage:
             self.bones = np.stack([parents[kids], kids], axis=1)
         self.base = {j.name: j for j in tuner.jiggles}
         self._show_maps(getattr(ch, "maps", None))
-        self.tuner = tuner
-        for h in self._tune_controls:
-            h.disabled = False
-        self._sync_sliders()
+        with self._wanted:                                   # the sliders show the bake's values before they open
+            self.tuner = tuner
+            self._sync_sliders()
+            for h in self._tune_controls:
+                h.disabled = False
         self._set_tune_status(f"ready: move a slider to re-simulate (setup rebuilt in {tuner.prepare_s:.1f} s)")
         if self.selected is not None:
             self.select(self.selected)
-        while not self._stop.is_set():
+
+    def _run_requests(self, tuner) -> None:
+        """The re-simulation thread: the latest request, run and shown, until the page stops."""
+        while True:
             with self._wanted:
-                while self._pending is None and not self._stop.is_set():
-                    self._wanted.wait(0.5)
+                self._wanted.wait_for(lambda: self._pending is not None or self._stop.is_set())
                 if self._stop.is_set():
                     return
-                tuning, self._pending = self._pending, None
+                (generation, tuning), self._pending = self._pending, None
                 self._busy = True
+            motion = None
             try:
                 self._set_tune_status("re-simulating ...")
                 motion = tuner.run(tuning)
+                self._show_motion(generation, tuning, motion)
             except Exception as e:  # noqa: BLE001 - a value that blows up: say so, keep the last motion
                 self._set_tune_status(f"could not re-simulate: {html.escape(str(e))}")
-                with self._wanted:
+                motion = None
+            finally:
+                with self._wanted:                       # the waiters (wait_tuned, save scene) see it now
                     self._busy = False
-                continue
-            with self._draw_lock:
-                pb.replace_motion(motion.cvs_dynamic, motion.skin_final)
-                self.last_run_s = motion.seconds
-                for m, b in self.g_muscle_buttons.items():
-                    b.label = self._muscle_label(m)
-                self.motion_version += 1
-                if self.selected is not None:
-                    self.select(self.selected)
-                else:
-                    self.redraw()
-                self.shown_tuning = tuning                   # last: the motion is shown, labels and all
-            with self._wanted:
-                self._busy = False
-                more = self._pending is not None
-            self._set_tune_status(("re-simulating ..." if more else "re-simulated") +
-                                  f" (last run {motion.seconds:.2f} s: particles, blend, skin)")
+                    more = self._pending is not None
+                    self._wanted.notify_all()
+            if motion is not None:
+                self._set_tune_status(("re-simulating ..." if more else "re-simulated") +
+                                      f" (last run {motion.seconds:.2f} s: particles, blend, skin)")
+
+    def _show_motion(self, generation: int, tuning: Tuning, motion) -> bool:
+        """Swap in the motion (view.tuning.Motion) of request `generation` (its Tuning `tuning`), tagged with
+        both, and redraw; False (nothing shown) when the page already shows a newer request's."""
+        pb = self.pb
+        with self._draw_lock:
+            if generation <= self.shown.generation:
+                return False
+            pb.replace_motion(motion.cvs_dynamic, motion.skin_final)
+            self.shown = ShownMotion(generation, tuning, pb.cvs_dynamic, pb.skin_final)
+            self.last_run_s = motion.seconds
+            self.motion_version += 1
+            for m, b in self.g_muscle_buttons.items():
+                b.label = self._muscle_label(m)
+            if self.selected is not None:
+                self.select(self.selected)
+            else:
+                self.redraw()
+        return True
 
     def _request(self, tuning: Tuning) -> None:
+        """Ask for `tuning` as the next generation (the caller holds _wanted); a request not yet started is
+        replaced; one that changes nothing is dropped."""
+        if tuning == self.tuning:
+            return
+        self.generation += 1
         self.tuning = tuning
-        with self._wanted:
-            self._pending = tuning
-            self._wanted.notify_all()
+        self._pending = (self.generation, tuning)
+        self._wanted.notify_all()
 
     def _current(self, name: str, knob: str) -> float:
         j = self.base[name]
@@ -552,54 +626,74 @@ class ViewerPage:
 
     def _sync_sliders(self) -> None:
         """The Tune sliders show the chosen muscle's values (without re-simulating)."""
-        if self.tuner is None:
-            return
-        name = self.g_t_muscle.value
-        self._syncing = True
-        try:
-            self.g_t_strength.value = self._current(name, "strength")
-            self.g_t_frequency.value = float(np.clip(self._current(name, "frequency"), *FREQUENCY_RANGE))
-            self.g_t_damping.value = float(np.clip(self._current(name, "damping"), *DAMPING_RANGE))
-            self.g_t_goal.value = self._current(name, "goal_scale")
-            blend = self.tuning.blend
-            if blend is None:
-                curve = self.tuner.setup.settings.blend
-                blend = float(curve.values[0]) if len(curve.values) == 1 else 1.0
-            self.g_t_blend.value = blend
-        finally:
-            self._syncing = False
+        with self._wanted:
+            if self.tuner is None:
+                return
+            name = self.g_t_muscle.value
+            self._syncing = True                            # their callbacks run here, in this thread: ignored
+            try:
+                self.g_t_strength.value = self._current(name, "strength")
+                self.g_t_frequency.value = float(np.clip(self._current(name, "frequency"), *FREQUENCY_RANGE))
+                self.g_t_damping.value = float(np.clip(self._current(name, "damping"), *DAMPING_RANGE))
+                self.g_t_goal.value = self._current(name, "goal_scale")
+                blend = self.tuning.blend
+                if blend is None:
+                    curve = self.tuner.setup.settings.blend
+                    blend = float(curve.values[0]) if len(curve.values) == 1 else 1.0
+                self.g_t_blend.value = blend
+            finally:
+                self._syncing = False
 
-    def _knob_moved(self, knob: str, value: float) -> None:
-        if self._syncing or self.tuner is None:
-            return
-        name = self.g_t_muscle.value
-        tuning = self.tuning.with_muscle(name, **{knob: value})
-        other = twin(name, self.base) if self.g_t_both.value else None
-        if other is not None:
-            tuning = tuning.with_muscle(other, **{knob: value})
-        self._request(tuning)
+    def _knob_moved(self, knob: str, handle) -> None:
+        """A knob's slider moved: its value (read now, under the lock: the latest the browser sent) on the chosen
+        muscle (and its twin with "both sides") over the latest tuning."""
+        with self._wanted:
+            if self._syncing or self.tuner is None:
+                return
+            value = float(handle.value)
+            name = self.g_t_muscle.value
+            other = twin(name, self.base) if self.g_t_both.value else None
+            tuning = self.tuning
+            for n in (name, other):
+                if n is not None and self._current(n, knob) != value:
+                    tuning = tuning.with_muscle(n, **{knob: value})
+            self._request(tuning)
 
-    def _blend_moved(self, value: float) -> None:
-        if self._syncing or self.tuner is None:
-            return
-        self._request(self.tuning.with_blend(value))
+    def _blend_moved(self) -> None:
+        with self._wanted:
+            if self._syncing or self.tuner is None:
+                return
+            self._request(self.tuning.with_blend(float(self.g_t_blend.value)))
 
     def _reset(self) -> None:
-        self._request(Tuning())
-        self._sync_sliders()
+        with self._wanted:
+            self._request(Tuning())
+            self._sync_sliders()
 
     def _save(self) -> None:
+        """Write the scene of the motion shown: once no run is pending (the one of the latest values is then
+        shown, unless those values could not re-simulate: the motion shown is written, and the panel says so)."""
         from jiggle.sim.app.view.scene_file import save_tuned_scene
         if self.tuner is None:
             return
         path = os.path.abspath(os.path.expanduser(self.g_t_path.value.strip() or "tuned.toml"))
+        with self._wanted:
+            if not self._idle():
+                self.g_t_result.content = "waiting for the re-simulation of the latest values to save them ..."
+            done = self._wanted.wait_for(lambda: self._idle() or self._stop.is_set(), SAVE_WAIT_S)
+            shown, latest = self.shown, self.generation
+        if not done or not self._idle():
+            self.g_t_result.content = "not saved: a re-simulation is still running; save again when it is done"
+            return
         try:
-            args = save_tuned_scene(self.tuner, self.tuning, path, self.formats, source=self.out_dir)
+            args = save_tuned_scene(self.tuner, shown.tuning, path, self.formats, source=self.out_dir)
         except Exception as e:  # noqa: BLE001 - a path that cannot be written: the panel says so
             self.g_t_result.content = f"not saved: {html.escape(str(e))}"
             return
         cmd = " ".join(["jiggle bake", path, *args, "--out", "OUT"])
+        self.saved_motion = shown
         self.saved = (path, args)
-        self.g_t_result.content = f"saved **{html.escape(path)}**; bake it with `{html.escape(cmd)}`"
-        self.log(f"saved {path}; bake it with: {cmd}")
-
+        note = "" if shown.generation == latest else \
+            " (the values of the motion shown: the latest ones did not re-simulate)"
+        self.g_t_result.content = f"saved **{html.escape(path)}**{note}; bake it with `{html.escape(cmd)}`"
+        self.log(f"saved {path}{note}; bake it with: {cmd}")
