@@ -164,11 +164,11 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
             out.update(unit_note(out["height_m"]))
         if out.get("skins"):
             out["body_plan"] = body_plan(_body_clip(p))
-            try:
+            try:        # a skeleton with a skin but no mesh (an FBX take) has neither
                 out["tissue"] = tissue_plan(p)
+                out["rigid"] = rigid_parts(p)
             except InputError as e:
                 out["tissue"] = {"template": None, "why": f"no tissue: {e.message}"}
-            out["rigid"] = rigid_parts(p)
         if out.get("animations"):
             out["clip"] = describe_clip(load_clip(p, animation=animation))
             if "body_plan" in out:      # the animation moves the character's own skeleton: its body, as read above
