@@ -390,9 +390,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     world_at = _drive(clip, drive, knots, log)
     timings["drive_s"] = time.perf_counter() - t
     if mus.template.name == GENERIC:
+        t = time.perf_counter()
         jiggles = _to_motion(jiggles, mus, character, clip, drive, world_at, knots, log)
         if drive == "kinematic":
             jiggles = _to_size(jiggles, skin, _settings(req, scene, jiggles)[0], character, clip, world_at, log)
+        timings["tune_s"] = time.perf_counter() - t
     settings, jiggles = _settings(req, scene, jiggles)
     if source is clip:
         joints_at, joint_names = world_at, tuple(clip.joint_names)
