@@ -384,7 +384,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
 
     fps = float(req.fps or (scene.fps if scene is not None else None) or BAKE_FPS)
     times = output_times(clip.duration, fps, req.start, req.end, req.frames)
-    goal_rate = _settings(req, scene, jiggles)[0].goal_rate     # the muscles' settings follow the drive
+    solver_settings = _settings(req, scene, jiggles)[0]     # the muscles' own settings follow the drive
+    goal_rate = solver_settings.goal_rate
     knots = knot_times(times, goal_rate or max(DEFAULT_GOAL_RATE, fps))
     t = time.perf_counter()
     world_at = _drive(clip, drive, knots, log)
@@ -393,7 +394,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         t = time.perf_counter()
         jiggles = _to_motion(jiggles, mus, character, clip, drive, world_at, knots, log)
         if drive == "kinematic":
-            jiggles = _to_size(jiggles, skin, _settings(req, scene, jiggles)[0], character, clip, world_at, log)
+            jiggles = _to_size(jiggles, skin, solver_settings, character, clip, world_at, log)
         timings["tune_s"] = time.perf_counter() - t
     settings, jiggles = _settings(req, scene, jiggles)
     if source is clip:

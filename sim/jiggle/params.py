@@ -371,12 +371,12 @@ def motion_accelerations(static_cvs: np.ndarray, dt: float) -> np.ndarray:
     return (x[2:] - 2.0 * x[1:-1] + x[:-2]) / dt ** 2
 
 
-def oscillator_peaks(acceleration: np.ndarray, dt: float, frequency_hz: np.ndarray, damping: np.ndarray,
-                     passes: int = 1) -> np.ndarray:
-    """(K, M) metres: the largest |x| of damped oscillators x'' + 2 zeta w x' + w^2 x = -a(t), one per
-    frequency (K,) Hz and muscle (damping (M,) ratios), driven by `acceleration` (T, M, 3) m/s^2 sampled dt
-    seconds apart, from rest, over `passes` plays of it in a row (a cycle's steady state shows in the second)."""
-    a = np.tile(np.asarray(acceleration, np.float64), (passes, 1, 1))
+def oscillator_peaks(acceleration: np.ndarray, dt: float, frequency_hz: np.ndarray, damping: np.ndarray
+                     ) -> np.ndarray:
+    """(K, P) metres: the largest |x| of damped oscillators x'' + 2 zeta w x' + w^2 x = -a(t), one per
+    frequency (K,) Hz and point (damping (P,) ratios), driven from rest by `acceleration` (T, P, 3) m/s^2
+    sampled dt seconds apart."""
+    a = np.asarray(acceleration, np.float64)
     w = 2.0 * np.pi * np.asarray(frequency_hz, np.float64)[:, None, None]             # (K, 1, 1)
     c = 2.0 * np.asarray(damping, np.float64)[None, :, None] * w                      # (K, M, 1)
     h = dt / TUNE_STEPS
