@@ -11,7 +11,8 @@ weight per joint when it is known:
 2. Two ground limbs whose chains meet (the hips) below the skeleton's highest point by a spine
    steeper than UPRIGHT degrees: a biped. Four ground limbs that pair into two girdles (the pairing
    whose meeting joints lie nearest their paws, the girdles being distinct joints) joined by a spine
-   flatter than UPRIGHT: a quadruped. Anything else: other (no template fits it; give one).
+   flatter than UPRIGHT: a quadruped. Anything else: other (no built-in template fits it: the fit puts
+   tissue on it with the generic template, rig.muscle.generic).
 3. Quadruped: which end is the front. When the skin weight each joint carries is known (``weights``,
    or ``clip.meta["joint_weight"]``, which rig.character.body_skeleton sets), the head end is the girdle
    whose off-leg part beyond it (the joints hanging there, not on a leg nor on the spine between the
@@ -139,18 +140,6 @@ def quadruped_roles(clip: Clip, *, weights: np.ndarray | None = None) -> dict[st
     if p.plan.kind != "quadruped":
         raise InputError(f"not a four-legged skeleton: {p.plan.reason}", clip.source or None, field="roles")
     return p.quadruped_roles()
-
-
-def template_for(clip: Clip, template: str | None) -> tuple[str, BodyPlan]:
-    """(template, plan): `template` unless it is None or "auto", else the built-in one of the detected
-    plan; InputError when the plan has none."""
-    plan = detect_body_plan(clip)
-    if template not in (None, "auto"):
-        return template, plan
-    if plan.template is None:
-        raise InputError(f"no built-in template for this body plan ({plan.reason}); give one with --template "
-                         f"FILE", clip.source or None, field="--template")
-    return plan.template, plan
 
 
 # ------------------------------------------------------------------------------------- checks

@@ -16,7 +16,6 @@ from jiggle.rig.motion.body_plan import (
     check_roles,
     detect_body_plan,
     quadruped_roles,
-    template_for,
 )
 from jiggle.rig.motion.clip import Clip
 from jiggle.rig.motion.role_map import resolve_roles
@@ -120,9 +119,7 @@ def test_other_body_plans_say_why(case):
         want = "reach the ground"
     plan = detect_body_plan(clip)
     assert plan.kind == "other" and want in plan.reason, plan
-    with pytest.raises(InputError, match="no built-in template for this body plan"):
-        template_for(clip, "auto")
-    assert template_for(clip, "my.toml")[0] == "my.toml"
+    assert plan.template is None            # the fit's generic template, not a built-in one
 
 
 def test_human_template_on_a_dog_is_refused_naming_roles():
@@ -164,7 +161,7 @@ def test_humans_are_bipeds_and_their_maps_pass(path):
         clip = load_skeleton(path)
     plan = detect_body_plan(clip)
     assert plan.kind == "biped" and plan.spine_deg > 75, plan
-    assert template_for(clip, None)[0] == "human"
+    assert plan.template == "human"
     check_roles(clip, resolve_roles(clip))  # presets and automatic maps alike
 
 
