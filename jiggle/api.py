@@ -50,6 +50,9 @@ def _argv(command: str, positional: list, options: dict) -> list[str]:
         if name == "muscles":
             argv += _muscle_flags(value, flags)
             continue
+        if name == "chain_params":
+            argv += _chain_flags(value)
+            continue
         flag = "--" + name.replace("_", "-")
         if flag not in flags:
             raise TypeError(f"{command}() got an unexpected keyword argument {name!r}")
@@ -65,6 +68,25 @@ def _argv(command: str, positional: list, options: dict) -> list[str]:
             value = ",".join(str(v) for v in value)
         argv += [flag, _text(value)] if action.nargs != 0 else [flag]
     return argv
+
+
+def _chain_flags(chains) -> list[str]:
+    """{"Tail*": {"stiffness": 3}} -> ["--chain-stiffness", "Tail*=3"]: a chain's (or glob's) keyable parameters."""
+    from jiggle.sim.chain.params import CHAIN_PARAMETERS
+    if not hasattr(chains, "items"):
+        raise InputError(f"must map a chain (or glob) to its parameters, e.g. {{'Tail*': {{'stiffness': 3}}}}, got "
+                         f"{chains!r}", field="chain_params")
+    out = []
+    for pattern, params in chains.items():
+        if not hasattr(params, "items"):
+            raise InputError(f"[{pattern!r}] must map parameters to values, e.g. {{'damping': 0.5}}, got {params!r}",
+                             field="chain_params")
+        for key, value in params.items():
+            if key not in CHAIN_PARAMETERS:
+                raise InputError(f"[{pattern!r}] unknown chain parameter {key!r}; the parameters are "
+                                 f"{', '.join(CHAIN_PARAMETERS)}", field="chain_params")
+            out += [f"--chain-{key}", f"{pattern}={_text(value)}"]
+    return out
 
 
 def _muscle_flags(muscles, flags: dict) -> list[str]:

@@ -208,6 +208,7 @@ def bake_settings(p: argparse.ArgumentParser) -> None:
                    "list of parts (glTF node names) or joints to add, -NAME to leave soft (write --rigid=-NAME)")
     g.add_argument("--resolution", type=count("--resolution"), metavar="N",
                    help="generated body: target vertex count (default: the scene's, else 20000)")
+    chain_options(p)
     for name in ("belly", "chest", "glutes", "upper-arms"):
         g.add_argument(f"--{name}", type=non_negative(f"--{name}"), metavar="M",
                        help=f"generated body: metres of fat on the {name.replace('-', ' ')}")
@@ -219,8 +220,8 @@ class KeyedAction(argparse.Action):
     its text, for messages). Without NAME: every muscle's (the global value when `global_ok`, else NAME "*").
     A bad value is a usage error (exit 2) naming the flag as typed (--jiggle or --strength)."""
 
-    def __init__(self, option_strings, dest, parameter: str = "", global_ok: bool = True, **kw):
-        self.parameter, self.global_ok = parameter, global_ok
+    def __init__(self, option_strings, dest, parameter: str = "", global_ok: bool = True, table=None, **kw):
+        self.parameter, self.global_ok, self.table = parameter, global_ok, table
         super().__init__(option_strings, dest, **kw)
 
     def __call__(self, parser, namespace, values, option_string=None):
@@ -228,7 +229,7 @@ class KeyedAction(argparse.Action):
         from jiggle.sim.jiggle.keyed import parse_assignment
         text = str(values).strip()
         try:
-            pattern, value = parse_assignment(text, self.parameter, option_string, self.global_ok)
+            pattern, value = parse_assignment(text, self.parameter, option_string, self.global_ok, self.table)
         except InputError as e:
             # argparse's style: the flag, then an entry NAME=VALUE named too
             parser.error(f"argument {option_string}: " + (e.message if "=" not in text else f"{text}: {e.message}"))
@@ -274,6 +275,39 @@ def keyed_request(args) -> dict:
                 out["muscles"].append((pattern, {name: value}, text))
     out["muscles"] = tuple(out["muscles"])
     return out
+
+
+CHAIN_FLAGS = (("--chain-stiffness", "stiffness"), ("--chain-damping", "damping"), ("--chain-gravity", "gravity"),
+               ("--chain-drag", "drag"))
+"""The chains' keyable parameters' flags: (flag, sim.chain.params.CHAIN_PARAMETERS name, the scene's key)."""
+
+
+def chain_options(p: argparse.ArgumentParser) -> None:
+    """--chains and the chains' keyable parameters (sim/chain): tails, ears, hair and wing fingers that swing."""
+    from jiggle.sim.chain.params import CHAIN_PARAMETERS
+    g = p.add_argument_group(
+        "chains: tails, ears, hair, wing fingers that swing (over the scene's [chains] and [chains.NAME])",
+        "Each parameter flag is repeatable: [NAME=]VALUE, NAME a chain (its root joint's name, as `jiggle inspect` "
+        "lists them) or a glob (\"Tail*\", \"Ear*\"); VALUE a number or keys [[t_s,v],...]. Without NAME: every chain.")
+    g.add_argument("--chains", metavar="LIST", help="which chains swing: auto (default: appendages found by name and "
+                   "shape, and a glTF's VRM spring bones), none, or a comma-separated list of joints or globs that "
+                   "start one (with auto in it, added to the ones found; -NAME drops one: write --chains=-NAME)")
+    for flag, name in CHAIN_FLAGS:
+        par = CHAIN_PARAMETERS[name]
+        unit = f" {par.unit}" if par.unit else ""
+        g.add_argument(flag, dest="chain_" + name, action=KeyedAction, metavar="[NAME=]VALUE", parameter=name,
+                       global_ok=False, table=CHAIN_PARAMETERS,
+                       help=f"{par.what}; in {par.range_text}{unit} (default: {par.default})")
+
+
+def chain_request(args) -> dict:
+    """BakeRequest fields from --chains and the chain parameter flags: chains (the mode) and chain_params, the
+    NAME=VALUE entries (pattern, {parameter: value}, flag text) in the order given."""
+    entries = []
+    for _, name in CHAIN_FLAGS:
+        for pattern, value, text in getattr(args, "chain_" + name, None) or []:
+            entries.append((pattern or "*", {name: value}, text))
+    return {"chains": getattr(args, "chains", None), "chain_params": tuple(entries)}
 
 
 def collision_option(g) -> None:

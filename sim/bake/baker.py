@@ -113,10 +113,57 @@ class Baker:
             self.colliders = collider_model(s.rig, s.character, capsules=s.capsules, floor=s.floor,
                                             device=s.settings.device)
             self.skin_check = skin_check(s.character, self.colliders.capsules)
+        self.chain_run = None
+        if s.chains is not None:                # the chains swung over the whole clip at once (tens of bodies)
+            t = time.perf_counter()
+            self._swing_chains()
+            self.timings["chains_s"] = time.perf_counter() - t
         self.tissue = None
         if self.colliders is not None and s.settings.muscle_collisions and self.model is not None:
             # the particles of muscles of different body parts collide with each other too (one launch per step)
             self.tissue = tissue_contact_model(s.rig, self.model, device=s.settings.device)
+
+    def _swing_chains(self) -> None:
+        """The chains' rotations at every output frame (sim.chain.simulate.swing), the joints they move and the skin
+        they move, and their figures (sim.chain.measure) for bake.json."""
+        from jiggle.rig.skin.chain_skin import ChainSkin
+        from jiggle.sim.chain.measure import measure
+        from jiggle.sim.chain.simulate import chain_world, riders_of, swing
+        s = self.setup
+        ch = s.chains
+        self.chain_run = swing(ch.model, ch.params, s.times, s.knots, s.world_at, loop=s.loop)
+        self.chain_riders = riders_of(ch.model, s.character.parents)
+        moved = [int(j) for j in ch.links.joints] + [j for j, _ in self.chain_riders]
+        self.chain_joints = np.array(moved, np.int64)
+        self.chain_skin = ChainSkin(s.character, self.chain_joints)
+        tips = {"static": [], "final": []}
+        report = None
+        for a in range(0, len(s.times), 256):
+            w = np.asarray(s.world_at(s.times[a:a + 256]), np.float64)
+            wd = chain_world(w, ch.model, self.chain_run.rotations[a:a + 256], self.chain_riders)
+            part = measure(w, wd, ch.links, ch.model.capsules, ch.apart, ch.model.floor, ch.chains.names)
+            report = part if report is None else {
+                n: {**r, "tip_peak_m": max(r["tip_peak_m"], part[n]["tip_peak_m"]),
+                    "swing_share": max(r["swing_share"], part[n]["swing_share"]),
+                    "penetrations": r["penetrations"] + part[n]["penetrations"],
+                    "deepest_m": max(r["deepest_m"], part[n]["deepest_m"]),
+                    "tip_static": np.concatenate([r["tip_static"], part[n]["tip_static"]]),
+                    "tip_final": np.concatenate([r["tip_final"], part[n]["tip_final"]])} for n, r in report.items()}
+        self.chain_report = report
+        self.chain_tips = {k: np.stack([report[n]["tip_" + k] for n in ch.chains.names], axis=1) for k in tips}
+
+    def chain_json(self) -> dict:
+        """bake.json's "chains": what swung, how far, and the run."""
+        s, run = self.setup, self.chain_run
+        per = []
+        for n, r in self.chain_report.items():
+            per.append({"chain": n, **{k: v for k, v in r.items() if not k.startswith("tip_") or k == "tip_peak_m"}})
+        return {"chains": per, "steps": run.steps, "step_s": run.dt, "seconds": round(run.seconds, 4),
+                "warmup": run.warmup, "joints": [s.character.joint_names[j] for j in self.chain_joints],
+                "penetration_rule": "link-frames where a link's capsule sinks deeper than 25% of its radius into a body "
+                                    "capsule the animated pose keeps it clear of, or below the floor",
+                "swing_rule": "the tip's (the end of the chain's farthest bone) largest distance from where the "
+                              "animation puts it, over the chain's length"}
 
     def chunk(self, c: int, state) -> dict:
         """Arrays of chunk c (see the module), going on from `state` ((x, v) of the particles at the
@@ -164,13 +211,24 @@ class Baker:
                 contacts["hard_stops"] = np.add.reduceat(stops, rig.cv_offsets[:-1]).astype(np.int64) \
                     if len(stops) else np.zeros(rig.M, np.int64)
             cvs = blend(st, dyn, self.blend[f0:f1])
+        chain = None
         with self._timed("skin_s"):
             # reuse: the skins of chunk c live in buffers chunk c + 2 writes again; the bake finishes and writes
             # chunk c before it starts chunk c + 2 (bake(), sim/bake/baker.py)
             pending = skin_frames(s.skin, world, (st, cvs), curve, np.arange(f0, f1), defer=True, smooth=self.smooth,
                                   reuse=self.defer)
+            if self.chain_run is not None:      # the swung chains on the skeleton, and what they move of the skin
+                from jiggle.sim.chain.simulate import chain_world
+                swung = chain_world(world, s.chains.model, self.chain_run.rotations[f0:f1], self.chain_riders)
+                chain = (self.chain_skin.vertices, self.chain_skin.delta(world, swung))
         out = {"frames": np.array([f0, f1]), "joint_world": joints, "cvs_static": st.astype(np.float32),
                "cvs_dynamic": cvs.astype(np.float32)}
+        if chain is not None:
+            cw = np.array(swung[:, self.chain_joints], np.float32)
+            cw[..., :3, 3] *= np.float32(s.scale)
+            out["chain_world"] = cw
+            out["chain_tips_static"] = (self.chain_tips["static"][f0:f1] * s.scale).astype(np.float32)
+            out["chain_tips_final"] = (self.chain_tips["final"][f0:f1] * s.scale).astype(np.float32)
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
         out.update(contacts)
@@ -179,6 +237,9 @@ class Baker:
             """The chunk's skins finished (the surface spread) and checked: the arrays to save."""
             t = time.perf_counter()
             skin_static, skin_final, *smooth = pending()
+            if chain is not None:               # the chains' share of the final skin (rig/skin/chain_skin.py)
+                skin_final[:, chain[0]] += chain[1]
+                out["chain_delta"] = (chain[1] * np.float32(s.scale)).astype(np.float32)
             self.timings["skin_s"] += time.perf_counter() - t
             for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
                 bad = ~np.isfinite(skin)
@@ -484,6 +545,8 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         summary["tissue"] = _tissue_json(setup, contact_parts)
     if baker.colliders is not None:
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
+    if baker.chain_run is not None:
+        summary["chains"] = baker.chain_json()
     _write_json(os.path.join(out_dir, SUMMARY), summary)
     shutil.rmtree(partial, ignore_errors=True)
     if "glb" in setup.formats:                  # fitted from the finished npz; recorded in bake.json when written

@@ -34,6 +34,18 @@ muscle_cvs_dynamic     (T, N, 3) float32           blended jiggled muscle CVs, m
 muscle_cv_offsets      (M + 1,) int64              muscle m owns CV rows offsets[m]:offsets[m+1]
 muscle_faces           (F_m, 3) int32              one muscle's loft triangles (shared by all)
 params                 () str                      the full parameter set as JSON text
+chain_names            (Jc,) str                   the joints the swung chains move (sim.chain);
+                                                   optional, with the four below
+chain_world            (T, Jc, 4, 4) float32       their swung world transforms, metres (the
+                                                   animated ones are the character's: joint_world
+                                                   or the drive's)
+chain_tip_names        (C,) str                    the chains (their root joints' names)
+chain_tips_static      (T, C, 3) float32           each chain's tip where the animation puts it, m
+chain_tips_final       (T, C, 3) float32           and where it swung to; metres
+chain_vertices         (Vc,) int64                 the skin vertices the chains move
+chain_delta            (T, Vc, 3) float32          what the swing adds to them (skin_final holds
+                                                   it: skin_static + chain_delta is the skin that
+                                                   follows the swung chains without tissue jiggle)
 =====================  ==========================  ============================================
 """
 from __future__ import annotations
@@ -83,6 +95,10 @@ class BakeData:
     params : the full parameter set as JSON text.
     part_names, part_offsets : the meshes the skin was merged from, (P,) names and (P + 1,) int64
         vertex offsets (part p owns vertices offsets[p]:offsets[p + 1], 0 to V), or None.
+    chain_names, chain_world : the joints the swung chains move (Jc,) and their world transforms (T, Jc, 4, 4)
+        float32 metres; chain_tip_names (C,) the chains, chain_tips_static and chain_tips_final (T, C, 3) float32
+        metres their tips animated and swung; chain_vertices (Vc,) int64 the skin vertices they move and
+        chain_delta (T, Vc, 3) float32 metres what the swing adds to them (in skin_final); all None without chains.
     """
 
     skin_static: np.ndarray
@@ -102,6 +118,13 @@ class BakeData:
     skin_rest: np.ndarray | None = None
     part_names: tuple | None = None
     part_offsets: np.ndarray | None = None
+    chain_names: tuple | None = None
+    chain_world: np.ndarray | None = None
+    chain_tip_names: tuple | None = None
+    chain_tips_static: np.ndarray | None = None
+    chain_tips_final: np.ndarray | None = None
+    chain_vertices: np.ndarray | None = None
+    chain_delta: np.ndarray | None = None
 
     def __post_init__(self):
         def put(name, value):
@@ -172,10 +195,35 @@ class BakeData:
             json.loads(self.params)
         except ValueError as e:
             raise InputError(f"not valid JSON: {e}", field="params") from None
+        chain = ("chain_names", "chain_world", "chain_tip_names", "chain_tips_static", "chain_tips_final",
+                 "chain_vertices", "chain_delta")
+        given = [getattr(self, k) is not None for k in chain]
+        if any(given) and not all(given):
+            raise InputError(f"{', '.join(chain)} come together", field=chain[given.index(False)])
+        if all(given):
+            put("chain_names", self._names("chain_names"))
+            put("chain_tip_names", self._names("chain_tip_names"))
+            self._shape("chain_world", array("chain_world", np.float32, 4), (T, len(self.chain_names), 4, 4))
+            for k in chain[3:5]:
+                self._shape(k, array(k, np.float32, 3), (T, len(self.chain_tip_names), 3))
+            cv = array("chain_vertices", np.int64, 1)
+            if cv.size and (cv.min() < 0 or cv.max() >= V):
+                raise InputError(f"indices must lie in [0, {V})", field="chain_vertices")
+            self._shape("chain_delta", array("chain_delta", np.float32, 3), (T, len(cv), 3))
         for name, item in (("skin_static", "vertex"), ("skin_final", "vertex"), ("skin_lbs", "vertex"),
-                           ("times", None), ("joint_world", "joint"),
+                           ("times", None), ("joint_world", "joint"), ("chain_world", "joint"),
+                           ("chain_tips_static", "chain"), ("chain_tips_final", "chain"), ("chain_delta", "vertex"),
                            ("muscle_cvs_static", "CV"), ("muscle_cvs_dynamic", "CV")):
             require_finite(name, getattr(self, name), item)
+
+    def skin_swung(self) -> np.ndarray:
+        """(T, V, 3) float32 metres: the skin that follows the swung chains without tissue jiggle (skin_static plus
+        chain_delta; skin_static itself without chains). What the tissue's jiggle is measured from."""
+        if self.chain_vertices is None or not len(self.chain_vertices):
+            return self.skin_static
+        out = np.array(self.skin_static)
+        out[:, self.chain_vertices] += self.chain_delta
+        return out
 
     @property
     def num_frames(self) -> int:
@@ -219,9 +267,11 @@ def require_finite(name: str, a: np.ndarray | None, item: str | None, first: int
 
 # ---------------------------------------------------------------------------------------- npz
 NPZ_KEYS = tuple(f.name for f in fields(BakeData))
-_OPTIONAL_KEYS = ("skin_lbs", "skin_rest", "part_names", "part_offsets")
+_OPTIONAL_KEYS = ("skin_lbs", "skin_rest", "part_names", "part_offsets", "chain_names", "chain_world", "chain_tip_names",
+                  "chain_tips_static", "chain_tips_final", "chain_vertices", "chain_delta")
 FRAME_KEYS = {"skin_static": "vertex", "skin_final": "vertex", "skin_lbs": "vertex", "joint_world": "joint",
-              "muscle_cvs_static": "CV", "muscle_cvs_dynamic": "CV", "times": None}
+              "muscle_cvs_static": "CV", "muscle_cvs_dynamic": "CV", "times": None, "chain_world": "joint",
+              "chain_tips_static": "chain", "chain_tips_final": "chain", "chain_delta": "vertex"}
 """The npz keys with one row per frame (a bake writes them chunk by chunk), and what their axis 1 counts."""
 
 
@@ -232,7 +282,7 @@ def npz_arrays(data: BakeData) -> dict:
         value = getattr(data, name)
         if value is None:
             continue
-        if name in ("joint_names", "muscle_names", "part_names"):
+        if name in ("joint_names", "muscle_names", "part_names", "chain_names", "chain_tip_names"):
             value = np.array(value, dtype=str).reshape(-1)
         elif name in ("fps", "params"):
             value = np.array(value)
@@ -271,7 +321,7 @@ def read_npz(path: str | os.PathLike) -> BakeData:
     values = {k: stored[k] for k in NPZ_KEYS if k in stored}
     values["fps"] = values["fps"].item() if values["fps"].shape == () else values["fps"]
     values["params"] = str(values["params"]) if values["params"].shape == () else values["params"]
-    for k in ("joint_names", "muscle_names", "part_names"):
+    for k in ("joint_names", "muscle_names", "part_names", "chain_names", "chain_tip_names"):
         if k not in values:
             continue
         if values[k].dtype.kind != "U":

@@ -90,7 +90,7 @@ _CHARACTER = {"file", "skin", "unit", "template", "influences", "skinning", "met
 _KNOWN = {"name": None, "builtin": None,
           "motion": {"file", "skeleton", "animation", "start", "end", "scale", "tpose"},
           "character": _CHARACTER, "skeleton": {"drive"}, "output": {"fps", "focus", "formats", "chunk"},
-          "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}, "pose_shapes": None}
+          "jiggle": set(_JIGGLE_SETTINGS) | {"muscles"}, "pose_shapes": None, "chains": None}
 _POSE_SHAPE_KEYS = ("muscle", "joint", "angles", "scales")
 BUILTINS = ("simple_arm",)
 FORMATS = ("npz", "usdc", "usda", "pc2", "glb")
@@ -149,6 +149,10 @@ class Scene:
         per bake chunk, None for the default.
     pose_shapes : the [[pose_shapes]] tables (rig.muscle.pose_shapes.SectionShape), checked against the
         rig and the character when applied (:meth:`apply_pose_shapes`).
+    chains : the [chains] section's `swing` (rig.character.chains.find_chains's mode: "auto", "none" or a list of
+        joints and globs), None without one. chain_entries : its [chains.NAME] tables (NAME a chain, its root
+        joint's name, or a glob), (NAME, {parameter: value}, (where, path, line)) in the file's order
+        (sim.chain.params.CHAIN_PARAMETERS, values checked).
     """
 
     name: str
@@ -164,6 +168,8 @@ class Scene:
     formats: tuple[str, ...] | None = None
     chunk: int | None = None
     pose_shapes: tuple = ()
+    chains: str | None = None
+    chain_entries: tuple = ()
 
     def apply_pose_shapes(self, rig, character):
         """`rig` (rig.muscle.model.MuscleRig) with this scene's pose shapes bound to it and to the
@@ -306,10 +312,45 @@ def load_scene(path: str | os.PathLike) -> Scene:
     character = _character(doc.get("character", {}), p, here, lines)
     settings, tables = (None, {}) if "jiggle" not in doc else _jiggle_section(doc["jiggle"], p, lines)
     pose_shapes = _pose_shapes(doc.get("pose_shapes"), p)
-    return Scene(name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), path=p, clip=clip,
+    chains, chain_entries = _chains_section(doc.get("chains"), p, lines)
+    return Scene(chains=chains, chain_entries=chain_entries, name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), path=p, clip=clip,
                  drive=drive, fps=None if fps is None else float(fps), jiggle=settings,
                  muscle_jiggle=MappingProxyType(tables), focus=tuple(focus), character=character,
                  builtin=builtin, formats=formats, chunk=chunk, pose_shapes=pose_shapes)
+
+
+def _chains_section(sec, p: str, lines: "_Lines") -> tuple:
+    """([chains] swing or None, its [chains.NAME] tables as entries), checked (Scene.chains)."""
+    if sec is None:
+        return None, ()
+    if not isinstance(sec, dict):
+        raise InputError("expected a table [chains]", p, lines.table("chains"), field="chains")
+    from jiggle.sim.chain.params import CHAIN_PARAMETERS, check_value
+    mode = None
+    entries = []
+    for k, v in sec.items():
+        if k == "swing":
+            if isinstance(v, list) and all(isinstance(x, str) for x in v):
+                v = ",".join(v)
+            if not isinstance(v, str) or not v.strip():
+                raise InputError(f"expected \"auto\", \"none\" or a list of joints, found {v!r}", p,
+                                 lines.key("chains", k), field="chains.swing")
+            mode = v
+        elif isinstance(v, dict):
+            where = f"chains.{k}"
+            for name, value in v.items():
+                if name not in CHAIN_PARAMETERS:
+                    raise InputError(f"unknown key; expected one of {', '.join(CHAIN_PARAMETERS)}", p,
+                                     lines.key(where, name), field=f"{where}.{name}")
+                try:
+                    check_value(name, value, f"{where}.{name}")
+                except InputError as e:
+                    raise InputError(e.message, p, lines.key(where, name), field=f"{where}.{name}") from None
+            entries.append((k, dict(v), (where, p, lines.table(where))))
+        else:
+            raise InputError("expected swing = ... or tables [chains.NAME]", p, lines.key("chains", k),
+                             field=f"chains.{k}")
+    return mode, tuple(entries)
 
 
 def parse_formats(value, path=None, line=None, where="--formats") -> tuple[str, ...]:

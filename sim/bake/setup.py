@@ -31,8 +31,8 @@ BAKE_FPS = 30.0
 DEFAULT_FORMATS = ("npz", "usdc")
 DEFAULT_CHUNK = 64
 """Frames per chunk: each chunk is simulated, skinned and written on its own (and resumed from)."""
-VERSION = 2
-"""Bumped when the bake's arithmetic changes, so `--resume` never splices two versions' chunks."""
+VERSION = 3
+"""3: the chains swing (sim.chain). Bumped when the bake's arithmetic changes, so `--resume` never splices two versions' chunks."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,9 @@ class BakeRequest:
     retargeting), skin, unit: as `jiggle simulate`; mush:
     Delta Mush steps on the smooth skin (0: off).
     loop : "auto" (None too), "on" or "off": a cycle baked in its periodic steady state (sim/bake/loop.py).
+    chains : which chains swing (rig.character.chains.find_chains: "auto" (None too), "none" or a list of joints and
+        globs); chain_params : per-chain parameters from the command line, (pattern, {name: value}, flag text) in the
+        order given (sim.chain.params.chain_params), over the scene's [chains.NAME] tables.
     device : the Warp device every kernel of the bake runs on ("cpu", "cuda", "cuda:N"; None: "cpu").
     """
 
@@ -97,6 +100,8 @@ class BakeRequest:
     mush: int | None = None
     rigid: str | None = None
     loop: str | None = None
+    chains: str | None = None
+    chain_params: tuple = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,6 +122,7 @@ class BakeSetup:
     scale : the file's metres per simulated metre: a character simulated at its template's size
         (rig.character.character.template_scale) is written back at its file's size (every position of the
         caches times `scale`); 1.0 for the others.
+    chains : sim.chain.build.ChainSetup, the chains that swing (their model and parameters), or None.
     """
 
     name: str
@@ -139,6 +145,7 @@ class BakeSetup:
     glb: Mapping = field(default_factory=lambda: MappingProxyType({}))
     scale: float = 1.0
     loop: object = None
+    chains: object = None
     """sim.bake.loop.Loop: whether the bake loops, its period and how it was judged; None: a plain bake."""
 
     @property
@@ -443,6 +450,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     if skin.rig.pose_shapes is not None:
         params["pose_shapes"] = [{"muscle": sh.muscle, "joint": sh.joint, "angles_deg": list(sh.angles),
                                   "scales": [list(r) for r in sh.scales]} for sh in skin.rig.pose_shapes.shapes]
+    t = time.perf_counter()
+    chains = _chains(req, scene, character, mus, skin, knots, world_at, log)
+    timings["chains_s"] = time.perf_counter() - t
+    params["chains"] = {"mode": req.chains or (scene.chains if scene is not None else None) or "auto",
+                        "chains": chains.to_json(character.joint_names) if chains is not None else []}
     floor = capsules = None
     if settings.collisions:
         # a body that stands at rest has a floor; a flying or floating one (no limb on the ground) has none
@@ -455,7 +467,41 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
                      chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
                      capsules=capsules, glb=_glb(req), scale=1.0 / character.meta.get("template_scale", 1.0),
-                     loop=loop if loop.on else None)
+                     loop=loop if loop.on else None, chains=chains)
+
+
+def tissue_joints(rig) -> set:
+    """The joints a muscle rides (its origin's and the one its middle rides): they stay with the body, no chain
+    swings them."""
+    joints = np.asarray(getattr(rig, "joints", np.zeros((0, 11), np.int64)))
+    return set(joints[:, [0, 8]].ravel().tolist()) if joints.size else set()
+
+
+def _chains(req: BakeRequest, scene, character, mus, skin, knots: np.ndarray, world_at, log):
+    """The chains that swing (sim.chain.build.ChainSetup) or None, logged: found on the character (--chains), their
+    parameters from the scene's [chains.NAME] tables and the command line."""
+    from jiggle.rig.character.capsules import bone_capsules
+    from jiggle.rig.character.chains import find_chains
+    from jiggle.sim.chain.build import make
+    mode = req.chains or (scene.chains if scene is not None else None) or "auto"
+    springs = character.meta.get("spring_bones") or None
+    found = find_chains(character, tissue_joints(mus.rig), set((mus.roles or {}).values()), mode, springs)
+    log(found.describe(character.joint_names))
+    entries = list(scene.chain_entries if scene is not None else ()) + list(req.chain_params)
+    if not len(found):
+        if entries:
+            raise InputError(f"chain parameters are given but no chain swings (--chains {mode})",
+                             field=entries[0][2] if isinstance(entries[0][2], str) else "--chains")
+        return None
+    return make(character, found, bone_capsules(character), _chain_floor(character, mus, world_at, knots), entries,
+                knots, world_at)
+
+
+def _chain_floor(character, mus, world_at, knots):
+    """The floor chains collide with: the particles' (a body standing at rest has one), else None."""
+    if mus.plan is None or mus.plan.ground_limbs <= 0:
+        return None
+    return _floor(character, "kinematic", world_at, knots)
 
 
 def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.ndarray, log) -> list:

@@ -39,7 +39,9 @@ from jiggle.sim.bake.caches import (
 NPZ_TMP, PC2_TMP = ".bake.npz.tmp", ".bake.pc2.tmp"
 USD_TMP = {"usdc": ".bake.tmp.usdc", "usda": ".bake.tmp.usda"}
 CHUNK_KEYS = {"skin_static": "skin_static", "skin_final": "skin_final", "skin_lbs": "skin_lbs",
-              "joint_world": "joint_world", "muscle_cvs_static": "cvs_static", "muscle_cvs_dynamic": "cvs_dynamic"}
+              "joint_world": "joint_world", "muscle_cvs_static": "cvs_static", "muscle_cvs_dynamic": "cvs_dynamic",
+              "chain_world": "chain_world", "chain_tips_static": "chain_tips_static",
+              "chain_tips_final": "chain_tips_final", "chain_delta": "chain_delta"}
 """The npz's frame members (besides times) and the name of each in a chunk's arrays (sim/bake/baker.py)."""
 
 
@@ -66,6 +68,21 @@ class BakeWriter:
                   "muscle_cvs_static": (T, N, 3), "muscle_cvs_dynamic": (T, N, 3)}
         if not smooth:
             del shapes["skin_lbs"]
+        chains = {}
+        if getattr(setup, "chains", None) is not None:      # the swung chains' joints and tips (sim/bake/baker.py)
+            from jiggle.sim.chain.simulate import riders_of
+            ch = setup.chains
+            moved = [int(j) for j in ch.links.joints] + [j for j, _ in riders_of(ch.model, character.parents)]
+            C = len(ch.chains)
+            from jiggle.rig.skin.chain_skin import ChainSkin
+            verts = ChainSkin(character, moved).vertices
+            shapes.update({"chain_world": (T, len(moved), 4, 4), "chain_tips_static": (T, C, 3),
+                           "chain_tips_final": (T, C, 3), "chain_delta": (T, len(verts), 3)})
+            chains = {"chain_names": tuple(character.joint_names[j] for j in moved),
+                      "chain_world": np.tile(np.eye(4, dtype=np.float32), (1, len(moved), 1, 1)),
+                      "chain_tip_names": tuple(ch.chains.names), "chain_tips_static": np.zeros((1, C, 3), np.float32),
+                      "chain_tips_final": np.zeros((1, C, 3), np.float32), "chain_vertices": verts,
+                      "chain_delta": np.zeros((1, len(verts), 3), np.float32)}
         self.head = BakeData(skin_static=np.zeros((1, V, 3), np.float32), skin_final=np.zeros((1, V, 3), np.float32),
                              skin_rest=np.asarray(character.vertices) * setup.scale, faces=character.faces, fps=setup.fps, times=setup.times[:1],
                              joint_names=setup.joint_names, joint_world=np.tile(np.eye(4, dtype=np.float32), (1, J, 1, 1)),
@@ -73,7 +90,7 @@ class BakeWriter:
                              muscle_cvs_dynamic=np.zeros((1, N, 3), np.float32), muscle_cv_offsets=rig.cv_offsets,
                              muscle_faces=rig.surface_faces,
                              params=json.dumps(setup.params, sort_keys=True, allow_nan=False),
-                             **skin_parts(character))
+                             **skin_parts(character), **chains)
         whole = npz_arrays(self.head)
         members = {"format": whole.pop("format")}
         for name in NPZ_KEYS:

@@ -155,16 +155,17 @@ def _number(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
-def parse_curve(value, name: str, where: str | None = None) -> "float | Curve":
+def parse_curve(value, name: str, where: str | None = None, table: Mapping | None = None) -> "float | Curve":
     """A parameter's value: a number, keys [[t, v], ...] (linear), or a table {keys = [[t, v], ...],
     interpolation = "linear" | "smooth"}; a Curve or float passes through checked. Returns a float when the
     value is a number or every key holds the same value, else a Curve. InputError naming `where` (default
     the parameter's name) for a value outside the parameter's range, key times that do not increase, or a
     malformed value.
 
-    name : a key of PARAMETERS (the range checked).
+    name : a key of `table` (default PARAMETERS; sim.chain.params.CHAIN_PARAMETERS for a chain's), whose range
+    is checked.
     """
-    p = PARAMETERS[name]
+    p = (PARAMETERS if table is None else table)[name]
     where = where or name
     expect = f"a number in {p.range_text} or keys [[time_s, value], ...] (optionally {{keys = ..., interpolation = " \
              f"\"smooth\"}})"
@@ -214,7 +215,7 @@ def parse_curve(value, name: str, where: str | None = None) -> "float | Curve":
     return Curve(keys[:, 0], keys[:, 1], interpolation)
 
 
-def parse_text(text: str, name: str, where: str) -> "float | Curve":
+def parse_text(text: str, name: str, where: str, table: Mapping | None = None) -> "float | Curve":
     """A command-line value: a number, keys ``[[0,1],[2,0.2]]`` (linear) or ``smooth:[[0,1],[2,0.2]]`` (JSON
     or TOML lists). InputError naming `where` (the flag) otherwise."""
     s = text.strip()
@@ -231,10 +232,10 @@ def parse_text(text: str, name: str, where: str) -> "float | Curve":
         if not isinstance(value, list):
             raise InputError(f"{interpolation}: takes keys [[time_s, value], ...], got {s!r}", field=where)
         value = {"keys": value, "interpolation": interpolation}
-    return parse_curve(value, name, where)
+    return parse_curve(value, name, where, table)
 
 
-def parse_assignment(text: str, name: str, flag: str, global_ok: bool = True):
+def parse_assignment(text: str, name: str, flag: str, global_ok: bool = True, table: Mapping | None = None):
     """A repeatable flag's value ``[NAME=]VALUE|CURVE``: (pattern or None for the global value, value).
     NAME is a muscle or a glob; without it the value is every muscle's (global_ok) or pattern "*"."""
     s = text.strip()
@@ -244,7 +245,7 @@ def parse_assignment(text: str, name: str, flag: str, global_ok: bool = True):
             and not head.strip().lower().startswith(tuple(m + ":" for m in INTERPOLATIONS)):
         pattern, s = head.strip(), tail
     where = f"{flag} {text.strip()}"
-    value = parse_text(s, name, where)
+    value = parse_text(s, name, where, table)
     if pattern is None and not global_ok:
         pattern = "*"
     return pattern, value

@@ -50,14 +50,20 @@ def test_the_dog_bakes_its_own_trot_with_the_quadruped_template(capsys, tmp_path
     world = transforms(*clip.world(*clip.sample(d.times)))[:, [clip.joint_names.index(n) for n in c.joint_names]]
     for k in (0, 15, 29):
         assert np.abs(d.skin_lbs[k] - pose_character(c, world[k])).max() < 1e-5
-    # the jiggle shows, and the skin over it folds no more than the smooth skin does, and never tears
-    amp = np.linalg.norm(d.skin_final - d.skin_static, axis=2).max()
+    # the tissue's jiggle shows (measured from the skin that follows the swung tail), and the skin over it folds no
+    # more than the smooth skin does, and never tears
+    swung = d.skin_swung()
+    amp = np.linalg.norm(d.skin_final - swung, axis=2).max()
     assert 1e-3 < amp < 0.05
     q = SkinQuality(d.skin_rest, d.faces)
     folds_final = q.skin(d.skin_final)["folded_edges"].sum()
     folds_lbs = q.skin(d.skin_lbs)["folded_edges"].sum()
     assert folds_final <= 1.1 * folds_lbs + 5
-    assert q.jiggle(d.skin_static, d.skin_final)["torn_edges"].max() == 0
+    assert q.jiggle(swung, d.skin_final)["torn_edges"].max() == 0
+    # its tail swings as a chain below the tail's root muscle: its tip moves beyond the animation's
+    assert d.chain_tip_names and any("tail" in n.lower() for n in d.chain_tip_names), d.chain_tip_names
+    tip = np.linalg.norm(d.chain_tips_final - d.chain_tips_static, axis=2).max(axis=0)
+    assert tip.max() > 1e-3
 
 
 @pytest.mark.slow

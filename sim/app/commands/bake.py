@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import sys
 
-from jiggle.sim.app.args import bake_options, clip_options, keyed_request, map_options, template_option
+from jiggle.sim.app.args import bake_options, chain_request, clip_options, keyed_request, map_options, template_option
 from jiggle.sim.app.loading import body_overrides
 
 
@@ -32,7 +32,7 @@ def bake_request(args):
         skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),
         character_map=getattr(args, "character_map", None),
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None),
-        loop=getattr(args, "loop", None), rigid=getattr(args, "rigid", None))
+        loop=getattr(args, "loop", None), rigid=getattr(args, "rigid", None), **chain_request(args))
 
 
 def emit(event: str, **fields) -> None:
