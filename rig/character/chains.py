@@ -180,7 +180,7 @@ def find_chains(character, tissue_joints=(), role_joints=(), mode: str | None = 
                 continue
             word = _appendage(names[j])
             if word and not _appendage(names[p]):
-                take(j, f"named a {word}", "name")
+                take(j, f"named {'an' if word[0] in 'aeiou' else 'a'} {word}", "name")
         for j in range(J):
             p = int(parents[j])
             if used[j] or p < 0 or not carries[j] or used[p]:

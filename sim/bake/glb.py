@@ -176,6 +176,7 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
     if setup.scale != 1.0:      # the caches hold the file's size (BakeSetup.scale): so do the skin and its bones
         world = np.array(world)
         world[..., :3, 3] *= setup.scale
+    data, world = with_chains(data, world, setup.character.joint_names)
     rep = export_glb(setup.character.scaled(setup.scale), world, data, out, bones=budget, max_influences=max_influences,
                      source=source, fps=setup.fps, muscle_joint=muscle_joint,
                      loop=setup.loop.to_json() if getattr(setup, "loop", None) is not None else None)
@@ -188,6 +189,26 @@ def write_for_bake(setup, out_dir: str, bones: int | None = None, max_influences
         with atomic_path(summary_path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
             json.dump(summary, fh, indent=1)
     return rep
+
+
+def with_chains(data, world: np.ndarray, joint_names) -> tuple:
+    """(data, world) with the swung chains on their own bones: the chain joints' world transforms (bake.npz
+    chain_world) in `world` (T, J, 4, 4), and the smooth skin (skin_lbs) following them (plus chain_delta, what the
+    swing adds to linear skinning), so the file's joints play the chains and its jiggle bones fit the tissue alone.
+    Unchanged without chains."""
+    import dataclasses
+    if getattr(data, "chain_names", None) is None or not len(data.chain_names):
+        return data, world
+    world = np.array(world, np.float64)
+    index = {n: i for i, n in enumerate(joint_names)}
+    cols = [index[n] for n in data.chain_names if n in index]
+    have = [k for k, n in enumerate(data.chain_names) if n in index]
+    world[:, cols] = np.asarray(data.chain_world, np.float64)[:len(world), have]
+    if data.skin_lbs is not None and data.chain_delta is not None:
+        lbs = np.array(data.skin_lbs)
+        lbs[:, data.chain_vertices] += data.chain_delta
+        data = dataclasses.replace(data, skin_lbs=lbs)
+    return data, world
 
 
 def _period_end(data, world: np.ndarray, setup):
@@ -206,6 +227,14 @@ def _period_end(data, world: np.ndarray, setup):
     jw = np.array(data.joint_world[:1])
     jw[..., :3, 3] += shift
     more["joint_world"] = np.concatenate([data.joint_world, jw.astype(data.joint_world.dtype)])
+    if getattr(data, "chain_world", None) is not None:      # the chains at the period: frame 0's, moved alike
+        cw = np.array(data.chain_world[:1])
+        cw[..., :3, 3] += shift
+        more["chain_world"] = np.concatenate([data.chain_world, cw.astype(data.chain_world.dtype)])
+        for k in ("chain_tips_static", "chain_tips_final"):
+            a = getattr(data, k)
+            more[k] = np.concatenate([a, (a[:1] + shift).astype(a.dtype)])
+        more["chain_delta"] = np.concatenate([data.chain_delta, data.chain_delta[:1]])
     more["times"] = np.r_[np.asarray(data.times, np.float64), P]
     return dataclasses.replace(data, **more), np.concatenate([world, setup.world_at(np.array([P]))])
 

@@ -103,6 +103,38 @@ def rigid_parts(path: str) -> dict:
     return out
 
 
+def chain_plan(path: str) -> dict:
+    """The chains a bake with the defaults swings (rig.character.chains.find_chains over the tissue the default fit
+    gives): each with its joints, why it was taken and its default parameters (sim.chain.params), and how --chains
+    overrides it."""
+    import warnings
+
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.rig.character.chains import chain_links, find_chains
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.muscle.fit import fit_musculature
+    from jiggle.sim.bake.setup import tissue_joints
+    from jiggle.sim.chain.params import chain_params
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        character = load_character(path)
+        mus = fit_musculature(character, "auto")
+    found = find_chains(character, tissue_joints(mus.rig), set((mus.roles or {}).values()), "auto",
+                        character.meta.get("spring_bones") or None)
+    override = "--chains none, --chains=-NAME (a chain left on its bones), --chains NAME[,NAME] (joints that start one)"
+    if not len(found):
+        return {"chains": "none: every appendage follows its bones", "override": override}
+    links = chain_links(character, found)
+    size = float(np.ptp(np.asarray(character.vertices), axis=0).max())
+    params = chain_params(found.names, links.length, size)
+    rows = []
+    for i, (c, p) in enumerate(zip(found.chains, params)):
+        rows.append({"chain": c.name, "joints": [character.joint_names[j] for j in c.joints], "why": c.reason,
+                     "length_m": round(float(links.length[i]), 4), "stiffness_hz": round(float(p.stiffness), 3),
+                     "damping": p.damping})
+    return {"chains": rows, "override": override}
+
+
 def unit_note(height: float) -> dict:
     """What `--unit auto` makes of a character `height` file units tall (read as metres)."""
     from jiggle.rig.character.character import PLAUSIBLE_HEIGHT_M, UNIT_NAMES, UNITS, guess_unit
@@ -167,6 +199,7 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
             try:        # a skeleton with a skin but no mesh (an FBX take) has neither
                 out["tissue"] = tissue_plan(p)
                 out["rigid"] = rigid_parts(p)
+                out["chains"] = chain_plan(p)
             except InputError as e:
                 out["tissue"] = {"template": None, "why": f"no tissue: {e.message}"}
         if out.get("animations"):
