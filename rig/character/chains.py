@@ -47,6 +47,9 @@ DENSITY = 1000.0
 """kg/m^3: a link's mass is its capsule's volume at the density of soft tissue and water (hair, cartilage and
 fur are near it; the swing does not depend on the mass, the springs are set per unit of inertia)."""
 MODES = ("auto", "none")
+MIN_MASS = 0.3
+"""No link of a chain is lighter than this share of its links' mean mass: a leaf bone's skin often ends in a few
+vertices, and a near-massless tip would take the whole swing's energy and crack like a whip."""
 
 
 def name_words(name: str) -> list[str]:
@@ -305,6 +308,11 @@ def chain_links(character, chains: Chains) -> ChainLinks:
             longest = max(longest, arc[j] + L)
         lengths.append(longest)
     n = len(rows["joints"])
+    mass, chain = np.array(rows["mass"]), np.array(rows["chain"], np.int64)
+    for ci in range(len(chains.chains)):    # a leaf's few skin vertices make a sliver: no link lighter than MIN_MASS
+        mine = chain == ci
+        mass[mine] = np.maximum(mass[mine], MIN_MASS * mass[mine].mean())
+    rows["mass"] = mass
     return ChainLinks(joints=np.array(rows["joints"], np.int64), parent=np.array(rows["parent"], np.int64),
                       anchor=np.array(rows["anchor"], np.int64), chain=np.array(rows["chain"], np.int64),
                       local=np.array(rows["local"], np.float64).reshape(n, 4, 4),

@@ -36,7 +36,7 @@ KIND_STIFFNESS = {"wing": 2.5, "fin": 1.5, "feather": 1.5, "ear": 1.0, "antenna"
                   "skirt": 0.6, "scarf": 0.6, "ribbon": 0.6, "tassel": 0.6, "streamer": 0.6}
 """A chain's default frequency times this by the word its root's name holds (rig.character.chains.APPENDAGE_WORDS):
 a wing's fingers carry a flight surface and swing little, cloth and hair more; 1 for the rest."""
-TAPER = 0.3
+TAPER = 0.15
 """The frequency falls by this share from the root to the tip."""
 DAMPING = 0.35
 """The default damping ratio: a swing decays to 1% in about two of its periods."""
@@ -44,7 +44,7 @@ AIR_DENSITY = 1.2
 """kg/m^3 at drag 1."""
 DRAG_COEFFICIENT = 1.0
 """A link's drag coefficient across its capsule (a cylinder in cross-flow)."""
-LIMIT_DEG = 50.0
+LIMIT_DEG = 35.0
 """Degrees past the animated pose's largest bend from bind where a joint's soft limit starts."""
 
 
