@@ -158,7 +158,7 @@ class Baker:
         per = []
         for n, r in self.chain_report.items():
             per.append({"chain": n, **{k: v for k, v in r.items() if not k.startswith("tip_") or k == "tip_peak_m"}})
-        return {"chains": per, "steps": run.steps, "step_s": run.dt, "seconds": round(run.seconds, 4),
+        return {"chains": per, "steps": run.steps, "steps_with_warmup": run.steps_all, "step_s": run.dt, "seconds": round(run.seconds, 4),
                 "warmup": run.warmup, "joints": [s.character.joint_names[j] for j in self.chain_joints],
                 "penetration_rule": "link-frames where a link's capsule sinks deeper than 25% of its radius into a body "
                                     "capsule the animated pose keeps it clear of, or below the floor",
@@ -318,7 +318,7 @@ def cache_paths(out_dir: str, formats) -> dict:
 
 
 COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "limits.png", "energy.png", "spectrum.png",
-                 "displacement.png", "quality.png", "contacts.png", "peak.png", "quality_closeups.png",
+                 "displacement.png", "quality.png", "chains.png", "contacts.png", "peak.png", "quality_closeups.png",
                  "glb_closeup.png", "clip.mp4", "clip.gif", "report.html")
 """The names `jiggle compare` writes beside a bake (sim/app/report/compare.py) when they are free."""
 COMPARE_RECORD = "compare.json"

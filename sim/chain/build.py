@@ -41,8 +41,7 @@ def make(character, chains, capsules, floor, entries, knots: np.ndarray, world_a
     from jiggle.sim.chain.measure import kept_apart
     from jiggle.sim.chain.model import build
     from jiggle.sim.chain.params import chain_params
-    from jiggle.sim.chain.simulate import soft_limits
-    from jiggle.sim.chain.model import ChainModel
+    from jiggle.sim.chain.simulate import soft_limits, targets_from_world
     if not len(chains):
         return None
     links = chain_links(character, chains)
@@ -51,11 +50,7 @@ def make(character, chains, capsules, floor, entries, knots: np.ndarray, world_a
     hi = max(p.stiffness.hi if isinstance(p.stiffness, Curve) else float(p.stiffness) for p in params)
     pick = np.unique(np.linspace(0, len(knots) - 1, min(len(knots), SAMPLE_KNOTS)).round().astype(int))
     world = np.asarray(world_at(np.asarray(knots)[pick]), np.float64)
-    from jiggle.sim.chain.simulate import targets_from_world
-    probe = ChainModel(model=None, links=links, drivers=np.zeros(0, np.int64), ball_q=np.zeros(0),
-                       ball_v=np.zeros(0), driver_q=np.zeros(0), driver_v=np.zeros(0), mocap=np.zeros(0),
-                       inertia=np.zeros(0), own=np.zeros(0), limit=np.zeros(0), excluded=frozenset(), dt=0.0)
-    limits = soft_limits(probe, targets_from_world(probe, world))
+    limits = soft_limits(links, targets_from_world(links, world))
     own = set(int(j) for j in links.joints)
     apart = kept_apart(world, links, capsules, own) if capsules is not None else np.zeros((links.count, 0), bool)
     exclude = []

@@ -33,10 +33,12 @@ from jiggle.sim.chain.params import AIR_DENSITY, DRAG_COEFFICIENT, LIMIT_DEG, TA
 from jiggle.sim.jiggle.keyed import Curve, value_at
 
 WINDOW = 4096
+DRAG_EVERY = 4
+"""Steps between updates of the air drag (a slow force: each link's velocity over those steps, the force held)."""
 """Steps whose inputs are made at once (memory is bounded by a window, not the clip)."""
 KNOT_BLOCK = 512
 """Knots the drive is asked for at once."""
-WARMUP_TOLERANCE = 1e-4
+WARMUP_TOLERANCE = 5e-4
 """A looping bake's warm-up stops when the chains' state at the cycle's start changes by less than this (radians
 of any joint, and its angular velocity times a step of 1/60 s)."""
 WARMUP_MAX_CYCLES = 24
@@ -46,11 +48,12 @@ WARMUP_MAX_CYCLES = 24
 class ChainRun:
     """What a run gives: rotations (T, n, 4) float64, each chain joint's simulated rotation from its bind frame
     (w, x, y, z) at the output times; targets (T, n, 4) the animated ones; warmup : a looping bake's record, else
-    None; steps : how many steps ran; seconds : the time it took."""
+    None; steps : the steps of the frames written, steps_all : with the warm-up's; seconds : the time it took."""
 
     rotations: np.ndarray
     targets: np.ndarray
     steps: int = 0
+    steps_all: int = 0
     seconds: float = 0.0
     warmup: dict | None = None
     dt: float = 0.0
@@ -75,10 +78,9 @@ def rest_rotations(links) -> np.ndarray:
     return quat.normalize(quat.from_matrix(links.local[:, :3, :3]))
 
 
-def targets_from_world(cm, world: np.ndarray) -> np.ndarray:
-    """(T, n, 4) each chain joint's animated rotation from its bind frame, from joint world transforms (T, J, 4, 4):
-    R0^-1 (R_parent^-1 R_joint), R0 the bind rotation in the parent's frame."""
-    links = cm.links
+def targets_from_world(links, world: np.ndarray) -> np.ndarray:
+    """(T, n, 4) each chain joint's (rig.character.chains.ChainLinks) animated rotation from its bind frame, from
+    joint world transforms (T, J, 4, 4): R0^-1 (R_parent^-1 R_joint), R0 the bind rotation in the parent's frame."""
     par = np.asarray(links.joints)[np.where(links.parent >= 0, links.parent, 0)]
     par = np.where(links.parent >= 0, par, links.anchor)
     Rp = world[:, par, :3, :3]
@@ -96,7 +98,7 @@ def knot_inputs(cm, knots: np.ndarray, world_at: Callable) -> KnotInputs:
         m = w[:, cm.drivers]
         parts["p"].append(m[..., :3, 3])
         parts["q"].append(quat.from_matrix(m[..., :3, :3]))
-        parts["t"].append(targets_from_world(cm, w))
+        parts["t"].append(targets_from_world(cm.links, w))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     return KnotInputs(knots=np.asarray(knots, np.float64), driver_pos=cat["p"],
                       driver_quat=quat.make_continuous(cat["q"]), target=quat.make_continuous(cat["t"]))
@@ -255,13 +257,17 @@ class ChainSolver:
         out_times = np.zeros(0) if out_times is None else np.asarray(out_times, np.float64)
         u = (out_times - t0) / dt
         out = np.zeros((len(out_times), n, 4))
-        prev = d.qpos[self.qs].reshape(n, 4).copy()
-        hit = np.flatnonzero(u <= 0.0)
-        out[hit] = prev
+        out[u <= 0.0] = d.qpos[self.qs].reshape(n, 4)
+        # the step each output time lands in: (k, k + 1] in steps from t0
+        land = np.ceil(u - 1e-9).astype(np.int64) - 1
+        lands = {}
+        for i in np.flatnonzero(u > 0.0):
+            lands.setdefault(int(min(land[i], max(steps - 1, 0))), []).append(int(i))
         ma = cm.mocap
         qs, dv = self.qs, self.dv
         bodies = self.link_body
         centre = d.xipos[bodies].copy()
+        drag = bool(self._drag.any()) or self.keyed
         for w0 in range(0, steps, WINDOW):
             w1 = min(steps, w0 + WINDOW)
             t_end = t0 + dt * np.arange(w0 + 1, w1 + 1)     # each step's inputs at its end (where it lands)
@@ -271,28 +277,31 @@ class ChainSolver:
             spring = x["target"].reshape(len(t_mid), -1)
             force = (x["gravity"] * self._gravity_or(x)[..., None] +
                      self._damping_or(x)[..., None] * x["target_omega"]).reshape(len(t_mid), -1)
+            mpos, mquat = xe["driver_pos"], xe["driver_quat"]
             for i in range(w1 - w0):
+                k = w0 + i
                 if self.keyed:
                     self._set_row(x["values"], i)
                 m.qpos_spring[qs] = spring[i]
                 d.qfrc_applied[dv] = force[i]
                 if len(ma):
-                    d.mocap_pos[ma] = xe["driver_pos"][i]
-                    d.mocap_quat[ma] = xe["driver_quat"][i]
-                if self._drag.any():     # the links' centres moved over the last step: their velocity
+                    d.mocap_pos[ma] = mpos[i]
+                    d.mocap_quat[ma] = mquat[i]
+                if drag and k % DRAG_EVERY == 0:   # each link's centre's velocity over the last steps, held
                     now_c = d.xipos[bodies]
-                    vel = (now_c - centre) / dt
-                    d.xfrc_applied[bodies, :3] = -(self._drag * np.linalg.norm(vel, axis=1))[:, None] * vel
+                    vel = (now_c - centre) / (dt * (DRAG_EVERY if k else 1))
+                    speed = np.sqrt(np.einsum("ij,ij->i", vel, vel))
+                    d.xfrc_applied[bodies, :3] = -(self._drag * speed)[:, None] * vel
                     centre = now_c.copy()
+                sel = lands.get(k)
+                if sel is not None:
+                    prev = d.qpos[qs].reshape(n, 4).copy()
                 mujoco.mj_step(m, d)
-                now = d.qpos[qs].reshape(n, 4)
-                k = w0 + i
-                sel = np.flatnonzero((u > k) & (u <= k + 1))
-                if len(sel):
+                if sel is not None:
+                    now = d.qpos[qs].reshape(n, 4)
                     f = (u[sel] - k)[:, None, None]
                     b = np.where(np.sum(prev * now, axis=-1, keepdims=True) < 0, -now, now)
                     out[sel] = quat.normalize((1.0 - f) * prev[None] + f * b[None])
-                prev = now.copy()
         return out
 
     def _gravity_or(self, x) -> np.ndarray:
@@ -310,10 +319,10 @@ class ChainSolver:
         self._drag = self.drag_coef * v["drag"][i]
 
 
-def soft_limits(cm, targets: np.ndarray) -> np.ndarray:
+def soft_limits(links, targets: np.ndarray) -> np.ndarray:
     """(n,) radians: each joint's soft limit from bind, LIMIT_DEG past the largest bend the animation gives it
     (targets (K, n, 4)), at most just under pi."""
-    bend = quat.angle(targets).max(axis=0) if len(targets) else np.zeros(cm.links.count)
+    bend = quat.angle(targets).max(axis=0) if len(targets) else np.zeros(links.count)
     return np.minimum(bend + np.radians(LIMIT_DEG), np.pi - 1e-3)
 
 
@@ -354,6 +363,7 @@ def swing(cm, params, times: np.ndarray, knots: np.ndarray, world_at: Callable, 
                 break
             balls = s1
         change, start = best if best is not None else (0.0, balls)
+        warm_steps = (len(changes) + 1) * steps
         warm = {"cycles": len(changes) + 1, "change_rad": change, "converged": bool(change < WARMUP_TOLERANCE),
                 "tolerance_rad": WARMUP_TOLERANCE}
         solver.start(t0, start)
@@ -361,13 +371,15 @@ def swing(cm, params, times: np.ndarray, knots: np.ndarray, world_at: Callable, 
         rot = solver.run(t0, max(total, 0), times)
         log(f"chains: loop warm-up {warm['cycles']} cycles, the start repeats within {change:.2g} rad")
     else:
+        warm_steps = 0
         solver.start(t0)
         total = int(math.ceil((float(times[-1]) - t0) / solver.dt - 1e-9))
         rot = solver.run(t0, max(total, 0), times)
     # the animated rotations at the output times, for the measures
     tq, _ = _hermite(inp.knots, inp.target, solver.slopes["target"], times)
     tq = quat.normalize(tq)
-    return ChainRun(rotations=rot, targets=tq, steps=int(total), seconds=_time.perf_counter() - t_start,
+    return ChainRun(rotations=rot, targets=tq, steps=int(total), steps_all=int(total + warm_steps),
+                    seconds=_time.perf_counter() - t_start,
                     warmup=warm, dt=solver.dt)
 
 
