@@ -21,6 +21,7 @@ import numpy as np
 from jiggle.rig.base.errors import InputError, JiggleWarning
 from jiggle.rig.base.frozen import frozen_array
 from jiggle.rig.character.painted_maps import PaintedMaps
+from jiggle.rig.character.vrm_springs import scaled_springs
 from jiggle.rig.motion.clip import Clip, joint_index, local_from_world
 from jiggle.rig.motion.gltf_io import polar_rotation
 
@@ -142,7 +143,8 @@ class Character:
 
     def scaled(self, factor: float) -> "Character":
         """The same character with every length times `factor` (skin, joints, skeleton; rotations, weights and
-        maps kept); meta["unit_scale"] (metres per file unit) is scaled alike."""
+        maps kept); meta["unit_scale"] (metres per file unit) and the lengths of meta["spring_bones"] are scaled
+        alike."""
         if factor == 1.0:
             return self
         f = float(factor)
@@ -154,9 +156,11 @@ class Character:
         sk = self.skeleton
         skeleton = replace(sk, offsets=np.asarray(sk.offsets) * f, translations=np.asarray(sk.translations) * f,
                            end_offsets=np.asarray(sk.end_offsets) * f)
+        meta = {**self.meta, "unit_scale": self.meta.get("unit_scale", 1.0) * f}
+        if self.meta.get("spring_bones"):
+            meta["spring_bones"] = scaled_springs(self.meta["spring_bones"], f)
         return replace(self, vertices=np.asarray(self.vertices) * f, bind_world=moved(self.bind_world),
-                       bind_matrices=moved(self.bind_matrices), skeleton=skeleton,
-                       meta={**self.meta, "unit_scale": self.meta.get("unit_scale", 1.0) * f})
+                       bind_matrices=moved(self.bind_matrices), skeleton=skeleton, meta=meta)
 
     def with_weights(self, joints: np.ndarray, weights: np.ndarray, how: str) -> "Character":
         """The same character with other skin weights (V, k); `how` is recorded in meta["weights"]."""

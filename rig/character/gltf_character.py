@@ -15,7 +15,9 @@ Readings (see rig.motion.gltf_io for axes, joints and rigid frames):
 - Parts: ``meta["parts"]`` lists every merged primitive as ``[name, first vertex, vertex count]``
   (JSON-able, in vertex order): the name is the node's (unique, rig.motion.gltf_io), with
   ``.<primitive index>`` added when its mesh has several primitives. ``meta["unit_scale"]`` is the
-  extra unit applied on top (1 for a file in metres, as the spec says).
+  extra unit applied on top (1 for a file in metres, as the spec says). ``meta["spring_bones"]``: the VRM
+  spring bones (VRMC_springBone or VRM 0.x) as chains of the character's joints, in metres and Z-up
+  (rig.character.vrm_springs), when the file defines any.
 - Weights: JOINTS_n / WEIGHTS_n sets 0, 1, ... concatenated, checked, then the top k kept and
   renormalised (see rig.character.character.clean_weights for what is an error and what a warning).
 - Triangles: modes 4 (triangles), 5 (strip) and 6 (fan); points and lines are skipped with a notice.
@@ -36,6 +38,7 @@ from jiggle.rig.character.character import (
     require_finite_positions,
     resolve_unit,
 )
+from jiggle.rig.character.vrm_springs import read_vrm_springs
 from jiggle.rig.motion.gltf_io import Z_UP, GltfDocument, trs_matrix, world_chain
 from jiggle.rig.motion.gltf_skeleton import read_gltf_skeleton
 
@@ -273,12 +276,13 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
     else:
         from jiggle.rig.character.normals import vertex_normals
         normals = vertex_normals(vertices, faces)
+    springs = read_vrm_springs(p, skel.joint_names, s, doc=doc)
     character = Character(
         vertices=vertices, faces=faces, normals=normals, uvs=np.concatenate(uv) if has_uvs and uv else None,
         joint_names=skel.joint_names, parents=skel.parents, bind_world=bind_world, bind_matrices=bind_m,
         joints=joints, weights=weights, skeleton=_scaled_clip(skel.to_clip(), s), name=skel.name, source=p,
         meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin), "parts": parts,
-              "primitives": prims},
+              "primitives": prims, **({"spring_bones": springs} if springs else {})},
         maps=assemble(maps, len(vertices), os.path.basename(p)))
     check_height(character.height, p)
     return character

@@ -46,7 +46,7 @@ def make(character, chains, capsules, floor, entries, knots: np.ndarray, world_a
         return None
     links = chain_links(character, chains)
     size = float(np.ptp(np.asarray(character.vertices), axis=0).max())
-    params = chain_params(chains.names, links.length, size, entries)
+    params = chain_params(chains.names, links.length, size, entries, [c.spring for c in chains.chains])
     hi = max(p.stiffness.hi if isinstance(p.stiffness, Curve) else float(p.stiffness) for p in params)
     pick = np.unique(np.linspace(0, len(knots) - 1, min(len(knots), SAMPLE_KNOTS)).round().astype(int))
     world = np.asarray(world_at(np.asarray(knots)[pick]), np.float64)

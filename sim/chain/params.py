@@ -103,8 +103,24 @@ def kind_factor(name: str) -> float:
     return next((KIND_STIFFNESS[w] for w in name_words(name) if w in KIND_STIFFNESS), 1.0)
 
 
-def chain_params(names, lengths, size: float, entries=()) -> list[ChainParams]:
-    """Every chain's parameters: defaults from its length (metres) on a body `size` metres big, then `entries` (pattern, {name: value},
+def from_spring(spring: dict, frequency: float) -> dict:
+    """A file's own spring settings (VRM spring bones, rig.character.vrm_springs) as this chain's defaults: VRM's
+    stiffness scales the default frequency by its square root (its force is linear in it: VRM 1 is jiggle's
+    default), its drag force (0..1, the share of velocity lost per frame at 60 fps) sets the damping ratio, its gravity
+    power the gravity share."""
+    out = {}
+    if "stiffness" in spring:
+        out["stiffness"] = round(frequency * math.sqrt(max(float(spring["stiffness"]), 0.01)), 4)
+    if "drag" in spring:
+        out["damping"] = round(min(5.0, DAMPING + 2.0 * float(spring["drag"])), 4)
+    if "gravity_power" in spring:
+        out["gravity"] = float(min(10.0, max(0.0, float(spring["gravity_power"]))))
+    return out
+
+
+def chain_params(names, lengths, size: float, entries=(), springs=None) -> list[ChainParams]:
+    """Every chain's parameters: defaults from its length (metres) on a body `size` metres big (or from the file's
+    own spring settings, `springs`: one dict or None per chain, from_spring), then `entries` (pattern, {name: value},
     where) in order, an exact chain name beating a glob and a later glob an earlier one. InputError naming the
     entry for a pattern that matches no chain or a value out of range."""
     names = list(names)
@@ -129,9 +145,11 @@ def chain_params(names, lengths, size: float, entries=()) -> list[ChainParams]:
             for n in hit:
                 chosen[n][k] = value
     out = []
-    for n, L in zip(names, lengths):
+    springs = list(springs) if springs is not None else [None] * len(names)
+    for n, L, spring in zip(names, lengths, springs):
         mine = chosen[n]
-        out.append(ChainParams(stiffness=mine.get("stiffness", round(kind_factor(n) * default_frequency(L, size), 4)),
-                               damping=mine.get("damping", DAMPING), gravity=mine.get("gravity", 1.0),
-                               drag=mine.get("drag", 1.0), given=tuple(sorted(mine))))
+        f = round(kind_factor(n) * default_frequency(L, size), 4)
+        base = {"stiffness": f, "damping": DAMPING, "gravity": 1.0, "drag": 1.0, **(from_spring(spring, f) if spring
+                                                                                       else {})}
+        out.append(ChainParams(given=tuple(sorted(mine)), **{k: mine.get(k, v) for k, v in base.items()}))
     return out

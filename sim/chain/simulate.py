@@ -179,6 +179,7 @@ class ChainSolver:
         # quadratic air drag on each link's centre: F = -1/2 rho C_D A |v| v, A its capsule's side (2 r L)
         length = np.linalg.norm(links.tip, axis=1)
         self.drag_coef = 0.5 * AIR_DENSITY * DRAG_COEFFICIENT * 2.0 * links.radius * np.maximum(length, links.radius)
+        self._drag_cap = 0.5 * links.mass / (DRAG_EVERY * self.dt)
         self._set(np.array([0.0]) + (inp.knots[0] if len(inp.knots) else 0.0), 0)
         self.n = n
 
@@ -229,6 +230,7 @@ class ChainSolver:
         it, or at `balls` (qpos (n, 4), qvel (n, 3)) when given."""
         import mujoco
         d, cm = self.d, self.cm
+        self._blowups = self.unstable()         # the count so far survives the reset
         mujoco.mj_resetData(self.m, d)
         x = self.inputs(np.array([t0]))
         for a in range(len(cm.driver_q)):
@@ -244,6 +246,11 @@ class ChainSolver:
         d.time = t0
         self._set(np.array([t0]), 0)
         mujoco.mj_forward(self.m, d)
+
+    def unstable(self) -> int:
+        """How many times MuJoCo found the state blowing up (and reset it) since the solver was made."""
+        import mujoco
+        return getattr(self, "_blowups", 0) + int(self.d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         return self.d.qpos[self.qs].reshape(-1, 4).copy(), self.d.qvel[self.dv].reshape(-1, 3).copy()
@@ -291,7 +298,10 @@ class ChainSolver:
                     now_c = d.xipos[bodies]
                     vel = (now_c - centre) / (dt * (DRAG_EVERY if k else 1))
                     speed = np.sqrt(np.einsum("ij,ij->i", vel, vel))
-                    d.xfrc_applied[bodies, :3] = -(self._drag * speed)[:, None] * vel
+                    # never more than half the link's momentum over the interval the force is held: drag slows a
+                    # link, it cannot reverse it (explicit, it would at a large drag)
+                    coef = np.minimum(self._drag * speed, self._drag_cap)
+                    d.xfrc_applied[bodies, :3] = -coef[:, None] * vel
                     centre = now_c.copy()
                 sel = lands.get(k)
                 if sel is not None:
@@ -378,9 +388,11 @@ def swing(cm, params, times: np.ndarray, knots: np.ndarray, world_at: Callable, 
     # the animated rotations at the output times, for the measures
     tq, _ = _hermite(inp.knots, inp.target, solver.slopes["target"], times)
     tq = quat.normalize(tq)
+    if solver.unstable():
+        raise RuntimeError(f"the chains' simulation blew up {solver.unstable()} time(s) at step {solver.dt:.3g} s: a "
+                           "setting outside what sim.chain.model's step was chosen for")
     return ChainRun(rotations=rot, targets=tq, steps=int(total), steps_all=int(total + warm_steps),
-                    seconds=_time.perf_counter() - t_start,
-                    warmup=warm, dt=solver.dt)
+                    seconds=_time.perf_counter() - t_start, warmup=warm, dt=solver.dt)
 
 
 # ------------------------------------------------------------------------------------------ the skeleton

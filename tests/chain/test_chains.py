@@ -140,3 +140,14 @@ def test_a_keyed_stiffness_changes_the_swing_when_it_is_keyed(horse):
     sb, fb, _ = tips(replace(horse, chains=plain), b.rotations, times)
     early = times < 0.6
     assert np.linalg.norm(fa - sa, axis=2)[early].max() < 0.6 * np.linalg.norm(fb - sb, axis=2)[early].max()
+
+
+def test_a_files_own_spring_settings_become_the_chains_defaults():
+    """VRM spring bones (rig.character.vrm_springs): stiffness 4 doubles the default frequency, drag sets the damping,
+    gravity power the gravity share; a user's entry still wins."""
+    from jiggle.sim.chain.params import DAMPING, chain_params
+    plain, vrm = chain_params(["Hair1", "Hair2"], [0.3, 0.3], 1.7, [("Hair2", {"gravity": 0.5}, "test")],
+                              [None, {"stiffness": 4.0, "drag": 0.4, "gravity_power": 0.2}])
+    assert vrm.stiffness == pytest.approx(2.0 * plain.stiffness, rel=1e-3)
+    assert vrm.damping == pytest.approx(DAMPING + 0.8) and plain.damping == DAMPING
+    assert vrm.gravity == 0.5 and vrm.given == ("gravity",)
