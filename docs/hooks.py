@@ -1,7 +1,8 @@
 """MkDocs hook (mkdocs.yml `hooks`): pages generated from the code at build time, so they cannot drift from it.
 
 - reference/cli.md: every `jiggle` command's --help, from the argparse parser itself (jiggle.sim.app.cli).
-- reference/parameters.md: the keyable jiggle parameters' table, from jiggle.sim.jiggle.keyed.PARAMETERS.
+- reference/parameters.md: the keyable jiggle parameters' table, from jiggle.sim.jiggle.keyed.PARAMETERS, and the
+  chains', from jiggle.sim.chain.params.CHAIN_PARAMETERS (<!-- jiggle:chain-parameters -->).
 - a module's docstring where a page has <!-- jiggle:doc MODULE --> (the scene file's layout, the npz's keys).
 A page asks for them with the markers <!-- jiggle:cli -->, <!-- jiggle:parameters --> and <!-- jiggle:doc M -->.
 """
@@ -32,6 +33,14 @@ def _parameters() -> str:
     return "\n".join(rows)
 
 
+def _chain_parameters() -> str:
+    from jiggle.sim.chain.params import CHAIN_PARAMETERS
+    rows = ["| parameter | flag | what it does | range | unit | default |", "| --- | --- | --- | --- | --- | --- |"]
+    for name, p in CHAIN_PARAMETERS.items():
+        rows.append(f"| `{name}` | `--chain-{name}` | {p.what} | {p.range_text} | {p.unit or ''} | {p.default} |")
+    return "\n".join(rows)
+
+
 def _doc(module: str) -> str:
     """A module's docstring as it reads in the code: fixed-width text."""
     return "```text\n" + inspect.cleandoc(importlib.import_module(module).__doc__ or "").rstrip() + "\n```"
@@ -43,4 +52,6 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
         markdown = markdown.replace("<!-- jiggle:cli -->", _cli())
     if "<!-- jiggle:parameters -->" in markdown:
         markdown = markdown.replace("<!-- jiggle:parameters -->", _parameters())
+    if "<!-- jiggle:chain-parameters -->" in markdown:
+        markdown = markdown.replace("<!-- jiggle:chain-parameters -->", _chain_parameters())
     return markdown

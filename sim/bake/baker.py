@@ -545,8 +545,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         summary["tissue"] = _tissue_json(setup, contact_parts)
     if baker.colliders is not None:
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
-    if baker.chain_run is not None:
-        summary["chains"] = baker.chain_json()
+    summary["chains"] = baker.chain_json() if baker.chain_run is not None else None
     _write_json(os.path.join(out_dir, SUMMARY), summary)
     shutil.rmtree(partial, ignore_errors=True)
     if "glb" in setup.formats:                  # fitted from the finished npz; recorded in bake.json when written
