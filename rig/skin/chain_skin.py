@@ -35,6 +35,9 @@ class ChainSkin:
         self.pair_weight = ww[v, k]
         self.gather = sp.csr_matrix((self.pair_weight, (row, np.arange(len(v)))), shape=(len(self.vertices), len(v)))
         self.joints = joints
+        self.weight = np.asarray(self.gather.sum(axis=1)).ravel().astype(np.float32)
+        """(Vc,) each vertex's share of skin weight on chain joints: 1 on a chain, between 0 and 1 where it blends
+        into the body (a chain's root)."""
         self.inv_bind = np.linalg.inv(np.asarray(character.bind_matrices, np.float64)[joints])   # (n, 4, 4)
 
     def delta(self, world_static: np.ndarray, world_final: np.ndarray) -> np.ndarray:

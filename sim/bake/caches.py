@@ -43,6 +43,8 @@ chain_tip_names        (C,) str                    the chains (their root joints
 chain_tips_static      (T, C, 3) float32           each chain's tip where the animation puts it, m
 chain_tips_final       (T, C, 3) float32           and where it swung to; metres
 chain_vertices         (Vc,) int64                 the skin vertices the chains move
+chain_weight           (Vc,) float32               their skin weight on chain joints (below 1: a
+                                                   chain's root, where it blends into the body)
 chain_delta            (T, Vc, 3) float32          what the swing adds to them (skin_final holds
                                                    it: skin_static + chain_delta is the skin that
                                                    follows the swung chains without tissue jiggle)
@@ -97,8 +99,9 @@ class BakeData:
         vertex offsets (part p owns vertices offsets[p]:offsets[p + 1], 0 to V), or None.
     chain_names, chain_world : the joints the swung chains move (Jc,) and their world transforms (T, Jc, 4, 4)
         float32 metres; chain_tip_names (C,) the chains, chain_tips_static and chain_tips_final (T, C, 3) float32
-        metres their tips animated and swung; chain_vertices (Vc,) int64 the skin vertices they move and
-        chain_delta (T, Vc, 3) float32 metres what the swing adds to them (in skin_final); all None without chains.
+        metres their tips animated and swung; chain_vertices (Vc,) int64 the skin vertices they move, chain_weight
+        (Vc,) their skin weight on chain joints and chain_delta (T, Vc, 3) float32 metres what the swing adds to
+        them (in skin_final); all None without chains.
     """
 
     skin_static: np.ndarray
@@ -125,6 +128,7 @@ class BakeData:
     chain_tips_final: np.ndarray | None = None
     chain_vertices: np.ndarray | None = None
     chain_delta: np.ndarray | None = None
+    chain_weight: np.ndarray | None = None
 
     def __post_init__(self):
         def put(name, value):
@@ -210,6 +214,10 @@ class BakeData:
             if cv.size and (cv.min() < 0 or cv.max() >= V):
                 raise InputError(f"indices must lie in [0, {V})", field="chain_vertices")
             self._shape("chain_delta", array("chain_delta", np.float32, 3), (T, len(cv), 3))
+        if self.chain_weight is not None:           # optional within the chains' arrays (bakes before it lack it)
+            if self.chain_vertices is None:
+                raise InputError("comes with chain_vertices", field="chain_weight")
+            self._shape("chain_weight", array("chain_weight", np.float32, 1), (len(self.chain_vertices),))
         for name, item in (("skin_static", "vertex"), ("skin_final", "vertex"), ("skin_lbs", "vertex"),
                            ("times", None), ("joint_world", "joint"), ("chain_world", "joint"),
                            ("chain_tips_static", "chain"), ("chain_tips_final", "chain"), ("chain_delta", "vertex"),
@@ -268,7 +276,7 @@ def require_finite(name: str, a: np.ndarray | None, item: str | None, first: int
 # ---------------------------------------------------------------------------------------- npz
 NPZ_KEYS = tuple(f.name for f in fields(BakeData))
 _OPTIONAL_KEYS = ("skin_lbs", "skin_rest", "part_names", "part_offsets", "chain_names", "chain_world", "chain_tip_names",
-                  "chain_tips_static", "chain_tips_final", "chain_vertices", "chain_delta")
+                  "chain_tips_static", "chain_tips_final", "chain_vertices", "chain_delta", "chain_weight")
 FRAME_KEYS = {"skin_static": "vertex", "skin_final": "vertex", "skin_lbs": "vertex", "joint_world": "joint",
               "muscle_cvs_static": "CV", "muscle_cvs_dynamic": "CV", "times": None, "chain_world": "joint",
               "chain_tips_static": "chain", "chain_tips_final": "chain", "chain_delta": "vertex"}

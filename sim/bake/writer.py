@@ -75,14 +75,15 @@ class BakeWriter:
             moved = [int(j) for j in ch.links.joints] + [j for j, _ in riders_of(ch.model, character.parents)]
             C = len(ch.chains)
             from jiggle.rig.skin.chain_skin import ChainSkin
-            verts = ChainSkin(character, moved).vertices
+            cs = ChainSkin(character, moved)
+            verts = cs.vertices
             shapes.update({"chain_world": (T, len(moved), 4, 4), "chain_tips_static": (T, C, 3),
                            "chain_tips_final": (T, C, 3), "chain_delta": (T, len(verts), 3)})
             chains = {"chain_names": tuple(character.joint_names[j] for j in moved),
                       "chain_world": np.tile(np.eye(4, dtype=np.float32), (1, len(moved), 1, 1)),
                       "chain_tip_names": tuple(ch.chains.names), "chain_tips_static": np.zeros((1, C, 3), np.float32),
                       "chain_tips_final": np.zeros((1, C, 3), np.float32), "chain_vertices": verts,
-                      "chain_delta": np.zeros((1, len(verts), 3), np.float32)}
+                      "chain_weight": cs.weight, "chain_delta": np.zeros((1, len(verts), 3), np.float32)}
         self.head = BakeData(skin_static=np.zeros((1, V, 3), np.float32), skin_final=np.zeros((1, V, 3), np.float32),
                              skin_rest=np.asarray(character.vertices) * setup.scale, faces=character.faces, fps=setup.fps, times=setup.times[:1],
                              joint_names=setup.joint_names, joint_world=np.tile(np.eye(4, dtype=np.float32), (1, J, 1, 1)),

@@ -14,6 +14,8 @@ limits.png        per-muscle largest offset over its reach over time, the tissue
 energy.png        per-muscle jiggle energy over time
 spectrum.png      per-muscle amplitude spectrum, the dominant frequency marked
 displacement.png  the skin's largest and RMS displacement per frame, and a histogram over vertices
+chains.png        for a bake with chains: each chain's tip offset over time and its height, animated and swung
+                  (sim.app.report.chains; metrics.json "chains")
 quality.png       skin quality per frame: folded edges of the LBS, static and final skins, jiggle
                   tears (sim.app.report.skin_quality)
 contacts.png      for a bake with collisions (its bake.json has "contacts"): the deepest particle
@@ -28,7 +30,12 @@ report.html       one self-contained page with all of it (sim.app.report.page)
 
 Definitions (the bake's muscle CVs are the *blended* ones, so everything here is what the skin gets):
 
-- skin displacement of vertex v at frame t: |skin_final - skin_static| (metres);
+- the reference skin: what the tissue's jiggle is measured from, BakeData.skin_swung(): skin_static plus what the
+  swung chains add (chain_delta), so a tail swinging a metre is not a metre of jiggle and an edge the chain turns
+  rigidly is not torn; skin_static itself for a bake without chains (the same numbers as before chains). The
+  displacement, the peak frame, the skin quality's jiggle gradient, the loop wrap and the pictures use it; the
+  chains themselves are measured in metrics.json's "chains" (sim.app.report.chains);
+- skin displacement of vertex v at frame t: |skin_final - reference| (metres);
 - muscle amplitude a_m(t): the largest CV distance |dynamic - static| over the muscle's CVs;
   its RMS is sqrt(mean_t a_m(t)^2);
 - jiggle energy (see :func:`muscle_energy`), the dominant frequency (see :func:`muscle_spectrum`);
@@ -49,19 +56,13 @@ from jiggle.rig.base.errors import InputError
 from jiggle.sim.app.report import skin_quality
 from jiggle.sim.app.outputs.simulate import SETTLE_FRACTION, SETTLE_WINDOW, settle_time
 from jiggle.sim.app.report.plots import plot_contacts, pyplot, save_figure
+from jiggle.sim.app.report.spectrum import MIN_CYCLES, MIN_FRAMES, STILL, dominant_frequency, muscle_spectrum
 from jiggle.sim.bake.baker import COMPARE_NAMES, COMPARE_RECORD, COMPARE_RECORD_FORMAT, SUMMARY, compare_files, remove_listed
 from jiggle.sim.bake.caches import BakeData, read_npz
 
 FORMAT = "jiggle.compare/1"
 BAKE = "bake.npz"
 PARTIAL = ".partial"
-STILL = 1e-6
-"""metres: a muscle whose amplitude never exceeds this (a micrometre) does not move (no frequency)."""
-MIN_FRAMES = 8
-"""Fewer frames than this give no dominant frequency."""
-MIN_CYCLES = 2
-"""A dominant frequency needs at least this many periods in the clip; a slower peak in the spectrum
-cannot be told from a drift, so the frequency is then None ("too short to resolve")."""
 TOP = 8
 """Muscles labelled in the plots (the largest peaks)."""
 NEAR_LIMIT = 0.9
@@ -129,6 +130,15 @@ def read_params(text: str, names) -> tuple[dict, list[dict]]:
 
 
 # ---------------------------------------------------------------------------------------- skin
+def reference_skin(data: BakeData) -> tuple[np.ndarray, str]:
+    """(skin (T, V, 3) float32 metres, its name): what the tissue's jiggle is measured from (see the module):
+    data.skin_swung() and "skin_swung" for a bake whose chains move skin, else data.skin_static (the same array)
+    and "skin_static"."""
+    if data.chain_vertices is None or not len(data.chain_vertices):
+        return data.skin_static, "skin_static"
+    return data.skin_swung(), "skin_swung"
+
+
 def skin_displacement(static: np.ndarray, final: np.ndarray, chunk: int = 32) -> np.ndarray:
     """(T, V) float32 metres: |final - static| per frame and vertex, from (T, V, 3) skins.
 
@@ -231,32 +241,6 @@ def muscle_energy(d: np.ndarray, times: np.ndarray, offsets: np.ndarray, masses:
     return out
 
 
-def muscle_spectrum(d: np.ndarray, offsets: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """(freqs (K,) Hz, amplitude (K, M) metres): each muscle's amplitude spectrum.
-
-    Every CV offset component (x, y, z) minus its mean over time is Hann-windowed and Fourier
-    transformed over the frames (taken as evenly spaced at fps, K = T // 2 + 1 bins of fps / T Hz);
-    the powers are summed over xyz and averaged over the muscle's CVs, so a muscle's spectrum is the
-    RMS over its CVs of their vector amplitude: a CV swinging A sin(2 pi f t) along any direction gives
-    A at f (the window's gain is divided out). Summing powers (not averaging offset vectors) keeps
-    modes in which CVs move against each other (a belly breathing in and out)."""
-    T = d.shape[0]
-    freqs = np.fft.rfftfreq(T, 1.0 / fps)
-    M = len(offsets) - 1
-    amp = np.zeros((len(freqs), M))
-    if T < 2:
-        return freqs, amp
-    w = np.hanning(T)
-    gain = w.sum() / 2.0                    # a unit sinusoid's peak |X| under the window
-    for m in range(M):
-        a, b = offsets[m], offsets[m + 1]
-        if b > a:
-            x = d[:, a:b] - d[:, a:b].mean(axis=0)
-            X = np.fft.rfft(x * w[:, None, None], axis=0)
-            amp[:, m] = np.sqrt((np.abs(X) ** 2).sum(axis=2).mean(axis=1)) / gain
-    return freqs, amp
-
-
 def limit_fraction(d: np.ndarray, offsets: np.ndarray, reach: np.ndarray) -> np.ndarray:
     """(T, M) each muscle's largest CV offset per frame as a fraction of its reach (0 where the reach is
     unknown or none). d : (T, N, 3) metres, CV offsets; reach : (M,) metres (nan: none)."""
@@ -279,29 +263,14 @@ def limit_advice(name: str, p: dict) -> str:
     return f"[jiggle.muscles.{name}]: " + "; ".join(tips)
 
 
-def dominant_frequency(freqs: np.ndarray, amp: np.ndarray, frames: int, moving: bool) -> float | None:
-    """Hz of the largest peak of one spectrum amp (K,), refined by a parabola through the log
-    amplitudes of the peak bin and its neighbours; None when the muscle does not move, the clip has
-    fewer than MIN_FRAMES frames, or the peak lies below MIN_CYCLES periods per clip."""
-    if not moving or frames < MIN_FRAMES or len(amp) < 3 or not np.any(amp[1:] > 0):
-        return None
-    k = 1 + int(np.argmax(amp[1:]))
-    if k < MIN_CYCLES:
-        return None
-    delta = 0.0
-    if k + 1 < len(amp) and amp[k - 1] > 0 and amp[k + 1] > 0:
-        lo, mid, hi = np.log(amp[k - 1]), np.log(amp[k]), np.log(amp[k + 1])
-        den = lo - 2.0 * mid + hi
-        delta = float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5)) if den < 0 else 0.0
-    return float(freqs[k] + delta * (freqs[1] - freqs[0]))
-
-
 # ---------------------------------------------------------------------------------------- analysis
 def analyse(data: BakeData, tissue: dict | None = None) -> dict:
     """Everything compare measures, before anything is written. Keys (arrays float64 unless said):
 
     params, per_muscle : read_params of the bake's params.
-    disp : (T, V) float32 metres, skin displacement; skin, peak, skin_arrays : skin_metrics of it.
+    reference : (T, V, 3) float32 metres, the skin the jiggle is measured from (data.skin_swung(): skin_static
+    for a bake without chains); reference_name : "skin_static" or "skin_swung".
+    disp : (T, V) float32 metres, skin displacement |final - reference|; skin, peak, skin_arrays : skin_metrics.
     amplitude (T, M) metres; freqs (K,) Hz and spectrum (K, M) metres (muscle_spectrum);
     dominant_hz : M floats or None; energy (T, M) in energy_unit ("J", or "J/kg" when any muscle
     lacks mass_kg, so that one plot has one unit); order : muscle indices, largest peak first;
@@ -310,8 +279,12 @@ def analyse(data: BakeData, tissue: dict | None = None) -> dict:
     T, V = data.skin_static.shape[:2]
     times, names, offsets = data.times, list(data.muscle_names), data.muscle_cv_offsets
     params, per_muscle = read_params(data.params, names)
-    disp = skin_displacement(data.skin_static, data.skin_final)
+    reference, ref_name = reference_skin(data)
+    disp = skin_displacement(reference, data.skin_final)
     skin, peak, arrays = skin_metrics(disp, times)
+    if ref_name != "skin_static":
+        skin["displacement"] = ("|skin_final - skin_swung| per vertex and frame (skin_swung = skin_static + "
+                                "chain_delta: the skin following the swung chains; the tissue's jiggle alone)")
 
     d = muscle_offsets(data)
     amp = muscle_amplitude(d, offsets)
@@ -353,7 +326,8 @@ def analyse(data: BakeData, tissue: dict | None = None) -> dict:
             "hard_stops": int(stops[names[m]]) if isinstance(stops.get(names[m]), int) else None,
         }
     limits = limit_summary(names, per_muscle, rho, reach, stops)
-    return {"params": params, "per_muscle": per_muscle, "disp": disp, "skin": skin, "peak": peak,
+    return {"params": params, "per_muscle": per_muscle, "reference": reference, "reference_name": ref_name,
+            "disp": disp, "skin": skin, "peak": peak,
             "skin_arrays": arrays, "amplitude": amp, "freqs": freqs, "spectrum": spectrum, "dominant_hz": dominant,
             "energy": energy, "energy_unit": energy_unit, "order": order, "muscles": muscles, "limits": limits,
             "reach_fraction": rho}
@@ -589,8 +563,8 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     progress : called as progress(n) with the frames just rendered (n = 1 per frame, as tqdm's
         update), 1 + len(sim.app.report.compare_render.video_frames(T)) calls in all with render and video.
     Returns {"files": {key: path}, "metrics": the metrics.json dict}; keys of files: metrics,
-    displacement, amplitude, energy, spectrum, displacement_plot, quality_plot, contacts_plot (a bake
-    with collisions), peak, video, report.
+    displacement, amplitude, energy, spectrum, displacement_plot, quality_plot, chains_plot (a bake with
+    chains), contacts_plot (a bake with collisions), peak, video, report.
     InputError for a missing, unfinished or unreadable bake.
     """
     out_dir = os.fspath(out_dir)
@@ -633,10 +607,20 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     timings["plots_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    quality_m = skin_quality.measure(data)
+    quality_m = skin_quality.measure(data, an["reference"], an["reference_name"])
     quality = skin_quality.summarise(quality_m, times)
     files["quality_plot"] = skin_quality.plot_quality(out("quality.png"), times, quality)
     timings["quality_s"] = time.perf_counter() - t0
+
+    chains = None                                # a bake without chains: no section, no plot
+    if data.chain_tip_names is not None:
+        from jiggle.sim.app.report.chains import chain_metrics, plot_chains
+        t0 = time.perf_counter()
+        chains, chain_arrays = chain_metrics(data, read_contacts(out_dir, "chains"), quality_m["quality"],
+                                             an["reference"])
+        files["chains_plot"] = plot_chains(out("chains.png"), times, list(data.chain_tip_names), chains,
+                                           chain_arrays)
+        timings["chains_s"] = time.perf_counter() - t0
 
     contacts = read_contacts(out_dir)            # a bake without collisions: no section, no plot
     collisions = collision_metrics(contacts, times) if contacts is not None else None
@@ -648,13 +632,13 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         from jiggle.sim.app.report.compare_render import render_outputs
         t0 = time.perf_counter()
         rendered = render_outputs(data, peak["frame"], an["disp"], out_dir, video=video, progress=progress,
-                                  name=as_name.__getitem__)
+                                  name=as_name.__getitem__, reference=an["reference"])
         files.update(rendered["files"])
         video_info = rendered.get("video")
         timings.update(rendered["timings"])
         t0 = time.perf_counter()
         closeups = skin_quality.render_closeups(data, quality_m, quality["worst_frames"], an["disp"],
-                                                out("quality_closeups.png"))
+                                                out("quality_closeups.png"), reference=an["reference"])
         if closeups:
             files["quality_closeups"] = closeups
         timings["quality_render_s"] = time.perf_counter() - t0
@@ -676,10 +660,12 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         "settings": params.get("settings") if isinstance(params.get("settings"), dict) else {},
         "frames": T, "fps": data.fps, "duration_s": float(times[-1] - times[0]) if T else 0.0,
         "start_s": float(times[0]), "end_s": float(times[-1]), "vertices": V, "muscle_count": len(names),
+        "reference": an["reference_name"],
         "skin": skin, "peak": peak, "skin_quality": quality,
+        **({"chains": chains} if chains is not None else {}),
         **({"collisions": collisions} if collisions is not None else {}),
         **({"glb": glb} if glb is not None else {}),
-        "loop": loop_metrics(data, params),
+        "loop": loop_metrics(data, params, an["reference"]),
         "amplitude": "largest CV distance |dynamic - static| (the bake's blended CVs); rms: over time",
         "energy": "per muscle, sum over its CVs of 0.5 m_cv (|v|^2 + w^2 |d|^2); d = dynamic - static, "
                   "v = dd/dt (central differences), m_cv = mass_kg / CVs, w = 2 pi frequency_hz "
@@ -715,10 +701,12 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     return {"files": files, "metrics": metrics}
 
 
-def loop_metrics(data, params: dict) -> dict:
+def loop_metrics(data, params: dict, reference: np.ndarray | None = None) -> dict:
     """metrics.json's "loop": how the bake wraps when played as a cycle (sim.bake.loop.wrap_figures on the jiggle
-    offset d = skin_final - skin_static, mm): wrap_mm, the jump from the last frame to the first, over the median
-    frame-to-frame step (wrap_ratio) and the largest (step_max_mm). A loop bake (`jiggle bake --loop`, params
+    offset d = skin_final - reference, mm; reference (T, V, 3) metres, the skin the jiggle is measured from,
+    default reference_skin(data): skin_swung with chains, else skin_static; a chain's own wrap is in "chains"):
+    wrap_mm, the jump from the last frame to the first, over the median frame-to-frame step (wrap_ratio) and the
+    largest (step_max_mm). A loop bake (`jiggle bake --loop`, params
     "loop" on) of a closed cycle writes one period with its last frame repeating the first: wrap_mm is then the
     seam's mismatch (0 when the steady state was reached) and wrap_step_mm, from the second-to-last frame to the
     first, the step a player looping frames 0..T-2 takes there (an ordinary one); an open cycle's frames end one
@@ -728,9 +716,12 @@ def loop_metrics(data, params: dict) -> dict:
     lp = params.get("loop") if isinstance(params.get("loop"), dict) else {}
     on = bool(lp.get("on"))
     first = on and bool(lp.get("repeats_first", True))
-    out = wrap_figures(data.skin_final, data.skin_static, repeats_first=first)
+    if reference is None:
+        reference = reference_skin(data)[0]
+    out = wrap_figures(data.skin_final, reference, repeats_first=first)
+    ref = "skin_static" if reference is data.skin_static else "skin_swung"
     return {"looped": on, "kind": lp.get("kind"), "why": lp.get("why"), "repeats_first": first, **out,
-            "rule": "d = skin_final - skin_static; wrap = max over vertices |d[T-1] - d[0]|; step = max over vertices "
+            "rule": f"d = skin_final - {ref}; wrap = max over vertices |d[T-1] - d[0]|; step = max over vertices "
                     "|d[t+1] - d[t]|; where frame T-1 repeats frame 0 (repeats_first) the wrap is the seam's mismatch "
                     "and wrap_step_mm = max |d[0] - d[T-2]| the step across it, else wrap_step_mm = wrap_mm"}
 

@@ -205,35 +205,39 @@ def write_video(images: list, out_dir: str, fps: float, name: Callable[[str], st
 
 
 def render_outputs(data, peak_frame: int, disp: np.ndarray, out_dir: str, *, video: bool = True,
-                   progress=None, name: Callable[[str], str] = str) -> dict:
+                   progress=None, name: Callable[[str], str] = str, reference: np.ndarray | None = None) -> dict:
     """Write peak.png and (with video) clip.mp4 or clip.gif into out_dir (name: as write_video's).
 
     data : sim.bake.caches.BakeData. peak_frame : the frame of peak.png. disp : (T, V) metres, the skin
     displacement per frame (its maximum fixes the colour scale). progress(1) after each frame.
+    reference : (T, V, 3) metres, the left panel and what the colour measures from: default data.skin_static;
+    compare passes skin_swung for a bake with chains (the swung tail on both sides, coloured by the tissue alone).
     Returns {"files": {"peak": path, "video": path}, "video": facts or None, "timings": {stage: s}}.
     """
     timings, files = {}, {}
     t0 = time.perf_counter()
+    static = data.skin_static if reference is None else reference
+    label = "static" if static is data.skin_static else "static + chains"
     T = data.num_frames
     times = data.times
     top = float(disp.max()) * 1e3 if disp.size else 0.0
     clim = (0.0, top if top > 1e-3 else 1.0)              # a still skin gets a 0..1 mm scale, not 0..0
-    direction = view_direction(data.skin_static[peak_frame], data.skin_final[peak_frame])
+    direction = view_direction(static[peak_frame], data.skin_final[peak_frame])
     sel = video_frames(T) if video else np.zeros(0, int)
     k = peak_frame
     box_frames = np.unique(np.append(sel, k))
-    boxes = focus_boxes(np.concatenate([data.skin_static[box_frames], data.skin_final[box_frames]], axis=1),
+    boxes = focus_boxes(np.concatenate([static[box_frames], data.skin_final[box_frames]], axis=1),
                         pad=0.02)
     box_of = {int(f): boxes[i] for i, f in enumerate(box_frames)}
-    peak_box = focus_boxes(np.concatenate([data.skin_static[k:k + 1], data.skin_final[k:k + 1]], axis=1),
+    peak_box = focus_boxes(np.concatenate([static[k:k + 1], data.skin_final[k:k + 1]], axis=1),
                            pad=0.02)[0]
     r = SideBySide(data.faces, data.skin_static.shape[1], clim,
                    panel=panel_size(peak_box, direction, PEAK_PIXELS))
     timings["render_setup_s"] = time.perf_counter() - t0
     try:
         t0 = time.perf_counter()
-        image = r.draw(data.skin_static[k], data.skin_final[k], peak_box, direction,
-                       f"static   frame {k}, t = {times[k]:.3f} s",
+        image = r.draw(static[k], data.skin_final[k], peak_box, direction,
+                       f"{label}   frame {k}, t = {times[k]:.3f} s",
                        f"dynamic   coloured by how far the skin moved, up to {disp[k].max() * 1e3:.2f} mm")
         files["peak"] = write_png(image, os.path.join(out_dir, name("peak.png")))
         if progress is not None:
@@ -244,8 +248,8 @@ def render_outputs(data, peak_frame: int, disp: np.ndarray, out_dir: str, *, vid
             r.resize(panel_size(box_of[int(sel[0])], direction, VIDEO_PIXELS))     # boxes: one size
             images = []
             for f in sel:
-                images.append(r.draw(data.skin_static[f], data.skin_final[f], box_of[int(f)], direction,
-                                     f"static   t = {times[f]:.3f} s",
+                images.append(r.draw(static[f], data.skin_final[f], box_of[int(f)], direction,
+                                     f"{label}   t = {times[f]:.3f} s",
                                      f"dynamic   moved up to {disp[f].max() * 1e3:.2f} mm"))
                 if progress is not None:
                     progress(1)

@@ -2,7 +2,8 @@
 video embedded as base64 data URIs, no external URL), so it can be mailed or opened offline.
 
 Sections: title, source and settings (from the bake's params), key numbers, skin quality (targets,
-the worst of each measure per skin, the plot and the close-ups), collisions (a bake with them: key
+the worst of each measure per skin, the plot and the close-ups), chains (a bake with them: the root targets, a
+table per chain, chains.png), collisions (a bake with them: key
 numbers, the per-frame plot, the table of which muscle hit what), the muscle table (largest peak
 first), the plots, the peak picture, the video.
 """
@@ -159,6 +160,45 @@ def _glb_section(g: dict, files: dict) -> list[str]:
     return parts
 
 
+CHAINS_CAPTION = ("Chains: each tip's offset from where the animation puts it (left) and its height, animated "
+                  "dashed, swung solid (right).")
+
+
+def _chain_section(c: dict, files: dict) -> list[str]:
+    """Chains (metrics.json's "chains", a bake with them): the root targets (pass / FAIL), one row per chain (its
+    tip's swing, frequency, settling, penetrations and its root's gradient) and chains.png with its caption."""
+    if not c:
+        return []
+    rows = []
+    for name, t in (c.get("targets") or {}).items():
+        verdict = '<b style="color:#1a7f37">ok</b>' if t.get("pass") else '<b style="color:#b42318">FAIL</b>'
+        rows.append((name, f"{_e(_short(t.get('value')))} (limit {_e(_short(t.get('limit')))}) {verdict}"
+                           f' <span class="note">{_e(t.get("rule"))}</span>'))
+    head = ("chain", "joints", "length (mm)", "tip peak (mm)", "share of length", "at (s)", "RMS (mm)",
+            "dominant (Hz)", "settle (s)", "penetrations", "root edges", "root p99.9", "root max", "root torn")
+    body = []
+    for name, p in (c.get("chains") or {}).items():
+        r = p.get("root") or {}
+        share = p.get("tip_peak_share")
+        cells = [_e(name), _e(p.get("joints")), _num(p.get("length_mm"), ".0f"), _num(p.get("tip_peak_mm"), ".1f"),
+                 _num(None if share is None else 100.0 * share, ".1f") + (" %" if share is not None else ""),
+                 _num(p.get("tip_peak_time_s"), ".3f"), _num(p.get("tip_rms_mm"), ".1f"), _num(p.get("dominant_hz")),
+                 "never" if p.get("settle_s") is None else _num(p.get("settle_s"), ".3f"),
+                 _e(p.get("penetrations")), _e(r.get("edges")), _num(r.get("gradient_p999_max"), ".3f"),
+                 _num(r.get("gradient_max"), ".3f"), _e(r.get("torn_edges_max"))]
+        body.append("<tr>" + "".join(f"<td>{x}</td>" if i == 0 else f'<td class="n">{x}</td>'
+                                     for i, x in enumerate(cells)) + "</tr>")
+    parts = ["<h2>Chains</h2>", _kv(rows),
+             "<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>" + "".join(body) + "</table>",
+             f'<p class="note">tip: {_e(c.get("tip_rule"))}. root edges: {_e(c.get("root_rule"))}; gradient: '
+             f'{_e(c.get("root_gradient"))}. The tissue\'s numbers above are measured from the skin that follows the '
+             "swung chains.</p>"]
+    if "chains_plot" in files:
+        parts.append(f'<figure><img alt="chains" src="{data_uri(files["chains_plot"])}">'
+                     f"<figcaption>{_e(CHAINS_CAPTION)}</figcaption></figure>")
+    return parts
+
+
 def _collision_section(c: dict, files: dict) -> list[str]:
     """Collisions (metrics.json's "collisions", a bake with them): key numbers, the skin inside capsules,
     the per-frame plot and the table of which muscle hit what (deepest first)."""
@@ -217,7 +257,9 @@ def render_report(metrics: dict, files: dict) -> str:
     parts += ["<h2>Key numbers</h2>", _kv([
         ("frames", f"{m.get('frames')} at {_num(m.get('fps'), 'g')} fps, {_num(m.get('duration_s'), '.3f')} s"),
         ("skin vertices", _e(m.get("vertices"))),
-        ("largest skin displacement", f"{_num(skin.get('max_mm'))} mm (vertex {_e(skin.get('max_vertex'))}, "
+        ("largest skin displacement" + (" (tissue: from the skin following the swung chains)"
+                                        if m.get("reference") == "skin_swung" else ""),
+         f"{_num(skin.get('max_mm'))} mm (vertex {_e(skin.get('max_vertex'))}, "
                                       f"frame {_e(skin.get('max_frame'))}, {_num(skin.get('max_time_s'), '.3f')} s)"),
         ("peak frame", f"{_e(peak.get('frame'))} at {_num(peak.get('time_s'), '.3f')} s: largest "
                        f"{_num(peak.get('max_mm'))} mm, RMS {_num(peak.get('rms_mm'))} mm ({_e(peak.get('rule'))})"),
@@ -228,6 +270,7 @@ def render_report(metrics: dict, files: dict) -> str:
         ("muscles", _e(m.get("muscle_count"))),
     ])]
     parts += _quality_section(m.get("skin_quality") or {}, files)
+    parts += _chain_section(m.get("chains") or {}, files)
     parts += _collision_section(m.get("collisions") or {}, files)
     if m.get("glb"):
         parts += _glb_section(m["glb"], files)

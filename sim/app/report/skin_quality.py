@@ -14,6 +14,10 @@ Targets (the numbers a clean skin keeps, in metrics.json under skin_quality.targ
   the worst frame's excess is reported beside it);
 - no edge torn by the jiggle (gradient > 1), and the 99.9th percentile of the gradient below
   GRADIENT_P999 in every frame.
+
+The jiggle is the tissue's: measured from the skin that follows the swung chains (BakeData.skin_swung(), the
+static skin itself without chains), so a tail's swing is neither jiggle nor a tear; the chains' own skin is
+checked at their roots by sim.app.report.chains.
 """
 from __future__ import annotations
 
@@ -38,11 +42,19 @@ SEAM_GAP_MM = 0.01
 """The widest a seam may open, mm (float32 rounding is far below it)."""
 
 
-def measure(data) -> dict:
+def measure(data, reference: np.ndarray | None = None, reference_name: str | None = None) -> dict:
     """Per-frame measures of a bake (sim.bake.caches.BakeData): {"lbs" | "static" | "final": {name:
     (T,)}, "jiggle": {name: (T,)}} (arrays float64; "lbs" only when the bake has its smooth skin) and
     the SkinQuality used (its mesh has the rest counts; the rest is the bake's skin_rest, else the
-    first static frame, said in "rest_from")."""
+    first static frame, said in "rest_from").
+
+    reference : (T, V, 3) metres, the skin the jiggle is measured from (the gradient's s and d = final -
+    reference), default data.skin_swung(): the skin following the swung chains, so an edge a chain turns rigidly
+    is not torn (skin_static without chains); reference_name names it in "reference"."""
+    if reference is None:
+        reference = data.skin_swung()
+    if reference_name is None:
+        reference_name = "skin_static" if reference is data.skin_static else "skin_swung"
     rest = data.skin_rest if data.skin_rest is not None else data.skin_static[0]
     q = SkinQuality(rest, data.faces)
     skins = {"lbs": data.skin_lbs, "static": data.skin_static, "final": data.skin_final}
@@ -53,8 +65,9 @@ def measure(data) -> dict:
             continue
         parts = [q.skin(skin[a:a + CHUNK]) for a in range(0, T, CHUNK)]
         out[name] = {k: np.concatenate([p[k] for p in parts]) for k in SKIN_MEASURES}
-    parts = [q.jiggle(data.skin_static[a:a + CHUNK], data.skin_final[a:a + CHUNK]) for a in range(0, T, CHUNK)]
+    parts = [q.jiggle(reference[a:a + CHUNK], data.skin_final[a:a + CHUNK]) for a in range(0, T, CHUNK)]
     out["jiggle"] = {k: np.concatenate([p[k] for p in parts]) for k in JIGGLE_MEASURES}
+    out["reference"] = reference_name
     out["seams"] = seam_gaps(rest, data.skin_lbs, data.skin_final)
     out["quality"] = q
     out["rest_from"] = "skin_rest" if data.skin_rest is not None else "the first static frame (no skin_rest)"
@@ -101,6 +114,7 @@ def summarise(m: dict, times: np.ndarray) -> dict:
                        "frames_with_torn_edges": int(np.count_nonzero(j["torn_edges"]))}
     targets = check_targets(m, mesh.rest_folded, E)
     frames = worst_frames(m, times)
+    ref = m.get("reference", "skin_static")
     return {
         "definitions": {
             "folded_edges": f"interior edges whose faces' normals are more than 90 degrees apart "
@@ -108,8 +122,13 @@ def summarise(m: dict, times: np.ndarray) -> dict:
             "sharp_edges": f"more than 60 degrees apart (cos < {SHARP_COS:g})",
             "edge_strain": "|edge length / rest length - 1|: its 99th percentile and maximum per frame",
             "area_ratio": "face area / rest area: its minimum and maximum per frame",
-            "gradient": f"|d_a - d_b| / |s_a - s_b| per edge, s = static skin, d = final - static; torn: > {TORN:g}",
+            "gradient": (f"|d_a - d_b| / |s_a - s_b| per edge, s = static skin, d = final - static; torn: > {TORN:g}"
+                         if ref == "skin_static" else
+                         f"|d_a - d_b| / |s_a - s_b| per edge, s = skin_swung, d = final - skin_swung; torn: > {TORN:g} "
+                         "(skin_swung = skin_static + chain_delta: the skin following the swung chains, so the chains' "
+                         "own turn is not counted)"),
         },
+        "reference": ref,
         "edges": E, "faces": int(len(mesh.faces)), "rest_from": m["rest_from"],
         "rest": {"folded_edges": mesh.rest_folded, "sharp_edges": mesh.rest_sharp},
         "worst": worst, "targets": targets, "worst_frames": frames,
@@ -200,36 +219,40 @@ def plot_quality(path: str, times: np.ndarray, summary: dict) -> str:
     return save_figure(fig, path)
 
 
-def render_closeups(data, m: dict, frames: list[int], disp: np.ndarray, path: str) -> str | None:
+def render_closeups(data, m: dict, frames: list[int], disp: np.ndarray, path: str,
+                    reference: np.ndarray | None = None) -> str | None:
     """quality_closeups.png: one row per frame of `frames`, static | final, zoomed on the place with
     the most folded and torn edges of the final skin (SkinQuality.worst_vertex), seen along the
     static skin's normal there made level (the picture stays upright); the final skin coloured by
-    displacement on the bake's scale."""
+    displacement on the bake's scale. reference : (T, V, 3) metres, the "static" panel and the skin the
+    tears are measured from (default data.skin_static; compare passes skin_swung for a bake with chains)."""
     if not frames:
         return None
+    static = data.skin_static if reference is None else reference
+    label = "static" if static is data.skin_static else "static + chains"
     from jiggle.rig.character.normals import VertexNormals
     from jiggle.sim.app.report.compare_render import SideBySide, write_png
     q = m["quality"]
     top = float(disp.max()) * 1e3 if disp.size else 0.0
     clim = (0.0, top if top > 1e-3 else 1.0)
-    extent = np.ptp(data.skin_static[frames[0]], axis=0).max()
+    extent = np.ptp(static[frames[0]], axis=0).max()
     half = 0.12 * extent                               # a hand's width around the place on a human
     normals = VertexNormals(data.faces, data.skin_static.shape[1])
     r = SideBySide(data.faces, data.skin_static.shape[1], clim, panel=(480, 400))
     rows = []
     try:
         for k in frames:
-            v = q.worst_vertex(data.skin_final[k], data.skin_static[k])
-            c = data.skin_static[k][v].astype(np.float64)
-            n = normals(data.skin_static[k].astype(np.float64))[v]
+            v = q.worst_vertex(data.skin_final[k], static[k])
+            c = static[k][v].astype(np.float64)
+            n = normals(static[k].astype(np.float64))[v]
             side = n[:2] / np.linalg.norm(n[:2]) if np.linalg.norm(n[:2]) > 0.2 else np.array([0.0, -1.0])
             direction = np.array([side[0], side[1], 0.35])  # level with the place, a little from above
             direction /= np.linalg.norm(direction)
             box = np.stack([c - half, c + half])
             fin = m["final"]["folded_edges"][k]
             lbs = f", LBS {int(m['lbs']['folded_edges'][k])}" if "lbs" in m else ""
-            rows.append(r.draw(data.skin_static[k], data.skin_final[k], box, direction,
-                               f"static  frame {k}, t = {data.times[k]:.2f} s, folded "
+            rows.append(r.draw(static[k], data.skin_final[k], box, direction,
+                               f"{label}  frame {k}, t = {data.times[k]:.2f} s, folded "
                                f"{int(m['static']['folded_edges'][k])}{lbs}",
                                f"final  folded {int(fin)}, torn {int(m['jiggle']['torn_edges'][k])}"))
     finally:
