@@ -95,12 +95,19 @@ def test_quick_zoo_writes_one_table(zoo, tmp_path):
             assert r[k] is not None and math.isfinite(r[k]), (r["character"], k, r[k])
         assert r["torn_edges"] >= 0 and r["hard_stops"] >= 0
         assert 0 < r["peak_pct"] < 100 and r["size_m"] > 0.5
-        # the wrap the table reports is the one loop_wrap finds in the bake's own arrays
+        # the wrap the table reports is the one loop_wrap finds in the bake's own arrays: the tissue's, from the
+        # skin that follows the swung chains
         with np.load(Path(r["out"]) / "bake.npz") as z:
-            wrap, ratio = zoo.loop_wrap(z["skin_final"], z["skin_static"])
+            static = np.array(z["skin_static"])
+            if "chain_vertices" in z.files:
+                static[:, z["chain_vertices"]] += z["chain_delta"]
+            wrap, ratio = zoo.loop_wrap(z["skin_final"], static)
         if r["wrap_from"] == "bake.npz":
             assert r["wrap_mm"] == pytest.approx(wrap) and r["wrap_ratio"] == pytest.approx(ratio)
     assert rows[0]["vigorous"] and not rows[1]["vigorous"]
+    # the Horse's tail and ears swing, and never into its body; CesiumMan has no chain
+    assert rows[0]["chains"] == 3 and rows[0]["chain_penetrations"] == 0 and rows[0]["chain_swing_min_pct"] > 0
+    assert rows[1]["chains"] == 0
     page = (docs / "gallery.md").read_text()
     for name in ("Horse", "CesiumMan"):
         pic = docs / "images" / "gallery" / f"{name}.png"

@@ -42,7 +42,7 @@ ARMATURE = 0.1
 """Each ball joint's armature (rotor inertia) in the inertia it turns: it keeps a light link under a strong joint
 from ringing far faster than the chain swings (the step follows the fastest local mode), at the cost of a few
 percent of slowing on the light tips. Part of the model: the reference in the tests uses it as well."""
-STEP_PER_PERIOD = 20.0
+STEP_PER_PERIOD = 12.0
 """Steps per period of the fastest local mode, at least."""
 DT_RANGE = (1.0 / 4000.0, 1.0 / 600.0)
 """seconds: the step's range."""
