@@ -96,7 +96,7 @@ def _muscle_flags(muscles, flags: dict) -> list[str]:
         raise InputError(f"must map a muscle name (or glob) to its parameters, e.g. "
                          f"{{'belly_fat': {{'strength': 0.5}}}}, got {muscles!r}", field="muscles")
     from jiggle.sim.app.args import KeyedAction
-    keyed = {f: a for f, a in flags.items() if isinstance(a, KeyedAction)}
+    keyed = {f: a for f, a in flags.items() if isinstance(a, KeyedAction) and a.table is None}   # not the chains'
     out = []
     for pattern, params in muscles.items():
         if not hasattr(params, "items"):

@@ -8,7 +8,11 @@ Blender). The sidebar's Jiggle tab bakes the active armature's skinned meshes an
    and removes what it wrote;
 3. the result comes back "exact": a Mesh Cache modifier right after the Armature modifier replaces its
    deformation with the baked skin (a PC2 cache in the mesh's own space and vertex order, made from the bake's
-   npz beside it, so nothing is transformed twice); "Compare" switches it between the final and the static skin.
+   npz beside it, so nothing is transformed twice); "Compare" switches it between the final and the static skin;
+4. a bake with chains (tails, ears, hair: bake.npz's chain_names) keys their swung bones in an action of the
+   add-on's own on its NLA track "jiggle chains", laid over the user's animation by an Action constraint on each
+   chain bone (add_chains); the user's action, its keys and other tracks are untouched, a new bake replaces the
+   track, and Compare mutes it with the cache.
 
 Errors (no jiggle command, a rig it refuses) are Blender reports with the command's own message; the scene is
 left as it was. The bake's files are the command's, bit for bit what `jiggle bake` writes for the same glTF.
@@ -167,12 +171,20 @@ def vertex_map(context, mesh, data, frame: int):
     import numpy as np
     from mathutils.kdtree import KDTree
     first = (data["skin_lbs"][0] if "skin_lbs" in data.files else data["skin_static"][0]) / file_unit(data)
-    context.scene.frame_set(frame)
-    ev = mesh.evaluated_get(context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    world = np.array(ev.matrix_world)
-    pts = np.array([v.co[:] for v in me.vertices])
-    ev.to_mesh_clear()
+    mod = mesh.modifiers.get(MODIFIER)           # a last bake's cache: the mesh as the armature alone deforms it
+    shown = mod.show_viewport if mod is not None else None
+    if mod is not None:
+        mod.show_viewport = False
+    try:
+        context.scene.frame_set(frame)
+        ev = mesh.evaluated_get(context.evaluated_depsgraph_get())
+        me = ev.to_mesh()
+        world = np.array(ev.matrix_world)
+        pts = np.array([v.co[:] for v in me.vertices])
+        ev.to_mesh_clear()
+    finally:
+        if mod is not None:
+            mod.show_viewport = shown
     pts = pts @ world[:3, :3].T + world[:3, 3]
     tree = KDTree(len(first))
     for i, p in enumerate(first):
@@ -371,6 +383,185 @@ def add_jiggle_bones(context, arm, meshes, glb: str, first: int) -> int:
     return len(jig)
 
 
+# ------------------------------------------------------------------------------------------ chains
+CHAINS = "jiggle chains"        # the add-on's NLA track, and the Action constraint it puts on each chain bone
+_OURS = "jiggle"                # the ID property marking the action it made ("chains")
+
+
+def chain_bases(arm, data):
+    """({bone: (T, 4, 4) its basis per bake frame}, [the chain bones it cannot key]): each chain bone's swung pose
+    (bake.npz's chain_world) as Blender's rest-relative local transform, the matrix its location and rotation make:
+
+        basis = (R_p^-1 @ R_b)^-1 @ (W_p^-1 @ W_b)
+
+    R the rest (bone.matrix_local, armature space), W world transforms in jiggle's world (metres, Z-up): W_b its
+    chain_world, W_p its parent's (its chain_world when the parent swings too, else the animated joint_world; the
+    armature object itself for a root bone), their relative translation brought into armature units. jiggle's joint
+    frames are the glTF's nodes', and Blender's exporter writes each bone's own frame there, so W's axes are the
+    bone's. The default inheritance (rotation and full scale from the parent) is assumed. A bone the armature lacks,
+    or whose parent the bake does not carry, is returned in the list."""
+    import numpy as np
+    names = [str(n) for n in data["chain_names"]]
+    world = {n: data["chain_world"][:, i].astype(np.float64) for i, n in enumerate(names)}
+    joints = {str(n): i for i, n in enumerate(data["joint_names"])}
+    fu = file_unit(data)                                        # metres per Blender unit
+    M = np.array(arm.matrix_world, dtype=np.float64)
+    s = float(np.cbrt(abs(np.linalg.det(M[:3, :3]))))            # the armature object's (uniform) scale
+    obj = np.eye(4)
+    obj[:3, :3], obj[:3, 3] = M[:3, :3] / s, M[:3, 3] * fu        # the object's frame in jiggle's world
+    bones, out, skipped = arm.data.bones, {}, []
+    for n in names:
+        b = bones.get(n)
+        p = b.parent if b is not None else None
+        if b is None or (p is not None and p.name not in world and p.name not in joints):
+            skipped.append(n)
+            continue
+        if p is None:
+            Wp, rest = obj[None], np.array(b.matrix_local)
+        else:
+            Wp = world[p.name] if p.name in world else data["joint_world"][:, joints[p.name]].astype(np.float64)
+            rest = np.array(p.matrix_local.inverted() @ b.matrix_local)
+        rel = np.linalg.inv(Wp) @ world[n]
+        rel[:, :3, 3] /= fu * s
+        out[n] = np.linalg.inv(rest) @ rel
+    return out, skipped
+
+
+def _rotations(basis, mode: str):
+    """(T, k) the rotations of bases (T, 4, 4) in a pose bone's rotation mode, continuous from key to key."""
+    import numpy as np
+    from mathutils import Matrix
+    out, prev = [], None
+    for m in basis:
+        q = Matrix(m.tolist()).to_quaternion()
+        if mode == "QUATERNION":
+            r = np.array(q)
+            if prev is not None and np.dot(r, prev) < 0:                 # one hemisphere: the short way
+                r = -r
+        elif mode == "AXIS_ANGLE":
+            axis, angle = q.to_axis_angle()
+            r = np.array((angle, *axis))
+        else:
+            r = np.array(q.to_euler(mode, *([] if prev is None else [prev])))
+        out.append(r)
+        prev = r if mode != "AXIS_ANGLE" else None
+    return np.array(out)
+
+
+def _key(bag, path: str, values, frames, group: str) -> None:
+    import numpy as np
+    values = np.asarray(values, dtype=np.float64).reshape(len(frames), -1)
+    for c in range(values.shape[1]):
+        fc = bag.fcurves.new(path, index=c, group_name=group)
+        fc.keyframe_points.add(len(frames))
+        fc.keyframe_points.foreach_set("co", np.c_[frames, values[:, c]].ravel().tolist())
+        fc.keyframe_points.foreach_set("interpolation", [1] * len(frames))              # LINEAR, as the cache
+        fc.update()
+
+
+def add_chains(context, arm, data, first: int):
+    """The bake's swung chains (bake.npz's chain_names, chain_world) keyed on `arm`, frame k of the bake at scene
+    frame first + k (in the scene's rate): returns (the bones keyed, the chain bones skipped).
+
+    The user's action keeps playing untouched, and it is evaluated on top of every NLA track, so the swing is laid
+    over it by the bones' constraints rather than by the track alone. One action of the add-on's own,
+    ARMATURE.jiggle_chains, holds two slots: "bones", each chain bone's location and rotation (in its own rotation
+    mode), and the armature's slot, the constraints' clock, which the NLA track "jiggle chains" plays. Each chain
+    bone gets a last Action constraint "jiggle chains" that replaces its local transform with the "bones" slot at
+    that clock; its influence follows the track's mute (a driver), so muting the track in the NLA editor or with
+    Compare gives the user's animation back. The pose bones' own properties are never written."""
+    import numpy as np
+    from bpy_extras.anim_utils import action_ensure_channelbag_for_slot
+    bases, skipped = chain_bases(arm, data)
+    if not bases:
+        return [], skipped
+    scene = context.scene
+    times = np.asarray(data["times"], dtype=np.float64)
+    frames = first + (times - times[0]) * scene.render.fps / scene.render.fps_base
+    lo, hi = int(np.floor(frames[0])), int(np.ceil(frames[-1]))
+    hi = max(hi, lo + 1)
+    action = bpy.data.actions.new(f"{arm.name}.jiggle_chains")
+    action[_OURS] = "chains"
+    clock = action.slots.new(id_type="OBJECT", name=arm.name)
+    keyed = action.slots.new(id_type="OBJECT", name="bones")
+    bones_bag = action_ensure_channelbag_for_slot(action, keyed)
+    clock_bag = action_ensure_channelbag_for_slot(action, clock)
+    path_of = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}
+    for name, basis in bases.items():
+        pb = arm.pose.bones[name]
+        _key(bones_bag, f'pose.bones["{name}"].location', basis[:, :3, 3], frames, name)
+        _key(bones_bag, f'pose.bones["{name}"].{path_of.get(pb.rotation_mode, "rotation_euler")}',
+             _rotations(basis, pb.rotation_mode), frames, name)
+        con = pb.constraints.new("ACTION")
+        con.name = CHAINS
+        con.action, con.action_slot = action, keyed
+        con.mix_mode, con.owner_space = "REPLACE", "LOCAL"
+        con.use_eval_time = True
+        con.frame_start, con.frame_end = lo, hi                  # eval_time 0..1 plays these frames of "bones"
+        _key(clock_bag, f'pose.bones["{name}"].constraints["{CHAINS}"].eval_time', [0.0, 1.0],
+             np.array([lo, hi], dtype=np.float64), name)
+        fc = con.driver_add("influence")
+        var = fc.driver.variables.new()
+        var.name, var.type = "muted", "SINGLE_PROP"
+        var.targets[0].id_type, var.targets[0].id = "OBJECT", arm
+        var.targets[0].data_path = f'animation_data.nla_tracks["{CHAINS}"].mute'
+        fc.driver.type, fc.driver.expression = "SCRIPTED", "1 - muted"           # a simple expression: no Python
+    ad = arm.animation_data or arm.animation_data_create()
+    track = ad.nla_tracks.new()
+    track.name = CHAINS
+    strip = track.strips.new(action.name, lo, action)
+    strip.action_slot = clock
+    return list(bases), skipped
+
+
+def chain_parts(arm):
+    """(the add-on's chains track or None, its actions, [(pose bone, constraint)]) on `arm`."""
+    ad = arm.animation_data
+    track = ad.nla_tracks.get(CHAINS) if ad else None
+    actions = [s.action for s in track.strips if s.action is not None and s.action.get(_OURS) == "chains"] \
+        if track else []
+    cons = [(pb, c) for pb in arm.pose.bones for c in pb.constraints
+            if c.name == CHAINS and c.type == "ACTION" and (c.action is None or c.action.get(_OURS) == "chains")]
+    return track, actions, cons
+
+
+def remove_chains(arm) -> None:
+    """What add_chains made on `arm` (the track, its action, the constraints and their drivers), nothing else."""
+    track, actions, cons = chain_parts(arm)
+    for pb, con in cons:
+        con.driver_remove("influence")
+        pb.constraints.remove(con)
+    if track is not None:
+        arm.animation_data.nla_tracks.remove(track)
+    for a in actions:
+        if a.users == 0:
+            bpy.data.actions.remove(a)
+
+
+class chains_off:
+    """While in the block, the add-on's chains on `arm` do not move its bones (what is exported is the user's
+    animation); as they were after."""
+
+    def __init__(self, arm):
+        self.track, _, cons = chain_parts(arm)
+        self.cons = [c for _, c in cons]
+
+    def __enter__(self):
+        self.kept = (self.track.mute if self.track else None, [c.mute for c in self.cons])
+        if self.track:
+            self.track.mute = True
+        for c in self.cons:
+            c.mute = True
+        return self
+
+    def __exit__(self, *exc):
+        if self.track:
+            self.track.mute = self.kept[0]
+        for c, m in zip(self.cons, self.kept[1]):
+            c.mute = m
+        return False
+
+
 # ------------------------------------------------------------------------------------------ properties, UI
 class JigglePreferences(bpy.types.AddonPreferences):
     bl_idname = __package__
@@ -490,9 +681,10 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             self.first = scene.frame_start     # the exporter samples from here: the bake's first frame
             for o in scene.objects:
                 o.select_set(o == self.arm or o in self.meshes)
-            bpy.ops.export_scene.gltf(filepath=glb, use_selection=True, export_animations=True,
-                                      export_animation_mode="ACTIVE_ACTIONS", export_frame_range=True,
-                                      export_force_sampling=True, export_apply=False)
+            with chains_off(self.arm):     # the user's animation, not the last bake's swing on it
+                bpy.ops.export_scene.gltf(filepath=glb, use_selection=True, export_animations=True,
+                                          export_animation_mode="ACTIVE_ACTIONS", export_frame_range=True,
+                                          export_force_sampling=True, export_apply=False)
         finally:
             for o, sel in kept.items():
                 o.select_set(sel)
@@ -544,8 +736,10 @@ class JIGGLE_OT_bake(bpy.types.Operator):
             self._cleanup(context)
             self.report({"ERROR"}, self.job.error())
             return {"CANCELLED"}
+        skipped = []
         try:
             start = self.first
+            remove_chains(self.arm)          # the last bake's: this one replaces them
             if context.scene.jiggle.result == "BONES":
                 add_jiggle_bones(context, self.arm, self.meshes, os.path.join(self.out, "bake.glb"), start)
             else:
@@ -555,6 +749,10 @@ class JIGGLE_OT_bake(bpy.types.Operator):
                 for mesh in self.meshes:
                     final, _static = mesh_caches(context, mesh, self.out, start)
                     add_cache(mesh, final, start, rate)
+            import numpy as np
+            with np.load(os.path.join(self.out, "bake.npz")) as data:
+                if "chain_names" in data.files:
+                    skipped = add_chains(context, self.arm, data, start)[1]
         except (OSError, RuntimeError, KeyError) as e:
             self._cleanup(context)
             self.report({"ERROR"}, f"jiggle: {e}")
@@ -563,6 +761,9 @@ class JIGGLE_OT_bake(bpy.types.Operator):
         kept = os.path.join(self.out, f"{bpy.path.clean_name(self.arm.name)}.jiggle.glb")
         shutil.copyfile(os.path.join(self.tmp, "character.glb"), kept)     # what was baked: `jiggle bake` again
         self._cleanup(context)
+        if skipped:
+            self.report({"WARNING"}, f"jiggle: chain bones {self.arm.name} lacks (or whose parent the bake does "
+                                     f"not carry) were not keyed: {', '.join(skipped)}")
         self.report({"INFO"}, f"jiggle: baked into {self.out}")
         return {"FINISHED"}
 
@@ -578,7 +779,7 @@ class JIGGLE_OT_bake(bpy.types.Operator):
 
 
 class JIGGLE_OT_compare(bpy.types.Operator):
-    """Switch the baked skin between final (with jiggle) and static (muscles without jiggle)"""
+    """Switch the baked skin between final (with jiggle) and static (muscles without jiggle, chains unswung)"""
     bl_idname = "jiggle.compare"
     bl_label = "Compare"
     bl_options = {"REGISTER", "UNDO"}
@@ -586,8 +787,13 @@ class JIGGLE_OT_compare(bpy.types.Operator):
     def execute(self, context):
         s = context.scene.jiggle
         to = "static" if s.showing != "static" else "final"
+        arm, meshes = armature_and_meshes(context)
+        track = chain_parts(arm)[0] if arm is not None else None
         n = 0
-        for mesh in armature_and_meshes(context)[1]:
+        if track is not None:                      # the swung chains go with the jiggle (the constraints follow)
+            track.mute = to == "static"
+            n += 1
+        for mesh in meshes:
             mod = mesh.modifiers.get(MODIFIER)
             if mod is None:
                 continue

@@ -365,3 +365,123 @@ def test_frame_range_and_output_rate_from_the_panel(addon, tmp_path):
     d = read_npz(out / "bake.npz")
     for k, f in enumerate((10, 20, 30)):
         assert cKDTree(d.skin_final[2 * (f - 10)]).query(skins[k])[0].max() < 1e-4, f
+
+
+CHAINS = r'''
+from bpy_extras.anim_utils import action_get_channelbag_for_slot
+addon = sys.modules["bl_ext.user_default.jiggle_blender"]
+ad = arm.animation_data
+ad.action = act = bpy.data.actions["Gallop"]                     # the Horse's gallop: its tail and ears keyed
+sc.frame_start, sc.frame_end = int(act.frame_range[0]), int(act.frame_range[1])
+
+
+def user_state():
+    """Every key of every action but the add-on's (co, handles, interpolation), the active action, the other NLA
+    tracks and the bones' constraints other than the add-on's: what a bake must leave bit for bit."""
+    keys = {}
+    for a in bpy.data.actions:
+        if a.get("jiggle") == "chains":
+            continue
+        for slot in a.slots:
+            bag = action_get_channelbag_for_slot(a, slot)
+            for fc in (bag.fcurves if bag else []):
+                keys[f"{a.name}/{slot.identifier}/{fc.data_path}[{fc.array_index}]"] = [
+                    (*k.co, *k.handle_left, *k.handle_right, k.interpolation) for k in fc.keyframe_points]
+    tracks = [(t.name, t.mute, [(s.name, s.action and s.action.name, s.frame_start, s.frame_end) for s in t.strips])
+              for t in ad.nla_tracks if t.name != "jiggle chains"]
+    cons = [(pb.name, c.name) for pb in arm.pose.bones for c in pb.constraints if c.name != "jiggle chains"]
+    return {"keys": keys, "tracks": tracks, "action": ad.action.name, "slot": ad.action_slot.identifier,
+            "constraints": cons}
+
+
+def bones_at(frames, names):
+    """(F, B, 2, 3): each bone's head and tail in world space at scene frames, as Blender evaluates them."""
+    out = []
+    for f in frames:
+        sc.frame_set(f)
+        M = arm.matrix_world
+        out.append([[(M @ arm.pose.bones[n].head)[:], (M @ arm.pose.bones[n].tail)[:]] for n in names])
+    return np.array(out)
+
+
+sc.jiggle.out_dir = out
+before = user_state()
+report["result"] = sorted(bpy.ops.jiggle.bake())
+report["user_same"] = user_state() == before
+track = ad.nla_tracks["jiggle chains"]
+ours = track.strips[0].action
+report["tracks"] = [t.name for t in ad.nla_tracks]
+report["keys"] = {}
+for slot in ours.slots:
+    for fc in action_get_channelbag_for_slot(ours, slot).fcurves:
+        if fc.data_path.endswith(".rotation_quaternion"):
+            report["keys"][fc.data_path.split('"')[1]] = len(fc.keyframe_points)
+report["constraints"] = {pb.name: [c.name for c in pb.constraints if c.name == "jiggle chains"]
+                         for pb in arm.pose.bones}
+with np.load(os.path.join(out, "bake.npz")) as d:
+    names, T = [str(n) for n in d["chain_names"]], len(d["times"])
+    data = {k: d[k] for k in d.files}
+report["names"], report["first"] = names, sc.frame_start
+report["frames"] = [0, 1, T // 2, T - 1]
+report["lengths"] = [arm.pose.bones[n].length * arm.matrix_world.to_scale()[0] for n in names]
+swung = bones_at([sc.frame_start + k for k in report["frames"]], names)
+bpy.ops.jiggle.compare()                                   # static: the chains' track muted, the user's animation
+report["muted"] = track.mute
+unswung = bones_at([sc.frame_start + k for k in report["frames"]], names)
+bpy.ops.jiggle.compare()
+report["unmuted"] = not track.mute
+np.save(result + ".npy", np.stack([swung, unswung]))
+# a second bake replaces the add-on's track, action and constraints; the user's are still as they were
+report["again"] = sorted(bpy.ops.jiggle.bake())
+report["tracks_again"] = [t.name for t in ad.nla_tracks]
+report["ours_again"] = sorted(a.name for a in bpy.data.actions if a.get("jiggle") == "chains")
+report["constraints_again"] = {pb.name: [c.name for c in pb.constraints if c.name == "jiggle chains"]
+                               for pb in arm.pose.bones}
+report["user_same_again"] = user_state() == before
+# a chain bone the armature lacks is skipped (and reported by the operator), the others still keyed
+data["chain_names"] = np.array(names + ["NoSuchBone"])
+data["chain_world"] = np.concatenate([data["chain_world"], data["chain_world"][:, :1]], axis=1)
+bases, skipped = addon.chain_bases(arm, data)
+report["skipped"], report["bases"] = skipped, len(bases)
+json.dump(report, open(result + ".json", "w"))
+'''
+
+
+def test_a_tail_swings_on_the_addons_own_track(addon, tmp_path):
+    """The Horse (its ears and tail are chains), imported with Blender's glTF importer, its Gallop baked from the
+    add-on: the NLA track "jiggle chains" holds an action with one key per bake frame on every tail and ear bone;
+    Blender's evaluated tail and ear bones put their heads and tails where bake.npz's chain_world says (head = its
+    translation, tail = head + length along its Y axis) within 1 mm of the file's scale at the first, second,
+    middle and last frame, although the user's action keys those bones too; Compare mutes the track and the bones
+    follow the user's animation again (joint_world); every key of the user's actions, the active action, the other
+    NLA tracks and the bones' own constraints are bit for bit as before, after one bake and after a second, which
+    adds no second track, action or constraint; a chain bone the armature lacks is skipped."""
+    out = tmp_path / "bake"
+    rep, bones = in_blender(addon, CHAINS, out, tmp_path, glb=asset("characters/zoo/Horse.glb"))
+    assert rep["result"] == ["FINISHED"] and rep["user_same"], rep
+    assert rep["tracks"].count("jiggle chains") == 1 and rep["tracks"][-1] == "jiggle chains"
+    d = read_npz(out / "bake.npz")
+    names = rep["names"]
+    tail = [n for n in names if n.startswith("Tail")]
+    assert len(tail) >= 4 and set(rep["keys"]) == set(names), rep["keys"]
+    assert all(v == len(d.times) for v in rep["keys"].values())
+    assert all(rep["constraints"][n] == ["jiggle chains"] for n in names)
+    unit = json.loads(d.params).get("file_unit_m", 1.0)
+    swung, unswung = bones
+    joints = list(d.joint_names)
+    for k, f in enumerate(rep["frames"]):
+        W = d.chain_world[f].astype(np.float64)
+        head = W[:, :3, 3] / unit
+        tip = head + W[:, :3, 1] * np.array(rep["lengths"])[:, None]
+        err = max(np.abs(swung[k, :, 0] - head).max(), np.abs(swung[k, :, 1] - tip).max())
+        assert err < 1e-3 / unit, (f, err)
+        A = d.joint_world[f][[joints.index(n) for n in names]].astype(np.float64)
+        assert np.abs(unswung[k, :, 0] - A[:, :3, 3] / unit).max() < 1e-3 / unit, f     # Compare: the animation
+    moved = np.linalg.norm(d.chain_world[:, :, :3, 3] - d.joint_world[:, [joints.index(n) for n in names], :3, 3],
+                           axis=-1).max()
+    assert moved > 1e-2, moved                                    # the check above is not the animation's
+    assert rep["muted"] and rep["unmuted"]
+    assert rep["again"] == ["FINISHED"] and rep["tracks_again"] == rep["tracks"] and rep["user_same_again"]
+    assert rep["ours_again"] == ["AnimalArmature.jiggle_chains"], rep["ours_again"]
+    assert rep["constraints_again"] == rep["constraints"]
+    assert rep["skipped"] == ["NoSuchBone"] and rep["bases"] == len(names)

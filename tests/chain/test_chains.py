@@ -151,3 +151,17 @@ def test_a_files_own_spring_settings_become_the_chains_defaults():
     assert vrm.stiffness == pytest.approx(2.0 * plain.stiffness, rel=1e-3)
     assert vrm.damping == pytest.approx(DAMPING + 0.8) and plain.damping == DAMPING
     assert vrm.gravity == 0.5 and vrm.given == ("gravity",)
+
+
+def test_the_api_takes_chain_parameters(tmp_path):
+    """jiggle.bake(chain_params=...) is --chain-NAME on the command line: bake.json records them as the user's."""
+    import jiggle
+    with pytest.raises(InputError, match="unknown chain parameter 'stiff'"):
+        jiggle.bake(character=str(asset("characters/zoo/Horse.glb")), chain_params={"Tail*": {"stiff": 1}})
+    b = jiggle.bake(character=str(asset("characters/zoo/Horse.glb")), animation="Gallop", frames=4,
+                    chain_params={"Tail*": {"damping": 0.9}, "Ear1.L": {"stiffness": [[0, 5], [1, 9]]}},
+                    out=tmp_path / "b", progress=False)
+    rows = {c["chain"]: c for c in b.params["chains"]["chains"]}
+    assert rows["Tail1"]["damping"] == 0.9 and rows["Tail1"]["set_by_user"] == ["damping"]
+    assert rows["Ear1.L"]["stiffness"] == {"times": [0.0, 1.0], "values": [5.0, 9.0], "interpolation": "linear"}
+    assert rows["Ear1.R"]["set_by_user"] == []
