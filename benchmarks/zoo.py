@@ -453,12 +453,47 @@ def clean(d: dict) -> dict:
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
+GIF_FRAMES, GIF_SIZE = 16, (420, 280)
+"""A chain gallery GIF: this many frames of the cycle, this size in pixels."""
+
+
+def chain_gif(bake_dir: Path, path: Path) -> bool:
+    """An animated GIF of a bake's chains in motion (bake.npz): the animated skin pale blue and see-through, the
+    swung skin over it, seen from the side of the body's travel, following the body; False without chains."""
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")     # headless, as compare renders
+    import pyvista as pv
+    from PIL import Image
+    with np.load(bake_dir / "bake.npz") as z:
+        if "chain_vertices" not in z.files:
+            return False
+        static, final, faces = z["skin_static"], z["skin_final"], z["faces"]
+    T = len(static)
+    cells = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
+    size = float(np.ptp(static[0], axis=0).max())
+    # seen across the body's long horizontal axis (a horse from its flank, a winged creature from the front)
+    flat = static[0][:, :2] - static[0][:, :2].mean(0)
+    long_axis = np.linalg.eigh(flat.T @ flat)[1][:, -1]
+    side = np.array([-long_axis[1], long_axis[0], 0.0])
+    frames = []
+    for k in np.linspace(0, T - 1, min(T, GIF_FRAMES)).round().astype(int):
+        pl = pv.Plotter(off_screen=True, window_size=GIF_SIZE)
+        pl.add_mesh(pv.PolyData(static[k], cells), color="lightsteelblue", opacity=0.35)
+        pl.add_mesh(pv.PolyData(final[k], cells), color="tan", smooth_shading=True)
+        c = static[k].mean(0)
+        pl.camera_position = [tuple(c - 1.7 * size * side + [0, 0, 0.15 * size]), tuple(c), (0, 0, 1)]
+        frames.append(Image.fromarray(pl.screenshot(return_img=True)).quantize(colors=48))
+        pl.close()
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=1000 / 15, loop=0, optimize=True)
+    return True
+
+
 def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
-    """docs/gallery.md and docs/images/gallery/<character>.png (the compare's peak.png, downsized)."""
+    """docs/gallery.md and docs/images/gallery/<character>.png (the compare's peak.png, downsized), and for a
+    character with chains <character>_chains.gif, its chains swinging on its most vigorous cycle."""
     from PIL import Image
     img_dir = docs / "images" / "gallery"
     img_dir.mkdir(parents=True, exist_ok=True)
-    pictures = {}
+    pictures, gifs = {}, {}
     for name in dict.fromkeys(r.character for r in rows):
         mine = [r for r in rows if r.character == name and r.out and (Path(r.out) / "peak.png").is_file()]
         mine.sort(key=lambda r: (not r.vigorous, r.clip.startswith("CMU")))
@@ -470,6 +505,8 @@ def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
         im = im.quantize(colors=128, method=Image.Quantize.MEDIANCUT)
         im.save(img_dir / f"{name}.png", optimize=True)
         pictures[name] = mine[0].clip
+        if mine[0].chains and chain_gif(Path(mine[0].out), img_dir / f"{name}_chains.gif"):
+            gifs[name] = mine[0]
     lines = ["# Gallery", "",
              "Every character of the shared test assets (`../shared/assets/characters/`: the zoo of CC0 game "
              "characters, CesiumMan, RiggedFigure, RobotExpressive and the FBX files) baked on every cycle it "
@@ -482,6 +519,12 @@ def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
     for name, clip in pictures.items():
         lines += [f"### {name}", "", f"![{name} on {clip}](images/gallery/{name}.png)", "",
                   f"*{name} on {clip}.*", ""]
+        if name in gifs:
+            r = gifs[name]
+            lines += [f"![{name}'s chains swinging on {r.clip}](images/gallery/{name}_chains.gif)", "",
+                      f"*{name}'s {r.chains} chain{'s' * (r.chains != 1)} (tail, ears, wing fingers: "
+                      "[Chains](tutorials/chains.md)) swinging on " + f"{r.clip}, the animated skin pale blue behind "
+                      f"the swung one; the least of them swings {fmt(r.chain_swing_min_pct, 0)}% of its length.*", ""]
     refused = sorted({r.character for r in rows} - set(pictures))
     if refused:
         lines += ["No picture (no bake): " + ", ".join(refused) + ".", ""]
