@@ -301,7 +301,7 @@ def chain_links(character, chains: Chains) -> ChainLinks:
             rows["local"].append(np.linalg.inv(bind[p]) @ bind[j])
             rows["tip"].append((inv @ np.append(end, 1.0))[:3])
             rows["radius"].append(r)
-            rows["mass"].append(DENSITY * np.pi * r * r * max(L, 2 * r))
+            rows["mass"].append(DENSITY * np.pi * r * r * (max(L, 1e-9) + 4.0 * r / 3.0))   # the capsule's volume
             a = arc.get(p, 0.0)
             arc[j] = a + (float(np.linalg.norm(pos[j] - pos[p])) if p in at else 0.0)
             rows["arc"].append(arc[j])

@@ -29,10 +29,13 @@ from typing import Callable
 import numpy as np
 
 from jiggle.rig.motion import quat
+from jiggle.sim.chain.model import WELD_TIMECONST
 from jiggle.sim.chain.params import AIR_DENSITY, DRAG_COEFFICIENT, LIMIT_DEG, TAPER
 from jiggle.sim.jiggle.keyed import Curve, value_at
 
 WINDOW = 4096
+WELD_LEAD = 2.0 * WELD_TIMECONST
+"""seconds the anchors' weld targets lead the animation (see ChainSolver.run)."""
 DRAG_EVERY = 4
 """Steps between updates of the air drag (a slow force: each link's velocity over those steps, the force held)."""
 """Steps whose inputs are made at once (memory is bounded by a window, not the clip)."""
@@ -280,7 +283,9 @@ class ChainSolver:
             t_end = t0 + dt * np.arange(w0 + 1, w1 + 1)     # each step's inputs at its end (where it lands)
             t_mid = t_end - 0.5 * dt
             x = self.inputs(t_mid)
-            xe = self.inputs(t_end) if len(ma) else x
+            # the weld pulls its free body toward the animation with damping on the free body's whole velocity (a
+            # mocap body has none): tracking a ramp, it trails by 2 time constants; the target leads by as much
+            xe = self.inputs(t_end + WELD_LEAD) if len(ma) else x
             spring = x["target"].reshape(len(t_mid), -1)
             force = (x["gravity"] * self._gravity_or(x)[..., None] +
                      self._damping_or(x)[..., None] * x["target_omega"]).reshape(len(t_mid), -1)
