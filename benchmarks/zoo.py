@@ -42,7 +42,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -453,82 +453,123 @@ def clean(d: dict) -> dict:
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
-GIF_FRAMES, GIF_SIZE = 16, (420, 280)
-"""A chain gallery GIF: this many frames of the cycle, this size in pixels."""
+GIF_FRAMES, GIF_PANEL = 24, (260, 200)
+"""A gallery animation: at most this many frames of the cycle (every k-th frame, k whole, so the timing stays even),
+two panels of this size in pixels (static | final)."""
 
 
-def chain_gif(bake_dir: Path, path: Path) -> bool:
-    """An animated GIF of a bake's chains in motion (bake.npz): the animated skin pale blue and see-through, the
-    swung skin over it, seen from the side of the body's travel, following the body; False without chains."""
+def motion_gif(bake_dir: Path, path: Path) -> dict | None:
+    """The gallery's animation of a bake (bake.npz, bake.json): static skin (left) and final skin (right, coloured
+    by how far it moved from the static one, tissue and chains), one frame every k of the cycle at its own speed,
+    looping as the cycle loops (a closed cycle's last frame, the first again, is left out so the wrap is one ordinary
+    step). Seen across the body's long horizontal axis, following the body. Returns {"frames", "ms", "peak_mm"} or
+    None when the bake has no frames."""
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")     # headless, as compare renders
     import pyvista as pv
     from PIL import Image
     with np.load(bake_dir / "bake.npz") as z:
-        if "chain_vertices" not in z.files:
-            return False
-        static, final, faces = z["skin_static"], z["skin_final"], z["faces"]
-    T = len(static)
+        static, final, faces, fps = z["skin_static"], z["skin_final"], z["faces"], float(z["fps"])
+    summary = json.loads((bake_dir / "bake.json").read_text()) if (bake_dir / "bake.json").is_file() else {}
+    loop = summary.get("loop") or {}
+    T = len(static) - (1 if loop.get("on") and loop.get("repeats_first") and len(static) > 2 else 0)
+    if T < 1:
+        return None
+    step = max(1, math.ceil(T / GIF_FRAMES))
+    picks = list(range(0, T, step))
     cells = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
     size = float(np.ptp(static[0], axis=0).max())
-    # seen across the body's long horizontal axis (a horse from its flank, a winged creature from the front)
     flat = static[0][:, :2] - static[0][:, :2].mean(0)
     long_axis = np.linalg.eigh(flat.T @ flat)[1][:, -1]
     side = np.array([-long_axis[1], long_axis[0], 0.0])
+    moved = np.linalg.norm(final - static, axis=2)
+    top = max(float(np.percentile(moved, 99.5)), 1e-6)
+    from matplotlib.colors import LinearSegmentedColormap
+    heat = LinearSegmentedColormap.from_list("moved", ["#c9b79c", "#e0894a", "#c0262b", "#5c0a3a"])   # skin -> red
     frames = []
-    for k in np.linspace(0, T - 1, min(T, GIF_FRAMES)).round().astype(int):
-        pl = pv.Plotter(off_screen=True, window_size=GIF_SIZE)
-        pl.add_mesh(pv.PolyData(static[k], cells), color="lightsteelblue", opacity=0.35)
-        pl.add_mesh(pv.PolyData(final[k], cells), color="tan", smooth_shading=True)
+    for k in picks:
+        pl = pv.Plotter(off_screen=True, shape=(1, 2), window_size=(2 * GIF_PANEL[0], GIF_PANEL[1]), border=False)
         c = static[k].mean(0)
-        pl.camera_position = [tuple(c - 1.7 * size * side + [0, 0, 0.15 * size]), tuple(c), (0, 0, 1)]
+        cam = [tuple(c - 1.6 * size * side + [0, 0, 0.15 * size]), tuple(c), (0, 0, 1)]
+        pl.subplot(0, 0)
+        pl.add_mesh(pv.PolyData(static[k], cells), color="#c9b79c", smooth_shading=True)
+        pl.camera_position = cam
+        pl.subplot(0, 1)
+        mesh = pv.PolyData(final[k], cells)
+        mesh.point_data["moved"] = moved[k]
+        pl.add_mesh(mesh, scalars="moved", cmap=heat, clim=(0.0, top), show_scalar_bar=False, smooth_shading=True)
+        pl.camera_position = cam
         frames.append(Image.fromarray(pl.screenshot(return_img=True)).quantize(colors=48))
         pl.close()
-    frames[0].save(path, save_all=True, append_images=frames[1:], duration=1000 / 15, loop=0, optimize=True)
-    return True
+    ms = round(1000.0 * step / fps / 10) * 10 or 10      # GIF timing is in hundredths of a second
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=ms, loop=0, optimize=True)
+    return {"frames": len(frames), "ms": ms, "peak_mm": round(1e3 * top, 1)}
+
+
+GALLERY_COLUMNS = (("character", "clip", "peak (% size)", "torn edges", "gradient p99.9", "folds / LBS", "chains",
+                    "chain swing min (%)", "pass"),
+                   ("character", "clip", "peak mm / size m", "hard stops", "near reach (%)", "loop wrap mm (x step)",
+                    "chain pen.", "s"))
+"""The gallery's two narrower tables (columns of HEAD): each fits the docs' width."""
+
+
+def narrow_tables(rows: list[Row]) -> list[str]:
+    out = []
+    full = [md_row(r) for r in rows]
+    for cols in GALLERY_COLUMNS:
+        idx = [HEAD.index(c) for c in cols]
+        out += ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
+        for line in full:
+            cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+            out.append("| " + " | ".join(cells[i] if i < len(cells) else "-" for i in idx) + " |")
+        out.append("")
+    return out
 
 
 def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
-    """docs/gallery.md and docs/images/gallery/<character>.png (the compare's peak.png, downsized), and for a
-    character with chains <character>_chains.gif, its chains swinging on its most vigorous cycle."""
-    from PIL import Image
+    """docs/gallery.md and docs/images/gallery/<character>.gif: a grid in which each character plays its most
+    vigorous cycle (motion_gif), static | final, then the numbers in two tables that fit the page."""
     img_dir = docs / "images" / "gallery"
     img_dir.mkdir(parents=True, exist_ok=True)
-    pictures, gifs = {}, {}
+    for old in list(img_dir.glob("*.png")) + list(img_dir.glob("*_chains.gif")):
+        old.unlink()                            # the stills and chain GIFs of earlier runs
+    shown = {}
     for name in dict.fromkeys(r.character for r in rows):
-        mine = [r for r in rows if r.character == name and r.out and (Path(r.out) / "peak.png").is_file()]
+        mine = [r for r in rows if r.character == name and r.out and (Path(r.out) / "bake.npz").is_file()]
         mine.sort(key=lambda r: (not r.vigorous, r.clip.startswith("CMU")))
         if not mine:
             continue
-        im = Image.open(Path(mine[0].out) / "peak.png").convert("RGB")
-        w = 900
-        im = im.resize((w, round(im.height * w / im.width)), Image.LANCZOS)
-        im = im.quantize(colors=128, method=Image.Quantize.MEDIANCUT)
-        im.save(img_dir / f"{name}.png", optimize=True)
-        pictures[name] = mine[0].clip
-        if mine[0].chains and chain_gif(Path(mine[0].out), img_dir / f"{name}_chains.gif"):
-            gifs[name] = mine[0]
+        info = motion_gif(Path(mine[0].out), img_dir / f"{name}.gif")
+        if info is not None:
+            shown[name] = (mine[0], info)
     lines = ["# Gallery", "",
              "Every character of the shared test assets (`../shared/assets/characters/`: the zoo of CC0 game "
-             "characters, CesiumMan, RiggedFigure, RobotExpressive and the FBX files) baked on every cycle it "
-             "loops, with the defaults, by `benchmarks/zoo.py`; the proof of *every body, every cycle* "
-             "(see [Design](design.md)). A refusal is a row too.", "",
-             f"{summary(rows)}. Run: {meta['date']}, {meta['wall_s']:.0f} s on {meta['machine']}.", "",
-             "```", "python benchmarks/zoo.py --jobs 2", "```", "", *table(rows), "", LEGEND, "## Pictures", "",
-             "Each baked character at the frame of its peak jiggle: static skin (left) and the jiggled skin "
-             "coloured by how far it moved (right), from `jiggle compare`.", ""]
-    for name, clip in pictures.items():
-        lines += [f"### {name}", "", f"![{name} on {clip}](images/gallery/{name}.png)", "",
-                  f"*{name} on {clip}.*", ""]
-        if name in gifs:
-            r = gifs[name]
-            lines += [f"![{name}'s chains swinging on {r.clip}](images/gallery/{name}_chains.gif)", "",
-                      f"*{name}'s {r.chains} chain{'s' * (r.chains != 1)} (tail, ears, wing fingers: "
-                      "[Chains](tutorials/chains.md)) swinging on " + f"{r.clip}, the animated skin pale blue behind "
-                      f"the swung one; the least of them swings {fmt(r.chain_swing_min_pct, 0)}% of its length.*", ""]
-    refused = sorted({r.character for r in rows} - set(pictures))
-    if refused:
-        lines += ["No picture (no bake): " + ", ".join(refused) + ".", ""]
+             "characters, CesiumMan, RiggedFigure, RobotExpressive and the FBX files) baked with the defaults by "
+             "`benchmarks/zoo.py`, each playing its most vigorous cycle at its own speed, looping as the cycle loops: "
+             "the static skin (left) and the final skin (right), coloured by how far it moved, muscles, fat and "
+             "[chains](tutorials/chains.md) (tails, ears, wing fingers) alike.", "",
+             '<div markdown style="display:grid;grid-template-columns:repeat(auto-fill,minmax(300px,1fr));'
+             'gap:0.6rem">', ""]
+    for name, (r, info) in shown.items():
+        chains = f", {r.chains} chain{'s' * (r.chains != 1)}" if r.chains else ""
+        lines += ['<figure markdown style="margin:0">', "",
+                  f"![{name} on {r.clip}](images/gallery/{name}.gif){{ loading=lazy }}", "",
+                  f"<figcaption>{name}, {r.clip}{chains}: peak {fmt(r.peak_pct, 2)}% of its size</figcaption>", "",
+                  "</figure>", ""]
+    lines += ["</div>", ""]
+    missing = sorted({r.character for r in rows} - set(shown))
+    if missing:
+        lines += ["No animation (no bake): " + ", ".join(missing) + ".", ""]
+    lines += ["## The numbers", "",
+              f"{summary(rows)}. Run: {meta['date']}, {meta['wall_s']:.0f} s on {meta['machine']}.", "",
+              "```", "python benchmarks/zoo.py --jobs 2", "```", "", *narrow_tables(rows), LEGEND]
     (docs / "gallery.md").write_text("\n".join(lines))
+
+
+def rows_from(results: Path) -> tuple[list[Row], dict]:
+    """The rows and meta a run wrote to RESULTS.json."""
+    data = json.loads(results.read_text())
+    names = {f.name for f in fields(Row)}
+    return [Row(**{k: v for k, v in r.items() if k in names}) for r in data["rows"]], data["meta"]
 
 
 def main(argv=None) -> int:
@@ -540,6 +581,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=None, help="only the first N frames of each bake")
     ap.add_argument("--results", default=None,
                     help="write RESULTS.md and .json (default: benchmarks/results/zoo; with --quick OUT/zoo)")
+    ap.add_argument("--regallery", action="store_true",
+                    help="only write the gallery again from the last run's RESULTS.json and its bakes in --out")
     ap.add_argument("--gallery", default=None,
                     help="a docs folder to write gallery.md and images/gallery/ into (default: docs; none with "
                          "--quick)")
@@ -547,6 +590,11 @@ def main(argv=None) -> int:
     if not CHARACTERS.is_dir():
         print(f"zoo: no shared characters at {CHARACTERS}", file=sys.stderr)
         return 1
+    if a.regallery:
+        stem = Path(a.results) if a.results else ROOT / "benchmarks" / "results" / "zoo"
+        rows, meta = rows_from(stem.with_suffix(".json"))
+        write_gallery(Path(a.gallery) if a.gallery else ROOT / "docs", rows, meta)
+        return 0
     cmd = jiggle_command()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -97,3 +97,31 @@ def test_chromium_shows_the_pages(site, browser, page, must, tmp_path):
     top, body = img[:40], img[100:]
     assert top.std(axis=(0, 1)).max() < 30 and np.abs(top.mean(axis=(0, 1)) - 255).max() > 40   # the bar
     assert body.std() > 20                                                                  # text drawn
+
+
+def test_the_gallery_leads_with_animations_that_play(site, browser, tmp_path):
+    """The Gallery's grid comes before its numbers, and its first character's animation advances in a real
+    browser: two screenshots of it 0.4 s apart differ."""
+    import io
+    import time
+
+    import imageio.v3 as iio
+    from selenium.webdriver.common.by import By
+    text = (ROOT / "docs" / "gallery.md").read_text()
+    gifs = sorted((ROOT / "docs" / "images" / "gallery").glob("*.gif"))
+    if not gifs:
+        pytest.skip("docs/images/gallery has no animation (benchmarks/zoo.py writes them)")
+    assert text.index(".gif") < text.index("## The numbers")
+    assert sum(g.stat().st_size for g in gifs) < 8_000_000          # a few MB for the whole page
+    browser.get((site / "gallery" / "index.html").as_uri())
+    img = browser.find_element(By.CSS_SELECTOR, "figure img")
+    browser.execute_script("arguments[0].scrollIntoView()", img)
+    for _ in range(50):
+        if browser.execute_script("return arguments[0].complete && arguments[0].naturalWidth > 0", img):
+            break
+        time.sleep(0.1)
+    a = iio.imread(io.BytesIO(img.screenshot_as_png))[..., :3].astype(float)
+    time.sleep(0.4)
+    b = iio.imread(io.BytesIO(img.screenshot_as_png))[..., :3].astype(float)
+    assert a.shape == b.shape and a.std() > 5
+    assert np.abs(a - b).mean() > 0.5, "the gallery's animation does not advance"
