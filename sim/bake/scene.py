@@ -56,6 +56,12 @@ Layout (paths relative to the scene file)::
     angles = [0, 90, 140]         #   degrees the joint is rotated away from its rest pose, increasing
     scales = [1.0, 1.25, [1, 1.2, 1.45, 1.2, 1]]   # per angle: all five sections, or each (origin
                                   #   rim, bulge, middle, bulge, insertion rim); linear between angles
+    [chains]                      # optional: tails, ears, hair, wing fingers that swing (sim/chain)
+    swing = "auto"                # "auto", "none" or a list of joints (globs) that start one (--chains)
+    [chains."Ear*"]               # per chain (its root joint's name) or glob: keys of
+    damping = 0.6                 #   sim.chain.params.CHAIN_PARAMETERS (stiffness Hz, damping, gravity, drag),
+    [chains.Tail1]                #   numbers or curves; an exact name beats a glob, a glob matching no chain
+    stiffness = [[0.0, 2.0], [1.5, 6.0]]   # is an error
 
 A ``${VAR}`` at the start of a path whose value is relative is taken from the current directory, as
 the shell would (``JIGGLE_ASSETS=../shared/assets jiggle simulate scenes/belly_run.toml``); an unset

@@ -165,3 +165,24 @@ def test_the_api_takes_chain_parameters(tmp_path):
     assert rows["Tail1"]["damping"] == 0.9 and rows["Tail1"]["set_by_user"] == ["damping"]
     assert rows["Ear1.L"]["stiffness"] == {"times": [0.0, 1.0], "values": [5.0, 9.0], "interpolation": "linear"}
     assert rows["Ear1.R"]["set_by_user"] == []
+
+
+def test_a_scene_sets_the_chains(tmp_path):
+    """[chains] swing and [chains.NAME] tables are read and checked, errors naming the file, line and key."""
+    from jiggle.sim.bake.scene import load_scene
+    p = tmp_path / "s.toml"
+    p.write_text('name = "s"\n[chains]\nswing = ["Tail*", "Ear1.L"]\n[chains."Ear*"]\ndamping = 0.6\n'
+                 '[chains.Tail1]\nstiffness = [[0.0, 2.0], [1.5, 6.0]]\n')
+    s = load_scene(p)
+    assert s.chains == "Tail*,Ear1.L"
+    assert [(n, t) for n, t, _ in s.chain_entries] == [("Ear*", {"damping": 0.6}),
+                                                        ("Tail1", {"stiffness": [[0.0, 2.0], [1.5, 6.0]]})]
+    assert s.chain_entries[1][2][2] == 6                                  # the table's line, for messages
+    p.write_text('name = "s"\n[chains.Tail1]\nstiff = 2\n')
+    with pytest.raises(InputError) as e:
+        load_scene(p)
+    assert e.value.line == 3 and e.value.field == "chains.Tail1.stiff"
+    p.write_text('name = "s"\n[chains.Tail1]\ndamping = -1\n')
+    with pytest.raises(InputError, match=r"damping must be in \[0, 5\]") as e:
+        load_scene(p)
+    assert e.value.line == 3
