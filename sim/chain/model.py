@@ -38,14 +38,14 @@ MARGIN = 0.1
 """A link's contact margin, in its radius: contacts act before the capsules touch."""
 ANCHOR_MASS = 20.0
 """The anchor's mass over its chains'."""
-ARMATURE = 0.1
+ARMATURE = 0.2
 """Each ball joint's armature (rotor inertia) in the inertia it turns: it keeps a light link under a strong joint
 from ringing far faster than the chain swings (the step follows the fastest local mode), at the cost of a few
 percent of slowing on the light tips. Part of the model: the reference in the tests uses it as well."""
-STEP_PER_PERIOD = 12.0
+STEP_PER_PERIOD = 8.0
 """Steps per period of the fastest local mode, at least."""
-DT_RANGE = (1.0 / 4000.0, 1.0 / 600.0)
-"""seconds: the step's range."""
+DT_RANGE = (1.0 / 4000.0, 1.0 / 400.0)
+"""seconds: the step's range (at most half the weld's and the contacts' time constants)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -185,6 +185,7 @@ class ChainSolver:
         self._drag_cap = 0.5 * links.mass / (DRAG_EVERY * self.dt)
         self._set(np.array([0.0]) + (inp.knots[0] if len(inp.knots) else 0.0), 0)
         self.n = n
+        self._windows = {}
 
     def values(self, t: np.ndarray) -> dict:
         """Per link (S, n): stiffness N m/rad, damping N m s/rad, gravity share, drag share at times t (S,)."""
@@ -280,16 +281,19 @@ class ChainSolver:
         drag = bool(self._drag.any()) or self.keyed
         for w0 in range(0, steps, WINDOW):
             w1 = min(steps, w0 + WINDOW)
-            t_end = t0 + dt * np.arange(w0 + 1, w1 + 1)     # each step's inputs at its end (where it lands)
-            t_mid = t_end - 0.5 * dt
-            x = self.inputs(t_mid)
-            # the weld pulls its free body toward the animation with damping on the free body's whole velocity (a
-            # mocap body has none): tracking a ramp, it trails by 2 time constants; the target leads by as much
-            xe = self.inputs(t_end + WELD_LEAD) if len(ma) else x
-            spring = x["target"].reshape(len(t_mid), -1)
-            force = (x["gravity"] * self._gravity_or(x)[..., None] +
-                     self._damping_or(x)[..., None] * x["target_omega"]).reshape(len(t_mid), -1)
-            mpos, mquat = xe["driver_pos"], xe["driver_quat"]
+            key = (t0, dt, w0, w1)
+            if key not in self._windows:                # a looping bake's warm-up runs the same window again
+                t_end = t0 + dt * np.arange(w0 + 1, w1 + 1)     # each step's inputs at its end (where it lands)
+                t_mid = t_end - 0.5 * dt
+                x = self.inputs(t_mid)
+                # the weld pulls its free body toward the animation with damping on the free body's whole velocity
+                # (a mocap body has none): tracking a ramp, it trails by 2 time constants; the target leads as much
+                xe = self.inputs(t_end + WELD_LEAD) if len(ma) else x
+                force = (x["gravity"] * self._gravity_or(x)[..., None] +
+                         self._damping_or(x)[..., None] * x["target_omega"]).reshape(len(t_mid), -1)
+                self._windows = {key: (x, x["target"].reshape(len(t_mid), -1), force, xe["driver_pos"],
+                                       xe["driver_quat"])}
+            x, spring, force, mpos, mquat = self._windows[key]
             for i in range(w1 - w0):
                 k = w0 + i
                 if self.keyed:
@@ -358,32 +362,33 @@ def swing(cm, params, times: np.ndarray, knots: np.ndarray, world_at: Callable, 
         steps = max(1, int(math.ceil(P / cm.dt - 1e-9)))
         solver = ChainSolver(cm, params, inp, dt=P / steps)
         t0 = float(loop.start)
-        balls, changes = None, []
-        best = None
+        balls, changes, best = None, [], None
         frame = 1.0 / 60.0
+        # every cycle records the output frames as it goes: the cycle whose end state repeats its start within the
+        # tolerance is the bake's (no replay of it)
         for c in range(WARMUP_MAX_CYCLES):
             solver.start(t0, balls)
             s0 = solver.state()
-            solver.run(t0, steps)
+            run = solver.run(t0, steps, times)
             s1 = solver.state()
-            if balls is None and c == 0:
-                balls = s1
+            balls = s1
+            if c == 0:                              # from the animated pose at rest: it only carries the state in
                 continue
             dq = quat.angle(quat.mul(quat.conj(s0[0]), s1[0])).max(initial=0.0)
             dw = np.abs(s1[1] - s0[1]).max(initial=0.0) * frame
             changes.append(float(max(dq, dw)))
             if best is None or changes[-1] < best[0]:
-                best = (changes[-1], s0)
+                best = (changes[-1], run)
             if changes[-1] < WARMUP_TOLERANCE:
                 break
-            balls = s1
-        change, start = best if best is not None else (0.0, balls)
-        warm_steps = (len(changes) + 1) * steps
+        change, rot = best if best is not None else (0.0, run)
+        total = steps
+        warm_steps = len(changes) * steps
         warm = {"cycles": len(changes) + 1, "change_rad": change, "converged": bool(change < WARMUP_TOLERANCE),
-                "tolerance_rad": WARMUP_TOLERANCE}
-        solver.start(t0, start)
-        total = int(math.ceil((float(times[-1]) - t0) / solver.dt - 1e-9))
-        rot = solver.run(t0, max(total, 0), times)
+                "tolerance_rad": WARMUP_TOLERANCE,
+                "rule": "cycle k runs from the state cycle k - 1 ended in (the first from the animated pose); change "
+                        "= the largest joint rotation between a cycle's start and end states (radians), or angular "
+                        "velocity change times 1/60 s; the bake's frames are the cycle of the smallest change"}
         log(f"chains: loop warm-up {warm['cycles']} cycles, the start repeats within {change:.2g} rad")
     else:
         warm_steps = 0
