@@ -76,6 +76,12 @@ def bake_arguments(context, s, glb: str, out: str) -> list[str]:
         args += ["--blend", f"{s.blend:g}"]
     if s.collisions:
         args += ["--collisions"]
+    if s.chains.strip() and s.chains.strip() != "auto":
+        args += [f"--chains={s.chains.strip()}"]
+    for flag, text in (("--chain-stiffness", s.chain_stiffness), ("--chain-damping", s.chain_damping),
+                       ("--chain-gravity", s.chain_gravity), ("--chain-drag", s.chain_drag)):
+        for item in [x.strip() for x in text.split(";") if x.strip()]:      # ";": keys hold commas
+            args += [flag, item]
     return args
 
 
@@ -592,6 +598,16 @@ class JiggleSettings(bpy.types.PropertyGroup):
                             "comma-separated (the CLI's --strength NAME=VALUE)")
     blend: FloatProperty(name="Blend", default=1.0, min=0.0, max=1.0, description="0: static muscles, 1: jiggle")
     collisions: BoolProperty(name="Collisions", default=False)
+    chains: StringProperty(name="Chains", default="auto", description="Tails, ears, hair and wing fingers that swing: "
+                           "auto, none, or joints (globs) that start one, comma-separated (the CLI's --chains)")
+    chain_stiffness: StringProperty(name="Chain stiffness", default="", description="Per chain (its root joint, or a "
+                                    "glob) NAME=Hz, ';'-separated; keys as [[t, v], ...] (--chain-stiffness)")
+    chain_damping: StringProperty(name="Chain damping", default="", description="Per chain NAME=RATIO, ';'-separated "
+                                  "(--chain-damping)")
+    chain_gravity: StringProperty(name="Chain gravity", default="", description="Per chain NAME=SHARE of g, "
+                                  "';'-separated (--chain-gravity)")
+    chain_drag: StringProperty(name="Chain drag", default="", description="Per chain NAME=SHARE of air's density, "
+                               "';'-separated (--chain-drag)")
     result: EnumProperty(name="Result", items=[
         ("EXACT", "Exact", "A Mesh Cache modifier plays the baked skin"),
         ("BONES", "Bones", "Jiggle bones (the glb's) added to the armature with their own action on an NLA track, "
@@ -634,6 +650,9 @@ class JIGGLE_PT_panel(bpy.types.Panel):
         col.prop(s, "muscles")
         col.prop(s, "blend")
         col.prop(s, "collisions")
+        col.prop(s, "chains")
+        for name in ("chain_stiffness", "chain_damping", "chain_gravity", "chain_drag"):
+            col.prop(s, name)
         col.prop(s, "result")
         if s.result == "BONES":
             col.prop(s, "jiggle_bones")

@@ -405,6 +405,7 @@ def bones_at(frames, names):
 
 
 sc.jiggle.out_dir = out
+sc.jiggle.chain_damping = "Ear*=0.6"          # a chain parameter from the panel reaches the bake
 before = user_state()
 report["result"] = sorted(bpy.ops.jiggle.bake())
 report["user_same"] = user_state() == before
@@ -466,6 +467,8 @@ def test_a_tail_swings_on_the_addons_own_track(addon, tmp_path):
     assert len(tail) >= 4 and set(rep["keys"]) == set(names), rep["keys"]
     assert all(v == len(d.times) for v in rep["keys"].values())
     assert all(rep["constraints"][n] == ["jiggle chains"] for n in names)
+    by_chain = {c["chain"]: c for c in json.loads(d.params)["chains"]["chains"]}
+    assert by_chain["Ear1.L"]["damping"] == 0.6 and by_chain["Tail1"]["damping"] != 0.6   # the panel's Ear*=0.6
     unit = json.loads(d.params).get("file_unit_m", 1.0)
     swung, unswung = bones
     joints = list(d.joint_names)
