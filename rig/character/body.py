@@ -60,6 +60,7 @@ from scipy.interpolate import PchipInterpolator
 from scipy.sparse.csgraph import connected_components
 
 from jiggle.rig.base.frozen import frozen_array
+from jiggle.rig.character.capsules import segment_closest
 from jiggle.rig.motion.bone_roles import bone_roles
 from jiggle.rig.motion.clip import Clip
 
@@ -910,7 +911,7 @@ def _candidates(a1, b1, a2, b2, samples: int = 7) -> tuple[np.ndarray, np.ndarra
     closest: the segments' closest points, and evenly spaced points on each with the closest point
     on the other (parallel limbs, like an arm hanging beside the trunk, are close all along, and
     their radii vary)."""
-    s0, t0 = _segment_closest(a1, b1, a2, b2)
+    s0, t0 = segment_closest(a1, b1, a2, b2)
     grid = np.linspace(0.0, 1.0, samples)
     on1 = a1[:, None] + grid[None, :, None] * (b1 - a1)[:, None]
     on2 = a2[:, None] + grid[None, :, None] * (b2 - a2)[:, None]
@@ -960,25 +961,6 @@ def _support(pieces: list[_Piece], idx: np.ndarray, t: np.ndarray, u: np.ndarray
     semi = tab[rows, i0] * (1 - w) + tab[rows, i0 + 1] * w     # (M, C, 2)
     cap = np.where(t <= 1e-9, caps[:, :1], np.where(t >= 1 - 1e-9, caps[:, 1:], 0.0))
     return np.sqrt((cap * loc[..., 0]) ** 2 + (semi[..., 0] * loc[..., 1]) ** 2 + (semi[..., 1] * loc[..., 2]) ** 2)
-
-
-def _segment_closest(p1, q1, p2, q2):
-    """Parameters s, t (N,) of the closest points of segments p1q1 and p2q2, (N, 3) each (Ericson,
-    Real-Time Collision Detection, 5.1.9)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a = np.einsum("ij,ij->i", d1, d1)
-    e = np.einsum("ij,ij->i", d2, d2)
-    f = np.einsum("ij,ij->i", d2, r)
-    c = np.einsum("ij,ij->i", d1, r)
-    b = np.einsum("ij,ij->i", d1, d2)
-    tiny = 1e-12
-    denom = a * e - b * b
-    s = np.where(denom > tiny, np.clip((b * f - c * e) / np.maximum(denom, tiny), 0, 1), 0.0)
-    s = np.where(a <= tiny, 0.0, s)
-    t = np.where(e > tiny, (b * s + f) / np.maximum(e, tiny), 0.0)
-    s = np.where(t < 0, np.where(a > tiny, np.clip(-c / np.maximum(a, tiny), 0, 1), 0.0), s)
-    s = np.where(t > 1, np.where(a > tiny, np.clip((b - c) / np.maximum(a, tiny), 0, 1), 0.0), s)
-    return s, np.clip(t, 0, 1)
 
 
 def at_least_voxel(pieces: list[_Piece], h: float) -> list[_Piece]:

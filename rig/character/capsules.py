@@ -123,6 +123,26 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.nd
     return np.linalg.norm(p - (a + t[:, None] * ab), axis=1), t
 
 
+def segment_closest(p1, q1, p2, q2) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters s, t (...) in [0, 1] of the closest points p1 + s (q1 - p1) and p2 + t (q2 - p2) of two segments,
+    their ends (..., 3), broadcast (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a = np.einsum("...i,...i->...", d1, d1)
+    e = np.einsum("...i,...i->...", d2, d2)
+    f = np.einsum("...i,...i->...", d2, r)
+    c = np.einsum("...i,...i->...", d1, r)
+    b = np.einsum("...i,...i->...", d1, d2)
+    tiny = 1e-12
+    denom = a * e - b * b
+    s = np.where(denom > tiny, np.clip((b * f - c * e) / np.maximum(denom, tiny), 0, 1), 0.0)
+    s = np.where(a <= tiny, 0.0, s)
+    t = np.where(e > tiny, (b * s + f) / np.maximum(e, tiny), 0.0)
+    # t outside [0, 1]: clamp it, and s to the clamped t
+    s = np.where(t < 0, np.where(a > tiny, np.clip(-c / np.maximum(a, tiny), 0, 1), 0.0), s)
+    s = np.where(t > 1, np.where(a > tiny, np.clip((b - c) / np.maximum(a, tiny), 0, 1), 0.0), s)
+    return s, np.clip(t, 0, 1)
+
+
 def bone_capsules(character) -> BoneCapsules:
     """The capsules of a rig.character.Character (see the module)."""
     from jiggle.rig.character.character import end_sites

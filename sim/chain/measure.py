@@ -16,27 +16,10 @@ PENETRATION = 0.25
 
 
 def segment_distances(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
-    """(...) the closest distance between segments p0-p1 and q0-q1 (..., 3), broadcast (Ericson, Real-Time
-    Collision Detection, 5.1.9, clamped to both segments)."""
-    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
-    a = np.einsum("...i,...i->...", d1, d1)
-    e = np.einsum("...i,...i->...", d2, d2)
-    f = np.einsum("...i,...i->...", d2, r)
-    c = np.einsum("...i,...i->...", d1, r)
-    b = np.einsum("...i,...i->...", d1, d2)
-    eps = 1e-18
-    denom = a * e - b * b
-    s = np.where(denom > eps, np.clip((b * f - c * e) / np.where(denom > eps, denom, 1.0), 0.0, 1.0), 0.0)
-    s = np.where(a > eps, s, 0.0)
-    t = np.where(e > eps, (b * s + f) / np.where(e > eps, e, 1.0), 0.0)
-    # t outside [0, 1]: clamp it and recompute s for the clamped t
-    t_lo, t_hi = t < 0.0, t > 1.0
-    t = np.clip(t, 0.0, 1.0)
-    s = np.where(t_lo & (a > eps), np.clip(-c / np.where(a > eps, a, 1.0), 0.0, 1.0), s)
-    s = np.where(t_hi & (a > eps), np.clip((b - c) / np.where(a > eps, a, 1.0), 0.0, 1.0), s)
-    cp = p0 + s[..., None] * d1
-    cq = q0 + t[..., None] * d2
-    return np.linalg.norm(cp - cq, axis=-1)
+    """(...) the closest distance between segments p0-p1 and q0-q1 (..., 3), broadcast."""
+    from jiggle.rig.character.capsules import segment_closest
+    s, t = segment_closest(p0, p1, q0, q1)
+    return np.linalg.norm(p0 + s[..., None] * (p1 - p0) - q0 - t[..., None] * (q1 - q0), axis=-1)
 
 
 def link_segments(world: np.ndarray, links) -> tuple[np.ndarray, np.ndarray]:
