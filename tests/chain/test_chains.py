@@ -186,3 +186,24 @@ def test_a_scene_sets_the_chains(tmp_path):
     with pytest.raises(InputError, match=r"damping must be in \[0, 5\]") as e:
         load_scene(p)
     assert e.value.line == 3
+
+
+def test_a_bakes_rebuild_carries_its_chains_parameters():
+    """jiggle view and export rebuild a bake from bake.json: the chains' mode and the values the user set come back
+    (exact names; a glob's values are recorded per chain), defaults are left to the defaults."""
+    import json
+
+    from jiggle.sim.app.view.tuning import request_from_params
+    path = asset("characters/zoo/Horse.glb")
+    from jiggle.sim.app.cli import main
+    import tempfile
+    with tempfile.TemporaryDirectory() as out:
+        assert main(["-q", "bake", "--character", str(path), "--out", out, "--formats", "npz", "--frames", "3",
+                     "--chains=auto,-Ear1.R", "--chain-damping", "Ear*=0.6",
+                     "--chain-stiffness", "Tail1=[[0,4],[0.2,8]]"]) == 0
+        params = json.loads(open(f"{out}/bake.json").read())["params"]
+    r = request_from_params(params)
+    assert r.chains == "auto,-Ear1.R"
+    got = {name: table for name, table, _ in r.chain_params}
+    assert got == {"Ear1.L": {"damping": 0.6},
+                   "Tail1": {"stiffness": {"times": [0.0, 0.2], "values": [4.0, 8.0], "interpolation": "linear"}}}

@@ -163,9 +163,15 @@ def request_from_params(params: dict) -> BakeRequest:
         if isinstance(template, dict):
             template = _same_file(template, "template")
         rigid = (params.get("rigid") or {}).get("option")
+        chains = params.get("chains") or {}
+        # the chains' parameters the user set (by exact name: a glob's are recorded per chain), as they were
+        chain_params = tuple((c["chain"], {k: c[k] for k in c.get("set_by_user") or ()}, f"bake.json {c['chain']}")
+                             for c in chains.get("chains") or () if c.get("set_by_user"))
         return BakeRequest(scene=scene_path, clip=clip, character=char_file, template=template, body=body,
                            drive=params["drive"], influences=params["skinning"]["influences"],
-                           rigid=None if rigid in (None, "auto") else rigid, **common)
+                           rigid=None if rigid in (None, "auto") else rigid,
+                           chains=chains.get("mode") if chains.get("mode") not in (None, "auto") else None,
+                           chain_params=chain_params, **common)
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise NotTunable(f"bake.json lacks what a rebuild needs ({type(e).__name__}: {e})") from None
 
