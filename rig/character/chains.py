@@ -46,7 +46,6 @@ MIN_RUN = 2
 DENSITY = 1000.0
 """kg/m^3: a link's mass is its capsule's volume at the density of soft tissue and water (hair, cartilage and
 fur are near it; the swing does not depend on the mass, the springs are set per unit of inertia)."""
-MODES = ("auto", "none")
 MIN_MASS = 0.3
 """No link of a chain is lighter than this share of its links' mean mass: a leaf bone's skin often ends in a few
 vertices, and a near-massless tip would take the whole swing's energy and crack like a whip."""

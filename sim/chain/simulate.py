@@ -23,7 +23,7 @@ parent, each joint's translation from its parent is the animation's, its rotatio
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -50,17 +50,15 @@ WARMUP_MAX_CYCLES = 24
 @dataclass
 class ChainRun:
     """What a run gives: rotations (T, n, 4) float64, each chain joint's simulated rotation from its bind frame
-    (w, x, y, z) at the output times; targets (T, n, 4) the animated ones; warmup : a looping bake's record, else
+    (w, x, y, z) at the output times; warmup : a looping bake's record, else
     None; steps : the steps of the frames written, steps_all : with the warm-up's; seconds : the time it took."""
 
     rotations: np.ndarray
-    targets: np.ndarray
     steps: int = 0
     steps_all: int = 0
     seconds: float = 0.0
     warmup: dict | None = None
     dt: float = 0.0
-    facts: dict = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------------------ the drive
@@ -395,13 +393,10 @@ def swing(cm, params, times: np.ndarray, knots: np.ndarray, world_at: Callable, 
         solver.start(t0)
         total = int(math.ceil((float(times[-1]) - t0) / solver.dt - 1e-9))
         rot = solver.run(t0, max(total, 0), times)
-    # the animated rotations at the output times, for the measures
-    tq, _ = _hermite(inp.knots, inp.target, solver.slopes["target"], times)
-    tq = quat.normalize(tq)
     if solver.unstable():
         raise RuntimeError(f"the chains' simulation blew up {solver.unstable()} time(s) at step {solver.dt:.3g} s: a "
                            "setting outside what sim.chain.model's step was chosen for")
-    return ChainRun(rotations=rot, targets=tq, steps=int(total), steps_all=int(total + warm_steps),
+    return ChainRun(rotations=rot, steps=int(total), steps_all=int(total + warm_steps),
                     seconds=_time.perf_counter() - t_start, warmup=warm, dt=solver.dt)
 
 
