@@ -11,8 +11,9 @@ heat-map colour bands), the muscles as their loft meshes (click one to select it
 muscle's skin region as a wireframe, a floor grid. Panel: Playback (play/pause, frame slider, loop, speed,
 frame and time), Show (skin, heat map and its scale, muscles, skeleton, skin opacity), Muscles (one button
 per muscle with its peak jiggle amplitude, the selected one's numbers), Skin quality (the frame's numbers from
-metrics.json), Tune (per-muscle strength, frequency, damping ratio, goal weight scale, the global blend,
-reset, save scene).
+metrics.json), Tune (per-muscle strength, frequency, damping ratio, goal weight scale, the global blend; per
+chain (tails, ears, hair, wing fingers: sim/chain) its stiffness, damping ratio, gravity and air drag; reset, save
+scene).
 
 Playback runs in a thread that advances the frame slider at the bake's fps times the speed; the slider's
 callback draws the frame (so a scrub and a tick draw the same way). A slider of the Tune panel records the
@@ -23,7 +24,8 @@ Threads. viser calls a GUI callback in a pool of threads, several at once and in
 its slider when it runs. So every edit of the tuning (a knob, the blend, reset, the sliders synced to a
 muscle) is one step under one lock (`_wanted`): it reads the slider then, builds on the latest tuning, and
 hands the tuning and its number (`generation`, +1 per request that changes a value) to the re-simulation
-thread in the same step; a request that changes nothing is no request. The motion on the page is tagged
+thread in the same step; a request that changes nothing is no request. The chain sliders are knobs like the
+muscles' (`_chain_knob_moved`: the same lock, the same requests). The motion on the page is tagged
 with the request it answers (`shown`: ShownMotion, generation, tuning and the arrays drawn); a run's result
 is shown when it is done (a slider dragged meanwhile shows each step it reached) and never replaces a newer
 one. "save scene" waits until no run is pending, then writes the tuning of the motion shown: the scene
@@ -58,6 +60,11 @@ FREQUENCY_RANGE = (0.5, 20.0)
 """Hz: the frequency slider's range."""
 DAMPING_RANGE = (0.0, 2.0)
 GOAL_SCALE_RANGE = (0.0, 2.0)
+CHAIN_SLIDERS = {"stiffness": ("chain stiffness (Hz)", 0.5, 60.0, 0.1),
+                 "damping": ("chain damping ratio", 0.0, 2.0, 0.01),
+                 "gravity": ("chain gravity (x g)", 0.0, 3.0, 0.05), "drag": ("chain air drag (x air)", 0.0, 50.0, 0.5)}
+"""Per chain knob (view.tuning.CHAIN_KNOBS): the slider's label, range and step (sim.chain.params.CHAIN_PARAMETERS
+allows more; `jiggle bake --chain-KNOB` or the scene sets any value in it)."""
 SAVE_WAIT_S = 300.0
 """seconds "save scene" waits for a pending re-simulation before it gives up (and says so)."""
 CAMERA_FOV = np.radians(40.0)
@@ -70,6 +77,19 @@ def twin(name: str, names) -> str | None:
         if name.startswith(a) and b + name[len(a):] in names:
             return b + name[len(a):]
     return None
+
+
+def chain_twin(name: str, names) -> str | None:
+    """The other side's chain of a left/right pair (Ear1.L / Ear1.R, Wing_l / Wing_r, LeftEar / RightEar, left_ /
+    right_), None when there is none."""
+    for a, b in ((".L", ".R"), (".R", ".L"), (".l", ".r"), (".r", ".l"), ("_L", "_R"), ("_R", "_L"), ("_l", "_r"),
+                 ("_r", "_l")):
+        if name.endswith(a) and name[:-len(a)] + b in names:
+            return name[:-len(a)] + b
+    for a, b in (("Left", "Right"), ("Right", "Left"), ("left", "right"), ("right", "left")):
+        if name.startswith(a) and b + name[len(a):] in names:
+            return b + name[len(a):]
+    return twin(name, names)
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,6 +134,10 @@ class ViewerPage:
         self.saved_motion: ShownMotion | None = None
         """The motion whose values "save scene" wrote last (with `saved`: the path and extra bake arguments)."""
         self.regions = None
+        self.base: dict = {}
+        """muscle name -> its MuscleJiggle in the bake, once the setup is rebuilt."""
+        self.chain_base: dict = {}
+        """chain name -> its sim.chain.params.ChainParams in the bake, once the setup is rebuilt."""
         self.selected: int | None = None
         self.motion_version = 0
         """Counts the motions shown: 0 the bake's, +1 per re-simulation swapped in."""
@@ -277,6 +301,13 @@ class ViewerPage:
             self.g_t_goal = gui.add_slider("goal weight scale", min=GOAL_SCALE_RANGE[0], max=GOAL_SCALE_RANGE[1],
                                            step=0.01, initial_value=1.0)
             self.g_t_blend = gui.add_slider("blend (all muscles)", min=0.0, max=1.0, step=0.01, initial_value=1.0)
+            chains = self._bake_chains()
+            with gui.add_folder("Chains (swing)"):
+                self.g_c_chain = gui.add_dropdown("chain", chains or ("(none)",),
+                                                  initial_value=chains[0] if chains else "(none)")
+                self.g_c_knobs = {k: gui.add_slider(label, min=lo, max=hi, step=step, initial_value=lo)
+                                  for k, (label, lo, hi, step) in CHAIN_SLIDERS.items()}
+                self.g_c_note = gui.add_markdown("" if chains else "*no chain swings in this bake*")
             self.g_t_reset = gui.add_button("reset to the bake")
             self.g_t_path = gui.add_text("scene file", initial_value=os.path.join(self.out_dir, "tuned.toml"))
             self.g_t_save = gui.add_button("save scene")
@@ -295,15 +326,24 @@ class ViewerPage:
         self._tune_controls = (self.g_t_muscle, self.g_t_both, self.g_t_strength, self.g_t_frequency,
                                self.g_t_damping, self.g_t_goal, self.g_t_blend, self.g_t_reset, self.g_t_save,
                                self.g_t_path)
-        for h in self._tune_controls:
+        for h in (*self._tune_controls, self.g_c_chain, *self.g_c_knobs.values()):
             h.disabled = True
         self.g_t_muscle.on_update(lambda _: self._sync_sliders())
         for knob, h in (("strength", self.g_t_strength), ("frequency", self.g_t_frequency),
                         ("damping", self.g_t_damping), ("goal_scale", self.g_t_goal)):
             h.on_update(lambda _, knob=knob, h=h: self._knob_moved(knob, h))
         self.g_t_blend.on_update(lambda _: self._blend_moved())
+        self.g_c_chain.on_update(lambda _: self._sync_chain_sliders())
+        for knob, h in self.g_c_knobs.items():
+            h.on_update(lambda _, knob=knob, h=h: self._chain_knob_moved(knob, h))
         self.g_t_reset.on_click(lambda _: self._reset())
         self.g_t_save.on_click(lambda _: self._save())
+
+    def _bake_chains(self) -> list[str]:
+        """The names of the chains the bake swung (bake.json's params), [] when none (or no bake.json)."""
+        params = (self.pb.summary or {}).get("params") or {}
+        chains = (params.get("chains") or {}).get("chains") or []
+        return [str(c["chain"]) for c in chains if isinstance(c, dict) and c.get("chain")]
 
     def _heat_bar_html(self) -> str:
         top = self.pb.heat_top_mm
@@ -551,12 +591,19 @@ class ViewerPage:
             kids = np.flatnonzero(parents >= 0)
             self.bones = np.stack([parents[kids], kids], axis=1)
         self.base = {j.name: j for j in tuner.jiggles}
+        chains = tuner.setup.chains
+        self.chain_base = {} if chains is None else dict(zip(chains.chains.names, chains.params))
         self._show_maps(getattr(ch, "maps", None))
         with self._wanted:                                   # the sliders show the bake's values before they open
             self.tuner = tuner
             self._sync_sliders()
             for h in self._tune_controls:
                 h.disabled = False
+            if self.chain_base and list(self.g_c_chain.options) == list(self.chain_base):
+                self.g_c_chain.disabled = False
+                self._sync_chain_sliders()              # each knob open unless the bake keys it over time
+            elif self.chain_base:
+                self.g_c_note.content = "*the rebuilt chains are not the ones bake.json lists: not tuned here*"
         self._set_tune_status(f"ready: move a slider to re-simulate (setup rebuilt in {tuner.prepare_s:.1f} s)")
         if self.selected is not None:
             self.select(self.selected)
@@ -585,7 +632,7 @@ class ViewerPage:
                     self._wanted.notify_all()
             if motion is not None:
                 self._set_tune_status(("re-simulating ..." if more else "re-simulated") +
-                                      f" (last run {motion.seconds:.2f} s: particles, blend, skin)")
+                                      f" (last run {motion.seconds:.2f} s: particles, blend, chains, skin)")
 
     def _show_motion(self, generation: int, tuning: Tuning, motion) -> bool:
         """Swap in the motion (view.tuning.Motion) of request `generation` (its Tuning `tuning`), tagged with
@@ -643,6 +690,62 @@ class ViewerPage:
                 self.g_t_blend.value = blend
             finally:
                 self._syncing = False
+            self._sync_chain_sliders()
+
+    def _chain_current(self, name: str, knob: str) -> float | None:
+        """The chain's knob as the latest tuning has it (the bake's value when not tuned); None when the bake keys
+        it over time (a slider sets a constant: not tuned here)."""
+        from jiggle.sim.jiggle.keyed import Curve
+        v = self.tuning.chains.get(name, {}).get(knob)
+        if v is not None:
+            return float(v)
+        v = getattr(self.chain_base[name], knob)
+        return None if isinstance(v, Curve) else float(v)
+
+    def _sync_chain_sliders(self) -> None:
+        """The chain sliders show the chosen chain's values (without re-simulating); a knob the bake keys over time
+        is shown off."""
+        with self._wanted:
+            if self.tuner is None or not self.chain_base or self.g_c_chain.disabled:
+                return
+            name = self.g_c_chain.value
+            if name not in self.chain_base:
+                return
+            keyed = []
+            was, self._syncing = self._syncing, True        # their callbacks run here, in this thread: ignored
+            try:
+                for knob, h in self.g_c_knobs.items():
+                    _, lo, hi, _ = CHAIN_SLIDERS[knob]
+                    v = self._chain_current(name, knob)
+                    if v is None:
+                        keyed.append(knob)
+                    else:
+                        h.value = float(np.clip(v, lo, hi))
+                    h.disabled = v is None
+            finally:
+                self._syncing = was
+            self.g_c_note.content = (f"*{', '.join(keyed)} keyed over time in the bake: edit the keys in the scene*"
+                                     if keyed else "")
+
+    def _chain_knob_moved(self, knob: str, handle) -> None:
+        """A chain knob's slider moved: its value (read now, under the lock) on the chosen chain (and its twin with
+        "both sides") over the latest tuning, as _knob_moved does for a muscle."""
+        with self._wanted:
+            if self._syncing or self.tuner is None or self.g_c_chain.disabled:
+                return
+            value = float(handle.value)
+            name = self.g_c_chain.value
+            if name not in self.chain_base:
+                return
+            other = chain_twin(name, self.chain_base) if self.g_t_both.value else None
+            tuning = self.tuning
+            for n in (name, other):
+                if n is None:
+                    continue
+                now = self._chain_current(n, knob)
+                if now is not None and now != value:
+                    tuning = tuning.with_chain(n, **{knob: value})
+            self._request(tuning)
 
     def _knob_moved(self, knob: str, handle) -> None:
         """A knob's slider moved: its value (read now, under the lock: the latest the browser sent) on the chosen

@@ -6,8 +6,10 @@ so the file may live anywhere) with what bake.json says over them ([output] fps,
 [skeleton] drive, the skinning, the generated body, every [jiggle] setting, as the bake ran them, command
 line included), its [jiggle.muscles.NAME] tables kept, and the tuned values written over them (a goal
 weight scale as the scaled goal weights; the global `strength` of the bake, which overrides every muscle's,
-written into each muscle once one muscle's strength is tuned). Before it is kept, the file is read back and
-the jiggle it gives is checked against the tuned one (check_scene). The output
+written into each muscle once one muscle's strength is tuned), the glTF animation the bake read (`animation`), and
+the chains: [chains] `swing` (the bake's mode) and one [chains."NAME"] table per chain with the values the bake's
+user set and the tuned ones (sim.bake.scene reads them: stiffness, damping, gravity, drag). Before it is kept, the
+file is read back and the jiggle and chain values it gives are checked against the tuned ones (check_scene). The output
 times a scene cannot hold (a bake cut with --start/--end/--frames) are returned as command-line
 arguments and written in the file's header, with a built-in scene's skinning (it takes no [character]).
 """
@@ -100,10 +102,39 @@ def _goal_value(goal: np.ndarray) -> list[float]:
     return [float(g) for g in np.asarray(goal).reshape(-1)]
 
 
+def _chain_value(v):
+    """A chain parameter as a scene writes it: a number, keys [[t_s, v], ...] (linear), or {keys, interpolation}."""
+    from jiggle.sim.jiggle.keyed import Curve
+    if not isinstance(v, Curve):
+        return float(v)
+    keys = [[float(t), float(x)] for t, x in zip(v.times, v.values)]
+    return keys if v.interpolation == "linear" else {"keys": keys, "interpolation": v.interpolation}
+
+
+def _check_chains(scene, path: str, setup) -> None:
+    """InputError unless the scene gives the chains of `setup` (mode and every chain's parameters)."""
+    want_mode = (setup.params.get("chains") or {}).get("mode") or "auto"
+    if (scene.chains or "auto") != want_mode:
+        raise InputError(f"the scene would swing other chains ({scene.chains!r}, not {want_mode!r}); not saved", path)
+    ch = setup.chains
+    if ch is None:
+        return
+    from jiggle.sim.chain.params import chain_params
+    from jiggle.sim.jiggle.keyed import jsonable_value
+    size = float(np.ptp(np.asarray(setup.character.vertices), axis=0).max())
+    got = chain_params(ch.chains.names, ch.links.length, size, scene.chain_entries,
+                       [c.spring for c in ch.chains.chains])
+    for name, a, b in zip(ch.chains.names, got, ch.params):
+        keys = [k for k in ("stiffness", "damping", "gravity", "drag")
+                if jsonable_value(getattr(a, k)) != jsonable_value(getattr(b, k))]
+        if keys:
+            raise InputError(f"the scene would swing chain {name!r} with other {', '.join(keys)}; not saved", path)
+
+
 def check_scene(path: str, tuner, setup) -> None:
     """InputError unless the scene at `path` gives every muscle's jiggle and the jiggle settings of `setup`
     (what sim.bake.setup.prepare makes of a scene's [jiggle]: its tables over the template's defaults, then
-    the global strength over every muscle's)."""
+    the global strength over every muscle's), and its chains' parameters."""
     from jiggle.sim.bake.scene import load_scene
     from jiggle.sim.bake.setup import jsonable
     from jiggle.sim.jiggle.params import JiggleSettings
@@ -121,6 +152,7 @@ def check_scene(path: str, tuner, setup) -> None:
     keys = [k for k in want if k not in ("device", "strength") and got.get(k) != want[k]]
     if keys:
         raise InputError(f"the scene would bake with other jiggle settings ({', '.join(keys)}); not saved", path)
+    _check_chains(scene, path, setup)
 
 
 def output_args(params: dict, times: np.ndarray) -> list[str]:
@@ -155,6 +187,8 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
             doc["motion"] = _absolute(orig["motion"], ("file", "skeleton"), req.scene, "motion")
         else:
             doc["motion"] = {"file": os.path.abspath(params["clip"]["file"])}
+            if req.animation is not None:               # a glTF clip's animation other than its first
+                doc["motion"]["animation"] = req.animation
     character = _absolute(orig.get("character", {}), ("file", "template"), req.scene, "character") \
         if req.scene else {}
     skinning = params["skinning"]
@@ -177,7 +211,11 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
                                    ("--mush", "mush", 0)):
             if skinning[key] != default:
                 extra += [flag, str(skinning[key])]
-    output = {"fps": float(params["fps"]), "chunk": int(params["chunk"]), "formats": list(formats)}
+    if req.loop is not None:                # a scene holds no --loop
+        extra += ["--loop", req.loop]
+    # the rate asked for (a looping bake's is nudged to fit its period: asked again, it is nudged again alike)
+    output = {"fps": float(req.fps if req.fps is not None else params["fps"]), "chunk": int(params["chunk"]),
+              "formats": list(formats)}
     if "focus" in orig.get("output", {}):
         output["focus"] = orig["output"]["focus"]
     doc["output"] = output
@@ -189,8 +227,7 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
         jiggle["goal_rate"] = float(st.goal_rate)
     jiggle.update({"gravity": bool(st.gravity), "preroll": float(st.preroll), "blend": _blend_value(st.blend),
                    "cut_ratio": float(st.cut_ratio), "cut_jump": float(st.cut_jump)})
-    if getattr(st, "collisions", False) or "collisions" in jiggle:
-        jiggle["collisions"] = bool(getattr(st, "collisions", False))
+    jiggle["collisions"] = bool(st.collisions)      # always: the default (on) is not every bake's
     if st.colliders != "bone" or "colliders" in jiggle:
         jiggle["colliders"] = st.colliders
     if st.muscle_collisions or "muscle_collisions" in jiggle:
@@ -220,7 +257,30 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
     if tables:
         jiggle["muscles"] = tables
     doc["jiggle"] = jiggle
-    return doc, output_args(params, setup.times) + extra
+    chains = _chains_doc(orig, params, setup)
+    if chains:
+        doc["chains"] = chains
+    # a request without --start/--end/--frames (a looping bake's: its period is measured to the clip's end) gives
+    # the scene's own times; one with them the arguments that cut the scene's clip alike
+    uncut = req.start is None and req.end is None and req.frames is None
+    return doc, ([] if uncut else output_args(params, setup.times)) + extra
+
+
+def _chains_doc(orig: dict, params: dict, setup) -> dict:
+    """The scene's [chains]: the bake's scene's own tables, `swing` the bake's mode (other than "auto"), and per chain
+    the values the bake's user set and the tuned ones (by exact name: over any glob table)."""
+    doc = {k: (dict(v) if isinstance(v, dict) else v) for k, v in (orig.get("chains") or {}).items()} \
+        if isinstance(orig.get("chains"), dict) else {}
+    mode = (params.get("chains") or {}).get("mode") or "auto"
+    if mode != "auto":
+        doc["swing"] = mode
+    ch = setup.chains
+    if ch is not None:
+        for name, p in zip(ch.chains.names, ch.params):
+            if p.given:
+                table = doc.setdefault(name, {})
+                table.update({k: _chain_value(getattr(p, k)) for k in p.given})
+    return doc
 
 
 def save_tuned_scene(tuner, tuning, path: str, formats=("npz", "usdc"), source: str = "") -> list[str]:
