@@ -4,14 +4,18 @@
 #   ./dev.sh test [pytest options]        install everything, run the whole test suite
 #   ./dev.sh install                      install only
 # Installs, when missing: the system GL libraries for headless rendering (as root, or via sudo -n),
-# a virtual environment in .venv with jiggle and its test extras. Re-installs when pyproject.toml changes.
+# a virtual environment in .venv with jiggle (an editable install of this checkout) and its test extras. Re-installs when
+# pyproject.toml or setup.py change, or when .venv's jiggle is not this checkout's; a module added under rig/, sim/ or
+# scenes/ needs none: the links jiggle/rig, jiggle/sim, jiggle/scenes put the stage folders inside the package
+# (docs/contributing.md), and dev.sh stops with what to do when a clone lacks them.
 # Also, when Python 3.11 is present and JIGGLE_BLENDER is not 0: Blender as a Python module (the extra
 # "blender" of pyproject.toml, for tests/character/test_blender.py) in its own environment .venv/blender,
 # because the bpy wheels pin numpy < 2; and the X11 client libraries bpy loads.
 # Unless JIGGLE_BROWSER=0: Debian's chromium and chromium-driver, which the test extras' selenium drives
 # headless for tests/app/test_view.py (`jiggle view` in a real browser; skipped with a reason without them).
 # Unless JIGGLE_JS=0: Node.js and npm, and in tests/js/node_modules the JavaScript clients the tests check
-# jiggle's glTF files with (the Khronos glTF-Validator and three.js, pinned in tests/js/package-lock.json).
+# jiggle's glTF files with (the Khronos glTF-Validator and three.js) and pyright, the type checker that
+# tests/test_checkout.py runs over the checkout (all pinned in tests/js/package-lock.json).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -68,7 +72,27 @@ system_deps() {
   [ ${#missing[@]} -eq 0 ] || apt_install "${missing[@]}"
 }
 
+# The stage folders inside the package: jiggle/rig -> ../rig, jiggle/sim -> ../sim, jiggle/scenes -> ../scenes,
+# committed links (a clone made with git's core.symlinks=false holds them as small text files instead).
+check_links() {
+  local top
+  for top in rig sim scenes; do
+    if [ ! -L "jiggle/$top" ] || [ "$(readlink "jiggle/$top")" != "../$top" ] || [ ! -d "jiggle/$top" ]; then
+      die "jiggle/$top is not the link to ../$top that the checkout needs (a clone without symbolic links?): run" \
+          "'git config core.symlinks true && rm -f jiggle/$top && git checkout -- jiggle/$top'"
+    fi
+  done
+}
+
+# Whether .venv's jiggle is this checkout's (an editable install of another folder, or a broken one, is not).
+installed_here() {
+  local py="$PWD/.venv/bin/python" at
+  at=$(cd / && "$py" -c 'import jiggle, os; print(os.path.realpath(jiggle.__file__))' 2>/dev/null) || return 1
+  [ "$at" = "$(realpath jiggle/__init__.py)" ]
+}
+
 install() {
+  check_links
   system_deps
   local py; py=$(pick_python) || die "Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"
   if [ ! -x .venv/bin/python ]; then
@@ -76,8 +100,8 @@ install() {
     "$py" -m venv .venv
   fi
   local stamp=.venv/.jiggle-install hash
-  hash=$(sha256sum pyproject.toml | cut -d' ' -f1)
-  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$hash" ]; then
+  hash=$(cat pyproject.toml setup.py | sha256sum | cut -d' ' -f1)
+  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$hash" ] || ! installed_here; then
     say "installing jiggle and its dependencies into .venv (a few minutes the first time)"
     .venv/bin/python -m pip install -q --upgrade pip
     .venv/bin/python -m pip install -q -e '.[test]'
@@ -89,15 +113,15 @@ install() {
 
 # The JavaScript clients of tests/js (npm ci from its lock file), again when the lock file changes.
 js_env() {
-  command -v npm >/dev/null 2>&1 || { say "npm not found; the glTF-Validator and three.js tests will be skipped"; return 0; }
+  command -v npm >/dev/null 2>&1 || { say "npm not found; the glTF-Validator, three.js and pyright tests will be skipped"; return 0; }
   local stamp=tests/js/node_modules/.jiggle-install hash
   hash=$(sha256sum tests/js/package-lock.json | cut -d' ' -f1)
   [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$hash" ] && return 0
-  say "installing the glTF-Validator and three.js into tests/js/node_modules"
+  say "installing the glTF-Validator, three.js and pyright into tests/js/node_modules"
   if (cd tests/js && npm ci --no-audit --no-fund --loglevel=error >/dev/null); then
     echo "$hash" > "$stamp"
   else
-    say "npm ci failed; the glTF-Validator and three.js tests will be skipped"
+    say "npm ci failed; the glTF-Validator, three.js and pyright tests will be skipped"
   fi
 }
 

@@ -10,17 +10,12 @@ The public Python API (documented in the site's API reference; everything else i
 `load_clip`, `fit`, `simulate`. They load on first use, so `import jiggle` stays light.
 
 The pipeline's stage packages are installed under this one (jiggle.rig, jiggle.sim, jiggle.scenes); in a source
-checkout they are the folders rig/, sim/ and scenes/ beside this one.
+checkout they are the folders rig/, sim/ and scenes/ beside this one, reached through the links jiggle/rig, jiggle/sim
+and jiggle/scenes (docs/contributing.md).
 """
 from __future__ import annotations
 
-import os as _os
-
 from jiggle._version import __version__
-
-_here = _os.path.dirname(_os.path.abspath(__file__))
-if not _os.path.isdir(_os.path.join(_here, "rig")):       # a source checkout: the stage folders sit beside jiggle/
-    __path__.append(_os.path.dirname(_here))               # noqa: F821 (a package's own __path__)
 
 __all__ = ["__version__", "bake", "Bake", "Metrics", "InputError", "load_character", "load_clip", "fit", "simulate",
            "Muscles", "Simulation", "Character", "Clip"]

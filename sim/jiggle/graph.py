@@ -32,9 +32,9 @@ on the device or once per chunk:
 
 The counts read once per chunk stay where they were: the hard stops (ParticleSolver.hard_stops, the bake's).
 
-Equal, bit for bit on the CPU, to the plain path: the same kernels on the same arguments in the same order
-(ParticleSolver.launch_list, StepPlan.step_ops, TissuePass.pass_ops give the plain path's launches and these
-operations from one list). tests/jiggle/test_graph.py runs both, with contacts and the tissue law, over chunks, and
+Equal, bit for bit on the CPU, to the plain path: the same kernels on the same arguments in the same order (both walk
+one step sequence, sim/jiggle/step_sequence.py; ParticleSolver.launch_list, StepPlan.step_ops, TissuePass.pass_ops
+give the plain path's launches and these operations from one list). tests/jiggle/test_graph.py runs both, with contacts and the tissue law, over chunks, and
 checks that the operations read nothing back and that two chunks of one shape give one signature (one capture).
 The keyed solver (sim/jiggle/keyed_solver.py) runs the plain path.
 """
@@ -48,6 +48,7 @@ import warp as wp
 
 from jiggle.sim.jiggle import graph_kernels
 from jiggle.sim.jiggle.goal_track import GoalControl
+from jiggle.sim.jiggle.step_sequence import step_sequence
 
 MAX_GRAPHS = 8
 """Captured graphs kept per solver (the chunks of a bake have two or three shapes: the first, the others, the last)."""
@@ -190,50 +191,37 @@ class ChunkGraph:
                                                           A.copy_in(cc.vel_end)))
         state, nxt = self.states
         ops, outputs = [], []
-        if start[0] == "given":
-            state.assign(*start[1])
-        elif start[0] == "rest":
-            state.assign(m.rest, np.zeros_like(m.rest))
-        else:
-            ops += self._restart_ops(state, ctrl, start[1])
         N = m.num_particles
-
-        def record(g: int, st) -> None:
-            if is_out[g]:
-                row = A.empty((1, N), wp.vec3)
-                ops.append(("copy", row, st.x, 0, 0, N))
-                outputs.append((row, np.zeros(1, np.int64), wanted[g:g + 1], "x"))
-
-        record(0, state)
-        cut = track.cut[track.intervals(0.5 * (grid[:-1] + grid[1:]))]
-        cut_at = np.flatnonzero(cut)
-        g = 0
-        while g < len(grid) - 1:
-            if cut[g]:
-                if g + 1 < len(grid) - 1 and cut[g + 1]:
-                    ops.append(("launch", *s.glue_launch(state, ctrl, grid[g + 1])))
+        for kind, g, e, ks in step_sequence(track, grid, is_out):   # the plain path (simulate.run) walks it too
+            if kind == "stretch":
+                if tissue is None or not tissue.any_pairs:
+                    plan = s.run_plan(state, nxt, ctrl, grid[g:e + 1], record=ks, colliders=cols, arrays=A)
+                    ops += [("launch", *op) for op in s.launch_list(plan.kernel, plan.K, plan.frame, plan.args)]
+                    if len(ks):
+                        outputs.append((plan.frames, np.arange(len(ks)), wanted[g + ks], "x"))
+                        if plan.records is not None:
+                            outputs.append((plan.records, np.arange(len(ks)), wanted[g + ks], "records"))
                 else:
-                    ops += self._restart_ops(state, ctrl, grid[g + 1])
-                g += 1
-                record(g, state)
+                    frames, recs = self._tissue_ops(ops, state, nxt, ctrl, grid[g:e + 1], ks, cols, tissue)
+                    if len(ks):
+                        outputs.append((frames, np.arange(len(ks)), wanted[g + ks], "x"))
+                        outputs.append((recs, np.arange(len(ks)), wanted[g + ks], "records"))
+                state, nxt = nxt, state
                 continue
-            later = cut_at[cut_at > g]
-            e = int(later[0]) if len(later) else len(grid) - 1
-            ks = np.flatnonzero(is_out[g + 1:e + 1]) + 1
-            if tissue is None or not tissue.any_pairs:
-                plan = s.run_plan(state, nxt, ctrl, grid[g:e + 1], record=ks, colliders=cols, arrays=A)
-                ops += [("launch", *op) for op in s.launch_list(plan.kernel, plan.K, plan.frame, plan.args)]
-                if len(ks):
-                    outputs.append((plan.frames, np.arange(len(ks)), wanted[g + ks], "x"))
-                    if plan.records is not None:
-                        outputs.append((plan.records, np.arange(len(ks)), wanted[g + ks], "records"))
+            if kind == "glue":
+                ops.append(("launch", *s.glue_launch(state, ctrl, grid[e])))
+            elif kind == "restart":                    # the cut's far side: a fresh start there
+                ops += self._restart_ops(state, ctrl, grid[e])
+            elif start[0] == "given":                  # the start
+                state.assign(*start[1])
+            elif start[0] == "rest":
+                state.assign(m.rest, np.zeros_like(m.rest))
             else:
-                frames, recs = self._tissue_ops(ops, state, nxt, ctrl, grid[g:e + 1], ks, cols, tissue)
-                if len(ks):
-                    outputs.append((frames, np.arange(len(ks)), wanted[g + ks], "x"))
-                    outputs.append((recs, np.arange(len(ks)), wanted[g + ks], "records"))
-            state, nxt = nxt, state
-            g = e
+                ops += self._restart_ops(state, ctrl, start[1])
+            if len(ks):                                # the state at grid[e] is an output frame
+                row = A.empty((1, N), wp.vec3)
+                ops.append(("copy", row, state.x, 0, 0, N))
+                outputs.append((row, np.zeros(1, np.int64), wanted[e:e + 1], "x"))
         if not self.conditional:                       # no conditional nodes: the grid built every step
             ops = [o for op in ops for o in (op[2] if op[0] == "if" else [op])]
         return ops, outputs, state

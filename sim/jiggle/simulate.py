@@ -32,6 +32,7 @@ from jiggle.sim.jiggle.graph import ChunkGraph
 from jiggle.sim.jiggle.params import JiggleSettings
 from jiggle.sim.jiggle.particles import GRAVITY, ParticleModel
 from jiggle.sim.jiggle.solver import ParticleSolver
+from jiggle.sim.jiggle.step_sequence import step_sequence
 from jiggle.sim.jiggle.tissue_contacts import integrate_tissue
 
 TIME_EPS = 1e-9
@@ -220,6 +221,7 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
             raise FloatingPointError(f"{model.group_of(int(p))}: the simulation produced NaN at frame {k} "
                                      f"(t = {out_times[k]:.4f} s)")
 
+    how = ("given", (x, v)) if given is not None else ("rest",) if preroll > 0 else ("restart", t0)
     if getattr(solver, "use_graph", False) and solver.graph is None:
         solver.graph = ChunkGraph(solver)
     graph = getattr(solver, "graph", None)
@@ -228,7 +230,6 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         if tissue is not None:
             from jiggle.sim.jiggle.tissue_contacts import _check
             _check(model, tissue)
-        how = ("given", (x, v)) if given is not None else ("rest",) if preroll > 0 else ("restart", t0)
         frames, recs, end = graph.run(track, control, grid, out_times, wanted, is_out, how, colliders, tissue,
                                       lambda t: start_offsets(model, track, t))
         save(np.arange(len(out_times)), frames)
@@ -239,45 +240,33 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         return out
 
     state, nxt = model.state(), model.state()
-    if given is not None:
-        state.assign(x, v)
-    elif preroll > 0:
-        state.assign(model.rest, np.zeros_like(model.rest))
-    else:
-        restart(model, solver, state, control, t0)
-
-    def record(g: int, x) -> None:
-        if is_out[g]:
-            save(wanted[g:g + 1], x.numpy()[None])
-
-    record(0, state.x)
-    cut = track.cut[track.intervals(0.5 * (grid[:-1] + grid[1:]))]
-    cut_at = np.flatnonzero(cut)
-    g = 0
-    while g < len(grid) - 1:
-        if cut[g]:
-            if g + 1 < len(grid) - 1 and cut[g + 1]:
-                solver.glue(state, control, grid[g + 1])
-            else:                                   # the cut's far side: a fresh start there
-                restart(model, solver, state, control, grid[g + 1])
-            g += 1
-            record(g, state.x)
+    for step in step_sequence(track, grid, is_out):        # sim/jiggle/step_sequence.py: the graph walks it too
+        kind, g, e, ks = step
+        if kind == "stretch":
+            # the cut-free stretch grid[g..e] in one launch, its output frames read back once
+            if tissue is None:
+                frames = solver.integrate(state, nxt, control, grid[g:e + 1], record=ks, colliders=colliders)
+            else:
+                frames = integrate_tissue(solver, state, nxt, control, grid[g:e + 1], record=ks,
+                                          colliders=colliders, tissue=tissue)
+            if len(ks):
+                save(wanted[g + ks], frames)
+                if records is not None:
+                    records[wanted[g + ks]] = solver.contact_records
+            state, nxt = nxt, state
             continue
-        later = cut_at[cut_at > g]
-        e = int(later[0]) if len(later) else len(grid) - 1
-        # the cut-free stretch grid[g..e] in one launch, its output frames read back once
-        ks = np.flatnonzero(is_out[g + 1:e + 1]) + 1
-        if tissue is None:
-            frames = solver.integrate(state, nxt, control, grid[g:e + 1], record=ks, colliders=colliders)
+        if kind == "glue":
+            solver.glue(state, control, grid[e])
+        elif kind == "restart":                     # the cut's far side: a fresh start there
+            restart(model, solver, state, control, grid[e])
+        elif how[0] == "given":                     # the start
+            state.assign(*how[1])
+        elif how[0] == "rest":
+            state.assign(model.rest, np.zeros_like(model.rest))
         else:
-            frames = integrate_tissue(solver, state, nxt, control, grid[g:e + 1], record=ks, colliders=colliders,
-                                      tissue=tissue)
+            restart(model, solver, state, control, how[1])
         if len(ks):
-            save(wanted[g + ks], frames)
-            if records is not None:
-                records[wanted[g + ks]] = solver.contact_records
-        state, nxt = nxt, state
-        g = e
+            save(wanted[e:e + 1], state.x.numpy()[None])
     if return_state:
         x, v = state.numpy()
         return out, (np.array(x, dtype=np.float32), np.array(v, dtype=np.float32))
