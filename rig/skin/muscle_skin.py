@@ -132,8 +132,15 @@ class MuscleSkin:
         skin's jiggle scaled by it, applied last), or None (none, or 1 everywhere)."""
         self.rigid = rigid if rigid is not None and rigid.any and skinning != "rbf" else None
         """rig.character.gear.RigidParts of the gear and hard shells the deformers leave alone, or None."""
+        self.gear = rigid
+        """rig.character.gear.RigidParts as given (the rule that decided each rigidly bound piece, hard or flesh,
+        even when none is hard), or None."""
         self.ride = None
         """rig.character.gear.Ride of the rigid pieces on the tissue under them, or None."""
+        self.idle = np.zeros(M, bool)
+        """(M,) bool: the muscles that drive nothing because none of their skin is soft (no (vertex, muscle)
+        pair of theirs lies on a soft vertex: all lay on gear or hard shells): the bake does not simulate them
+        (sim.bake.setup). All False without rigid parts and for "rbf"."""
         self.launches = 0
         """Warp launches pose_batch has made so far (skinning, Delta Mush, shells, influence objects, RBF)."""
         self._slots, self._turn = ({}, {}), 0          # pose_batch(reuse=True)'s kept host buffers
@@ -141,6 +148,10 @@ class MuscleSkin:
         self.jiggle_spread = None
         """SurfaceSmoothing of the jiggle (skin_frames), or None: the deformers' displacement is spread
         instead, inside pose / pose_batch (shell, influence)."""
+        from jiggle.rig.skin.creases import Creases
+        self.creases = Creases(character.vertices, character.faces,
+                               fixed=None if self.rigid is None else self.rigid.mask)
+        """rig.skin.creases.Creases: skin_frames holds the jiggle together across the edges the smooth skin squeezes."""
         self.frames = MuscleFrames.build(rig, character.bind_world, star=star)
         self.table = shell_table(shells, star=self.frames.star if star else None,
                                  star_index=self.frames.star_index if star else None)
@@ -170,6 +181,7 @@ class MuscleSkin:
             from jiggle.rig.character.gear import ride
             keep = ~self.rigid.mask[vertex]
             muscle, vertex = muscle[keep], vertex[keep]
+            self.idle = np.bincount(muscle, minlength=M) == 0
             influence = None if influence is None else influence[keep]
             offsets = np.concatenate([[0], np.cumsum(np.bincount(vertex, minlength=V))]).astype(offsets.dtype)
             self.ride = ride(character, self.rigid)
@@ -618,7 +630,9 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
     With several sets the first is the static one: where the skin has a `jiggle_mask` or a
     `jiggle_spread` (the RBF skin), every other set's difference from it (its jiggle) is scaled by the
     mask (zones without muscles show none) and spread over the surface; then, where the character has
-    a painted jiggle map (MuscleSkin.jiggle_map), scaled by it per vertex (rig.skin.painted_maps).
+    a painted jiggle map (MuscleSkin.jiggle_map), scaled by it per vertex (rig.skin.painted_maps); then every
+    other set's jiggle is held together across the edges the static skin squeezes (MuscleSkin.creases,
+    rig/skin/creases.py), so a crease or an abrupt seam of the weights does not tear it.
     defer : return a function that finishes the skins instead (the surface spread, no device work:
     the bake runs it in a worker thread while the next chunk is simulated; sim/bake/baker.py).
     smooth : also return the smooth skin alone (MuscleSkin.lbs_batch's: LBS / DQS, mushed when the skin
@@ -654,6 +668,9 @@ def skin_frames(skin, world: np.ndarray, cvs_sets, curve: np.ndarray, frames: np
                 out[s] = out[0] + (d if spread is None else spread(d))
             if painted is not None:     # where the map is 0 the final skin is the static one exactly
                 out[s] = painted.apply(out[0], out[s])
+        creases = getattr(skin, "creases", None)
+        if creases is not None and n > 1:   # the jiggle held together where the smooth skin squeezes the surface
+            creases.hold(out[0], out[1:n])
         character = getattr(skin, "character", None)
         if character is not None:       # the seams closed on every set (rig/skin/seams.py); LBS needs none
             from jiggle.rig.skin.seams import for_character, weld

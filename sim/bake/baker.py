@@ -56,6 +56,7 @@ from jiggle.sim.bake.writer import BakeWriter
 from jiggle.sim.jiggle.blend import blend, blend_weights, needs_simulation
 from jiggle.sim.jiggle.colliders import collider_model, contact_summary, muscle_contacts, skin_check
 from jiggle.sim.jiggle.keyed_solver import make_solver
+from jiggle.sim.jiggle.params import glued
 from jiggle.sim.jiggle.particles import muscle_model
 from jiggle.sim.jiggle.simulate import TIME_EPS, goals, simulate
 from jiggle.sim.jiggle.tissue_contacts import tissue_contact_model
@@ -77,6 +78,12 @@ CACHE_NAMES = {"npz": "bake.npz", "usdc": "bake.usdc", "usda": "bake.usda", "pc2
 
 SCALED_KEYS = ("skin_static", "skin_final", "skin_lbs", "cvs_static", "cvs_dynamic", "skin_pulled_m", "contact_depth")
 """A chunk's arrays that are lengths of the character (metres), written at the file's size (BakeSetup.scale)."""
+
+
+def idle_muscles(setup: BakeSetup) -> np.ndarray:
+    """(M,) bool: the setup's muscles that drive no skin (its skin's MuscleSkin.idle; none for a skin without it)."""
+    from jiggle.sim.bake.setup import idle_of
+    return idle_of(setup.skin, setup.rig.M)
 
 
 def chunk_path(out_dir: str, c: int) -> str:
@@ -106,9 +113,14 @@ class Baker:
         """whether the chunks bring the smooth skin alone (skin_lbs, what compare's skin quality reads against)"""
         self.timings = dict.fromkeys(("drive_s", "static_s", "simulate_s", "skin_s", "write_s"), 0.0)
         self.colliders = self.skin_check = None
-        if needs_simulation(self.blend):          # blend 0 everywhere: the static CVs, no simulation
-            self.model = muscle_model(s.rig, list(s.jiggles), s.settings.device, gravity=s.settings.gravity)
-            self.solver = make_solver(self.model, s.jiggles)
+        # muscles none of whose skin is soft drive nothing (rig.skin.muscle_skin.MuscleSkin.idle): glued to their
+        # static shape; when every muscle is so, nothing is simulated
+        self.idle = idle_muscles(s)
+        jiggles = glued(s.jiggles, self.idle) if self.idle.any() else list(s.jiggles)
+        if needs_simulation(self.blend) and not (self.idle.size and self.idle.all()):
+            # blend 0 everywhere: the static CVs, no simulation
+            self.model = muscle_model(s.rig, jiggles, s.settings.device, gravity=s.settings.gravity)
+            self.solver = make_solver(self.model, jiggles)
         if s.settings.collisions:
             self.colliders = collider_model(s.rig, s.character, capsules=s.capsules, floor=s.floor,
                                             device=s.settings.device)
@@ -253,7 +265,8 @@ class Baker:
             if self.skin_check is not None:
                 # the jiggle keeps the final skin out of other parts' capsules the static skin is not in (in
                 # place, before anything is written), and both skins' vertices inside are counted per frame
-                kept = self.skin_check.keep_out(world, skin_static, skin_final, s.settings.device)
+                kept = self.skin_check.keep_out(world, skin_static, skin_final, s.settings.device,
+                                                rigid=getattr(s.skin, "ride", None))
                 arrays["inside_static"], arrays["inside_final"] = kept["static"], kept["final"]
                 arrays["skin_kept_out"], arrays["skin_pulled_m"] = kept["kept"], kept["pulled_m"]
             arrays = {**arrays, "skin_static": skin_static, "skin_final": skin_final}
@@ -613,7 +626,9 @@ def _tissue_json(setup: BakeSetup, parts: dict) -> dict:
             "hard_stop_rule": f"a substep ending at >= {tissue_law.NEAR:g} x reach whose outward offset speed fell by more "
                               f"than half without turning back, from a speed covering {tissue_law.FAST:g} x reach in "
                               "the substep",
-            "hard_stops": {n: int(k) for n, k in zip(setup.rig.names, stops)}, "hard_stops_total": int(stops.sum())}
+            # muscles that drive nothing are not simulated: left out of the counts (sim.bake.baker.idle_muscles)
+            "hard_stops": {n: int(k) for n, k, i in zip(setup.rig.names, stops, idle_muscles(setup)) if not i},
+            "hard_stops_total": int(stops[~idle_muscles(setup)].sum())}
 
 
 def _resumed_contacts(out_dir: str, done: int) -> dict:

@@ -384,7 +384,15 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         skin.rig = scene.apply_pose_shapes(mus.rig, character)
         log(f"pose shapes: {len(skin.rig.pose_shapes.shapes)} muscle(s) shaped by joint bends")
     rigid = getattr(skin, "rigid", None)
-    log(rigid.describe() if rigid is not None else "rigid parts: none; all the skin is tissue")
+    # the decisions, also when every rigidly bound piece is flesh (RBF skinning keeps no piece rigid)
+    gear = getattr(skin, "gear", None) if getattr(skin, "skinning", "shell") != "rbf" else None
+    record = rigid if rigid is not None else gear if gear is not None and gear.decided else None
+    log(record.describe() if record is not None else "rigid parts: none; all the skin is tissue")
+    idle = idle_of(skin, mus.rig.M)
+    if idle.any():
+        names = [mus.rig.names[m] for m in np.nonzero(idle)[0]]
+        log(f"not simulated: {len(names)} of {mus.rig.M} muscles drive nothing, none of their skin being soft "
+            f"({', '.join(names[:8])}{' ...' if len(names) > 8 else ''})")
     log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
         f"pairs ({reused}{time.perf_counter() - t:.1f} s)")
     timings["fit_s"] = time.perf_counter() - t
@@ -397,7 +405,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     t = time.perf_counter()
     world_at = _drive(clip, drive, knots, log)
     timings["drive_s"] = time.perf_counter() - t
-    if mus.template.name == GENERIC:
+    if mus.template.name == GENERIC and not idle.all():
         t = time.perf_counter()
         jiggles = _to_motion(jiggles, mus, character, clip, drive, world_at, knots, log)
         if drive == "kinematic":
@@ -433,7 +441,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "body_plan": mus.plan.to_json(),
         "template_why": mus.why or None,
-        "rigid": {"option": req.rigid or "auto", "parts": rigid.to_json() if rigid is not None else None},
+        "rigid": {"option": req.rigid or "auto", "parts": record.to_json() if record is not None else None,
+                  **({"not_simulated": [mus.rig.names[m] for m in np.nonzero(idle)[0]]} if idle.any() else {})},
         "parts": [p.to_json() for p in mus.parts] or None,
         "size_scale": character.meta.get("template_scale", 1.0),
         # metres per unit of the character's file, as its caches are written: a DCC that imported the file as it
@@ -443,7 +452,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
         "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush},
         "settings": jsonable(settings),
-        "muscles": _muscle_params(mus.rig, jiggles),
+        "muscles": _muscle_params(mus.rig, jiggles, idle),
         "chunk": _chunk(req, scene),
         "loop": loop.to_json(),
     }
@@ -751,17 +760,27 @@ MUSCLE_KEYS = {"strength": "strength", "frequency": "frequency_hz", "damping": "
 """bake.json's per-muscle parameter names (the scene's [jiggle.muscles.NAME] keys) -> MuscleJiggle attributes."""
 
 
-def _muscle_params(rig, jiggles) -> dict:
+def _muscle_params(rig, jiggles, idle=None) -> dict:
     """Per muscle: kind, rest volume, mass and every jiggle parameter under its scene key (MUSCLE_KEYS; a
     keyed one as {"times", "values", "interpolation"}), max_offset in metres at strength 1 (None: no
-    limit) and reach_m, the reach at the largest strength (JSON-ready)."""
+    limit) and reach_m, the reach at the largest strength (JSON-ready). A muscle flagged in `idle` ((M,)
+    bool, rig.skin.muscle_skin.MuscleSkin.idle) drives no skin and is not simulated: "simulated" false and
+    reach_m None, so compare leaves it out of the near-reach counts."""
     volumes = rig.volumes(rig.rest_cvs)
     out = {}
     for m, j in enumerate(jiggles):
         d = {key: jsonable(getattr(j, attr)) for key, attr in MUSCLE_KEYS.items()}
         d["max_offset"] = j.max_offset if math.isfinite(j.max_offset) else None
+        still = idle is not None and bool(idle[m])
         out[rig.names[m]] = {"kind": rig.kinds[m], "volume_m3": float(volumes[m]),
                              "mass_kg": float(volumes[m] * j.density), **d,
-                             "reach_m": j.reach if math.isfinite(j.reach) else None}
+                             "reach_m": j.reach if math.isfinite(j.reach) and not still else None,
+                             **({"simulated": False} if still else {})}
     return out
+
+
+def idle_of(skin, M: int) -> np.ndarray:
+    """(M,) bool: the muscles the skin says drive nothing (MuscleSkin.idle), none when it does not say."""
+    idle = getattr(skin, "idle", None)
+    return np.zeros(M, bool) if idle is None or len(idle) != M else np.asarray(idle, bool)
 

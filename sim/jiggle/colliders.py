@@ -434,13 +434,16 @@ class SkinCheck:
         return self.keep_out(world, skin, skin.copy(), device)["static"]
 
     def keep_out(self, world: np.ndarray, static: np.ndarray, final: np.ndarray,
-                 device: str = "cpu") -> dict:
+                 device: str = "cpu", rigid=None) -> dict:
         """The final skin kept out of the capsules its static skin is not in: a final vertex (T, V, 3) float32
         metres, changed in place, that the jiggle took inside a capsule of its part's list is pulled back along
         final - static to just before the capsule (sim/jiggle/contact_kernels.py: skin_keep_out_clusters);
         skin the animation itself puts inside stays. Returns per frame (T,) "static" and "final" (the counts
         of :meth:`count`, taken after the pull-back: final <= static in every frame), "kept" (vertices pulled
-        back) and "pulled_m" (the longest pull-back, metres). world (T, J, 4, 4). One launch."""
+        back) and "pulled_m" (the longest pull-back, metres). world (T, J, 4, 4). One launch.
+        rigid : rig.character.gear.Ride (rows, piece) of the gear and hard shells, or None: a rigid piece is pulled
+        back as a whole, by the largest share of its jiggle any of its vertices was (its jiggle is one translation,
+        so it stays rigid: pulling back single vertices would stretch and tear its edges)."""
         from jiggle.sim.jiggle import contact_kernels as ck
         T = len(final)
         out = {"static": np.zeros(T, np.int32), "final": np.zeros(T, np.int32), "kept": np.zeros(T, np.int32),
@@ -458,14 +461,36 @@ class SkinCheck:
         cand = wp.empty((T, K, int(np.diff(self.part_offsets).max())), dtype=wp.int32, device=device)
         counts = [wp.zeros(T, dtype=wp.int32, device=device) for _ in range(3)]
         pulled = wp.zeros(T, dtype=float, device=device)
+        rows = None if rigid is None or not len(getattr(rigid, "rows", ())) else np.asarray(rigid.rows)
+        before = final[:, rows] if rows is not None else None
         wp.launch(ck.skin_keep_out_clusters, dim=(T, K), device=device, inputs=[*model, ends, centres, s, f, cand],
                   outputs=[*counts, pulled])
         if f.device.is_cuda or f.ptr != final.ctypes.data:
             final[...] = f.numpy()
+        if rows is not None:
+            _pull_whole(rows, np.asarray(rigid.piece), static, final, before)
         for key, a in zip(("static", "final", "kept"), counts):
             out[key] = a.numpy()
         out["pulled_m"] = pulled.numpy()
         return out
+
+
+def _pull_whole(rows: np.ndarray, piece: np.ndarray, static: np.ndarray, final: np.ndarray, before: np.ndarray) -> None:
+    """SkinCheck.keep_out's rigid pieces: every vertex of a piece (rows (R,), piece (R,) in 0..K-1) pulled back by
+    the largest share of its jiggle (before - static, (T, R, 3)) that keep_out pulled any of them back, in place
+    in `final` (T, V, 3); pieces nothing pulled stay as they are, bit for bit."""
+    after = final[:, rows]
+    if np.array_equal(after, before):
+        return
+    jig = before.astype(np.float64) - static[:, rows]
+    share = np.linalg.norm(before.astype(np.float64) - after, axis=2) / np.maximum(np.linalg.norm(jig, axis=2), 1e-12)
+    T, K = len(final), int(piece.max()) + 1
+    most = np.zeros((T, K))
+    for t in np.nonzero((share > 0.0).any(axis=1))[0]:
+        np.maximum.at(most[t], piece, np.minimum(share[t], 1.0))
+    hit = most[:, piece] > 0.0                                                   # (T, R)
+    moved = (before - most[:, piece][..., None] * jig).astype(final.dtype)
+    final[:, rows] = np.where(hit[..., None], moved, after)
 
 
 CLUSTER_SIZE = 0.06

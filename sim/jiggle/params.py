@@ -229,6 +229,16 @@ def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
 
 
 
+def glued(jiggles, idle) -> list[MuscleJiggle]:
+    """`jiggles` with every muscle flagged in `idle` ((M,) bool: it drives no skin, rig.skin.muscle_skin.MuscleSkin.idle)
+    at strength 0: its particles glued to their goals (goal_stiffness inf), so the solver moves them with the static
+    shape and none ever nears its reach or stops hard; the others as they are."""
+    idle = np.zeros(len(jiggles), bool) if idle is None else np.asarray(idle, bool).reshape(-1)
+    if len(idle) != len(jiggles):
+        raise InputError(f"expected one idle flag per muscle ({len(jiggles)}), got {len(idle)}", field="idle")
+    return [replace(j, strength=0.0) if i else j for j, i in zip(jiggles, idle)]
+
+
 OVERRIDES = ("frequency", "damping", "strength", "goal_scale", "goal", "goal_tendon", "goal_belly", "density",
              "spring_frequency", "spring_damping", "friction", "blend", "max_offset")
 ATTRIBUTES = {"frequency": "frequency_hz", "damping": "damping_ratio", "spring_frequency": "spring_frequency_hz",

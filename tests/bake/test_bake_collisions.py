@@ -110,7 +110,7 @@ def test_the_jiggle_never_takes_the_skin_into_another_parts_capsule(tmp_path, mo
     assert si["max_kept_out"] >= 1 and 0.0 < si["max_pull_mm"] < 5.0
     real = col.SkinCheck.keep_out
 
-    def count_only(self, world, static, final, device="cpu"):
+    def count_only(self, world, static, final, device="cpu", rigid=None):
         out = real(self, world, static, final.copy(), device)
         out["final"] = real(self, world, final, final.copy(), device)["static"]     # SkinCheck.count, unpatched
         return out

@@ -392,3 +392,38 @@ def test_the_stepwise_contact_run_equals_the_one_launch_run():
     np.testing.assert_array_equal(out[0][0], out[1][0])
     np.testing.assert_array_equal(out[0][1], out[1][1])
     assert (out[1][1][..., 2] == 0).any()                 # the belly hit the thigh: contacts were made
+
+
+def test_skin_keep_out_pulls_a_rigid_piece_back_whole():
+    """SkinCheck.keep_out with the gear's Ride (rig.character.gear): a rigid piece whose jiggle (one translation)
+    took a vertex into a capsule is pulled back as a whole, by that vertex's share of the jiggle, so its edges keep
+    their length; a piece nothing pulled back stays bit for bit; a soft vertex is pulled back alone."""
+    from types import SimpleNamespace
+
+    from jiggle.sim.jiggle.colliders import SkinCheck, vertex_clusters
+    T = 2
+    caps = BoneCapsules(joint=np.zeros(1), child=np.full(1, -1), local=np.array([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]]),
+                        radius=np.array([0.1]), names=["post"], parents=np.array([-1, 0]))
+    # part 1's skin: a rigid box of 8 corners beside the post (x from 0.12 to 0.16), a far rigid box, a soft vertex
+    box = np.array([[x, y, z] for x in (0.12, 0.16) for y in (-0.02, 0.02) for z in (-0.02, 0.02)])
+    static = np.concatenate([box, box + [1.0, 0.0, 0.0], [[0.13, 0.1, 0.0]]])
+    static = np.repeat(static[None], T, axis=0).astype(np.float32)
+    final = static.copy()
+    final[:, :16] -= np.float32([0.04, 0.0, 0.0])              # both boxes ride 40 mm toward the post
+    final[:, 16] -= np.float32([0.0, 0.05, 0.0])               # the soft vertex into it too
+    part = np.ones(17, np.int64)
+    offsets, flat = np.array([0, 0, 1]), np.array([0])
+    world = np.repeat(np.eye(4)[None, None], T, axis=0).repeat(2, axis=1)
+    cluster, centre = vertex_clusters(part, static[0], np.repeat(np.eye(4)[None], 2, axis=0), size=2.0)
+    check = SkinCheck(caps, part, offsets, flat, cluster, centre)
+    ride = SimpleNamespace(rows=np.arange(16), piece=np.repeat([0, 1], 8))
+    alone = final.copy()
+    check.keep_out(world, static, alone)
+    whole = final.copy()
+    check.keep_out(world, static, whole, rigid=ride)
+    assert not np.allclose(alone[:, :8] - final[:, :8], (alone - final)[:, :1])          # alone: the box bent
+    move = whole[:, :8] - static[:, :8]
+    np.testing.assert_allclose(move, np.repeat(move[:, :1], 8, axis=1), atol=1e-6)       # whole: one translation
+    # its nearest corners (y = +-0.02) on the post's surface: x = sqrt(0.1^2 - 0.02^2)
+    np.testing.assert_allclose(move[:, 0], [[np.sqrt(0.01 - 0.0004) - 0.12, 0.0, 0.0]] * T, atol=1e-5)
+    assert np.array_equal(whole[:, 8:16], final[:, 8:16]) and np.array_equal(whole[:, 16], alone[:, 16])

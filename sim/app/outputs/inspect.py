@@ -99,8 +99,48 @@ def rigid_parts(path: str) -> dict:
         out["partly"] = {k: f"{v:.0%}" for k, v in r.partly.items()}
     out["joints"] = list(r.joints)
     out["why"] = ", ".join(f"{k}: {v} vertices" for k, v in r.why.items())
+    out.update(_rule_lines(r))
     out["override"] = "--rigid none, --rigid=-NAME (a part or joint left soft), --rigid NAME (made rigid)"
     return out
+
+
+def _rule_lines(r) -> dict:
+    """inspect's "rules" (the rule that decided each rigidly bound or named piece, rig.character.gear.find_rigid:
+    hard or flesh, how many pieces and vertices, which parts) and "flesh" (rigidly bound vertices left soft)."""
+    out = {}
+    if r.decided:
+        out["rules"] = {f"{'hard' if g['hard'] else 'flesh'}, {g['rule']}":
+                        f"{g['pieces']} piece(s), {g['vertices']} vertices ({', '.join(g['parts'][:6])}"
+                        f"{' ...' if len(g['parts']) > 6 else ''})" for g in r.by_rule()}
+    if r.soft:
+        out["flesh"] = ", ".join(f"{k}: {v} vertices" for k, v in r.soft.items())
+    return out
+
+
+def simulated_muscles(path: str) -> dict:
+    """Which muscles a bake with the defaults simulates: those none of whose skin is soft (every vertex they move is
+    gear or a hard shell, rig.skin.muscle_skin.MuscleSkin.idle) drive nothing and are not simulated, nor counted
+    in the near-reach and hard-stop figures."""
+    import warnings
+
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.rig.character.load import load_character
+    from jiggle.rig.muscle.fit import fit_musculature
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", JiggleWarning)
+        mus = fit_musculature(load_character(path), "auto")
+        skin = MuscleSkin.from_musculature(mus, character_path=path)
+    M, idle = mus.rig.M, np.asarray(skin.idle, bool)
+    names = [mus.rig.names[m] for m in np.nonzero(idle)[0]]
+    if not idle.any():
+        return {"simulated": f"all {M} muscles"}
+    if idle.all():
+        return {"simulated": f"none: every one of the {M} muscles drives only hard skin (gear, plates, shards), so "
+                             "nothing is simulated and no muscle nears its reach"}
+    return {"simulated": f"{M - len(names)} of {M} muscles",
+            "not_simulated": f"{len(names)}, none of whose skin is soft: {', '.join(names[:12])}"
+                             f"{' ...' if len(names) > 12 else ''}"}
 
 
 def chain_plan(path: str) -> dict:
@@ -199,6 +239,8 @@ def inspect_file(path: str, *, skeleton=None, animation=None, scale=None, tpose=
             try:        # a skeleton with a skin but no mesh (an FBX take) has neither
                 out["tissue"] = tissue_plan(p)
                 out["rigid"] = rigid_parts(p)
+                if isinstance(out["rigid"], dict) and "vertices" in out["rigid"]:    # gear: which muscles still work
+                    out["rigid"].update(simulated_muscles(p))
                 out["chains"] = chain_plan(p)
             except InputError as e:
                 out["tissue"] = {"template": None, "why": f"no tissue: {e.message}"}

@@ -1,0 +1,208 @@
+"""Characters built for the gear rule's tests (rig/character/gear.py, issue 50): a shared character's skeleton
+and clip kept, its skin rebound or replaced.
+
+- rebound_rigidly(character, eyes_joint): every vertex bound with weight 1 to one joint, as game artists bind
+  whole parts: each piece to its strongest joint, the pieces given in `to` to other joints (the Cat's body and
+  ears on its head joint, its eyes on a second joint: a blob bound rigidly);
+- plated(character): the skin replaced by what a knight in plate or a wolf of shards is made of: around every
+  bone four thin plates (thickness 5% of their width) and a spike (a cone), each a piece of its own bound with
+  weight 1 to the bone's joint;
+- slab, cone, offset_shell: the closed meshes they are made of (a box, a cone, a shell over part of a skin).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from jiggle.rig.character.gear import pieces
+
+
+def slab(centre, axes, half) -> tuple[np.ndarray, np.ndarray]:
+    """A closed box: 8 corners (8, 3) centre + sum_k +-half[k] axes[k], 12 outward triangles (12, 3)."""
+    s = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * np.asarray(half, float)
+    c = np.asarray(centre, float) + s @ np.asarray(axes, float)
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    if np.linalg.det(np.asarray(axes, float)) < 0:
+        f = f[:, ::-1]
+    return c, f
+
+
+def cone(base, tip, radius: float, n: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """A closed cone from a disc of `radius` at `base` to `tip`: n rim points, the tip, the base's centre
+    ((n + 2, 3)) and 2 n outward triangles."""
+    base, tip = np.asarray(base, float), np.asarray(tip, float)
+    u = (tip - base) / np.linalg.norm(tip - base)
+    a = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(u, a)
+    t = 2.0 * np.pi * np.arange(n) / n
+    rim = base + radius * (np.cos(t)[:, None] * a + np.sin(t)[:, None] * b)
+    v = np.vstack([rim, tip, base])
+    k = np.arange(n)
+    side = np.stack([k, (k + 1) % n, np.full(n, n)], axis=1)
+    cap = np.stack([(k + 1) % n, k, np.full(n, n + 1)], axis=1)
+    return v, np.vstack([side, cap])
+
+
+def rebound_rigidly(character, joint: str, to: dict | None = None):
+    """`character` with every vertex bound with weight 1: the pieces listed in `to` ({piece label
+    (rig.character.gear.pieces): joint name}) to theirs, every other vertex to `joint`."""
+    names = list(character.joint_names)
+    label = pieces(character)
+    target = np.full(character.num_vertices, names.index(joint), np.int64)
+    for k, name in (to or {}).items():
+        target[label == k] = names.index(name)
+    joints = np.zeros_like(np.asarray(character.joints))
+    weights = np.zeros_like(np.asarray(character.weights))
+    joints[:, 0], weights[:, 0] = target, 1.0
+    return replace(character, joints=joints, weights=weights, maps=None)
+
+
+def plated(character, min_bone: float = 0.04):
+    """`character`'s skeleton with a skin of plates and spikes (see the module): for every bone at least
+    `min_bone` of the character's height long, four plates around it and a spike on its front, bound to
+    the bone's parent joint; parts "Plate.N" and "Spike.N" in meta["parts"]."""
+    p = np.asarray(character.bind_world)[:, :3, 3]
+    par = np.asarray(character.parents)
+    height = float(np.ptp(np.asarray(character.vertices)[:, 2]))
+    verts, faces, owner, parts = [], [], [], []
+    n = 0
+    for j in np.nonzero(par >= 0)[0]:
+        a, b = p[par[j]], p[j]
+        L = float(np.linalg.norm(b - a))
+        if L < min_bone * height:
+            continue
+        u = (b - a) / L
+        v = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+        v /= np.linalg.norm(v)
+        w = np.cross(u, v)
+        r = float(np.clip(0.3 * L, 0.02 * height, 0.08 * height))
+        mid = 0.5 * (a + b)
+        for k, (side, across) in enumerate(((w, v), (-w, v), (v, w), (-v, w))):
+            width = 1.6 * r
+            c, f = slab(mid + r * side, np.stack([u, across, np.cross(u, across)]),
+                        (0.4 * L, 0.5 * width, 0.025 * width))
+            parts.append([f"Plate.{len(parts)}", n, 8])
+            verts.append(c), faces.append(f + n), owner.append(np.full(8, par[j]))
+            n += 8
+        c, f = cone(mid + 1.03 * r * w, mid + 2.2 * r * w, 0.25 * r)
+        parts.append([f"Spike.{len(parts)}", n, len(c)])
+        verts.append(c), faces.append(f + n), owner.append(np.full(len(c), par[j]))
+        n += len(c)
+    vertices, faces_, joint = np.vstack(verts), np.vstack(faces), np.concatenate(owner)
+    k = character.joints.shape[1]
+    joints = np.zeros((n, k), np.int64)
+    weights = np.zeros((n, k))
+    joints[:, 0], weights[:, 0] = joint, 1.0
+    from jiggle.rig.character.normals import vertex_normals
+    return replace(character, vertices=vertices, faces=faces_, normals=vertex_normals(vertices, faces_), uvs=None,
+                   joints=joints, weights=weights, maps=None, name=f"{character.name or 'character'} in plate",
+                   meta={**{k_: v_ for k_, v_ in character.meta.items() if k_ not in ("primitives", "materials")},
+                         "parts": parts})
+
+
+MIXAMO = {"Hips": "Hips", "LeftUpLeg": "LeftUpLeg", "LeftLeg": "LeftLeg", "LeftFoot": "LeftFoot",
+          "LeftToeBase": "LeftToeBase", "RightUpLeg": "RightUpLeg", "RightLeg": "RightLeg", "RightFoot": "RightFoot",
+          "RightToeBase": "RightToeBase", "LowerBack": "Spine", "Spine": "Spine1", "Spine1": "Spine2", "Neck": "Neck",
+          "Neck1": "Neck1", "Head": "Head", "LeftShoulder": "LeftShoulder", "LeftArm": "LeftArm",
+          "LeftForeArm": "LeftForeArm", "LeftHand": "LeftHand", "RightShoulder": "RightShoulder", "RightArm": "RightArm",
+          "RightForeArm": "RightForeArm", "RightHand": "RightHand"}
+"""A CMU BVH skeleton's joints -> Mixamo's (the rest keep their CMU name), each written "mixamorig:NAME"."""
+
+
+def mixamo_named(clip):
+    """`clip` (a CMU BVH) with its joints named as a Mixamo rig's ("mixamorig:Hips", ...)."""
+    return replace(clip, joint_names=tuple("mixamorig:" + MIXAMO.get(n, n) for n in clip.joint_names))
+
+
+def offset_shell(vertices, normals, faces_sel: np.ndarray, gap: float, thick: float):
+    """A closed shell over the faces `faces_sel` (F, 3) of a mesh (vertices, unit normals (V, 3)): their vertices
+    pushed out along the normals by `gap` (inner face) and `gap + thick` (outer face), the rims joined: (vertices,
+    faces) of the new piece, as a vest or a helmet over skin."""
+    from jiggle.rig.character.mesh_graph import mesh_edges
+    v = np.asarray(vertices, float)
+    nrm = np.asarray(normals, float)
+    used, local = np.unique(faces_sel, return_inverse=True)
+    f = local.reshape(-1, 3)
+    n = len(used)
+    inner = v[used] + gap * nrm[used]
+    outer = v[used] + (gap + thick) * nrm[used]
+    faces = [f + n, f[:, ::-1]]                      # outer faces outward, inner faces turned inward
+    edges, ef = mesh_edges(f)
+    for (a, b), (f0, f1) in zip(edges, ef):
+        if f1 >= 0:
+            continue
+        tri = f[f0]
+        k = list(tri).index(a)
+        if tri[(k + 1) % 3] != b:                    # the rim edge as its face walks it
+            a, b = b, a
+        faces += [np.array([[a, b, b + n], [a, b + n, a + n]])]
+    return np.vstack([inner, outer]), np.vstack(faces)
+
+
+def soldier(character, spine: str = "mixamorig:Spine1", hips: str = "mixamorig:Hips"):
+    """`character` (a body with Mixamo names) in a vest and a belt with pouches: the vest a closed shell 1.2% of
+    the height off the torso's skin (the faces all of whose vertices ride `spine`, its parent or its child
+    most), 0.6% thick, and two pouches (boxes) on its front, all bound with weight 1 to `spine`; the belt a band
+    around the hips bound to `hips`. Parts "Body", "Vest", "Belt", "Pouch.L", "Pouch.R"."""
+    from jiggle.rig.character.normals import vertex_normals
+    names = list(character.joint_names)
+    v = np.asarray(character.vertices, float)
+    height = float(np.ptp(v[:, 2]))
+    dom = np.asarray(character.joints)[np.arange(len(v)), np.argmax(character.weights, axis=1)]
+    s = names.index(spine)
+    torso = {s, int(character.parents[s])} | {j for j, p in enumerate(character.parents) if p == s}
+    torso = {j for j in torso if not any(w in names[j] for w in ("Shoulder", "Arm", "Neck", "Head"))}
+    f = np.asarray(character.faces)
+    on = np.isin(dom, sorted(torso))
+    vest_f = f[on[f].all(axis=1)]
+    vv, vf = offset_shell(character.vertices, character.normals, vest_f, 0.012 * height, 0.006 * height)
+    hip_z = float(np.asarray(character.bind_world)[names.index(hips), 2, 3])
+    trunk = np.array([not any(w in n for w in ("Leg", "Arm", "Hand", "Foot")) for n in names])
+    band = f[(np.abs(v[f, 2] - hip_z - 0.04 * height) < 0.025 * height).all(axis=1) & trunk[dom[f]].all(axis=1)]
+    bv, bf = offset_shell(character.vertices, character.normals, band, 0.004 * height, 0.01 * height) if len(band) else (np.zeros((0, 3)), [])
+    front = vv[np.argmin(vv[:, 1])] if len(vv) else np.zeros(3)
+    out = [("Body", v, f, None)]
+    out.append(("Vest", vv, vf, s))
+    if len(bv):
+        out.append(("Belt", bv, bf, names.index(hips)))
+    centre_y = float(vv[:, 1].min()) - 0.03 * height
+    for side, x in (("L", 0.06), ("R", -0.06)):
+        c, pf = slab((x * height, centre_y, front[2] - 0.06 * height), np.eye(3),
+                     (0.03 * height, 0.02 * height, 0.035 * height))
+        out.append((f"Pouch.{side}", c, pf, s))
+    verts, faces, joints, weights, parts = [], [], [], [], []
+    n, k = 0, character.joints.shape[1]
+    for name, pv, pf, j in out:
+        verts.append(pv), faces.append(np.asarray(pf) + n), parts.append([name, n, len(pv)])
+        if j is None:
+            joints.append(np.asarray(character.joints)), weights.append(np.asarray(character.weights))
+        else:
+            jj, ww = np.zeros((len(pv), k), np.int64), np.zeros((len(pv), k))
+            jj[:, 0], ww[:, 0] = j, 1.0
+            joints.append(jj), weights.append(ww)
+        n += len(pv)
+    vertices, faces_ = np.vstack(verts), np.vstack(faces)
+    normals = vertex_normals(vertices, faces_)
+    normals[:len(v)] = character.normals
+    return replace(character, vertices=vertices, faces=faces_, normals=normals, uvs=None, joints=np.vstack(joints),
+                   weights=np.vstack(weights), maps=None, name=f"{character.name or 'body'} soldier",
+                   meta={**{a: b for a, b in character.meta.items() if a not in ("primitives", "materials", "body")},
+                         "parts": parts})
+
+
+def abrupt(character, joints) -> object:
+    """`character` with every vertex whose strongest joint is one of `joints` (names) bound to it alone (weight 1):
+    where two such regions meet, as at a stylised rig's shoulder, the weights change abruptly from one vertex to
+    the next."""
+    names = list(character.joint_names)
+    ids = [names.index(j) for j in joints]
+    J, W = np.array(character.joints), np.array(character.weights, np.float64)
+    top = J[np.arange(len(J)), np.argmax(W, axis=1)]
+    hit = np.isin(top, ids)
+    J[hit] = 0
+    W[hit] = 0.0
+    J[hit, 0], W[hit, 0] = top[hit], 1.0
+    return replace(character, joints=J, weights=W, maps=None)
