@@ -32,6 +32,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3, help="alternating pairs of bakes per character (default 3)")
     ap.add_argument("--out", default=None, help="also write the table as Markdown to this file")
+    ap.add_argument("--characters", default=None, help="comma-separated names of CASES to run (default: all)")
     args = ap.parse_args()
     zoo = ASSETS / "characters" / "zoo"
     if not zoo.is_dir():
@@ -44,7 +45,10 @@ def main() -> int:
     from jiggle.sim.bake.setup import BakeRequest, prepare
     warnings.simplefilter("ignore", JiggleWarning)
     rows = []
+    only = set(args.characters.split(",")) if args.characters else None
     for name, clip in CASES:
+        if only is not None and name not in only:
+            continue
         path = zoo / f"{name}.glb"
         if not path.is_file():
             continue

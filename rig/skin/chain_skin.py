@@ -30,12 +30,18 @@ class ChainSkin:
         v, k = np.nonzero(hit)
         self.vertices = np.unique(v)
         row = np.searchsorted(self.vertices, v)
-        self.pair_joint = slot[jj[v, k]]                 # (P,) which chain joint
-        self.pair_rest = np.c_[np.asarray(character.vertices, np.float64)[v], np.ones(len(v))]   # (P, 4)
-        self.pair_weight = ww[v, k]
-        self.gather = sp.csr_matrix((self.pair_weight, (row, np.arange(len(v)))), shape=(len(self.vertices), len(v)))
+        n = len(joints)
+        w = ww[v, k]
+        # delta_v = sum_j sum_b (W_vj x_vb) D_jab: one sparse (Vc, 4 n) matrix of weight times rest point, applied
+        # to every frame's joint changes at once
+        rest = np.c_[np.asarray(character.vertices, np.float64)[v], np.ones(len(v))]      # (P, 4)
+        cols = 4 * slot[jj[v, k]][:, None] + np.arange(4)[None]
+        self.matrix = sp.csr_matrix(((w[:, None] * rest).ravel(), (np.repeat(row, 4), cols.ravel())),
+                                    shape=(len(self.vertices), 4 * n))
+        """(Vc, 4 n) sparse: row v, column 4 j + b holds v's weight on chain joint j times its rest point's
+        coordinate b (x, y, z, 1)."""
         self.joints = joints
-        self.weight = np.asarray(self.gather.sum(axis=1)).ravel().astype(np.float32)
+        self.weight = np.bincount(row, weights=w, minlength=len(self.vertices)).astype(np.float32)
         """(Vc,) each vertex's share of skin weight on chain joints: 1 on a chain, between 0 and 1 where it blends
         into the body (a chain's root)."""
         self.inv_bind = np.linalg.inv(np.asarray(character.bind_matrices, np.float64)[joints])   # (n, 4, 4)
@@ -47,7 +53,6 @@ class ChainSkin:
         if not len(self.vertices):
             return np.zeros((T, 0, 3), np.float32)
         d = (np.asarray(world_final, np.float64)[:, self.joints] - np.asarray(world_static, np.float64)[:, self.joints])
-        D = d @ self.inv_bind[None]                                       # (T, n, 4, 4)
-        moved = np.einsum("tpij,pj->tpi", D[:, self.pair_joint, :3, :], self.pair_rest)   # (T, P, 3)
-        out = self.gather @ moved.transpose(1, 0, 2).reshape(len(self.pair_joint), -1)
+        D = d[:, :, :3, :] @ self.inv_bind[None]                          # (T, n, 3, 4): the skinning matrices' change
+        out = self.matrix @ D.transpose(1, 3, 0, 2).reshape(4 * len(self.joints), T * 3)     # (Vc, T * 3)
         return out.reshape(len(self.vertices), T, 3).transpose(1, 0, 2).astype(np.float32)

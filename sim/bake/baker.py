@@ -144,10 +144,13 @@ class Baker:
         s = self.setup
         ch = s.chains
         self.chain_run = swing(ch.model, ch.params, s.times, s.knots, s.world_at, loop=s.loop)
-        self.chain_riders = riders_of(ch.model, s.character.parents)
-        moved = [int(j) for j in ch.links.joints] + [j for j, _ in self.chain_riders]
-        self.chain_joints = np.array(moved, np.int64)
-        self.chain_skin = ChainSkin(s.character, self.chain_joints)
+        if ch.skin is not None:                 # made with the setup (sim.chain.build.make)
+            self.chain_riders, self.chain_joints, self.chain_skin = list(ch.riders), ch.moved, ch.skin
+        else:
+            self.chain_riders = riders_of(ch.model, s.character.parents)
+            moved = [int(j) for j in ch.links.joints] + [j for j, _ in self.chain_riders]
+            self.chain_joints = np.array(moved, np.int64)
+            self.chain_skin = ChainSkin(s.character, self.chain_joints)
         tips = {"static": [], "final": []}
         report = None
         for a in range(0, len(s.times), 256):

@@ -70,13 +70,16 @@ class BakeWriter:
             del shapes["skin_lbs"]
         chains = {}
         if getattr(setup, "chains", None) is not None:      # the swung chains' joints and tips (sim/bake/baker.py)
-            from jiggle.sim.chain.simulate import riders_of
             ch = setup.chains
-            moved = [int(j) for j in ch.links.joints] + [j for j, _ in riders_of(ch.model, character.parents)]
-            C = len(ch.chains)
-            from jiggle.rig.skin.chain_skin import ChainSkin
-            cs = ChainSkin(character, moved)
+            if ch.skin is not None:                         # made with the setup (sim.chain.build.make)
+                moved, cs = list(ch.moved), ch.skin
+            else:
+                from jiggle.rig.skin.chain_skin import ChainSkin
+                from jiggle.sim.chain.simulate import riders_of
+                moved = [int(j) for j in ch.links.joints] + [j for j, _ in riders_of(ch.model, character.parents)]
+                cs = ChainSkin(character, moved)
             verts = cs.vertices
+            C = len(ch.chains)
             shapes.update({"chain_world": (T, len(moved), 4, 4), "chain_tips_static": (T, C, 3),
                            "chain_tips_final": (T, C, 3), "chain_delta": (T, len(verts), 3)})
             chains = {"chain_names": tuple(character.joint_names[j] for j in moved),

@@ -15,13 +15,19 @@ SAMPLE_KNOTS = 400
 @dataclass(frozen=True, eq=False)
 class ChainSetup:
     """chains : rig.character.chains.Chains. links : ChainLinks. params : one ChainParams per chain. model :
-    sim.chain.model.ChainModel. apart : (n, C) the link / body capsule pairs the animation keeps apart."""
+    sim.chain.model.ChainModel. apart : (n, C) the link / body capsule pairs the animation keeps apart. riders :
+    ((joint, chain joint carrying it), ...) the joints below chain joints that are not (sim.chain.simulate.riders_of).
+    moved : (m,) every joint the swing moves (the chain joints, then the riders). skin : rig.skin.chain_skin.ChainSkin
+    of `moved` (what they move of the skin), or None."""
 
     chains: object
     links: object
     params: tuple
     model: object
     apart: np.ndarray
+    riders: tuple = ()
+    moved: np.ndarray | None = None
+    skin: object = None
 
     def to_json(self, names) -> list:
         out = []
@@ -38,10 +44,11 @@ def make(character, chains, capsules, floor, entries, knots: np.ndarray, world_a
     None; floor : metres or None; entries : the per-chain parameter entries (sim.chain.params.chain_params); knots,
     world_at : the bake's goal knots and drive."""
     from jiggle.rig.character.chains import chain_links
+    from jiggle.rig.skin.chain_skin import ChainSkin
     from jiggle.sim.chain.measure import kept_apart
     from jiggle.sim.chain.model import build
     from jiggle.sim.chain.params import chain_params
-    from jiggle.sim.chain.simulate import soft_limits, targets_from_world
+    from jiggle.sim.chain.simulate import riders_of, soft_limits, targets_from_world
     if not len(chains):
         return None
     links = chain_links(character, chains)
@@ -63,4 +70,7 @@ def make(character, chains, capsules, floor, entries, knots: np.ndarray, world_a
                     exclude.append((i, int(j)))
     model = build(links, capsules, floor, frequency_hi=hi, exclude=exclude, limits=limits, size=size,
                   bind_world=np.asarray(character.bind_world))
-    return ChainSetup(chains=chains, links=links, params=tuple(params), model=model, apart=apart)
+    riders = tuple(riders_of(model, character.parents))
+    moved = np.array([int(j) for j in links.joints] + [j for j, _ in riders], np.int64)
+    return ChainSetup(chains=chains, links=links, params=tuple(params), model=model, apart=apart, riders=riders,
+                      moved=moved, skin=ChainSkin(character, moved))

@@ -8,11 +8,14 @@ core. Air drag is applied per link by sim.chain.simulate (MuJoCo's ellipsoid flu
 
     world
       floor plane (the bake's floor, when it has one)
-      per joint a chain hangs from (an anchor): a mocap body posed from the animation each step, and a heavy free
-        body welded to it (stiff, WELD_TIMECONST) carrying the joint's capsules (rig.character.capsules): a chain
-        hung from a mocap body directly would be teleported with it and never swing
-      per other joint whose capsules a chain can reach: a mocap body carrying them, posed each step (a free body
-        welded to each would give their contacts the body's velocity, at several times the cost of a step)
+      per joint a chain hangs from (an anchor): a heavy body on three slide joints and a ball joint (a free joint
+        whose translation and rotation have springs of their own), carrying the joint's capsules
+        (rig.character.capsules). sim.chain.simulate drives it along the animation with the force its motion
+        needs (mass times the animation's acceleration, gravity compensated) while its joints' springs and
+        damping (critical, ANCHOR_TIMECONST) pull it onto the animated pose against any drift: so the chain
+        hanging from it feels the body's accelerations (a chain hung from a mocap body would be teleported with
+        it and never swing), and no constraint is solved for it (a weld to a mocap target cost half the step)
+      per other joint whose capsules a chain can reach: a mocap body carrying them, posed each step
         chain links: one body per chain joint at its bind transform, a ball joint at its origin, a capsule along
         its bone; its spring pulls toward the animated pose (qpos_spring set each step), stiffness per link;
         chains collide with the drivers' capsules and the floor, never with each other
@@ -28,8 +31,9 @@ import numpy as np
 
 from jiggle.rig.motion import quat
 
-WELD_TIMECONST = 0.005
-"""seconds: the anchor's weld to the animation (MuJoCo's solref time constant, >= 2 steps)."""
+ANCHOR_TIMECONST = 0.01
+"""seconds: 1 / the angular frequency of the anchor's springs to the animated pose (critically damped; >= 2 steps,
+so the explicit spring stays well inside the step's stability)."""
 CONTACT_TIMECONST = 0.01
 """seconds: the softness of a chain's contacts (MuJoCo solref)."""
 LIMIT_TIMECONST = 0.05
@@ -37,15 +41,16 @@ LIMIT_TIMECONST = 0.05
 MARGIN = 0.1
 """A link's contact margin, in its radius: contacts act before the capsules touch."""
 ANCHOR_MASS = 20.0
-"""The anchor's mass over its chains'."""
+"""The anchor's mass over its chains' (its rotational inertia: that mass at the body's size, so the chains' pull
+on it is as small a share in any unit)."""
 ARMATURE = 0.2
 """Each ball joint's armature (rotor inertia) in the inertia it turns: it keeps a light link under a strong joint
 from ringing far faster than the chain swings (the step follows the fastest local mode), at the cost of a few
 percent of slowing on the light tips. Part of the model: the reference in the tests uses it as well."""
 STEP_PER_PERIOD = 8.0
 """Steps per period of the fastest local mode, at least."""
-DT_RANGE = (1.0 / 4000.0, 1.0 / 400.0)
-"""seconds: the step's range (at most half the weld's and the contacts' time constants)."""
+DT_RANGE = (1.0 / 4000.0, 1.0 / 200.0)
+"""seconds: the step's range (at most half the anchor's and the contacts' time constants)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,10 +58,11 @@ class ChainModel:
     """The compiled model and where everything sits in it.
 
     model : mujoco.MjModel. links : rig.character.chains.ChainLinks. drivers : (D,) the character's joints posed
-    from the animation: first the chains' anchors (A of them: mocap targets of welded free bodies), then the
+    from the animation: first the chains' anchors (A of them: heavy bodies on springs, driven by force), then the
     joints whose capsules they can reach (mocap bodies). ball_q, ball_v : (n,) qpos and dof addresses of each
-    link's ball joint. driver_q, driver_v : (A,) of each anchor's free joint. mocap : (D,) each driver's mocap
-    index. inertia : (n,) kg m^2, what each link's joint turns
+    link's ball joint. driver_q, driver_v : (A,) of each anchor's joints (7 qpos: position, quaternion; 6 dofs:
+    world velocity, local angular velocity, as a free joint's). anchor_mass, anchor_inertia : kg, kg m^2 of each
+    anchor. mocap : (D - A,) the mocap index of each driver after the anchors (0, 1, ...: in order). inertia : (n,) kg m^2, what each link's joint turns
     (the link and everything below it, about the joint). own : (n,) kg m^2, the link alone. limit : (n,) radians,
     each joint's soft limit. excluded : set of (link, capsule body) pairs that never collide. dt : seconds.
     """
@@ -69,6 +75,8 @@ class ChainModel:
     driver_q: np.ndarray
     driver_v: np.ndarray
     mocap: np.ndarray
+    anchor_mass: float
+    anchor_inertia: float
     inertia: np.ndarray
     own: np.ndarray
     limit: np.ndarray
@@ -158,6 +166,9 @@ def build(links, capsules=None, floor: float | None = None, frequency_hi: float 
                 f'<joint name="ball{i}" type="ball" armature="{ARMATURE * inertia[i]:.9g}"{rng}/>'
                 + geom + "".join(link(k) for k in children[i]) + "</body>")
     heavy = ANCHOR_MASS * float(links.mass.sum()) if n else 1.0
+    turn = heavy * size * size
+    w = 1.0 / ANCHOR_TIMECONST
+    spring = lambda mass: f'stiffness="{mass * w * w:.9g}" damping="{2.0 * mass * w:.9g}"'    # noqa: E731
     def geoms(j) -> list[str]:
         out = []
         if capsules is not None and int(j) in set(reach.tolist()):
@@ -168,9 +179,12 @@ def build(links, capsules=None, floor: float | None = None, frequency_hi: float 
                 out.append(f'<geom {shape} size="{capsules.radius[c]:.9g}" contype="0" conaffinity="1" mass="0"/>')
         return out
     for j in anchors:
-        xml.append(f'<body name="target{j}" mocap="true"/>')
-        xml.append(f'<body name="driver{j}"><freejoint name="free{j}"/>'
-                   f'<inertial pos="0 0 0" mass="{heavy:.9g}" diaginertia="{f([heavy * 1e-2] * 3)}"/>')
+        # gravcomp 1: the anchor holds its own weight, so its driving force is its mass times the acceleration
+        xml.append(f'<body name="driver{j}" gravcomp="1">'
+                   + "".join(f'<joint name="{a}{j}" type="slide" axis="{ax}" {spring(heavy)}/>'
+                             for a, ax in (("tx", "1 0 0"), ("ty", "0 1 0"), ("tz", "0 0 1")))
+                   + f'<joint name="turn{j}" type="ball" {spring(turn)}/>'
+                   f'<inertial pos="0 0 0" mass="{heavy:.9g}" diaginertia="{f([turn] * 3)}"/>')
         xml.extend(geoms(j))
         xml.extend(link(i) for i in np.flatnonzero(links.anchor == j))
         xml.append('</body>')
@@ -178,10 +192,7 @@ def build(links, capsules=None, floor: float | None = None, frequency_hi: float 
         xml.append(f'<body name="target{j}" mocap="true">')
         xml.extend(geoms(j))
         xml.append('</body>')
-    xml.append('</worldbody><equality>')
-    for j in anchors:
-        xml.append(f'<weld body1="driver{j}" body2="target{j}" solref="{WELD_TIMECONST} 1"/>')
-    xml.append('</equality><contact>')
+    xml.append('</worldbody><contact>')
     excluded = set()
     for i, j in exclude:
         if int(j) in set(reach.tolist()):
@@ -192,14 +203,15 @@ def build(links, capsules=None, floor: float | None = None, frequency_hi: float 
     jid = lambda name: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)   # noqa: E731
     bid = lambda name: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)    # noqa: E731
     ball = [jid(f"ball{i}") for i in range(n)]
-    free = [jid(f"free{j}") for j in anchors]
+    free = [jid(f"tx{j}") for j in anchors]      # the first of its joints: x, y, z, then the ball
     return ChainModel(
         model=model, links=links, drivers=drivers,
         ball_q=np.array([model.jnt_qposadr[k] for k in ball], np.int64),
         ball_v=np.array([model.jnt_dofadr[k] for k in ball], np.int64),
         driver_q=np.array([model.jnt_qposadr[k] for k in free], np.int64),
         driver_v=np.array([model.jnt_dofadr[k] for k in free], np.int64),
-        mocap=np.array([model.body_mocapid[bid(f"target{j}")] for j in drivers], np.int64),
+        mocap=np.array([model.body_mocapid[bid(f"target{j}")] for j in statics], np.int64),
+        anchor_mass=heavy, anchor_inertia=turn,
         inertia=inertia, own=own, limit=lim, excluded=frozenset(excluded), dt=dt, capsules=capsules, floor=floor,
         size=size)
 

@@ -6,7 +6,8 @@ output times out.
     per step of a fixed grid (dt from the model, the same whatever the output rate, so the bake is frame-rate
         independent): the knots' values between knots (cubic Hermite, C1: no kicks at the knots), set as the
         mocap poses, the springs' rests (qpos_spring), the applied torques (the pose held against gravity, the
-        damping's reference: the target's own velocity); mujoco.mj_step
+        damping's reference: the target's own velocity) and the anchors' driving forces (ChainSolver._window);
+        mujoco.mj_step
     output times --> each joint's rotation between the two steps around it (normalized lerp of quaternions)
 
 A joint's spring: k = I (2 pi f)^2 over the inertia I it turns, f the chain's stiffness (Hz) less TAPER toward the
@@ -29,16 +30,13 @@ from typing import Callable
 import numpy as np
 
 from jiggle.rig.motion import quat
-from jiggle.sim.chain.model import WELD_TIMECONST
 from jiggle.sim.chain.params import AIR_DENSITY, DRAG_COEFFICIENT, LIMIT_DEG, TAPER
 from jiggle.sim.jiggle.keyed import Curve, value_at
 
 WINDOW = 4096
-WELD_LEAD = 2.0 * WELD_TIMECONST
-"""seconds the anchors' weld targets lead the animation (see ChainSolver.run)."""
+"""Steps whose inputs are made at once (memory is bounded by a window, not the clip)."""
 DRAG_EVERY = 4
 """Steps between updates of the air drag (a slow force: each link's velocity over those steps, the force held)."""
-"""Steps whose inputs are made at once (memory is bounded by a window, not the clip)."""
 KNOT_BLOCK = 512
 """Knots the drive is asked for at once."""
 WARMUP_TOLERANCE = 5e-4
@@ -148,6 +146,11 @@ def _slopes(t: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.gradient(v, t, axis=0) if len(t) > 1 else np.zeros_like(v)
 
 
+def _rows(x: dict, sl: slice) -> dict:
+    """ChainSolver.inputs' dict `x` at the rows `sl` (its "values" too)."""
+    return {k: ({kk: vv[sl] for kk, vv in v.items()} if k == "values" else v[sl]) for k, v in x.items()}
+
+
 def _local_omega(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
     """Angular velocity in the rotated (local) frame of a unit quaternion path q with derivative dq: 2 vec(q* dq)."""
     return 2.0 * quat.mul(quat.conj(q), dq)[..., 1:]
@@ -243,8 +246,9 @@ class ChainSolver:
             d.qpos[self.qs], d.qvel[self.dv] = x["target"][0].ravel(), x["target_omega"][0].ravel()
         else:
             d.qpos[self.qs], d.qvel[self.dv] = np.ravel(balls[0]), np.ravel(balls[1])
+        A = len(cm.driver_q)
         if len(cm.mocap):
-            d.mocap_pos[cm.mocap], d.mocap_quat[cm.mocap] = x["driver_pos"][0], x["driver_quat"][0]
+            d.mocap_pos[cm.mocap], d.mocap_quat[cm.mocap] = x["driver_pos"][0, A:], x["driver_quat"][0, A:]
         d.time = t0
         self._set(np.array([t0]), 0)
         mujoco.mj_forward(self.m, d)
@@ -272,54 +276,79 @@ class ChainSolver:
         lands = {}
         for i in np.flatnonzero(u > 0.0):
             lands.setdefault(int(min(land[i], max(steps - 1, 0))), []).append(int(i))
-        ma = cm.mocap
-        qs, dv = self.qs, self.dv
+        qs, has_mocap, keyed = self.qs, bool(len(cm.mocap)), self.keyed
         bodies = self.link_body
         centre = d.xipos[bodies].copy()
         drag = bool(self._drag.any()) or self.keyed
+        # MuJoCo's arrays as views, made once: each attribute access makes a new one, a good share of a step's cost
+        qpos, qpos_spring, qfrc, xipos, xfrc = d.qpos, m.qpos_spring, d.qfrc_applied, d.xipos, d.xfrc_applied
+        mocap_pos, mocap_quat, step = d.mocap_pos, d.mocap_quat, mujoco.mj_step
         for w0 in range(0, steps, WINDOW):
             w1 = min(steps, w0 + WINDOW)
             key = (t0, dt, w0, w1)
             if key not in self._windows:                # a looping bake's warm-up runs the same window again
-                t_end = t0 + dt * np.arange(w0 + 1, w1 + 1)     # each step's inputs at its end (where it lands)
-                t_mid = t_end - 0.5 * dt
-                x = self.inputs(t_mid)
-                # the weld pulls its free body toward the animation with damping on the free body's whole velocity
-                # (a mocap body has none): tracking a ramp, it trails by 2 time constants; the target leads as much
-                xe = self.inputs(t_end + WELD_LEAD) if len(ma) else x
-                force = (x["gravity"] * self._gravity_or(x)[..., None] +
-                         self._damping_or(x)[..., None] * x["target_omega"]).reshape(len(t_mid), -1)
-                self._windows = {key: (x, x["target"].reshape(len(t_mid), -1), force, xe["driver_pos"],
-                                       xe["driver_quat"])}
+                self._windows = {key: self._window(t0 + dt * np.arange(w0 + 1, w1 + 1))}
             x, spring, force, mpos, mquat = self._windows[key]
             for i in range(w1 - w0):
                 k = w0 + i
-                if self.keyed:
+                if keyed:
                     self._set_row(x["values"], i)
-                m.qpos_spring[qs] = spring[i]
-                d.qfrc_applied[dv] = force[i]
-                if len(ma):
-                    d.mocap_pos[ma] = mpos[i]
-                    d.mocap_quat[ma] = mquat[i]
+                qpos_spring[:] = spring[i]
+                qfrc[:] = force[i]
+                if has_mocap:
+                    mocap_pos[:] = mpos[i]
+                    mocap_quat[:] = mquat[i]
                 if drag and k % DRAG_EVERY == 0:   # each link's centre's velocity over the last steps, held
-                    now_c = d.xipos[bodies]
+                    now_c = xipos[bodies]
                     vel = (now_c - centre) / (dt * (DRAG_EVERY if k else 1))
                     speed = np.sqrt(np.einsum("ij,ij->i", vel, vel))
                     # never more than half the link's momentum over the interval the force is held: drag slows a
                     # link, it cannot reverse it (explicit, it would at a large drag)
                     coef = np.minimum(self._drag * speed, self._drag_cap)
-                    d.xfrc_applied[bodies, :3] = -coef[:, None] * vel
-                    centre = now_c.copy()
+                    xfrc[bodies, :3] = -coef[:, None] * vel
+                    centre = now_c
                 sel = lands.get(k)
                 if sel is not None:
-                    prev = d.qpos[qs].reshape(n, 4).copy()
-                mujoco.mj_step(m, d)
+                    prev = qpos[qs].reshape(n, 4)
+                step(m, d)
                 if sel is not None:
-                    now = d.qpos[qs].reshape(n, 4)
+                    now = qpos[qs].reshape(n, 4)
                     f = (u[sel] - k)[:, None, None]
                     b = np.where(np.sum(prev * now, axis=-1, keepdims=True) < 0, -now, now)
                     out[sel] = quat.normalize((1.0 - f) * prev[None] + f * b[None])
         return out
+
+    def _window(self, t_end: np.ndarray) -> tuple:
+        """Everything the steps ending at t_end (S,) set, whole vectors per step (one copy each into MuJoCo):
+        the inputs at each step's middle, qpos_spring (S, nq), qfrc_applied (S, nv), the mocap poses (S, M, 3),
+        (S, M, 4).
+
+        A ball joint's spring rests at the animated pose at the step's middle; its applied torque holds that pose
+        against gravity and refers the damping to the animation's own angular velocity. An anchor's springs rest
+        at the animated pose at the step's start (where the step finds it), and it is pushed with the force that
+        takes its velocity from the animation's at the step's start to the animation's at its end (its mass or
+        inertia times the change, over dt: the semi-implicit Euler step then lands it there) plus what its damping
+        takes away at that velocity: it follows the animation exactly up to the step's O(dt^2), which its springs
+        hold. The mocap bodies are posed at the step's start."""
+        m, cm, dt = self.m, self.cm, self.dt
+        A, S = len(cm.driver_q), len(t_end)
+        # one evaluation on the half-step grid: each step's start, middle and end
+        grid = np.r_[t_end[0] - dt, np.stack([t_end - 0.5 * dt, t_end], axis=1).ravel()]
+        half = self.inputs(grid)
+        xs, x, xe = (_rows(half, slice(a, a + 2 * S - 1, 2)) for a in (0, 1, 2))
+        spring = np.repeat(np.asarray(m.qpos_spring)[None], S, axis=0)
+        spring[:, self.qs] = x["target"].reshape(S, -1)
+        force = np.zeros((S, m.nv))
+        force[:, self.dv] = (x["gravity"] * self._gravity_or(x)[..., None] +
+                             self._damping_or(x)[..., None] * x["target_omega"]).reshape(S, -1)
+        for a in range(A):
+            qa, va = cm.driver_q[a], cm.driver_v[a]
+            spring[:, qa:qa + 3], spring[:, qa + 3:qa + 7] = xs["driver_pos"][:, a], xs["driver_quat"][:, a]
+            for lo, key, inertia in ((va, "driver_vel", cm.anchor_mass), (va + 3, "driver_omega", cm.anchor_inertia)):
+                damping = np.asarray(m.dof_damping[lo:lo + 3])
+                force[:, lo:lo + 3] = inertia * (xe[key][:, a] - xs[key][:, a]) / dt + damping * xe[key][:, a]
+        mpos, mquat = (xs["driver_pos"][:, A:], xs["driver_quat"][:, A:]) if len(cm.mocap) else (None, None)
+        return x, spring, force, mpos, mquat
 
     def _gravity_or(self, x) -> np.ndarray:
         return x["values"]["gravity"] if "values" in x else np.broadcast_to(self._gravity_share, (len(x["target"]),
@@ -352,7 +381,6 @@ def swing(cm, params, times: np.ndarray, knots: np.ndarray, world_at: Callable, 
     t_start = _time.perf_counter()
     times = np.asarray(times, np.float64)
     inp = knot_inputs(cm, np.asarray(knots, np.float64), world_at)
-    solver = ChainSolver(cm, params, inp)
     t0 = float(times[0])
     warm = None
     if loop is not None:
@@ -390,6 +418,7 @@ def swing(cm, params, times: np.ndarray, knots: np.ndarray, world_at: Callable, 
         log(f"chains: loop warm-up {warm['cycles']} cycles, the start repeats within {change:.2g} rad")
     else:
         warm_steps = 0
+        solver = ChainSolver(cm, params, inp)
         solver.start(t0)
         total = int(math.ceil((float(times[-1]) - t0) / solver.dt - 1e-9))
         rot = solver.run(t0, max(total, 0), times)

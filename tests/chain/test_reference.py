@@ -10,8 +10,9 @@ closed form.
   z = c / (2 sqrt((k + m g d) I_tot)). Both MuJoCo and the reference step it by semi-implicit Euler with implicit
   damping: per step x+ = x + h v+, v+ = (v - h w0^2 x) / (1 + 2 z w0 h), whose eigenvalues put the decay rate off
   by about z w0 h and the frequency by less than z w0 h + (w0 h)^2 / 24 (both first order in h): the tolerance is
-  1.5 z w0 h + (w0 h)^2 plus 0.2% for reading the crossings and peaks off the sampled path and for the anchor's
-  weld (MuJoCo's anchor is a heavy body held by a stiff soft weld, the reference's is exact).
+  1.5 z w0 h + (w0 h)^2 plus 0.2% for reading the crossings and peaks off the sampled path and for the anchor
+  (MuJoCo's anchor is a heavy body driven along the animation and held on it by stiff springs, the reference's is
+  exact).
 - The issue's gate on real motion: the Horse's tail and left ear on its Gallop (the cycle repeated: a plain run of
   CYCLES periods, loop=None), and a 10-joint strand of hair added to CesiumMan's head on CMU 05_02 (its first
   CLIP_S seconds), each followed by HOLD_S seconds of the last pose held. The tip's secondary offset
@@ -24,11 +25,11 @@ Both run the same model: the project's compiled MjModel gives the reference its 
 damping, armature and gravity; body contacts off (capsules None), drag 0, and no soft joint limits (the reference
 has none; the chain is built by sim.chain.build.make and its model rebuilt without limits at make's own step).
 
-Measured (2-core CPU, `-s` prints them): one link within 0.4% of the closed form (both solvers); tip offset RMS of
-the difference over the peak: Horse tail 0.9%, left ear 1.6%, strand 3.0%; dominant frequencies within 0.2%,
-ring-downs within 0.5%. (This reference found the project's anchor trailing the animation by 10 ms, the weld's
-damping acting on the free body's whole velocity, MuJoCo's mocap target having none: the ear was 8.6% off, the tail
-4.2%; sim.chain.simulate now leads the weld's target by two time constants.)
+Measured (2-core CPU, `-s` prints them): one link within 0.8% of the closed form (both solvers); tip offset RMS of
+the difference over the peak: Horse tail 1.7%, left ear 1.8%, strand 2.5%; dominant frequencies within 0.5%,
+ring-downs within 0.3%. (This reference found the project's anchor, then welded to a mocap target, trailing the
+animation by 10 ms: the ear was 8.6% off, the tail 4.2%. The anchor is now driven by the force the animation's
+acceleration needs, sim.chain.simulate.ChainSolver._window, and follows it to O(dt^2).)
 """
 from __future__ import annotations
 
