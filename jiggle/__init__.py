@@ -6,7 +6,7 @@ The public Python API (documented in the site's API reference; everything else i
     bake = jiggle.bake("walk.bvh", "hero.glb", muscles={"belly_fat": {"strength": 0.5}})
     bake.skin_final            # (T, V, 3) float32 metres, read-only
 
-`bake`, `Bake`, `Metrics`, `InputError`, and the stages for a pipeline of one's own: `load_character`,
+`bake`, `Bake`, `Metrics`, `InputError`, `Material` (with `FAT` and `MUSCLE`: tissue in physical units), and the stages for a pipeline of one's own: `load_character`,
 `load_clip`, `fit`, `simulate`. They load on first use, so `import jiggle` stays light.
 
 The pipeline's stage packages are installed under this one (jiggle.rig, jiggle.sim, jiggle.scenes); in a source
@@ -18,7 +18,7 @@ from __future__ import annotations
 from jiggle._version import __version__
 
 __all__ = ["__version__", "bake", "Bake", "Metrics", "InputError", "load_character", "load_clip", "fit", "simulate",
-           "Muscles", "Simulation", "Character", "Clip"]
+           "Muscles", "Simulation", "Character", "Clip", "Material", "FAT", "MUSCLE"]
 
 
 def __getattr__(name: str):

@@ -26,6 +26,7 @@ from types import MappingProxyType
 import numpy as np
 
 from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle.material import FAT, MUSCLE, Material
 from jiggle.rig.character.character import Character
 from jiggle.rig.motion.clip import Clip
 from jiggle.rig.muscle.fit import Musculature
@@ -34,7 +35,7 @@ Muscles = Musculature
 """What `fit` returns: the character's muscles and fat fitted from a template (rig.muscle.fit.Musculature)."""
 
 __all__ = ["bake", "Bake", "Metrics", "InputError", "load_character", "load_clip", "fit", "simulate", "Muscles",
-           "Simulation", "Character", "Clip"]
+           "Simulation", "Character", "Clip", "Material", "FAT", "MUSCLE"]
 
 
 def _argv(command: str, positional: list, options: dict) -> list[str]:
@@ -53,6 +54,9 @@ def _argv(command: str, positional: list, options: dict) -> list[str]:
         if name == "chain_params":
             argv += _chain_flags(value)
             continue
+        if name == "materials":
+            argv += _material_flags(value)
+            continue
         flag = "--" + name.replace("_", "-")
         if flag not in flags:
             raise TypeError(f"{command}() got an unexpected keyword argument {name!r}")
@@ -68,6 +72,23 @@ def _argv(command: str, positional: list, options: dict) -> list[str]:
             value = ",".join(str(v) for v in value)
         argv += [flag, _text(value)] if action.nargs != 0 else [flag]
     return argv
+
+
+def _material_flags(materials) -> list[str]:
+    """{"*_fat": "fat", "belly*": Material(...) or {"E": 3e3, "zeta": 0.2}} -> ["--material", "*_fat=fat", ...]: each
+    muscle's (or glob's) tissue material (rig.muscle.material): a name, a Material or its keys E, nu, rho, zeta."""
+    from jiggle.rig.muscle.material import KEYS, Material
+    if not hasattr(materials, "items"):
+        raise InputError(f"must map a muscle (or glob) to a material, e.g. {{'*_fat': 'fat'}}, got {materials!r}",
+                         field="materials")
+    out = []
+    for pattern, m in materials.items():
+        if isinstance(m, Material):
+            m = {k: getattr(m, a) for k, a in KEYS.items()}
+        if hasattr(m, "items"):
+            m = ",".join(f"{k}={v!r}" if not isinstance(v, str) else f"{k}={v}" for k, v in m.items())
+        out += ["--material", f"{pattern}={m}"]
+    return out
 
 
 def _chain_flags(chains) -> list[str]:
@@ -159,8 +180,8 @@ def _run(argv: list[str], quiet: bool = True):
 def bake(clip: str | os.PathLike | None = None, character: str | os.PathLike | None = None, *,
          out: str | os.PathLike | None = None, scene: str | os.PathLike | None = None, template: str | None = None,
          fps: float | None = None, strength: float | str | None = None, blend: float | str | None = None,
-         muscles: dict | None = None, collisions: bool | None = None, device: str | None = None,
-         formats: str | list | None = None, progress: bool = True, **options) -> "Bake":
+         muscles: dict | None = None, materials: dict | None = None, collisions: bool | None = None,
+         device: str | None = None, formats: str | list | None = None, progress: bool = True, **options) -> "Bake":
     """Bake a clip on a character: `jiggle bake` from Python, with the same defaults, checks and result.
 
     Parameters
@@ -186,6 +207,11 @@ def bake(clip: str | os.PathLike | None = None, character: str | os.PathLike | N
     muscles : dict, optional
         Per muscle (a name or a glob) keyable parameters: strength, frequency (Hz), damping, goal_scale, blend;
         e.g. ``{"belly_fat": {"strength": 0.5}, "*_deltoid": {"damping": 0.3}}``.
+    materials : dict, optional
+        Per muscle (a name or a glob) tissue material in physical units: "fat", "muscle", a
+        jiggle.rig.muscle.material.Material, or its keys ``{"E": 3e3, "nu": 0.49, "rho": 920, "zeta": 0.3}`` (Pa,
+        kg/m^3); the goal springs follow from it and the muscle's size, and `muscles` frequency / damping still
+        override it. E.g. ``{"*_fat": "fat", "belly*": {"E": 2e3}}``.
     collisions : bool, optional
         The particles collide with the bone capsules of other body parts and with the floor.
     device : str, optional
@@ -219,7 +245,8 @@ def bake(clip: str | os.PathLike | None = None, character: str | os.PathLike | N
     try:
         args = _parse(_argv("bake", [scene], {"clip": clip, "character": character, "out": folder,
                                                "template": template, "fps": fps, "strength": strength,
-                                               "blend": blend, "muscles": muscles, "collisions": collisions,
+                                               "blend": blend, "muscles": muscles, "materials": materials,
+                                               "collisions": collisions,
                                                "device": device, "formats": formats, **options}))
         with _quiet_warp():
             run_bake(bake_request(args), args.out, resume=args.resume, progress="bar" if progress else "none")

@@ -252,6 +252,11 @@ def keyed_options(p: argparse.ArgumentParser) -> None:
         "Each flag is repeatable: [NAME=]VALUE, NAME a muscle or a glob (\"*_fat\", \"left_*\"; an exact name beats "
         "a glob, a later glob an earlier one; a glob matching no muscle is an error), VALUE a number or keys "
         "[[t_s,v],...] (linear; smooth:[[t_s,v],...] for a monotone cubic). Without NAME: every muscle.")
+    g.add_argument("--material", dest="material", action="append", metavar="[NAME=]MATERIAL",
+                   help="a muscle's (or a glob's; every muscle's without NAME) tissue material in physical units: fat, "
+                        "muscle, or E=PA,nu=...,rho=KG_M3,zeta=... (E takes kPa / MPa too; keys left out keep the "
+                        "muscle material's); its goal springs, damping and density follow from the material and the "
+                        "muscle's size (sim/jiggle/materials.py); --frequency and --damping still override it")
     for flag, name, aliases in KEYED_FLAGS:
         par = PARAMETERS[name]
         unit = f" {par.unit}" if par.unit else ""
@@ -274,6 +279,7 @@ def keyed_request(args) -> dict:
             else:
                 out["muscles"].append((pattern, {name: value}, text))
     out["muscles"] = tuple(out["muscles"])
+    out["materials"] = tuple(getattr(args, "material", None) or ())
     return out
 
 

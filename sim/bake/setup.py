@@ -14,6 +14,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import time
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from types import MappingProxyType
@@ -49,6 +50,10 @@ class BakeRequest:
     colliders ("bone", "model"), muscle_collisions (bool): over the scene's [jiggle].
     muscles : per-muscle entries from the command line, (pattern, {OVERRIDES key: value}, flag text) in the
         order given (pattern a muscle name or a glob), over the scene's tables (sim.bake.scene.apply_entries).
+    materials : per-muscle tissue materials, "[NAME=]MATERIAL" each (NAME a muscle or glob, every muscle without it;
+        MATERIAL fat, muscle, or E=...,nu=...,rho=...,zeta=...; rig.muscle.material), in order: the goal springs,
+        damping and density they give (sim.jiggle.materials) replace the template's; `muscles` entries still override.
+    height : the character's real height, metres (None: inferred, rig.character.real_size), for the materials' rule.
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
@@ -75,6 +80,8 @@ class BakeRequest:
     blend: float | Curve | None = None
     jiggle: float | Curve | None = None
     muscles: tuple = ()
+    materials: tuple = ()
+    height: float | None = None
     gravity: bool | None = None
     preroll: float | None = None
     collisions: bool | None = None
@@ -318,10 +325,12 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     else:
         character = body_character(clip, body, k=pick("influences", 4))
 
-    def onto(character, mus):
-        """The clip on `character`'s skeleton, at its scale, through the roles its fit found (`mus`)."""
+    def onto(character, mus, src=None):
+        """The clip (`src`, else the bake's) on `character`'s skeleton, at its scale, through the roles its fit found
+        (`mus`)."""
+        src = source if src is None else src
         if character_file is None:
-            return source
+            return src
         from jiggle.rig.character.body_skeleton import hang, placed_parts
         from jiggle.rig.motion.retarget import ROLES, JointMap
         from jiggle.rig.motion.retarget_onto import retarget_onto
@@ -332,7 +341,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
             for r, j in mus.roles.items():
                 seen.setdefault(j, r)
             roles = JointMap(roles={r: (character.joint_names[j],) for j, r in seen.items()}, name="the fit's roles")
-        return retarget_onto(source, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
+        return retarget_onto(src, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
                              scale=character.meta.get("unit_scale", 1.0), character_roles=roles,
                              follow=(lambda c: hang(c, placed, character.bind_world)) if placed else None)
     what = os.path.basename(character_file) if character_file is not None else "generated body"
@@ -405,12 +414,17 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     t = time.perf_counter()
     world_at = _drive(clip, drive, knots, log)
     timings["drive_s"] = time.perf_counter() - t
+    tissue_from = {"template": os.path.basename(str(template)), "tuned_on": None}
     if mus.template.name == GENERIC and not idle.all():
+        # one tissue per character: tuned on the character's own most vigorous cycle, whichever clip is baked
         t = time.perf_counter()
-        jiggles = _to_motion(jiggles, mus, character, clip, drive, world_at, knots, log)
-        if drive == "kinematic":
-            jiggles = _to_size(jiggles, skin, solver_settings, character, clip, world_at, log)
+        jiggles, tissue_from = _character_tissue(jiggles, mus, skin, solver_settings, character, character_file,
+                                                 onto, clip, drive, world_at, knots, log)
         timings["tune_s"] = time.perf_counter() - t
+    size = _real_size(character, character_file, mus, onto, req.height, log)
+    materials_used = {}
+    if req.materials:
+        jiggles, materials_used = apply_materials(jiggles, mus.rig, req.materials, log, scale=size.scale)
     settings, jiggles = _settings(req, scene, jiggles)
     if source is clip:
         joints_at, joint_names = world_at, tuple(clip.joint_names)
@@ -441,6 +455,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "body_plan": mus.plan.to_json(),
         "template_why": mus.why or None,
+        "tissue": {**tissue_from, "materials": materials_used or None, "real_size": size.to_json(),
+                   "material_rule": "each part's goal springs stand for a material (muscles.NAME.material): E from "
+                                    "frequency_hz by sim.jiggle.materials (f_fem = FEM_C sqrt(mu / rho) / r at the "
+                                    "part's mean radius at real size, radius_m x real_size.scale), nu of its kind, "
+                                    "its density and damping ratio"},
         "rigid": {"option": req.rigid or "auto", "parts": record.to_json() if record is not None else None,
                   **({"not_simulated": [mus.rig.names[m] for m in np.nonzero(idle)[0]]} if idle.any() else {})},
         "parts": [p.to_json() for p in mus.parts] or None,
@@ -452,7 +471,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
         "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush},
         "settings": jsonable(settings),
-        "muscles": _muscle_params(mus.rig, jiggles, idle),
+        "muscles": _muscle_params(mus.rig, jiggles, idle, scale=size.scale),
         "chunk": _chunk(req, scene),
         "loop": loop.to_json(),
     }
@@ -513,6 +532,158 @@ def _chain_floor(character, mus, world_at, knots):
     return _floor(character, "kinematic", world_at, knots)
 
 
+def apply_materials(jiggles, rig, entries, log=lambda s: None, scale: float = 1.0) -> tuple[list, dict]:
+    """(jiggles, used): `entries` ("[NAME=]MATERIAL" each, BakeRequest.materials) applied in order: every muscle NAME
+    matches (a name or a glob; every muscle without NAME) gets the goal springs, damping ratio and density its
+    material gives at its mean rest radius at real size (times `scale`: rig.character.real_size.RealSize.scale;
+    sim.jiggle.materials.with_material). used : {muscle: the Material's
+    record and the entry that set it}. InputError naming the entry for a bad material or a NAME matching nothing."""
+    import fnmatch
+
+    from jiggle.rig.muscle.material import KEYS, parse_material
+    from jiggle.sim.jiggle.materials import with_material
+    radii = rig.mean_radii(rig.rest_cvs)
+    out, used = list(jiggles), {}
+    for entry in entries:
+        text = str(entry).strip()
+        head, _, rest = text.partition("=")
+        name, spec = (head.strip(), rest) if rest and head.strip() not in KEYS else ("*", text)
+        material = parse_material(spec, where=f"--material {text}")
+        hits = [m for m, n in enumerate(rig.names) if n == name or fnmatch.fnmatchcase(n, name)]
+        if not hits:
+            raise InputError(f"--material {text}: no muscle is named or matches {name!r}; the muscles are "
+                             f"{', '.join(rig.names[:12])}{' ...' if rig.M > 12 else ''}", field="--material")
+        for m in hits:
+            out[m] = with_material(out[m], material, float(radii[m]) * scale)
+            used[rig.names[m]] = {**material.to_json(), "entry": text}
+        log(f"material {material.name} ({material.youngs_pa:g} Pa, nu {material.poisson:g}, {material.density:g} "
+            f"kg/m^3, zeta {material.damping_ratio:g}) on {len(hits)} muscle(s) matching {name!r}")
+    return out, used
+
+
+REFERENCE_ANIMATIONS = 48
+"""The most animations of a character file _own_cycles looks through."""
+ACTION_WORDS = ("attack", "bite", "hit", "death", "die", "dead", "jump", "punch", "kick", "headbutt", "react", "weapon",
+                "shoot", "fall", "land", "throw", "slash", "spawn")
+"""Words that make an animation a one-off action (it may return to its start pose, but it is not how the character
+moves): never the tissue's reference, since tuned on it the tissue would be stiffened for the character's harshest
+moment."""
+_CYCLES = {}
+"""_own_cycles' results per character file and fit (its path, size and time, template, muscles)."""
+_TISSUE = {}
+"""_character_tissue's results: _own_cycles' key and the skinning -> (frequencies, record)."""
+
+
+def _file_key(character_file, mus):
+    """The key of a glTF character file and its fit for the per-process caches, or None for any other character."""
+    if character_file is None or not str(character_file).lower().endswith((".glb", ".gltf")) \
+            or not os.path.isfile(character_file):
+        return None
+    st = os.stat(character_file)
+    return (os.path.realpath(character_file), st.st_size, st.st_mtime_ns, mus.template.name, mus.rig.M,
+            tuple(mus.rig.names))
+
+
+def _own_cycles(character_file, character, mus, onto) -> list:
+    """The character file's own animations that loop (sim.bake.loop.judge), each (name, the clip on the character,
+    its kinematic drive world_at, the times it was sampled at (MOTION_RATE), its Loop); [] for a character that is
+    no glTF file. Read once per file and fit in a process."""
+    key = _file_key(character_file, mus)
+    if key is None:
+        return []
+    if key in _CYCLES:
+        return _CYCLES[key]
+    from jiggle.rig.motion.gltf_io import GltfDocument
+    from jiggle.rig.motion.mocap import load_clip
+    from jiggle.sim.bake.loop import judge
+    from jiggle.sim.jiggle.params import MOTION_RATE
+    names = [a.name or f"animation{k}" for k, a in enumerate(GltfDocument(character_file).gltf.animations)]
+    height = float(np.ptp(np.asarray(character.vertices)[:, 2]))
+    out = []
+    for k, name in enumerate(names[:REFERENCE_ANIMATIONS]):
+        try:
+            own = onto(character, mus, load_clip(character_file, animation=k))
+        except InputError:
+            continue
+        if own.duration <= 0:
+            continue
+        ts = np.linspace(0.0, own.duration, max(int(round(own.duration * MOTION_RATE)), 2) + 1)
+        at = _drive(own, "kinematic", ts, lambda s: None)
+        lp = judge("auto", clip=own, drive="kinematic", world_at=at, height=height, times=ts[:1], fps=MOTION_RATE,
+                   end=None, frames=None, own=True, goal_rate=None)
+        if lp.on:
+            out.append((name, own, at, ts, lp))
+    _CYCLES[key] = out
+    return out
+
+
+def _real_size(character, character_file, mus, onto, height, log):
+    """rig.character.real_size.RealSize of the character as simulated: --height, else its own looping walk cycle's
+    period (dynamic similarity), else the file's unit; logged."""
+    from jiggle.rig.character.real_size import is_walk, real_size
+    walk = None
+    if height is None:
+        walk = next(((n, lp.period) for n, _, _, _, lp in _own_cycles(character_file, character, mus, onto)
+                     if is_walk(n)), None)
+    size = real_size(character, height, walk)
+    log(f"real size: {size.why}")
+    return size
+
+
+def _character_tissue(jiggles, mus, skin, settings, character, character_file, onto, clip, drive, world_at, knots,
+                      log) -> tuple[list, dict]:
+    """(jiggles, record): the generic template's tissue tuned once for the character, not per clip (issue 49): on
+    the character's own most vigorous cycle (its file's animations that loop, _own_cycles, without one-off actions,
+    the one whose goal accelerations over the tissue are largest: _vigour) by _to_motion and _to_size, whichever clip
+    is baked, so every clip of a character gets the same tissue and a calmer clip jiggles less. Remembered per file
+    for the process (batch, the viewer). A character with no looping animation of its own (a mesh given a mocap
+    clip, a generated body) is tuned on the bake's clip, and the record says so."""
+    from jiggle.sim.jiggle.params import MOTION_RATE
+    key = _file_key(character_file, mus)
+    key = None if key is None else key + (getattr(skin, "skinning", None),)
+    if key is not None and key in _TISSUE:
+        freqs, record = _TISSUE[key]
+        log(f"generic tissue: as tuned on {record['tuned_on']} (this character's, remembered)")
+        return [replace(j, frequency_hz=f) for j, f in zip(jiggles, freqs)], record
+    best = None
+    for name, own, at, ts, _ in _own_cycles(character_file, character, mus, onto):
+        words = [w for w in re.split(r"[^a-z]+", name.lower()) if w]
+        if any(w.startswith(a) for w in words for a in ACTION_WORDS):
+            continue
+        v = _vigour(mus.rig, at, ts)
+        if best is None or v > best[0]:
+            best = (v, name, own, at)
+    if best is not None:
+        vigour, name, ref, ref_at = best
+        ref_knots = np.linspace(0.0, ref.duration, max(int(round(ref.duration * MOTION_RATE)), 2) + 1)
+        record = {"template": "generic", "tuned_on": f"animation {name}",
+                  "why": f"the character's own cycle that drives its tissue hardest (goal acceleration {vigour:.3g} "
+                         "m/s^2 RMS; one-off actions never): one tissue for every clip of the character, and a calmer "
+                         "clip jiggles less"}
+        kind_drive = "kinematic"
+    else:
+        ref, ref_at, ref_knots, kind_drive = clip, world_at, knots, drive
+        record = {"template": "generic", "tuned_on": "the bake's clip",
+                  "why": "the character has no looping animation of its own to tune on"}
+    log(f"generic tissue: tuned on {record['tuned_on']} ({record['why']})")
+    jiggles = _to_motion(jiggles, mus, character, ref, kind_drive, ref_at, ref_knots, log)
+    if kind_drive == "kinematic":
+        jiggles = _to_size(jiggles, skin, settings, character, ref, ref_at, log)
+    if key is not None:
+        _TISSUE[key] = ([float(j.frequency_hz) for j in jiggles], record)
+    return jiggles, record
+
+
+def _vigour(rig, world_at, ts: np.ndarray) -> float:
+    """How hard a clip drives the tissue: the RMS over frames of the mean goal acceleration magnitude of the rig's
+    CVs (m/s^2), the drive `world_at` sampled at `ts` (seconds, evenly)."""
+    from jiggle.sim.jiggle.params import motion_accelerations
+    if len(ts) < 3:
+        return 0.0
+    acc = motion_accelerations(rig.static(np.asarray(world_at(ts), np.float64)).cvs, float(ts[1] - ts[0]))
+    return float(np.sqrt(np.mean(np.linalg.norm(acc, axis=2).mean(axis=1) ** 2)))
+
+
 def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.ndarray, log) -> list:
     """The generic template's tissue tuned to how the clip moves it (sim.jiggle.params.tune_to_motion), measured on the whole clip sampled at MOTION_RATE (the knots under
     the physics drive), so neither the output rate nor the frame range changes it."""
@@ -530,9 +701,11 @@ def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.nd
     return out
 
 
-PEAK_SIZE = 0.008
-"""The generic template's tissue is calibrated so that its skin's largest jiggle on the clip is about this share of
-the body's size (its rest skin's largest extent): visible on a blob's hop or a hovering creature, far from a flap."""
+PEAK_SIZE = 0.01
+"""The generic template's tissue is calibrated so that its skin's largest jiggle on the character's most vigorous
+cycle (_character_tissue) is about this share of the body's size (its rest skin's largest extent): visible on a
+blob's hop or a hovering creature, far from a flap; a calmer clip of the character (a walk beside its dance) then
+jiggles less, an idle far less."""
 PROBE_FPS, PROBE_SECONDS, PROBE_ROUNDS = 30.0, 4.0, 2
 """The calibration's probe bakes: this rate over the clip's first seconds (so neither the bake's rate nor its frame
 range changes the result), this many rounds."""
@@ -760,13 +933,15 @@ MUSCLE_KEYS = {"strength": "strength", "frequency": "frequency_hz", "damping": "
 """bake.json's per-muscle parameter names (the scene's [jiggle.muscles.NAME] keys) -> MuscleJiggle attributes."""
 
 
-def _muscle_params(rig, jiggles, idle=None) -> dict:
+def _muscle_params(rig, jiggles, idle=None, scale: float = 1.0) -> dict:
     """Per muscle: kind, rest volume, mass and every jiggle parameter under its scene key (MUSCLE_KEYS; a
     keyed one as {"times", "values", "interpolation"}), max_offset in metres at strength 1 (None: no
     limit) and reach_m, the reach at the largest strength (JSON-ready). A muscle flagged in `idle` ((M,)
     bool, rig.skin.muscle_skin.MuscleSkin.idle) drives no skin and is not simulated: "simulated" false and
     reach_m None, so compare leaves it out of the near-reach counts."""
+    from jiggle.sim.jiggle.materials import material_of
     volumes = rig.volumes(rig.rest_cvs)
+    radii = rig.mean_radii(rig.rest_cvs)
     out = {}
     for m, j in enumerate(jiggles):
         d = {key: jsonable(getattr(j, attr)) for key, attr in MUSCLE_KEYS.items()}
@@ -775,6 +950,8 @@ def _muscle_params(rig, jiggles, idle=None) -> dict:
         out[rig.names[m]] = {"kind": rig.kinds[m], "volume_m3": float(volumes[m]),
                              "mass_kg": float(volumes[m] * j.density), **d,
                              "reach_m": j.reach if math.isfinite(j.reach) and not still else None,
+                             "radius_m": float(radii[m]),
+                             "material": material_of(j, rig.kinds[m], radii[m] * scale).to_json(),
                              **({"simulated": False} if still else {})}
     return out
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 import os
 import sys
 
-from jiggle.sim.app.args import bake_options, chain_request, clip_options, keyed_request, map_options, template_option
+from jiggle.sim.app.args import (bake_options, chain_request, clip_options, keyed_request, map_options, positive,
+                                 template_option)
 from jiggle.sim.app.loading import body_overrides
 
 
@@ -32,7 +33,8 @@ def bake_request(args):
         skinning=args.skinning, method=args.method, clip_map=getattr(args, "clip_map", None),
         character_map=getattr(args, "character_map", None),
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None),
-        loop=getattr(args, "loop", None), rigid=getattr(args, "rigid", None), **chain_request(args))
+        loop=getattr(args, "loop", None), rigid=getattr(args, "rigid", None), height=getattr(args, "height", None),
+        **chain_request(args))
 
 
 def emit(event: str, **fields) -> None:
@@ -168,5 +170,7 @@ def add_parser(sub) -> None:
     g.add_argument("--skin", type=int, metavar="N", help="which skin of a glTF character (default: 0)")
     g.add_argument("--unit", metavar="UNIT", help="the character file's unit: auto, m, cm, mm, in, ft or metres per "
                    "unit (default: auto: metres unless the height says cm or mm)")
+    g.add_argument("--height", type=positive("--height"), metavar="METRES", help="the character's real height, for "
+                   "its tissue materials (--material): default inferred from its own walk cycle, else the file's unit")
     clip_options(p)
     p.set_defaults(func=run)

@@ -134,6 +134,9 @@ def run(args) -> int:
         jiggles = [replace(j, blend=None) for j in jiggles]
     if keyed["jiggle"] is not None:   # --strength: every muscle's, over the scene's
         jiggles = [replace(j, strength=settings.strength) for j in jiggles]
+    if keyed["materials"]:            # then --material (goal springs from the tissue's material and size)
+        from jiggle.sim.bake.setup import apply_materials
+        jiggles, _ = apply_materials(jiggles, job.rig, keyed["materials"])
     if keyed["muscles"]:              # then NAME=VALUE entries, names and globs
         from jiggle.sim.bake.scene import apply_entries
         jiggles = apply_entries(jiggles, keyed["muscles"])

@@ -77,7 +77,24 @@ def tissue_plan(path: str) -> dict:
         out["size"] = (f"{height:.3g} m tall as read, outside the {name} template's {lo:g}-{hi:g} m: simulated at "
                        f"{nominal:g} m and the result scaled back to the file's size (--unit sets the file's unit "
                        f"instead)")
+        character = character.scaled(k)
+    out["real_size"] = _real_size(path, character)
     return out
+
+
+def _real_size(path: str, character) -> str:
+    """The real size a bake infers for the character (rig.character.real_size: its own walk cycle's period, else the
+    file's unit), for its materials; --height overrides it."""
+    from jiggle.rig.character.real_size import is_walk, real_size
+    walk = None
+    if str(path).lower().endswith((".glb", ".gltf")):
+        from jiggle.rig.motion.gltf_io import GltfDocument
+        from jiggle.rig.motion.mocap import load_clip
+        names = [a.name or f"animation{k}" for k, a in enumerate(GltfDocument(path).gltf.animations)]
+        k = next((k for k, n in enumerate(names) if is_walk(n)), None)
+        if k is not None:
+            walk = (names[k], float(load_clip(path, animation=k).duration))
+    return real_size(character, None, walk).why + " (--height overrides it)"
 
 
 def rigid_parts(path: str) -> dict:

@@ -1,0 +1,84 @@
+"""From a tissue's material to its particles' goal springs, and back.
+
+A part of the body (a muscle or fat, rig.muscle.model) made of a Material (rig/muscle/material.py: Young's modulus E,
+Poisson's ratio nu, density rho, damping ratio zeta) and of mean rest radius r (metres, real size) wobbles, as
+a finite-element solve of its volume says (sim/fem, benchmarks/fem_reference.py), at its fundamental frequency
+
+    f_fem = FEM_C sqrt(mu / rho) / r,          mu = E / (2 (1 + nu)),
+
+the shear wave's speed over the part's radius: a part twice as thick wobbles half as fast, a material four times
+as stiff twice as fast. FEM_C is the volumetric reference's ring-downs of lofted parts (ellipsoids 20 x 3 cm and 30
+x 5 cm, CesiumMan's belly fat and love handle; attached along their axis and at their tendon ends, like the
+particles' goal weights): geometric mean 0.13, spread 31% over those shapes (benchmarks/results/fem_reference.md;
+the size measure r fits best of r, V^(1/3) and L/2).
+
+The particles ring at their goal springs' frequency: a particle of goal weight w at frequency_hz f rings at
+f sqrt(w / (1 - w)) (sim/jiggle/params.py), and a part's visible wobble is its belly's (the sections between its
+tendon ends, where the goal weights are lowest and the mass is). So the part's goal springs are set to
+
+    frequency_hz = f_fem / sqrt(w_belly / (1 - w_belly)),
+
+its damping ratio to the material's and its density to the material's. :func:`material_of` inverts the rule:
+the Material a part's goal springs stand for (E from its frequency, nu and rho of its kind), which bake.json
+records for every part, whichever set it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from jiggle.rig.muscle.material import Material, material_for
+
+FEM_C = 0.13
+"""f_fem r / sqrt(mu / rho): the volumetric reference's fundamental frequency of a lofted part over its shear speed
+per radius (see the module; spread 31% over the shapes measured)."""
+
+
+def belly_goal(jiggle) -> float:
+    """The goal weight of a part's belly: the mean of its middle three sections' (rows 8..31 of the 40 CVs), the
+    smallest 1 - 1e-6 so a glued part has a finite factor."""
+    g = np.asarray(jiggle.goal_weights(), np.float64)
+    return float(np.clip(g[8:32].mean(), 1e-6, 1.0 - 1e-6))
+
+
+def ring_factor(jiggle) -> float:
+    """sqrt(w / (1 - w)) of the belly's goal weight w: the particles' ring frequency over frequency_hz."""
+    w = belly_goal(jiggle)
+    return math.sqrt(w / (1.0 - w))
+
+
+def fem_frequency(material: Material, radius_m: float) -> float:
+    """Hz: a part of `material` and mean radius `radius_m` (metres, real size) wobbles at this (the module's rule)."""
+    return FEM_C * material.shear_speed / max(float(radius_m), 1e-9)
+
+
+def with_material(jiggle, material: Material, radius_m: float):
+    """`jiggle` (sim.jiggle.params.MuscleJiggle) with its goal springs, damping ratio and density from `material`
+    for a part of mean radius `radius_m` (metres, real size)."""
+    f = fem_frequency(material, radius_m) / ring_factor(jiggle)
+    return replace(jiggle, frequency_hz=float(f), damping_ratio=float(material.damping_ratio),
+                   density=float(material.density))
+
+
+def material_of(jiggle, kind: str, radius_m: float) -> Material:
+    """The Material a part's goal springs stand for: E from its frequency_hz (its reference value for a keyed one)
+    by the module's rule inverted, nu of its kind's material, its density and damping ratio."""
+    ref = jiggle.reference() if jiggle.keyed else jiggle
+    base = material_for(kind)
+    f_fem = float(ref.frequency_hz) * ring_factor(ref)
+    shear_speed = f_fem * max(float(radius_m), 1e-9) / FEM_C
+    mu = float(ref.density) * shear_speed ** 2
+    return Material(youngs_pa=2.0 * (1.0 + base.poisson) * mu, poisson=base.poisson, density=float(ref.density),
+                    damping_ratio=float(ref.damping_ratio), name=base.name if _same(ref, base, radius_m) else "custom")
+
+
+def _same(jiggle, base: Material, radius_m: float) -> bool:
+    """Whether `jiggle` is what `base` gives (its frequency within 0.1%, its damping and density equal)."""
+    f = fem_frequency(base, radius_m) / ring_factor(jiggle)
+    return (abs(float(jiggle.frequency_hz) / f - 1.0) < 1e-3 and abs(float(jiggle.damping_ratio) - base.damping_ratio)
+            < 1e-9 and abs(float(jiggle.density) - base.density) < 1e-9)
+
+
+__all__ = ["FEM_C", "belly_goal", "ring_factor", "fem_frequency", "with_material", "material_of"]

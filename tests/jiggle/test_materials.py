@@ -1,0 +1,124 @@
+"""Tissue materials in physical units (rig/muscle/material.py, sim/jiggle/materials.py) and one tissue per character
+(sim.bake.setup._character_tissue): a material's goal springs, the material a part's springs stand for, --material
+on the command line, and the generic template's tissue the same on every clip of a character."""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+
+from jiggle.rig.base.errors import InputError
+from jiggle.rig.muscle.material import FAT, MUSCLE, Material, parse_material
+from jiggle.sim.jiggle.materials import FEM_C, fem_frequency, material_of, ring_factor, with_material
+from jiggle.sim.jiggle.params import MuscleJiggle, section_goals
+
+ASSETS = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "assets")
+
+
+def _jiggle(tendon=0.9, belly=0.4):
+    return MuscleJiggle(name="m", frequency_hz=10.0, damping_ratio=0.5, goal=section_goals(tendon, belly), density=1000.0)
+
+
+def test_the_rule_is_the_shear_speed_over_the_radius():
+    # f_fem = C sqrt(mu / rho) / r, mu = E / (2 (1 + nu)): four times the modulus doubles it, twice the radius halves it
+    m = Material(youngs_pa=12e3, poisson=0.49, density=1000.0, damping_ratio=0.2)
+    f = fem_frequency(m, 0.05)
+    assert f == pytest.approx(FEM_C * math.sqrt(12e3 / (2 * 1.49) / 1000.0) / 0.05)
+    stiff = Material(youngs_pa=48e3, poisson=0.49, density=1000.0, damping_ratio=0.2)
+    assert fem_frequency(stiff, 0.05) == pytest.approx(2 * f) and fem_frequency(m, 0.1) == pytest.approx(f / 2)
+
+
+def test_a_material_sets_the_springs_and_reads_back():
+    j = _jiggle()
+    out = with_material(j, FAT, 0.04)
+    # the belly (goal weight 0.4) rings at frequency_hz sqrt(w / (1 - w)): that is the FEM's frequency
+    assert out.frequency_hz * ring_factor(out) == pytest.approx(fem_frequency(FAT, 0.04))
+    assert out.damping_ratio == FAT.damping_ratio and out.density == FAT.density
+    back = material_of(out, "fat", 0.04)
+    assert back.name == "fat" and back.youngs_pa == pytest.approx(FAT.youngs_pa, rel=1e-9)
+    assert material_of(with_material(j, MUSCLE, 0.03), "muscle", 0.03).name == "muscle"
+    # a template's 11 Hz muscle of 2 cm radius stands for some E, which gives 11 Hz back
+    t = _jiggle()
+    e = material_of(t, "muscle", 0.02)
+    assert e.name == "custom" and with_material(t, e, 0.02).frequency_hz == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("text, expect", [("fat", FAT), ("muscle", MUSCLE),
+                                          ("E=5kPa,zeta=0.2", {"youngs_pa": 5e3, "damping_ratio": 0.2}),
+                                          ("E=2e4,nu=0.45,rho=1100", {"youngs_pa": 2e4, "poisson": 0.45, "density": 1100})])
+def test_materials_parse(text, expect):
+    got = parse_material(text)
+    if isinstance(expect, Material):
+        assert got == expect
+    else:
+        assert all(getattr(got, k) == pytest.approx(v) for k, v in expect.items())
+        assert got.name == "custom"
+
+
+@pytest.mark.parametrize("text, part", [("wood", "expected fat, muscle"), ("E=abc", "E must be a number"),
+                                        ("E=-3", "youngs_pa must be > 0"), ("nu=0.5", "poisson must be in [0, 0.5)"),
+                                        ("G=3", "unknown material key 'G'")])
+def test_bad_materials_say_what_was_expected(text, part):
+    with pytest.raises(InputError, match=part.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
+        parse_material(text)
+
+
+def _asset(*parts):
+    path = os.path.join(ASSETS, *parts)
+    if not os.path.isfile(path):
+        pytest.skip(f"{os.path.join(*parts)} is not in ../shared/assets")
+    return path
+
+
+@pytest.mark.slow
+def test_material_on_the_command_line(tmp_path, capsys):
+    """jiggle bake --material: the glob's muscles get the material's springs (bake.json records it, and the material
+    each other part's springs stand for); --frequency still overrides; a glob matching nothing is exit 2."""
+    from jiggle.sim.app.cli import main
+    clip = _asset("mocap", "cmu_bvh", "09_11.bvh")
+    out = tmp_path / "m"
+    args = ["bake", "--clip", clip, "--frames", "4", "--formats", "npz", "-q"]
+    assert main([*args, "--out", str(out), "--material", "*_fat=fat", "--material", "left_biceps=E=40kPa",
+                 "--frequency", "right_biceps=9"]) == 0
+    p = json.loads((out / "bake.json").read_text())
+    params = p.get("params", p)
+    muscles = params["muscles"]
+    fats = [n for n in muscles if n.endswith("_fat")]
+    assert fats and all(muscles[n]["material"]["name"] == "fat" for n in fats)
+    assert all(params["tissue"]["materials"][n]["entry"] == "*_fat=fat" for n in fats)
+    assert muscles["left_biceps"]["material"]["youngs_pa"] == pytest.approx(40e3, rel=1e-6)
+    assert muscles["right_biceps"]["frequency"] == 9.0 and muscles["right_biceps"]["material"]["youngs_pa"] > 0
+    f = muscles[fats[0]]            # its belly rings at the FEM's frequency for fat of its radius
+    j = MuscleJiggle(name="x", frequency_hz=f["frequency"], damping_ratio=f["damping"], goal=f["goal"], density=1.0)
+    assert f["frequency"] * ring_factor(j) == pytest.approx(fem_frequency(FAT, f["radius_m"]), rel=1e-6)
+    assert f["damping"] == FAT.damping_ratio and f["density"] == FAT.density
+    assert main([*args, "--out", str(tmp_path / "bad"), "--material", "nosuch*=fat"]) == 2
+    assert "no muscle is named or matches 'nosuch*'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_one_tissue_for_every_clip_of_a_character(tmp_path):
+    """The shared Cat (the generic template) baked on its Idle, Walk and Dance: the same goal springs in every
+    bake.json (tuned once, on its most vigorous cycle: the Dance), and the Idle peaks below the Walk, the Walk below
+    the Dance (it was retuned per clip: 1.5 Hz on Idle, 7 on Walk, 11 on Dance)."""
+    from jiggle.sim.app.cli import main
+    from jiggle.sim.bake.caches import read_npz
+    cat = _asset("characters", "zoo", "Cat.glb")
+    freqs, peaks = {}, {}
+    from jiggle.sim.bake import setup
+    for clip in ("Idle", "Walk", "Dance"):
+        setup._TISSUE.clear()       # each bake finds the reference cycle itself, as separate processes do
+        out = tmp_path / clip
+        assert main(["bake", "--character", cat, "--animation", clip, "--out", str(out), "--formats", "npz",
+                     "-q"]) == 0
+        p = json.loads((out / "bake.json").read_text())
+        params = p.get("params", p)
+        assert params["tissue"]["tuned_on"] == "animation Dance"
+        freqs[clip] = {n: m["frequency"] for n, m in params["muscles"].items()}
+        b = read_npz(out / "bake.npz")
+        peaks[clip] = float(np.linalg.norm(b.skin_final - b.skin_static, axis=2).max())
+    assert freqs["Idle"] == freqs["Walk"] == freqs["Dance"]
+    assert peaks["Idle"] < peaks["Walk"] < peaks["Dance"], peaks
