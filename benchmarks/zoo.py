@@ -489,7 +489,8 @@ def motion_gif(bake_dir: Path, path: Path) -> dict | None:
     for k in picks:
         pl = pv.Plotter(off_screen=True, shape=(1, 2), window_size=(2 * GIF_PANEL[0], GIF_PANEL[1]), border=False)
         c = static[k].mean(0)
-        cam = [tuple(c - 1.6 * size * side + [0, 0, 0.15 * size]), tuple(c), (0, 0, 1)]
+        # far enough that a tail or wing swung past the rest skin's extent stays in the panel (30 degree view)
+        cam = [tuple(c - 2.1 * size * side + [0, 0, 0.15 * size]), tuple(c), (0, 0, 1)]
         pl.subplot(0, 0)
         pl.add_mesh(pv.PolyData(static[k], cells), color="#c9b79c", smooth_shading=True)
         pl.camera_position = cam

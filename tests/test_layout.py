@@ -31,6 +31,7 @@ LAYERS = {
     "rig.skin": 5,
     "sim.jiggle": 6,
     "sim.drive": 6,
+    "sim.fem": 6,
     "sim.chain": 6.5,
     "sim.bake": 7,
     "sim.app": 8,

@@ -7,10 +7,11 @@ a finite-element solve of its volume says (sim/fem, benchmarks/fem_reference.py)
     f_fem = FEM_C sqrt(mu / rho) / r,          mu = E / (2 (1 + nu)),
 
 the shear wave's speed over the part's radius: a part twice as thick wobbles half as fast, a material four times
-as stiff twice as fast. FEM_C is the volumetric reference's ring-downs of lofted parts (ellipsoids 20 x 3 cm and 30
-x 5 cm, CesiumMan's belly fat and love handle; attached along their axis and at their tendon ends, like the
-particles' goal weights): geometric mean 0.13, spread 31% over those shapes (benchmarks/results/fem_reference.md;
-the size measure r fits best of r, V^(1/3) and L/2).
+as stiff twice as fast. FEM_C is the volumetric reference's undamped ring-downs (sim/fem, driven by the parts' goal
+shapes exactly as the particles are; benchmarks/results/fem_reference.md) of 5 lofted ellipsoids and 4 of CesiumMan's
+fitted parts, fat and muscle: 0.168, spread 14% (0.128-0.220; muscle rings 2.0x faster than fat in every part, their
+shear speeds' ratio). The part's thickness V / A fits a little better (10%) and (r / L)^0.2 as well; r is kept for
+being what the muscle rig already measures.
 
 The particles ring at their goal springs' frequency: a particle of goal weight w at frequency_hz f rings at
 f sqrt(w / (1 - w)) (sim/jiggle/params.py), and a part's visible wobble is its belly's (the sections between its
@@ -31,9 +32,9 @@ import numpy as np
 
 from jiggle.rig.muscle.material import Material, material_for
 
-FEM_C = 0.13
+FEM_C = 0.168
 """f_fem r / sqrt(mu / rho): the volumetric reference's fundamental frequency of a lofted part over its shear speed
-per radius (see the module; spread 31% over the shapes measured)."""
+per radius (see the module; spread 14% over the shapes measured)."""
 
 
 def belly_goal(jiggle) -> float:

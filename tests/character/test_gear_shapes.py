@@ -205,12 +205,14 @@ def _bake(tmp_path, glb, name, *extra):
 @pytest.mark.slow
 def test_the_rigidly_bound_cat_jiggles_as_the_cat_does(tmp_path, cat):
     """Done when: a rigidly bound blob body jiggles like the same body skinned smoothly, its peak within 20%
-    (measured: 16.3 mm against the Cat's 16.0 mm on Walk; 0.0 mm under the weights-alone rule)."""
+    (both tuned on their Dance, the Cat's Walk peaks at 7.7 mm; 0.0 mm under the weights-alone rule)."""
     from jiggle.rig.character.gltf_write import write_character
     from jiggle.rig.motion.mocap import load_clip
     src = _asset("zoo/Cat.glb")
     glb = tmp_path / "rigid_cat.glb"
-    write_character(rigid_cat(cat), glb, source=src, animations={"Walk": load_clip(src, animation="Walk")})
+    # the Cat's cycles, so its tissue is tuned on the same one (its most vigorous, the Dance: one tissue per character)
+    write_character(rigid_cat(cat), glb, source=src,
+                    animations={n: load_clip(src, animation=n) for n in ("Walk", "Dance", "Idle")})
     _, smooth = _bake(tmp_path, src, "cat", "--animation", "Walk")
     info, rigid = _bake(tmp_path, glb, "rigid", "--animation", "Walk")
     assert smooth["skin"]["max_mm"] > 5.0
