@@ -584,15 +584,16 @@ def _file_key(character_file, mus):
             tuple(mus.rig.names))
 
 
-def _own_cycles(character_file, character, mus, onto) -> list:
+def _own_cycles(character_file, character, mus, onto, only=None) -> list:
     """The character file's own animations that loop (sim.bake.loop.judge), each (name, the clip on the character,
     its kinematic drive world_at, the times it was sampled at (MOTION_RATE), its Loop); [] for a character that is
-    no glTF file. Read once per file and fit in a process."""
+    no glTF file. Read once per file and fit in a process. only : a test of an animation's name: those alone are
+    read (and nothing is remembered), unless every one already was."""
     key = _file_key(character_file, mus)
     if key is None:
         return []
     if key in _CYCLES:
-        return _CYCLES[key]
+        return [c for c in _CYCLES[key] if only is None or only(c[0])]
     from jiggle.rig.motion.gltf_io import GltfDocument
     from jiggle.rig.motion.mocap import load_clip
     from jiggle.sim.bake.loop import judge
@@ -601,6 +602,8 @@ def _own_cycles(character_file, character, mus, onto) -> list:
     height = float(np.ptp(np.asarray(character.vertices)[:, 2]))
     out = []
     for k, name in enumerate(names[:REFERENCE_ANIMATIONS]):
+        if only is not None and not only(name):
+            continue
         try:
             own = onto(character, mus, load_clip(character_file, animation=k))
         except InputError:
@@ -613,7 +616,8 @@ def _own_cycles(character_file, character, mus, onto) -> list:
                    end=None, frames=None, own=True, goal_rate=None)
         if lp.on:
             out.append((name, own, at, ts, lp))
-    _CYCLES[key] = out
+    if only is None:
+        _CYCLES[key] = out
     return out
 
 
@@ -623,8 +627,8 @@ def _real_size(character, character_file, mus, onto, height, log):
     from jiggle.rig.character.real_size import is_walk, real_size
     walk = None
     if height is None:
-        walk = next(((n, lp.period) for n, _, _, _, lp in _own_cycles(character_file, character, mus, onto)
-                     if is_walk(n)), None)
+        walk = next(((n, lp.period) for n, _, _, _, lp in _own_cycles(character_file, character, mus, onto,
+                                                                       only=is_walk)), None)
     size = real_size(character, height, walk)
     log(f"real size: {size.why}")
     return size
