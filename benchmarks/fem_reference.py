@@ -16,8 +16,8 @@ shape: the static CVs of every knot (rig.static(world).cvs), the FEM's vertices 
 3. Cases (--case): CesiumMan's belly fat on CMU 09_11 (its first ~3 s: the clip is 1.4 s), the generated body's
    right quadriceps on CMU 02_04 (the jump and landing, 4 s), the shared Cat's fat on its Walk (2 s of the cycle).
    Every case holds the last pose 1.5 s at the end, so both solvers ring down. The FEM (the part's material, damped
-   at the C rule's frequency), the particles at default_jiggles(rig), and the particles set from the material
-   (sim.jiggle.materials.particle_params_from when present, else frequency_hz = C_p shear_speed / r with
+   at the C rule's frequency), the particles as a bake with the defaults sets them (prepare's jiggles), and the
+   particles set from the material (sim.jiggle.materials.particle_params_from when present, else frequency_hz = C_p shear_speed / r with
    C_p = C / F_p from the calibration, damping = the material's ratio). Per solver: peak CV offset from the goal
    (mm), dominant frequency of the detrended offset during the motion, ring-down frequency and log decrement in
    the hold; a PNG per case (offset magnitude over time).
@@ -263,7 +263,7 @@ CASES = {
     "belly": {"clip": "mocap/cmu_bvh/09_11.bvh", "character": "characters/CesiumMan.glb", "part": "belly_fat",
               "seconds": 3.0},
     "thighs": {"clip": "mocap/cmu_bvh/02_04.bvh", "character": None, "part": "right_quadriceps", "seconds": 4.0},
-    "cat": {"clip": "characters/zoo/Cat.glb", "animation": "Walk", "character": None, "part": None, "seconds": 2.0},
+    "cat": {"clip": "characters/zoo/Cat.glb", "animation": "Walk", "character": "characters/zoo/Cat.glb", "part": None, "seconds": 2.0},
 }
 
 
@@ -301,7 +301,7 @@ def case_drive(name: str, log):
     times = np.arange(t0, knots[-1] + 1e-9, 1.0 / FPS)
     log(f"  {name}: {rig.names[m]} ({rig.kinds[m]}), {t_end - t0:.2f} s of motion + {HOLD} s hold, "
         f"{len(knots)} knots, r {1e3 * rig.mean_radii(rig.rest_cvs)[m]:.1f} mm")
-    return rig, m, knots, static, times, t_end
+    return rig, m, knots, static, times, t_end, list(setup.jiggles)
 
 
 def metrics(off: np.ndarray, times: np.ndarray, t_hold: float, window: float | None = None) -> dict:
@@ -320,7 +320,7 @@ def metrics(off: np.ndarray, times: np.ndarray, t_hold: float, window: float | N
 
 def case(name: str, cal: dict, log) -> dict:
     from jiggle.sim.jiggle.params import default_jiggles
-    rig, m, knots, static, times, t_hold = case_drive(name, log)
+    rig, m, knots, static, times, t_hold, baked = case_drive(name, log)
     sl = slice(rig.cv_offsets[m], rig.cv_offsets[m + 1])
     mat = material_for(rig.kinds[m])
     s = sizes(rig, m)
@@ -340,7 +340,7 @@ def case(name: str, cal: dict, log) -> dict:
            "t_hold": t_hold - float(times[0]), "max_energy_J": float(run.energy.max()),
            "goal_cv_err_mm": float(1e3 * np.abs(goal_cvs - goal).max())}
     res = {"fem": metrics(mesh.cvs(run.positions) - goal_cvs, times, t_hold, 3.0 / f_rule)}
-    jig = default_jiggles(rig)
+    jig = baked if len(baked) == rig.M else default_jiggles(rig)    # what a bake with the defaults uses
     dyn = particle_cvs(rig, jig, knots, static, times)
     res["particles"] = metrics(dyn[:, sl] - goal, times, t_hold, 3.0 / (F_p * jig[m].frequency_hz))
     jig_m = list(jig)
