@@ -568,6 +568,9 @@ ACTION_WORDS = ("attack", "bite", "hit", "death", "die", "dead", "jump", "punch"
 """Words that make an animation a one-off action (it may return to its start pose, but it is not how the character
 moves): never the tissue's reference, since tuned on it the tissue would be stiffened for the character's harshest
 moment."""
+GESTURE_NAMES = ("yes", "no", "nod", "wave", "shake", "headshake")
+"""Whole words that make an animation a gesture (a head shake whips a small body hard, but it is not how the body
+moves): never the reference either."""
 _CYCLES = {}
 """_own_cycles' results per character file and fit (its path, size and time, template, muscles)."""
 _TISSUE = {}
@@ -637,10 +640,10 @@ def _real_size(character, character_file, mus, onto, height, log):
 def _character_tissue(jiggles, mus, skin, settings, character, character_file, onto, clip, drive, world_at, knots,
                       log) -> tuple[list, dict]:
     """(jiggles, record): the generic template's tissue tuned once for the character, not per clip (issue 49): on
-    the character's own most vigorous cycle (its file's animations that loop, _own_cycles, without one-off actions,
-    the one whose goal accelerations over the tissue are largest: _vigour) by _to_motion and _to_size, whichever clip
-    is baked, so every clip of a character gets the same tissue and a calmer clip jiggles less. Remembered per file
-    for the process (batch, the viewer). A character with no looping animation of its own (a mesh given a mocap
+    the character's own most vigorous cycle (its file's animations that loop, _own_cycles, without one-off actions
+    and gestures, the one whose goal accelerations over the tissue are largest: _vigour) by _to_motion and
+    _to_size, whichever clip is baked, so every clip of a character gets the same tissue and a calmer clip jiggles
+    less. Remembered per file for the process (batch, the viewer). A character with no looping animation of its own (a mesh given a mocap
     clip, a generated body) is tuned on the bake's clip, and the record says so."""
     from jiggle.sim.jiggle.params import MOTION_RATE
     key = _file_key(character_file, mus)
@@ -652,7 +655,7 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
     best = None
     for name, own, at, ts, _ in _own_cycles(character_file, character, mus, onto):
         words = [w for w in re.split(r"[^a-z]+", name.lower()) if w]
-        if any(w.startswith(a) for w in words for a in ACTION_WORDS):
+        if any(w.startswith(a) for w in words for a in ACTION_WORDS) or any(w in GESTURE_NAMES for w in words):
             continue
         v = _vigour(mus.rig, at, ts)
         if best is None or v > best[0]:
@@ -662,7 +665,8 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
         ref_knots = np.linspace(0.0, ref.duration, max(int(round(ref.duration * MOTION_RATE)), 2) + 1)
         record = {"template": "generic", "tuned_on": f"animation {name}",
                   "why": f"the character's own cycle that drives its tissue hardest (goal acceleration {vigour:.3g} "
-                         "m/s^2 RMS; one-off actions never): one tissue for every clip of the character, and a calmer "
+                         "m/s^2 RMS; one-off actions and gestures never): one tissue for every clip of the character, "
+                         "and a calmer "
                          "clip jiggles less"}
         kind_drive = "kinematic"
     else:
