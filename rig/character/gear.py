@@ -8,10 +8,8 @@ skinning (their bone, rigidly, for a shell bound to one joint) in the static and
 """
 from __future__ import annotations
 
-import json
 import os
 import re
-import struct
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -195,22 +193,17 @@ def materials(character) -> list:
     src = str(getattr(character, "source", "") or "")
     if not prims or not src.lower().endswith((".glb", ".gltf")) or not os.path.isfile(src):
         return []
+    from jiggle.rig.motion.gltf_io import GltfDocument
     try:
-        with open(src, "rb") as fh:
-            data = fh.read()
-        if data[:4] == b"glTF":
-            n = struct.unpack("<I", data[12:16])[0]
-            doc = json.loads(data[20:20 + n])
-        else:
-            doc = json.loads(data.decode("utf-8-sig"))
-        names = [str(m.get("name") or "") for m in doc.get("materials", [])]
+        gltf = GltfDocument(src).gltf                # parsed and checked once, cached by the reader
+        names = [str(m.name or "") for m in gltf.materials or []]
         out = []
         for mesh, prim, first, count in prims:
-            mi = doc["meshes"][int(mesh)]["primitives"][int(prim)].get("material")
+            mi = gltf.meshes[int(mesh)].primitives[int(prim)].material
             if mi is not None and 0 <= int(mi) < len(names) and names[int(mi)]:
                 out.append([names[int(mi)], int(first), int(count)])
         return out
-    except (OSError, ValueError, KeyError, IndexError, TypeError, struct.error):
+    except (InputError, OSError, ValueError, IndexError, TypeError):
         return []
 
 
