@@ -60,6 +60,7 @@ from jiggle.sim.jiggle.params import glued
 from jiggle.sim.jiggle.particles import muscle_model
 from jiggle.sim.jiggle.simulate import TIME_EPS, goals, simulate
 from jiggle.sim.jiggle.tissue_contacts import tissue_contact_model
+from jiggle.sim.jiggle.goal_track import find_cuts
 
 PARTIAL = ".partial"
 MANIFEST = "manifest.json"
@@ -100,6 +101,26 @@ def num_chunks(setup: BakeSetup) -> int:
 
 
 # ---------------------------------------------------------------------------------------- chunks
+def fem_tissue(setup: BakeSetup, idle: np.ndarray, colliders=None):
+    """The hero mode's solid (sim.fem.tissue.FemTissue) of the setup's simulated muscles: each one's material the
+    one its goal springs stand for (sim.jiggle.materials.material_of, --material's when given) at the character's
+    real size (setup.real_scale), its fundamental by the materials' rule; contacts with the colliders' capsules (the
+    particles' pairs) and floor when given."""
+    from jiggle.sim.fem.tissue import FemTissue, fem_parts
+    from jiggle.sim.jiggle.materials import fem_frequency, material_of
+    rig, k = setup.rig, float(setup.real_scale)
+    radii = rig.mean_radii(rig.rest_cvs)
+    jiggles = setup.jiggles
+    materials = {m: material_of(jiggles[m], rig.kinds[m], float(radii[m]) * k) for m in range(rig.M) if not idle[m]}
+    parts = fem_parts(rig.rest_cvs, rig.cv_offsets, rig.names, materials, k,
+                      lambda m, mat: fem_frequency(mat, float(radii[m]) * k))
+    kw = {}
+    if colliders is not None:
+        kw = {"pairs": (colliders.pair_offsets, colliders.pair_capsule), "capsule_radius": colliders.capsules.radius,
+              "floor": colliders.floor}
+    return FemTissue(parts, rig.cv_offsets, device=setup.settings.device, **kw)
+
+
 class Baker:
     """Bakes the chunks of one BakeSetup in order; holds the particle model and solver (built once)
     and the time spent per stage (seconds)."""
@@ -117,14 +138,20 @@ class Baker:
         # static shape; when every muscle is so, nothing is simulated
         self.idle = idle_muscles(s)
         jiggles = glued(s.jiggles, self.idle) if self.idle.any() else list(s.jiggles)
-        if needs_simulation(self.blend) and not (self.idle.size and self.idle.all()):
-            # blend 0 everywhere: the static CVs, no simulation
-            self.model = muscle_model(s.rig, jiggles, s.settings.device, gravity=s.settings.gravity)
-            self.solver = make_solver(self.model, jiggles)
         if s.settings.collisions:
             self.colliders = collider_model(s.rig, s.character, capsules=s.capsules, floor=s.floor,
                                             device=s.settings.device)
             self.skin_check = skin_check(s.character, self.colliders.capsules)
+        self.fem = None
+        if needs_simulation(self.blend) and not (self.idle.size and self.idle.all()):
+            # blend 0 everywhere: the static CVs, no simulation
+            if s.tissue_solver == "fem":            # the hero mode: the parts as solids (sim/fem/tissue.py)
+                t = time.perf_counter()
+                self.fem = fem_tissue(s, self.idle, self.colliders)
+                self.timings["fem_setup_s"] = time.perf_counter() - t
+            else:
+                self.model = muscle_model(s.rig, jiggles, s.settings.device, gravity=s.settings.gravity)
+                self.solver = make_solver(self.model, jiggles)
         self.chain_run = None
         if s.chains is not None:                # the chains swung over the whole clip at once (tens of bodies)
             t = time.perf_counter()
@@ -202,7 +229,21 @@ class Baker:
         contacts = {}
         with self._timed("simulate_s"):
             new_state = None
-            if self.model is None:
+            if self.fem is not None:
+                # a loop's first chunk goes on from the cycle's steady state, as a later chunk from the one before
+                given = state if c > 0 or s.loop is not None else None
+                cuts = find_cuts(kt, static.cvs, s.settings.cut_ratio, s.settings.cut_jump)
+                ends = None if self.colliders is None else \
+                    self.colliders.capsules.ends(world_k).reshape(len(kt), -1, 3)
+                part, new_state, rec = self.fem.run(kt, static.cvs, times[a:f1], start=given, cuts=cuts,
+                                                    capsule_ends=ends)
+                skip = 1 if c > 0 else 0
+                dyn = np.array(st, np.float64)
+                dyn[:, self.fem.cv_index] = part[skip:]
+                contacts["fem_min_det"] = rec["min_det"][skip:].astype(np.float32)
+                contacts["fem_inverted"] = rec["inverted"][skip:].astype(np.int32)
+                contacts["hard_stops"] = np.zeros(rig.M, np.int64)
+            elif self.model is None:
                 dyn = st
             else:
                 self.solver.stops.zero_()                # this chunk's hard stops only
@@ -495,7 +536,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     contact_parts = _resumed_contacts(out_dir, done) if done else {}
     baker = Baker(setup, defer=True)
     warmup = None
-    if setup.loop is not None and baker.model is not None:
+    if setup.loop is not None and (baker.model is not None or baker.fem is not None):
         warmup, loop_state = _warm_up(setup, baker, os.path.join(partial, LOOP_STATE), log)
         if not done:
             state = loop_state
@@ -559,6 +600,8 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         summary["loop"] = setup.params.get("loop") if isinstance(setup.params, dict) else None
     if baker.model is not None:
         summary["tissue"] = _tissue_json(setup, contact_parts)
+    if baker.fem is not None:
+        summary["fem"] = _fem_json(setup, baker, contact_parts)
     if baker.colliders is not None:
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
     summary["chains"] = baker.chain_json() if baker.chain_run is not None else None
@@ -585,7 +628,11 @@ def _warm_up(setup: BakeSetup, baker: Baker, path: str, log) -> tuple[dict, tupl
     except Exception:  # noqa: BLE001 - none, or damaged: reached again (the same arithmetic)
         pass
     t = time.perf_counter()
-    state, rec = warm_up(setup, baker.model, baker.solver, baker.colliders, baker.tissue, MARGIN, log)
+    if baker.fem is not None:
+        from jiggle.sim.bake.loop import warm_up_fem
+        state, rec = warm_up_fem(setup, baker.fem, baker.colliders, MARGIN, log)
+    else:
+        state, rec = warm_up(setup, baker.model, baker.solver, baker.colliders, baker.tissue, MARGIN, log)
     rec["seconds"] = round(time.perf_counter() - t, 3)
     _save_chunk(path, {"state_x": state[0], "state_v": state[1], "record": np.array(json.dumps(rec))})
     return rec, state
@@ -607,11 +654,11 @@ def _seam(setup: BakeSetup, writer: BakeWriter) -> dict | None:
 
 
 CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final", "skin_kept_out",
-                "skin_pulled_m", "hard_stops")
+                "skin_pulled_m", "hard_stops", "fem_min_det", "fem_inverted")
 """Arrays a chunk's marker keeps for bake.json: with collisions, per frame and muscle the deepest contact (m),
 what it hit, the summed impulse (N s); the skin vertices inside another part's capsule; the final skin's
 vertices pulled back out of one and the longest pull-back (m); and with a simulation, the chunk's hard stops
-per muscle (M,)."""
+per muscle (M,); in the FEM hero mode, per frame the smallest det F over its tets and how many are inverted."""
 
 
 def _tissue_json(setup: BakeSetup, parts: dict) -> dict:
@@ -632,6 +679,23 @@ def _tissue_json(setup: BakeSetup, parts: dict) -> dict:
             # muscles that drive nothing are not simulated: left out of the counts (sim.bake.baker.idle_muscles)
             "hard_stops": {n: int(k) for n, k, i in zip(setup.rig.names, stops, idle_muscles(setup)) if not i},
             "hard_stops_total": int(stops[~idle_muscles(setup)].sum())}
+
+
+def _fem_json(setup: BakeSetup, baker: Baker, parts: dict) -> dict:
+    """bake.json's "fem" (the hero mode): the parts' meshes and materials, the solver, and over the whole bake (a
+    resumed bake's earlier chunks from their markers) the smallest det F and the inverted tets."""
+    order = sorted(parts)
+    det = [parts[c]["fem_min_det"] for c in order if "fem_min_det" in parts[c]]
+    inv = [parts[c]["fem_inverted"] for c in order if "fem_inverted" in parts[c]]
+    det = np.concatenate(det) if det else np.zeros(0)
+    inv = np.concatenate(inv) if inv else np.zeros(0, np.int64)
+    out = baker.fem.to_json(setup.real_scale)
+    out.update({"min_det": round(float(det.min()), 6) if len(det) else None,
+                "inverted_max": int(inv.max()) if len(inv) else 0,
+                "frames_with_inverted": int((inv > 0).sum()),
+                "inverted_rule": "det F of a tet against its goal shape (its rest shape at that moment) <= 0, at the "
+                                 "output frames"})
+    return out
 
 
 def _resumed_contacts(out_dir: str, done: int) -> dict:

@@ -269,13 +269,49 @@ def warm_up(setup, model, solver, colliders=None, tissue=None, margin: int = 3,
     static = rig.static(world_k, device=s.settings.device)
     track = goals(rig, kt, static.cvs, s.settings)
     coll = None if colliders is None else colliders.at(kt, world_k, track.cut)
+
+    def cycle(state):
+        solver.stops.zero_()
+        _, (x, v) = simulate(model, track, times, s.settings, solver=solver, preroll=0.0, start=state,
+                             colliders=coll, contacts={}, tissue=tissue)
+        return x, v
+    state, rec = steady_state(cycle, lp, log)
+    solver.stops.zero_()
+    return state, rec
+
+
+def warm_up_fem(setup, fem, colliders=None, margin: int = 3,
+                log: Callable[[str], None] = lambda s: None) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
+    """As :func:`warm_up` for the FEM hero mode (sim.fem.tissue.FemTissue): the solid's vertex state (x, v) at the
+    cycle's start in its periodic steady state, from the start on the goal moving with it."""
+    from jiggle.sim.jiggle.goal_track import find_cuts
+    from jiggle.sim.jiggle.simulate import TIME_EPS
+    lp, s, rig = setup.loop, setup, setup.rig
+    times = lp.cycle_times
+    ka = max(0, int(np.searchsorted(s.knots, times[0] - TIME_EPS)) - margin)
+    kb = min(len(s.knots), int(np.searchsorted(s.knots, times[-1] + TIME_EPS, side="right")) + margin)
+    kt = s.knots[ka:kb]
+    world_k = np.asarray(s.world_at(kt), dtype=np.float64)
+    static = rig.static(world_k, device=s.settings.device).cvs
+    cuts = find_cuts(kt, static, s.settings.cut_ratio, s.settings.cut_jump)
+    ends = None if colliders is None else colliders.capsules.ends(world_k).reshape(len(kt), -1, 3)
+
+    def cycle(state):
+        _, end, _ = fem.run(kt, static, times, start=state, cuts=cuts, capsule_ends=ends)
+        return end
+    return steady_state(cycle, lp, log)
+
+
+def steady_state(cycle: Callable, lp: Loop, log: Callable[[str], None] = lambda s: None
+                 ) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
+    """The fixed point of `cycle` (start state (x, v) or None for the quasi-static start -> the state (x, v) one
+    period later) with the loop's root travel lp.delta taken off, and the warm-up's record (see warm_up)."""
+    times = lp.cycle_times
     frame = lp.period / (len(times) - 1)
     shift = np.asarray(lp.delta, np.float32)[None]
     state, residuals, best, relax = None, [], None, 1.0
     for k in range(WARMUP_MAX_CYCLES):
-        solver.stops.zero_()
-        _, (x, v) = simulate(model, track, times, s.settings, solver=solver, preroll=0.0, start=state,
-                             colliders=coll, contacts={}, tissue=tissue)
+        x, v = cycle(state)
         end = (np.asarray(x - shift, np.float64), np.asarray(v, np.float64))
         if state is None:                   # the quasi-static start: the first cycle only carries it in
             state = tuple(a.astype(np.float32) for a in end)
@@ -290,7 +326,6 @@ def warm_up(setup, model, solver, colliders=None, tissue=None, margin: int = 3,
         if relax == 1.0 and len(residuals) >= 4 and residuals[-1] > 0.5 * residuals[-3]:
             relax = RELAXATION             # not contracting (a hard-driven, stiffening tissue): relaxed steps
         state = tuple((s0 + relax * (e - s0)).astype(np.float32) for s0, e in zip(state, end))
-    solver.stops.zero_()
     change, state, used = best if best is not None else (0.0, state, 0)
     rec = {"cycles": len(residuals) + 1, "change_mm": change, "changes_mm": [round(c, 5) for c in residuals],
            "start_from_cycle": used + 1, "converged": bool(change < WARMUP_TOLERANCE_MM),

@@ -54,6 +54,8 @@ class BakeRequest:
         MATERIAL fat, muscle, or E=...,nu=...,rho=...,zeta=...; rig.muscle.material), in order: the goal springs,
         damping and density they give (sim.jiggle.materials) replace the template's; `muscles` entries still override.
     height : the character's real height, metres (None: inferred, rig.character.real_size), for the materials' rule.
+    tissue : "particles" (None too: the goal-spring particles) or "fem" (the hero mode: every simulated part a
+        Neo-Hookean solid of its material, sim/fem/tissue.py).
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
@@ -82,6 +84,7 @@ class BakeRequest:
     muscles: tuple = ()
     materials: tuple = ()
     height: float | None = None
+    tissue: str | None = None
     gravity: bool | None = None
     preroll: float | None = None
     collisions: bool | None = None
@@ -130,6 +133,8 @@ class BakeSetup:
         (rig.character.character.template_scale) is written back at its file's size (every position of the
         caches times `scale`); 1.0 for the others.
     chains : sim.chain.build.ChainSetup, the chains that swing (their model and parameters), or None.
+    tissue_solver : "particles" or "fem" (BakeRequest.tissue). real_scale : real metres per simulated metre
+        (rig.character.real_size.RealSize.scale): the FEM's materials are in real units.
     """
 
     name: str
@@ -153,6 +158,8 @@ class BakeSetup:
     scale: float = 1.0
     loop: object = None
     chains: object = None
+    tissue_solver: str = "particles"
+    real_scale: float = 1.0
     """sim.bake.loop.Loop: whether the bake loops, its period and how it was judged; None: a plain bake."""
 
     @property
@@ -283,6 +290,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     from jiggle.sim.bake.scene import load_scene
     if req.device is not None:
         warp_device(req.device)             # before any work: a device that is not here is the user's mistake
+    solver = tissue_solver(req)
     timings = {}
     t = time.perf_counter()
     scene = load_scene(req.scene) if req.scene is not None else None
@@ -455,7 +463,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         {"file": os.path.abspath(template), "sha256": file_digest(template)},
         "body_plan": mus.plan.to_json(),
         "template_why": mus.why or None,
-        "tissue": {**tissue_from, "materials": materials_used or None, "real_size": size.to_json(),
+        "tissue": {"solver": solver, **tissue_from, "materials": materials_used or None, "real_size": size.to_json(),
                    "material_rule": "each part's goal springs stand for a material (muscles.NAME.material): E from "
                                     "frequency_hz by sim.jiggle.materials (f_fem = FEM_C sqrt(mu / rho) / r at the "
                                     "part's mean radius at real size, radius_m x real_size.scale), nu of its kind, "
@@ -495,7 +503,7 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
                      chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
                      capsules=capsules, glb=_glb(req), scale=1.0 / character.meta.get("template_scale", 1.0),
-                     loop=loop if loop.on else None, chains=chains)
+                     loop=loop if loop.on else None, chains=chains, tissue_solver=solver, real_scale=size.scale)
 
 
 def tissue_joints(rig) -> set:
@@ -530,6 +538,17 @@ def _chain_floor(character, mus, world_at, knots):
     if mus.plan is None or mus.plan.ground_limbs <= 0:
         return None
     return _floor(character, "kinematic", world_at, knots)
+
+
+TISSUE_SOLVERS = ("particles", "fem")
+
+
+def tissue_solver(req: BakeRequest) -> str:
+    """The bake's tissue solver (BakeRequest.tissue; None: "particles"); InputError naming --tissue otherwise."""
+    solver = req.tissue or "particles"
+    if solver not in TISSUE_SOLVERS:
+        raise InputError(f"expected one of {', '.join(TISSUE_SOLVERS)}, got {solver!r}", field="--tissue")
+    return solver
 
 
 def apply_materials(jiggles, rig, entries, log=lambda s: None, scale: float = 1.0) -> tuple[list, dict]:
@@ -815,11 +834,14 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
     }
     if floor is not None:
         params["collisions"] = {"capsules": "bone", "floor_m": round(floor, 6)}
+    solver = tissue_solver(req)
+    if solver != "particles":
+        params["tissue"] = {"solver": solver}
     return BakeSetup(name=scene.name, skin=skin, jiggles=tuple(jiggles), settings=settings, times=times, fps=fps,
                      knots=knots, world_at=arm.world_at, joints_at=arm.world_at,
                      joint_names=tuple(arm.character.joint_names), formats=_formats(req, scene),
                      chunk=params["chunk"], params=params, key=params_key(params), timings={}, floor=floor,
-                     glb=_glb(req))
+                     glb=_glb(req), tissue_solver=solver)
 
 
 def _picker(req: BakeRequest, spec):

@@ -71,6 +71,7 @@ class TetMesh:
     cv_tet : (40,) int64, the tet of each CV. cv_bary : (40, 4) float64, its barycentric coordinates there.
     goal_map : (N, 40) float64, each vertex's loft coordinates as weights of the 40 CVs (see the module): the
         goal of vertex n for CVs (40, 3) is goal_map[n] @ cvs; rows sum to 1 (it moves rigidly with the CVs).
+    mesher : "TetGen" (part_mesh) or "structured" (structured_part_mesh: a loft that folds into itself).
     """
 
     points: np.ndarray
@@ -84,6 +85,7 @@ class TetMesh:
     cv_tet: np.ndarray
     cv_bary: np.ndarray
     goal_map: np.ndarray | None = None
+    mesher: str = "TetGen"
 
     def __post_init__(self):
         types = {"tets": np.int32, "faces": np.int32, "attached": bool, "cv_tet": np.int64}
@@ -159,8 +161,15 @@ def tetrahedralize(points: np.ndarray, faces: np.ndarray, *, mindihedral: float 
     import tetgen
     if not is_watertight(points, faces):
         raise ValueError("the part's surface is not watertight (pyvista is_manifold is False)")
+    import os
     tg = tetgen.TetGen(np.asarray(points, dtype=np.float64), np.asarray(faces, dtype=np.int32))
-    nodes, tets, *_ = tg.tetrahedralize(order=1, mindihedral=mindihedral, minratio=minratio, maxvolume=maxvolume)
+    leftovers = [f for f in ("_skipped.face", "_skipped.node") if not os.path.exists(f)]
+    try:
+        nodes, tets, *_ = tg.tetrahedralize(order=1, mindihedral=mindihedral, minratio=minratio, maxvolume=maxvolume)
+    finally:                                        # TetGen writes the faces it skipped into the working folder
+        for f in leftovers:
+            if os.path.exists(f):
+                os.remove(f)
     nodes, tets = np.asarray(nodes, dtype=np.float64), np.asarray(tets, dtype=np.int32)
     neg = tet_volumes(nodes, tets) < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]          # TetGen's orientation convention, made ours
@@ -194,7 +203,7 @@ def loft_map(w: np.ndarray, v: np.ndarray, rho: np.ndarray) -> np.ndarray:
 def loft_coordinates(points: np.ndarray, cvs: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, float]:
     """Loft coordinates (n, 3) = (w, v, rho) of points (n, 3) in the solid of the part's CVs (40, 3), and the
     largest residual |x(w, v, rho) - p| (metres): the nearest of a dense (w, v, rho) sample, refined by
-    Levenberg-Marquardt on the three coordinates (w in [0, 4], rho in [-0.2, 1.05]: a point next to the axis may
+    Levenberg-Marquardt on the three coordinates (w in [0, 4], rho in [-0.2, 1.3]: a point next to the axis may
     take a small negative rho, the other side's direction, rather than stall where d x / d v vanishes)."""
     X = np.asarray(cvs, dtype=np.float64).reshape(loft.SECTIONS * loft.RING, 3)
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -224,7 +233,7 @@ def loft_coordinates(points: np.ndarray, cvs: np.ndarray, iterations: int = 30) 
         step = -np.linalg.solve(A, np.einsum("nki,nk->ni", J, r)[..., None])[..., 0]
         qn = q + step
         qn[:, 0] = np.clip(qn[:, 0], 0.0, 4.0)
-        qn[:, 2] = np.clip(qn[:, 2], -0.2, 1.05)
+        qn[:, 2] = np.clip(qn[:, 2], -0.2, 1.3)
         rn = loft_map(*qn.T) @ X - p
         better = (rn * rn).sum(1) < (r * r).sum(1)
         q[better] = qn[better]
@@ -256,6 +265,70 @@ def attached_vertices(points: np.ndarray, centres: np.ndarray, radii: np.ndarray
 
 CORE, END = 0.35, 0.1
 """Default attachment: the core within 0.35 local radii of the axis, and the end tenth of the axis at either end."""
+LAYERS = (0.3, 0.65, 1.0)
+"""rho of the structured mesh's rings (structured_mesh): the innermost inside the CORE, so it rides the bone."""
+
+
+def _prism_tets(bottom, top) -> list:
+    """3 tets of a prism with triangles bottom (a, b, c) and top (a', b', c') (vertex ids), split so that every quad
+    face's diagonal runs from its smallest vertex id: neighbouring prisms split a shared quad alike (conforming)."""
+    a, b, c = bottom
+    d, e, f = top
+    # rotate so the prism's smallest vertex is a bottom corner (or mirror top/bottom)
+    ids = [a, b, c, d, e, f]
+    k = ids.index(min(ids))
+    if k >= 3:
+        a, b, c, d, e, f = d, e, f, a, b, c
+        k -= 3
+    for _ in range(k):
+        a, b, c, d, e, f = b, c, a, e, f, d
+    # a is the smallest: the quads (a b e d) and (a c f d) split from a; the quad (b c f e) from its smallest
+    if min(b, f) < min(c, e):
+        return [(a, b, c, f), (a, b, f, e), (a, e, f, d)]
+    return [(a, b, c, e), (a, e, c, f), (a, e, f, d)]
+
+
+def structured_mesh(rows: int = ROWS, cols: int = COLS, layers=LAYERS) -> tuple[np.ndarray, np.ndarray, int]:
+    """A tet mesh in loft coordinates (w, v, rho): the axis (rho 0) and `layers` rings of rows x cols points, the
+    outermost (rho 1) the loft's surface. Returns coords (N, 3) (the outermost ring's rows x cols points first, then
+    the axis's rows, then the inner rings), tets (T, 4) int32 (orientation not yet fixed: it depends on the CVs) and
+    S, the count of surface ring points. Cells: prisms between the axis and the first ring, hexahedra (two prisms)
+    between rings, each split into 3 tets conformingly (_prism_tets)."""
+    layers = tuple(float(x) for x in layers)
+    L = len(layers)
+    w = np.linspace(0.0, loft.SECTIONS - 1, rows)
+    v = np.arange(cols) * loft.RING / cols
+    ring_id = np.zeros((L, rows, cols), np.int64)
+    ring_id[L - 1] = np.arange(rows * cols).reshape(rows, cols)
+    axis_id = rows * cols + np.arange(rows)
+    nxt = rows * cols + rows
+    for k in range(L - 1):
+        ring_id[k] = nxt + np.arange(rows * cols).reshape(rows, cols)
+        nxt += rows * cols
+    coords = np.zeros((nxt, 3))
+    for k in range(L):
+        coords[ring_id[k].ravel()] = np.stack([np.repeat(w, cols), np.tile(v, rows), np.full(rows * cols, layers[k])], 1)
+    coords[axis_id] = np.stack([w, np.zeros(rows), np.zeros(rows)], 1)
+    tets = []
+    for i in range(rows - 1):
+        for j in range(cols):
+            jn = (j + 1) % cols
+            r0 = ring_id[0]
+            tets += _prism_tets((axis_id[i], r0[i, j], r0[i, jn]), (axis_id[i + 1], r0[i + 1, j], r0[i + 1, jn]))
+            for k in range(L - 1):
+                lo, hi = ring_id[k], ring_id[k + 1]
+                tets += _prism_tets((lo[i, j], lo[i, jn], hi[i, jn]), (lo[i + 1, j], lo[i + 1, jn], hi[i + 1, jn]))
+                tets += _prism_tets((lo[i, j], hi[i, jn], hi[i, j]), (lo[i + 1, j], hi[i + 1, jn], hi[i + 1, j]))
+    return coords, np.asarray(tets, np.int32), rows * cols
+
+
+def boundary_faces(tets: np.ndarray) -> np.ndarray:
+    """(F, 3) int32: the triangles of tets (T, 4) that belong to one tet only, oriented outward for positive tets."""
+    t = np.asarray(tets)
+    faces = np.concatenate([t[:, [1, 2, 3]], t[:, [0, 3, 2]], t[:, [0, 1, 3]], t[:, [0, 2, 1]]])
+    key = np.sort(faces, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return faces[counts[inv.reshape(-1)] == 1].astype(np.int32)
 
 
 def part_mesh(cvs: np.ndarray, *, rows: int = ROWS, cols: int = COLS, core: float = CORE, end: float = END,
@@ -268,7 +341,13 @@ def part_mesh(cvs: np.ndarray, *, rows: int = ROWS, cols: int = COLS, core: floa
     radii = np.linalg.norm(cvs - centres[:, None], axis=-1).mean(axis=1)
     while True:
         surf, faces = part_surface(cvs.reshape(-1, 3), rows, cols)
-        nodes, tets = tetrahedralize(surf, faces, mindihedral=mindihedral, minratio=minratio)
+        try:
+            nodes, tets = tetrahedralize(surf, faces, mindihedral=mindihedral, minratio=minratio)
+        except RuntimeError:                        # a surface TetGen cannot take (it folds into itself)
+            if cols <= 8:                           # at every grid: the structured mesh of its loft coordinates
+                return structured_part_mesh(cvs, rows=ROWS, cols=COLS, core=core, end=end)
+            rows, cols = max(5, rows - 2), cols - 4
+            continue
         if len(tets) <= max_tets or cols <= 8:
             break
         rows, cols = max(5, rows - 2), cols - 4
@@ -287,14 +366,51 @@ def part_mesh(cvs: np.ndarray, *, rows: int = ROWS, cols: int = COLS, core: floa
     coords[len(surf):], residual = loft_coordinates(nodes[len(surf):], cvs)
     goal_map = loft_map(*coords.T)
     moved = goal_map @ cvs.reshape(-1, 3)
-    if np.abs(moved - nodes).max() > 1e-3 * radii.mean():
-        raise ValueError(f"loft coordinates: a vertex is {np.abs(moved - nodes).max():.2e} m off its inversion")
-    nodes = moved                                   # the rest mesh is exactly its own goal
-    vol = tet_volumes(nodes, tets)
+    off = float(np.abs(moved - nodes).max())
+    vol_moved = tet_volumes(moved, tets)
+    # a vertex the inversion leaves a little off (a fold of the loft's solid near a thin end) is moved onto its
+    # coordinates' point as long as no tet loses more than half its volume: the rest mesh stays exactly its own goal
+    if off > 1e-3 * radii.mean() and not (vol_moved > 0.5 * vol).all():
+        # a Steiner vertex outside the loft's solid (its chords cut inside the lofted surface): the structured mesh
+        return structured_part_mesh(cvs, rows=ROWS, cols=COLS, core=core, end=end)
+    nodes, vol = moved, vol_moved                   # the rest mesh is exactly its own goal
     cv_tet, cv_bary = barycentric(nodes, tets, cvs.reshape(-1, 3))
     return TetMesh(points=nodes, tets=tets, volumes=vol, faces=faces, surface_count=len(surf), centres=centres,
                    radii=radii, attached=attached, cv_tet=cv_tet, cv_bary=cv_bary, goal_map=goal_map)
 
 
-__all__ = ["TetMesh", "part_mesh", "part_surface", "grid_faces", "is_watertight", "tetrahedralize", "tet_volumes",
+def structured_part_mesh(cvs: np.ndarray, *, rows: int = ROWS, cols: int = COLS, core: float = CORE,
+                         end: float = END, layers=LAYERS) -> TetMesh:
+    """The TetMesh of a part whose lofted surface folds into itself (a short, wide part whose sections tilt into
+    each other, as a pectoral's: TetGen refuses it): structured_mesh in its loft coordinates, every vertex's goal
+    map known exactly (no inversion), the rest points the map of the rest CVs. Tets that the fold turns inside
+    out at rest (or flattens below 1e-4 of the mean volume) are left out, and vertices no tet keeps with them."""
+    cvs = np.asarray(cvs, dtype=np.float64).reshape(loft.SECTIONS, loft.RING, 3)
+    centres = cvs.mean(axis=1)
+    radii = np.linalg.norm(cvs - centres[:, None], axis=-1).mean(axis=1)
+    coords, tets, S = structured_mesh(rows, cols, layers)
+    goal_map = loft_map(*coords.T)
+    nodes = goal_map @ cvs.reshape(-1, 3)
+    # orientation in the straight round tube of the same coordinates (x = rho cos, rho sin of the angle, w): a tet
+    # the part's rest shape turns the other way lies across a fold of the loft, and is left out
+    theta = 2.0 * np.pi * coords[:, 1] / loft.RING
+    tube = np.stack([coords[:, 2] * np.cos(theta), coords[:, 2] * np.sin(theta), coords[:, 0]], 1)
+    flip = tet_volumes(tube, tets) < 0
+    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    vol = tet_volumes(nodes, tets)
+    keep = vol > 1e-4 * np.abs(vol).mean()
+    tets, vol = tets[keep], vol[keep]
+    used = np.zeros(len(nodes), bool)
+    used[tets.reshape(-1)] = True
+    new = np.cumsum(used) - 1
+    surface_count = int(used[:S].sum())
+    nodes, goal_map, coords, tets = nodes[used], goal_map[used], coords[used], new[tets].astype(np.int32)
+    attached = (coords[:, 2] <= core + 1e-9) | attached_vertices(nodes, centres, radii, 0.0, end)
+    cv_tet, cv_bary = barycentric(nodes, tets, cvs.reshape(-1, 3))
+    return TetMesh(points=nodes, tets=tets, volumes=vol, faces=boundary_faces(tets), surface_count=surface_count,
+                   centres=centres, radii=radii, attached=attached, cv_tet=cv_tet, cv_bary=cv_bary, goal_map=goal_map,
+                   mesher="structured")
+
+
+__all__ = ["TetMesh", "part_mesh", "structured_part_mesh", "structured_mesh", "boundary_faces", "LAYERS", "part_surface", "grid_faces", "is_watertight", "tetrahedralize", "tet_volumes",
            "barycentric", "attached_vertices", "loft_map", "loft_coordinates", "ROWS", "COLS", "CORE", "END"]

@@ -34,7 +34,7 @@ def bake_request(args):
         character_map=getattr(args, "character_map", None),
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None),
         loop=getattr(args, "loop", None), rigid=getattr(args, "rigid", None), height=getattr(args, "height", None),
-        **chain_request(args))
+        tissue=getattr(args, "tissue", None), **chain_request(args))
 
 
 def emit(event: str, **fields) -> None:
@@ -172,5 +172,8 @@ def add_parser(sub) -> None:
                    "unit (default: auto: metres unless the height says cm or mm)")
     g.add_argument("--height", type=positive("--height"), metavar="METRES", help="the character's real height, for "
                    "its tissue materials (--material): default inferred from its own walk cycle, else the file's unit")
+    g.add_argument("--tissue", choices=("particles", "fem"), help="the tissue solver: particles (goal springs on "
+                   "each muscle's control points, the default) or fem (the hero mode: every simulated muscle a "
+                   "Neo-Hookean solid of its material, its control points embedded in its tets; minutes, not seconds)")
     clip_options(p)
     p.set_defaults(func=run)
