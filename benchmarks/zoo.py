@@ -95,6 +95,7 @@ class Row:
     size_m: float | None = None
     peak_mm: float | None = None
     peak_pct: float | None = None
+    sustained_pct: float | None = None  # RMS over one period of the per-frame largest jiggle, % of the size
     peak_frame: int | None = None
     torn_edges: int | None = None
     gradient_p999: float | None = None
@@ -311,9 +312,11 @@ def measure(row: Row, out: Path) -> None:
         row.size_m = float((rest.max(axis=0) - rest.min(axis=0)).max())
         row.muscles = int(len(z["muscle_names"])) if "muscle_names" in z.files else None
         wrap, ratio = loop_wrap(final, static)
+        diff = np.linalg.norm(final.astype(np.float64) - static, axis=-1)
         if row.peak_mm is None:
-            diff = np.linalg.norm(final.astype(np.float64) - static, axis=-1)
             row.peak_mm = float(diff.max()) * 1e3
+        loop = (summary or {}).get("loop") or {}
+        row.sustained_pct = sustained(diff, bool(loop.get("on") and loop.get("repeats_first")), row.size_m)
     row.wrap_mm, row.wrap_ratio, row.wrap_from = wrap, ratio, "bake.npz"
     mpath = out / "metrics.json"
     if not mpath.is_file():
@@ -338,6 +341,60 @@ def measure(row: Row, out: Path) -> None:
         row.wrap_mm, row.wrap_ratio, row.wrap_from = loop["wrap_mm"], loop.get("wrap_ratio"), "metrics"
     if row.peak_mm is not None and row.size_m:
         row.peak_pct = 100 * row.peak_mm / 1e3 / row.size_m
+
+
+def sustained(diff: np.ndarray, repeats_first: bool, size_m: float | None) -> float | None:
+    """% of size_m (metres): the RMS over the frames of the largest jiggle per frame, diff (T, V) metres, over one
+    period (a loop whose last frame repeats the first counts it once). Where the peak is one moment, this is how
+    hard the cycle keeps the tissue moving: a cycle that is still but for one stroke (a horse pawing once in its
+    Idle_2) rings once as high as a walk does at every step, and sustains a fraction of it."""
+    per_frame = np.asarray(diff, np.float64).max(axis=1) if np.size(diff) else np.zeros(0)
+    if repeats_first and len(per_frame) > 2:
+        per_frame = per_frame[:-1]
+    if not len(per_frame) or not size_m:
+        return None
+    return 100.0 * float(np.sqrt(np.mean(per_frame ** 2))) / size_m
+
+
+IDLE = re.compile(r"idle", re.IGNORECASE)
+
+
+def idle_order(rows: list[Row]) -> list[dict]:
+    """Per zoo character with an Idle cycle and another cycle of its own (mocap clips left out): its Idles' largest
+    and its other cycles' smallest peak and sustained jiggle (% of size), and whether every Idle stays below every
+    other cycle by each measure."""
+    out = []
+    for name in dict.fromkeys(r.character for r in rows):
+        own = [r for r in rows if r.character == name and r.status == "baked" and not r.clip.startswith("CMU")]
+        idle = [r for r in own if IDLE.search(r.clip)]
+        other = [r for r in own if not IDLE.search(r.clip)]
+        if not idle or not other:
+            continue
+        rec = {"character": name}
+        for k in ("peak_pct", "sustained_pct"):
+            hi = max(idle, key=lambda r: getattr(r, k) or 0.0)
+            lo = min(other, key=lambda r: getattr(r, k) or math.inf)
+            a, b = getattr(hi, k), getattr(lo, k)
+            rec[k] = {"idle": hi.clip, "idle_pct": a, "other": lo.clip, "other_pct": b,
+                      "below": a is not None and b is not None and a < b}
+        out.append(rec)
+    return out
+
+
+def idle_lines(order: list[dict]) -> list[str]:
+    lines = ["## Idle below every other cycle", "",
+             "Per character, its Idle cycles' largest figure against its other own cycles' smallest (one tissue per "
+             "character: the jiggle follows how vigorous the motion is). **peak**: the table's; **sustained**: the RMS "
+             "over one period of the largest jiggle per frame.", "",
+             "| character | peak: highest Idle | peak: lowest other | below | sustained: highest Idle | "
+             "sustained: lowest other | below |", "|---|---|---|---|---|---|---|"]
+    for o in order:
+        p, q = o["peak_pct"], o["sustained_pct"]
+        lines.append(f"| {o['character']} | {p['idle']} {fmt(p['idle_pct'], 3)}% | {p['other']} "
+                     f"{fmt(p['other_pct'], 3)}% | {'yes' if p['below'] else '**no**'} | {q['idle']} "
+                     f"{fmt(q['idle_pct'], 3)}% | {q['other']} {fmt(q['other_pct'], 3)}% | "
+                     f"{'yes' if q['below'] else '**no**'} |")
+    return lines + [""]
 
 
 def _get(d, keys):
@@ -388,7 +445,7 @@ def fmt(v, nd=1) -> str:
     return str(v)
 
 
-HEAD = ["character", "clip", "bake", "peak (% size)", "peak mm / size m", "torn edges", "gradient p99.9",
+HEAD = ["character", "clip", "bake", "peak (% size)", "sustained (% size)", "peak mm / size m", "torn edges", "gradient p99.9",
         "folds / LBS", "hard stops", "near reach (%)", "loop wrap mm (x step)", "chains", "chain swing min (%)",
         "chain pen.", "s", "pass"]
 
@@ -401,7 +458,8 @@ def md_row(r: Row, picture: str | None = None) -> str:
         cells = [name, r.clip, f"**{r.status}**: {msg}"] + ["-"] * (len(HEAD) - 5) + [fmt(r.seconds), "fail"]
     else:
         wrap = "-" if r.wrap_mm is None else f"{r.wrap_mm:.1f} ({fmt(r.wrap_ratio, 1)}x)"
-        cells = [name, r.clip, "baked", fmt(r.peak_pct, 2), f"{fmt(r.peak_mm, 1)} / {fmt(r.size_m, 2)}",
+        cells = [name, r.clip, "baked", fmt(r.peak_pct, 2), fmt(r.sustained_pct, 3),
+                 f"{fmt(r.peak_mm, 1)} / {fmt(r.size_m, 2)}",
                  fmt(r.torn_edges), fmt(r.gradient_p999, 2), folds_text(r), fmt(r.hard_stops),
                  fmt(r.near_limit_pct, 1), wrap, fmt(r.chains), fmt(r.chain_swing_min_pct, 1),
                  fmt(r.chain_penetrations), fmt(r.seconds),
@@ -423,6 +481,7 @@ def summary(rows: list[Row]) -> str:
 LEGEND = """\
 Columns: **peak** is the tissue's largest |skin_final - skin_swung| over vertices and frames (compare's `skin.max_mm`;
 skin_swung follows the swung chains, so a tail's swing is not jiggle), as a percentage of the character's size (the largest extent of its rest skin's bounding box, in the bake's metres);
+**sustained** the RMS over one period of the largest |skin_final - skin_swung| per frame, as a percentage of the size;
 **torn edges** the most edges the jiggle stretches or squeezes past their length in one frame; **gradient
 p99.9** the worst frame's 99.9th percentile of the jiggle's displacement gradient; **folds / LBS** the final
 skin's folded edges summed over the clip over LBS's (where LBS folds none: the final skin's count, "N (LBS 0)"); **hard stops** substeps where tissue stopped dead at its
@@ -441,12 +500,14 @@ def write_results(stem: Path, rows: list[Row], skipped: list[dict], meta: dict) 
     stem.parent.mkdir(parents=True, exist_ok=True)
     lines = ["# The zoo: every shared character, every cycle", "",
              f"`{meta['command']}` on {meta['machine']}: {meta['bakes']} bakes in {meta['wall_s']:.0f} s "
-             f"(jobs {meta['jobs']}), jiggle {meta['code']}. {summary(rows)}.", "", *table(rows), "", LEGEND]
+             f"(jobs {meta['jobs']}), jiggle {meta['code']}. {summary(rows)}.", "", *table(rows), "", LEGEND, "",
+             *idle_lines(idle_order(rows))]
     if skipped:
         lines += ["Left out: " + "; ".join(f"{s['file']} ({s['why']})" for s in skipped) + ".", ""]
     stem.with_suffix(".md").write_text("\n".join(lines))
     stem.with_suffix(".json").write_text(json.dumps({"meta": meta, "targets": TARGETS, "skipped": skipped,
-                                                     "rows": [clean(asdict(r)) for r in rows]}, indent=1))
+                                                     "rows": [clean(asdict(r)) for r in rows],
+                                                     "idle_order": idle_order(rows)}, indent=1))
 
 
 def clean(d: dict) -> dict:

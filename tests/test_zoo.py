@@ -50,6 +50,27 @@ def test_loop_wrap_on_a_known_offset(zoo):
     assert w == pytest.approx(2.0) and r == math.inf
 
 
+def test_sustained_jiggle_and_the_idle_order(zoo):
+    # one vertex of two: per-frame max a, 0, b, a (the last frame repeats the first in a closed loop)
+    a, b = 0.004, 0.002
+    diff = np.array([[a, 0.0], [0.0, 0.0], [0.0, b], [a, 0.0]])
+    assert zoo.sustained(diff, True, 2.0) == pytest.approx(100 * math.sqrt((a * a + b * b) / 3) / 2.0)
+    assert zoo.sustained(diff, False, 2.0) == pytest.approx(100 * math.sqrt((2 * a * a + b * b) / 4) / 2.0)
+    # an Idle with one stroke peaks above the Walk but sustains below it; a mocap clip is not the character's cycle
+    R = zoo.Row
+    rows = [R("Horse", "Walk", "baked", peak_pct=0.98, sustained_pct=0.60),
+            R("Horse", "Idle_2", "baked", peak_pct=1.01, sustained_pct=0.30),
+            R("Horse", "Idle", "baked", peak_pct=0.09, sustained_pct=0.02),
+            R("Horse", "CMU 09_11 (run)", "baked", peak_pct=0.05, sustained_pct=0.01),
+            R("Cat", "Walk", "baked", peak_pct=0.5, sustained_pct=0.3)]
+    order = zoo.idle_order(rows)
+    assert [o["character"] for o in order] == ["Horse"]
+    o = order[0]
+    assert o["peak_pct"]["idle"] == "Idle_2" and o["peak_pct"]["other"] == "Walk" and not o["peak_pct"]["below"]
+    assert o["sustained_pct"]["below"] and o["sustained_pct"]["other_pct"] == 0.60
+    assert "**no**" in "\n".join(zoo.idle_lines(order))
+
+
 def test_cycles_are_the_looping_animations(zoo):
     horse = ["Attack_Kick", "Death", "Eating", "Gallop", "Gallop_Jump", "Idle", "Idle_2", "Idle_Headlow",
              "Idle_HitReact_Left", "Walk"]
@@ -90,7 +111,7 @@ def test_quick_zoo_writes_one_table(zoo, tmp_path):
     for r in rows:
         assert r["status"] == "baked", r
         assert r["frames"] == 12
-        for k in ("size_m", "peak_mm", "peak_pct", "gradient_p999", "folds_over_lbs", "near_limit_pct", "wrap_mm",
+        for k in ("size_m", "peak_mm", "peak_pct", "sustained_pct", "gradient_p999", "folds_over_lbs", "near_limit_pct", "wrap_mm",
                   "wrap_ratio", "bake_s", "compare_s"):
             assert r[k] is not None and math.isfinite(r[k]), (r["character"], k, r[k])
         assert r["torn_edges"] >= 0 and r["hard_stops"] >= 0
