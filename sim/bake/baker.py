@@ -242,7 +242,6 @@ class Baker:
                 dyn[:, self.fem.cv_index] = part[skip:]
                 contacts["fem_min_det"] = rec["min_det"][skip:].astype(np.float32)
                 contacts["fem_inverted"] = rec["inverted"][skip:].astype(np.int32)
-                contacts["hard_stops"] = np.zeros(rig.M, np.int64)
             elif self.model is None:
                 dyn = st
             else:

@@ -130,6 +130,10 @@ def keep_out(free_idx, vertex_part, pair_offsets, pair_capsule, ends, radius, nu
               outputs=[q, qd], device=device)
 
 
+COMPRESSED = wp.constant(0.5)
+"""det F below which stiffen_kernel also stiffens a tet as 1 / J^2."""
+
+
 @wp.kernel
 def stiffen_kernel(
     # model
@@ -145,7 +149,8 @@ def stiffen_kernel(
 ):
     """materials_out[t] = base[t] (k_mu, k_lambda, k_damp) scaled for tet t's distortion at q: the moduli by
     s = min(exp(stiffening (I1bar - 3)), cap), I1bar = J^(-2/3) tr(F^T F) (F = Ds Dm^-1, Dm^-1 = poses[t], the goal
-    shape's), the damping by sqrt(s) (the same damping ratio at the stiffer tet's frequency)."""
+    shape's), times (COMPRESSED / J)^2 below J = COMPRESSED, the damping by sqrt(s) (the same damping ratio at the stiffer
+    tet's frequency)."""
     t = wp.tid()
     x0 = q[tets[t, 0]]
     Ds = wp.matrix_from_cols(q[tets[t, 1]] - x0, q[tets[t, 2]] - x0, q[tets[t, 3]] - x0)
@@ -153,7 +158,11 @@ def stiffen_kernel(
     J = wp.determinant(F)
     ic = wp.trace(wp.transpose(F) * F)
     i1 = ic * wp.pow(wp.max(wp.abs(J), 1.0e-6), -2.0 / 3.0)
-    s = wp.min(wp.exp(stiffening * wp.max(i1 - 3.0, 0.0)), cap)
+    s = wp.exp(stiffening * wp.max(i1 - 3.0, 0.0))
+    if J < COMPRESSED:
+        # squeezed toward a flat tet: stiffer as 1 / J^2 (a barrier the lagged update reaches before J = 0)
+        s = s * (COMPRESSED / wp.max(J, 1.0e-3)) * (COMPRESSED / wp.max(J, 1.0e-3))
+    s = wp.min(s, cap)
     if J <= 0.0:
         s = cap
     materials_out[t, 0] = base[t, 0] * s

@@ -384,7 +384,8 @@ def structured_part_mesh(cvs: np.ndarray, *, rows: int = ROWS, cols: int = COLS,
     """The TetMesh of a part whose lofted surface folds into itself (a short, wide part whose sections tilt into
     each other, as a pectoral's: TetGen refuses it): structured_mesh in its loft coordinates, every vertex's goal
     map known exactly (no inversion), the rest points the map of the rest CVs. Tets that the fold turns inside
-    out at rest (or flattens below 1e-4 of the mean volume) are left out, and vertices no tet keeps with them."""
+    out at rest (or flattens below 1e-4 of the mean volume) are left out, and vertices no tet keeps with them; the
+    vertices they shared with the tets kept ride the bone (held by fewer tets, they would be the first to fold)."""
     cvs = np.asarray(cvs, dtype=np.float64).reshape(loft.SECTIONS, loft.RING, 3)
     centres = cvs.mean(axis=1)
     radii = np.linalg.norm(cvs - centres[:, None], axis=-1).mean(axis=1)
@@ -399,13 +400,16 @@ def structured_part_mesh(cvs: np.ndarray, *, rows: int = ROWS, cols: int = COLS,
     tets[flip] = tets[flip][:, [0, 2, 1, 3]]
     vol = tet_volumes(nodes, tets)
     keep = vol > 1e-4 * np.abs(vol).mean()
+    # the vertices of tets left out lie on the fold, held by fewer tets than the rest: they ride the bone
+    folded = np.zeros(len(nodes), bool)
+    folded[tets[~keep].reshape(-1)] = True
     tets, vol = tets[keep], vol[keep]
     used = np.zeros(len(nodes), bool)
     used[tets.reshape(-1)] = True
     new = np.cumsum(used) - 1
     surface_count = int(used[:S].sum())
     nodes, goal_map, coords, tets = nodes[used], goal_map[used], coords[used], new[tets].astype(np.int32)
-    attached = (coords[:, 2] <= core + 1e-9) | attached_vertices(nodes, centres, radii, 0.0, end)
+    attached = (coords[:, 2] <= core + 1e-9) | attached_vertices(nodes, centres, radii, 0.0, end) | folded[used]
     cv_tet, cv_bary = barycentric(nodes, tets, cvs.reshape(-1, 3))
     return TetMesh(points=nodes, tets=tets, volumes=vol, faces=boundary_faces(tets), surface_count=surface_count,
                    centres=centres, radii=radii, attached=attached, cv_tet=cv_tet, cv_bary=cv_bary, goal_map=goal_map,
