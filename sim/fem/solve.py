@@ -51,6 +51,16 @@ is set by accuracy (numerical damping ~ omega dt / 2 ~ 0.01 at 3 Hz) rather than
 material's pressure waves an explicit step would have to resolve."""
 ITERATIONS = 10
 """VBD iterations per step (Newton's examples use 10)."""
+STIFFENING = 3.0
+"""b of the tissue's strain stiffening, the Fung exponential law (Fung 1993, Biomechanics: Mechanical Properties of
+Living Tissues, ch. 7): each tet's moduli are mu exp(b (I1bar - 3)) at its distortion from the goal shape (I1bar - 3
+~ the shear strain squared): x1.2 at 25% shear, x20 at 100%. Soft tissue stiffens steeply (adipose: Ogden alpha ~20
+in Comley & Fleck 2010, Int. J. Impact Eng. 37; skeletal muscle: exponential fibre laws); a neo-Hookean solid of
+the same small-strain modulus does not, and a soft part driven hard (a 1.4 Hz glute fat in a run) then shears its
+tets inside out. It is the FEM's counterpart of the particles' tissue law (sim/jiggle/tissue_law.py), applied lagged
+by one step (fem_kernels.stiffen); the reference (simulate_part) and the hero mode (sim/fem/tissue.py) both apply it."""
+STIFFENING_CAP = 1000.0
+"""The largest factor the stiffening multiplies a tet's moduli by (and an inverted tet's)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,14 +220,15 @@ def _goal_vbd():
 def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: np.ndarray, out_times: np.ndarray, *,
                   frequency_hz: float | None = None, k_damp: float | None = None, dt: float = DT,
                   iterations: int = ITERATIONS, rest: str = "goal", gravity: bool = False,
-                  device: str = "cpu") -> FemRun:
+                  stiffening: float = STIFFENING, device: str = "cpu") -> FemRun:
     """Simulate the part `mesh` of `material` driven by its vertices' goals (K, N, 3) metres at knot times knots (K,)
     seconds (mesh.goals(static_cvs) for a part's static CVs (K, 40, 3); carried_goals for a rigid drive) and sample
     it at out_times (F,) seconds (ascending).
 
     Damping: k_damp (Pa s) when given, else damping_coefficient(material, frequency_hz, dt) (the numerical damping
     taken off) when frequency_hz is given, else none. rest : "goal" (the tets' rest shape follows the goal) or "bind" (the mesh's points).
-    gravity : along -Z, 9.81 m/s^2. The body starts on its goal at out_times[0], moving with the goal's velocity.
+    gravity : along -Z, 9.81 m/s^2. stiffening : b of the tissue's strain stiffening (STIFFENING; 0: a plain
+    Neo-Hookean solid). The body starts on its goal at out_times[0], moving with the goal's velocity.
     """
     import time
 
@@ -259,6 +270,7 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     if rest == "goal":
         solver.goal_end.assign(x0.astype(np.float32))
         fem_kernels.rest_poses(tets, solver.goal_end, model.tet_poses, device)
+    base = wp.clone(model.tet_materials)
 
     step_times = t0 + dt * np.arange(n_steps + 1)
     frames = np.empty((len(out_times), len(mesh.points), 3))
@@ -275,6 +287,8 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
         solver.goal_end.assign(g.astype(np.float32))
         if rest == "goal":
             fem_kernels.rest_poses(tets, solver.goal_end, model.tet_poses, device)
+        fem_kernels.stiffen(tets, model.tet_poses, base, stiffening, STIFFENING_CAP, s0.particle_q,
+                            model.tet_materials, device)
         s0.clear_forces()
         solver.step(s0, s1, control, None, dt)
         s0, s1 = s1, s0
@@ -297,5 +311,5 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
                   ms_per_step=ms)
 
 
-__all__ = ["FemRun", "GoalCurve", "simulate_part", "carried_goals", "damping_coefficient", "carry_at",
-           "elastic_energy", "determinants", "lumped_masses", "DT", "ITERATIONS", "NUMERICAL_DAMPING"]
+__all__ = ["FemRun", "GoalCurve", "simulate_part", "STIFFENING", "STIFFENING_CAP", "carried_goals",
+           "damping_coefficient", "carry_at", "elastic_energy", "determinants", "lumped_masses", "DT", "ITERATIONS", "NUMERICAL_DAMPING"]

@@ -35,23 +35,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from jiggle.rig.muscle.material import Material
-from jiggle.sim.fem.solve import ITERATIONS, GoalCurve, _goal_vbd, damping_coefficient
+from jiggle.sim.fem.solve import (ITERATIONS, STIFFENING, STIFFENING_CAP, GoalCurve, _goal_vbd,
+                                  damping_coefficient)
 from jiggle.sim.fem.tet_mesh import TetMesh, structured_part_mesh
 
 DT_MAX = 1.0 / 2000.0
 """seconds: the longest step (half the reference's sim.fem.solve.DT; VBD's numerical damping, taken off the requested
 damping, ~0.75 omega dt). The strain stiffening is applied lagged by a step: at 1 ms the pectorals and a biceps of
 CesiumMan still turned a few tets inside out late in CMU 09_11 (20 VBD iterations did not help, 0.5 ms did)."""
-STIFFENING = 3.0
-"""b of the tissue's strain stiffening, the Fung exponential law (Fung 1993, Biomechanics: Mechanical Properties of
-Living Tissues, ch. 7): each tet's moduli are mu exp(b (I1bar - 3)) at its distortion from the goal shape (I1bar - 3
-~ the shear strain squared): x1.2 at 25% shear, x20 at 100%. Soft tissue stiffens steeply (adipose: Ogden alpha ~20
-in Comley & Fleck 2010, Int. J. Impact Eng. 37; skeletal muscle: exponential fibre laws); a neo-Hookean solid of
-the same small-strain modulus does not, and a soft part driven hard (a 1.4 Hz glute fat in a run) then shears its
-tets inside out. It is the FEM's counterpart of the particles' tissue law (sim/jiggle/tissue_law.py), applied lagged
-by one step (fem_kernels.stiffen)."""
-STIFFENING_CAP = 1000.0
-"""The largest factor the stiffening multiplies a tet's moduli by (and an inverted tet's)."""
 HERO_MESH = {"rows": 7, "cols": 12, "layers": (0.5, 1.0), "core": 0.0}
 """The hero mode's mesh of a part: the structured mesh of its loft coordinates (sim.fem.tet_mesh.structured_part_mesh):
 7 rows across the sections x 12 around them, the axis, a ring half way out and the surface; the axis and the two end

@@ -143,3 +143,20 @@ def test_the_request_refuses_an_unknown_solver():
     assert tissue_solver(BakeRequest()) == "particles" and tissue_solver(BakeRequest(tissue="fem")) == "fem"
     with pytest.raises(InputError, match="--tissue"):
         tissue_solver(BakeRequest(tissue="jelly"))
+
+
+@pytest.mark.slow
+def test_a_hero_loop_warms_up_to_its_steady_state(tmp_path):
+    """The Cat's Walk, a closed cycle, with --tissue fem: the solid is warmed up to its periodic steady state (the
+    start state repeats within the tolerance) and the baked loop's last frame repeats its first."""
+    cat = ASSETS / "characters/zoo/Cat.glb"
+    if not cat.exists():
+        pytest.skip("the shared Cat is absent")
+    from jiggle.sim.app.cli import main
+    assert main(["bake", "--character", str(cat), "--animation", "Walk", "--tissue", "fem", "--formats", "npz",
+                 "--out", str(tmp_path), "-q"]) == 0
+    summary = json.loads((tmp_path / "bake.json").read_text())
+    loop = summary["loop"]
+    assert loop["on"] and loop["warmup"]["converged"] and loop["warmup"]["cycles"] >= 3
+    assert loop["seam"]["wrap_mm"] < 0.05 * loop["seam"]["wrap_step_mm"]
+    assert summary["fem"]["inverted_max"] == 0
