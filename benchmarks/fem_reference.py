@@ -94,6 +94,10 @@ def particle_rule(material: Material, rig, m: int, jiggle, C_p: float):
         from jiggle.sim.jiggle import materials
     except ImportError:
         materials = None
+    if materials is not None and hasattr(materials, "shape_constant"):
+        L = float(rig.rest_length[m])
+        return (materials.with_material(jiggle, material, r, L),
+                f"sim.jiggle.materials.with_material (r, L: C {materials.shape_constant(r, L):.4f})")
     if materials is not None and hasattr(materials, "with_material"):
         fc = getattr(materials, "FEM_C", float("nan"))
         return materials.with_material(jiggle, material, r), f"sim.jiggle.materials.with_material (FEM_C {fc:g})"
@@ -325,7 +329,8 @@ def case(name: str, cal: dict, log) -> dict:
     mat = material_for(rig.kinds[m])
     s = sizes(rig, m)
     C, F_p = cal.get("C", DEFAULT_C), cal.get("F_p_matched", cal.get("F_p", 1.0))
-    f_rule = C * mat.shear_speed / s["r"]
+    from jiggle.sim.jiggle.materials import fem_frequency
+    f_rule = fem_frequency(mat, s["r"], s["L"])               # the product's rule (its slender form)
     t = time.perf_counter()
     mesh = part_mesh(rig.rest_cvs[sl])
     run = simulate_part(mesh, mat, mesh.goals(static[:, sl]), knots, times, frequency_hz=f_rule)
@@ -442,7 +447,7 @@ def write(result: dict) -> None:
                      f"{r['peak_ratio_fem_particles_material']:.2f} | {r['freq_ratio_fem_particles_material']:.2f} | "
                      f"{r['ms_per_step']:.1f} | {r['tets']} | {r['min_det']:.2f} | fem_reference_{r['case']}.png |")
         L += [""] + [f"- {r['case']}: particles from the material set by {r.get('particles_material_rule', '?')}; "
-                     f"FEM damped at k_damp {r['k_damp']:.2f} Pa s (the material's zeta at the C rule's "
+                     f"FEM damped at k_damp {r['k_damp']:.2f} Pa s (the material's zeta at the rule's "
                      f"{r['f_rule_hz']:.2f} Hz, VBD's own damping taken off)." for r in cs.values()]
         L.append("")
     (OUT / "fem_reference.md").write_text("\n".join(L) + "\n")

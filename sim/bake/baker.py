@@ -109,11 +109,12 @@ def fem_tissue(setup: BakeSetup, idle: np.ndarray, colliders=None):
     from jiggle.sim.fem.tissue import FemTissue, fem_parts
     from jiggle.sim.jiggle.materials import fem_frequency, material_of
     rig, k = setup.rig, float(setup.real_scale)
-    radii = rig.mean_radii(rig.rest_cvs)
+    radii, lengths = rig.mean_radii(rig.rest_cvs) * k, np.asarray(rig.rest_length, np.float64) * k
     jiggles = setup.jiggles
-    materials = {m: material_of(jiggles[m], rig.kinds[m], float(radii[m]) * k) for m in range(rig.M) if not idle[m]}
+    materials = {m: material_of(jiggles[m], rig.kinds[m], float(radii[m]), float(lengths[m]))
+                 for m in range(rig.M) if not idle[m]}
     parts = fem_parts(rig.rest_cvs, rig.cv_offsets, rig.names, materials, k,
-                      lambda m, mat: fem_frequency(mat, float(radii[m]) * k))
+                      lambda m, mat: fem_frequency(mat, float(radii[m]), float(lengths[m])))
     kw = {}
     if colliders is not None:
         kw = {"pairs": (colliders.pair_offsets, colliders.pair_capsule), "capsule_radius": colliders.capsules.radius,

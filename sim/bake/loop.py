@@ -259,13 +259,10 @@ def warm_up(setup, model, solver, colliders=None, tissue=None, margin: int = 3,
     stops contracting); the start of the smallest such change is returned. The step grid and goal track are the bake's own over the cycle, so the
     bake's chunks going on from this state repeat the last cycle's arithmetic.
     """
-    from jiggle.sim.jiggle.simulate import TIME_EPS, goals, simulate
+    from jiggle.sim.jiggle.simulate import goals, simulate
     lp, s, rig = setup.loop, setup, setup.rig
     times = lp.cycle_times
-    ka = max(0, int(np.searchsorted(s.knots, times[0] - TIME_EPS)) - margin)
-    kb = min(len(s.knots), int(np.searchsorted(s.knots, times[-1] + TIME_EPS, side="right")) + margin)
-    kt = s.knots[ka:kb]
-    world_k = np.asarray(s.world_at(kt), dtype=np.float64)
+    kt, world_k = cycle_knots(setup, margin)
     static = rig.static(world_k, device=s.settings.device)
     track = goals(rig, kt, static.cvs, s.settings)
     coll = None if colliders is None else colliders.at(kt, world_k, track.cut)
@@ -285,13 +282,9 @@ def warm_up_fem(setup, fem, colliders=None, margin: int = 3,
     """As :func:`warm_up` for the FEM hero mode (sim.fem.tissue.FemTissue): the solid's vertex state (x, v) at the
     cycle's start in its periodic steady state, from the start on the goal moving with it."""
     from jiggle.sim.jiggle.goal_track import find_cuts
-    from jiggle.sim.jiggle.simulate import TIME_EPS
     lp, s, rig = setup.loop, setup, setup.rig
     times = lp.cycle_times
-    ka = max(0, int(np.searchsorted(s.knots, times[0] - TIME_EPS)) - margin)
-    kb = min(len(s.knots), int(np.searchsorted(s.knots, times[-1] + TIME_EPS, side="right")) + margin)
-    kt = s.knots[ka:kb]
-    world_k = np.asarray(s.world_at(kt), dtype=np.float64)
+    kt, world_k = cycle_knots(setup, margin)
     static = rig.static(world_k, device=s.settings.device).cvs
     cuts = find_cuts(kt, static, s.settings.cut_ratio, s.settings.cut_jump)
     ends = None if colliders is None else colliders.capsules.ends(world_k).reshape(len(kt), -1, 3)
@@ -300,6 +293,17 @@ def warm_up_fem(setup, fem, colliders=None, margin: int = 3,
         _, end, _ = fem.run(kt, static, times, start=state, cuts=cuts, capsule_ends=ends)
         return end
     return steady_state(cycle, lp, log)
+
+
+def cycle_knots(setup, margin: int) -> tuple[np.ndarray, np.ndarray]:
+    """The bake's goal knots over one cycle of setup.loop, `margin` more past each end, and the joint world
+    transforms (k, J, 4, 4) there: the window a warm-up simulates, as a chunk's."""
+    from jiggle.sim.jiggle.simulate import TIME_EPS
+    s, times = setup, setup.loop.cycle_times
+    ka = max(0, int(np.searchsorted(s.knots, times[0] - TIME_EPS)) - margin)
+    kb = min(len(s.knots), int(np.searchsorted(s.knots, times[-1] + TIME_EPS, side="right")) + margin)
+    kt = s.knots[ka:kb]
+    return kt, np.asarray(s.world_at(kt), dtype=np.float64)
 
 
 def steady_state(cycle: Callable, lp: Loop, log: Callable[[str], None] = lambda s: None

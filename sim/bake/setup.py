@@ -465,9 +465,10 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         "template_why": mus.why or None,
         "tissue": {"solver": solver, **tissue_from, "materials": materials_used or None, "real_size": size.to_json(),
                    "material_rule": "each part's goal springs stand for a material (muscles.NAME.material): E from "
-                                    "frequency_hz by sim.jiggle.materials (f_fem = FEM_C sqrt(mu / rho) / r at the "
-                                    "part's mean radius at real size, radius_m x real_size.scale), nu of its kind, "
-                                    "its density and damping ratio"},
+                                    "frequency_hz by sim.jiggle.materials (f_fem = FEM_C_SLENDER (r / L)^FEM_A "
+                                    "sqrt(mu / rho) / r at the part's mean radius r and rest length L at real size, "
+                                    "radius_m and length_m x real_size.scale), nu of its kind, its density and "
+                                    "damping ratio"},
         "rigid": {"option": req.rigid or "auto", "parts": record.to_json() if record is not None else None,
                   **({"not_simulated": [mus.rig.names[m] for m in np.nonzero(idle)[0]]} if idle.any() else {})},
         "parts": [p.to_json() for p in mus.parts] or None,
@@ -562,6 +563,7 @@ def apply_materials(jiggles, rig, entries, log=lambda s: None, scale: float = 1.
     from jiggle.rig.muscle.material import KEYS, parse_material
     from jiggle.sim.jiggle.materials import with_material
     radii = rig.mean_radii(rig.rest_cvs)
+    lengths = np.asarray(rig.rest_length, np.float64)
     out, used = list(jiggles), {}
     for entry in entries:
         text = str(entry).strip()
@@ -573,7 +575,7 @@ def apply_materials(jiggles, rig, entries, log=lambda s: None, scale: float = 1.
             raise InputError(f"--material {text}: no muscle is named or matches {name!r}; the muscles are "
                              f"{', '.join(rig.names[:12])}{' ...' if rig.M > 12 else ''}", field="--material")
         for m in hits:
-            out[m] = with_material(out[m], material, float(radii[m]) * scale)
+            out[m] = with_material(out[m], material, float(radii[m]) * scale, float(lengths[m]) * scale)
             used[rig.names[m]] = {**material.to_json(), "entry": text}
         log(f"material {material.name} ({material.youngs_pa:g} Pa, nu {material.poisson:g}, {material.density:g} "
             f"kg/m^3, zeta {material.damping_ratio:g}) on {len(hits)} muscle(s) matching {name!r}")
@@ -980,8 +982,9 @@ def _muscle_params(rig, jiggles, idle=None, scale: float = 1.0) -> dict:
         out[rig.names[m]] = {"kind": rig.kinds[m], "volume_m3": float(volumes[m]),
                              "mass_kg": float(volumes[m] * j.density), **d,
                              "reach_m": j.reach if math.isfinite(j.reach) and not still else None,
-                             "radius_m": float(radii[m]),
-                             "material": material_of(j, rig.kinds[m], radii[m] * scale).to_json(),
+                             "radius_m": float(radii[m]), "length_m": float(rig.rest_length[m]),
+                             "material": material_of(j, rig.kinds[m], radii[m] * scale,
+                                                     rig.rest_length[m] * scale).to_json(),
                              **({"simulated": False} if still else {})}
     return out
 

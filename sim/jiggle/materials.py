@@ -10,8 +10,12 @@ the shear wave's speed over the part's radius: a part twice as thick wobbles hal
 as stiff twice as fast. FEM_C is the volumetric reference's undamped ring-downs (sim/fem, driven by the parts' goal
 shapes exactly as the particles are; benchmarks/results/fem_reference.md) of 5 lofted ellipsoids and 4 of CesiumMan's
 fitted parts, fat and muscle: 0.168, spread 14% (0.128-0.220; muscle rings 2.0x faster than fat in every part, their
-shear speeds' ratio). The part's thickness V / A fits a little better (10%) and (r / L)^0.2 as well; r is kept for
-being what the muscle rig already measures.
+shear speeds' ratio). Where the part's rest length L is known (every bake), its slenderness is taken in too:
+
+    f_fem = FEM_C_SLENDER (r / L)^FEM_A sqrt(mu / rho) / r,
+
+which fits the same ring-downs within 10% (FEM_C_SLENDER 0.2583, FEM_A 0.203): a long part rings slower than a
+short one of the same radius.
 
 The particles ring at their goal springs' frequency: a particle of goal weight w at frequency_hz f rings at
 f sqrt(w / (1 - w)) (sim/jiggle/params.py), and a part's visible wobble is its belly's (the sections between its
@@ -35,6 +39,11 @@ from jiggle.rig.muscle.material import Material, material_for
 FEM_C = 0.168
 """f_fem r / sqrt(mu / rho): the volumetric reference's fundamental frequency of a lofted part over its shear speed
 per radius (see the module; spread 14% over the shapes measured)."""
+FEM_C_SLENDER, FEM_A = 0.2583, 0.203
+"""The rule with the part's slenderness: f_fem = FEM_C_SLENDER (r / L)^FEM_A sqrt(mu / rho) / r, L its rest length
+(rig.muscle.model.MuscleRig.rest_length): the same ring-downs fit within 10% (0.81-1.18 of it) where r alone spreads
+14% (0.76-1.31). A long part rings slower than a short one of the same radius (a long quadriceps at 0.89 of the r
+rule, a short, wide belly at 1.16): the rule the product uses wherever a part's length is known."""
 
 
 def belly_goal(jiggle) -> float:
@@ -50,36 +59,48 @@ def ring_factor(jiggle) -> float:
     return math.sqrt(w / (1.0 - w))
 
 
-def fem_frequency(material: Material, radius_m: float) -> float:
-    """Hz: a part of `material` and mean radius `radius_m` (metres, real size) wobbles at this (the module's rule)."""
-    return FEM_C * material.shear_speed / max(float(radius_m), 1e-9)
+def shape_constant(radius_m: float, length_m: float | None = None) -> float:
+    """f_fem r / sqrt(mu / rho) of a part of mean radius radius_m and rest length length_m (metres; None: unknown):
+    FEM_C_SLENDER (r / L)^FEM_A when the length is known, else FEM_C."""
+    if length_m is None or not length_m > 0:
+        return FEM_C
+    return FEM_C_SLENDER * (max(float(radius_m), 1e-9) / float(length_m)) ** FEM_A
 
 
-def with_material(jiggle, material: Material, radius_m: float):
+def fem_frequency(material: Material, radius_m: float, length_m: float | None = None) -> float:
+    """Hz: a part of `material`, mean radius `radius_m` and rest length `length_m` (metres, real size; None: the
+    radius alone) wobbles at this (the module's rule)."""
+    return shape_constant(radius_m, length_m) * material.shear_speed / max(float(radius_m), 1e-9)
+
+
+def with_material(jiggle, material: Material, radius_m: float, length_m: float | None = None):
     """`jiggle` (sim.jiggle.params.MuscleJiggle) with its goal springs, damping ratio and density from `material`
-    for a part of mean radius `radius_m` (metres, real size)."""
-    f = fem_frequency(material, radius_m) / ring_factor(jiggle)
+    for a part of mean radius `radius_m` and rest length `length_m` (metres, real size)."""
+    f = fem_frequency(material, radius_m, length_m) / ring_factor(jiggle)
     return replace(jiggle, frequency_hz=float(f), damping_ratio=float(material.damping_ratio),
                    density=float(material.density))
 
 
-def material_of(jiggle, kind: str, radius_m: float) -> Material:
+def material_of(jiggle, kind: str, radius_m: float, length_m: float | None = None) -> Material:
     """The Material a part's goal springs stand for: E from its frequency_hz (its reference value for a keyed one)
-    by the module's rule inverted, nu of its kind's material, its density and damping ratio."""
+    by the module's rule inverted (radius_m, length_m as fem_frequency), nu of its kind's material, its density and
+    damping ratio."""
     ref = jiggle.reference() if jiggle.keyed else jiggle
     base = material_for(kind)
     f_fem = float(ref.frequency_hz) * ring_factor(ref)
-    shear_speed = f_fem * max(float(radius_m), 1e-9) / FEM_C
+    shear_speed = f_fem * max(float(radius_m), 1e-9) / shape_constant(radius_m, length_m)
     mu = float(ref.density) * shear_speed ** 2
     return Material(youngs_pa=2.0 * (1.0 + base.poisson) * mu, poisson=base.poisson, density=float(ref.density),
-                    damping_ratio=float(ref.damping_ratio), name=base.name if _same(ref, base, radius_m) else "custom")
+                    damping_ratio=float(ref.damping_ratio),
+                    name=base.name if _same(ref, base, radius_m, length_m) else "custom")
 
 
-def _same(jiggle, base: Material, radius_m: float) -> bool:
+def _same(jiggle, base: Material, radius_m: float, length_m: float | None = None) -> bool:
     """Whether `jiggle` is what `base` gives (its frequency within 0.1%, its damping and density equal)."""
-    f = fem_frequency(base, radius_m) / ring_factor(jiggle)
+    f = fem_frequency(base, radius_m, length_m) / ring_factor(jiggle)
     return (abs(float(jiggle.frequency_hz) / f - 1.0) < 1e-3 and abs(float(jiggle.damping_ratio) - base.damping_ratio)
             < 1e-9 and abs(float(jiggle.density) - base.density) < 1e-9)
 
 
-__all__ = ["FEM_C", "belly_goal", "ring_factor", "fem_frequency", "with_material", "material_of"]
+__all__ = ["FEM_C", "FEM_C_SLENDER", "FEM_A", "shape_constant", "belly_goal", "ring_factor", "fem_frequency",
+           "with_material", "material_of"]

@@ -31,6 +31,22 @@ def test_the_rule_is_the_shear_speed_over_the_radius():
     assert fem_frequency(stiff, 0.05) == pytest.approx(2 * f) and fem_frequency(m, 0.1) == pytest.approx(f / 2)
 
 
+def test_the_slender_rule_takes_the_length_in():
+    """With the part's length, f = FEM_C_SLENDER (r / L)^FEM_A c / r: a part four times as long as another of the same
+    radius rings (1/4)^0.203 = 0.75 times as fast; the springs and the material read back through the same rule."""
+    from jiggle.sim.jiggle.materials import FEM_A, FEM_C_SLENDER, shape_constant
+    assert shape_constant(0.03, None) == FEM_C and shape_constant(0.03, 0.0) == FEM_C
+    assert shape_constant(0.03, 0.3) == pytest.approx(FEM_C_SLENDER * 0.1 ** FEM_A)
+    assert fem_frequency(FAT, 0.03, 0.4) / fem_frequency(FAT, 0.03, 0.1) == pytest.approx(0.25 ** FEM_A)
+    # a typical thigh muscle (r/L ~ 0.07) rings below the r rule's, a short wide belly (r/L ~ 0.25) above it
+    assert fem_frequency(MUSCLE, 0.023, 0.33) < 0.92 * fem_frequency(MUSCLE, 0.023)
+    assert fem_frequency(FAT, 0.029, 0.116) > 1.1 * fem_frequency(FAT, 0.029)
+    out = with_material(_jiggle(), FAT, 0.04, 0.2)
+    assert out.frequency_hz * ring_factor(out) == pytest.approx(fem_frequency(FAT, 0.04, 0.2))
+    back = material_of(out, "fat", 0.04, 0.2)
+    assert back.name == "fat" and back.youngs_pa == pytest.approx(FAT.youngs_pa, rel=1e-9)
+
+
 def test_a_material_sets_the_springs_and_reads_back():
     j = _jiggle()
     out = with_material(j, FAT, 0.04)
@@ -93,7 +109,7 @@ def test_material_on_the_command_line(tmp_path, capsys):
     assert muscles["right_biceps"]["frequency"] == 9.0 and muscles["right_biceps"]["material"]["youngs_pa"] > 0
     f = muscles[fats[0]]            # its belly rings at the FEM's frequency for fat of its radius
     j = MuscleJiggle(name="x", frequency_hz=f["frequency"], damping_ratio=f["damping"], goal=f["goal"], density=1.0)
-    assert f["frequency"] * ring_factor(j) == pytest.approx(fem_frequency(FAT, f["radius_m"]), rel=1e-6)
+    assert f["frequency"] * ring_factor(j) == pytest.approx(fem_frequency(FAT, f["radius_m"], f["length_m"]), rel=1e-6)
     assert f["damping"] == FAT.damping_ratio and f["density"] == FAT.density
     assert main([*args, "--out", str(tmp_path / "bad"), "--material", "nosuch*=fat"]) == 2
     assert "no muscle is named or matches 'nosuch*'" in capsys.readouterr().err
