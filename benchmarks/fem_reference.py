@@ -314,7 +314,10 @@ def metrics(off: np.ndarray, times: np.ndarray, t_hold: float, window: float | N
     sig = measure.principal_signal(off)
     moving = times <= t_hold
     f_dom = measure.dominant_frequency(measure.detrend(sig[moving], times[moving]), times[moving], fmin=0.5)
-    rd = measure.ringdown(sig, times, t_hold, window)
+    # the ring-down along the hold's own principal direction: the whole run's is the motion's, which the free
+    # decay after the stop need not follow (projected on it, the ring is weak and a slower drift outweighs it)
+    hold = times >= t_hold - 1e-12
+    rd = measure.ringdown(measure.principal_signal(off[hold]), times[hold], t_hold, window)
     return {"peak_mm": 1e3 * measure.peak_displacement(off),
             "peak_moving_mm": 1e3 * measure.peak_displacement(off[moving]),
             "peak_hold_mm": 1e3 * measure.peak_displacement(off[times >= t_hold]), "f_dom_hz": f_dom,
