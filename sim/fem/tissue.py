@@ -76,7 +76,12 @@ class FemPart:
 class FemTissue:
     """The hero mode's solid: the parts' meshes in one Newton model, stepped between output frames (see the module).
 
-    parts : [FemPart]. cv_index : (P x 40,) the rig's CV rows the parts' embedded CVs replace.
+    parts : [FemPart] (fem_parts). cv_offsets : (M + 1,) the rig's CV offsets per muscle. pairs : (offsets (M + 1,),
+    capsules (P,)) the capsules each muscle collides with (sim.jiggle.colliders.ColliderModel's CSR list), None: none;
+    capsule_radius : (C,) metres; floor : metres (world z), None: none. dt_max : seconds, the longest step.
+    iterations : VBD's per step. stiffening : b of the strain stiffening (sim.fem.solve.STIFFENING; 0: none).
+    After construction: cv_index (P x 40,) the rig's CV rows the parts' embedded CVs replace; steps and seconds, the
+    solver's steps run so far and the wall seconds they took.
     """
 
     def __init__(self, parts: list, cv_offsets: np.ndarray, *, pairs=None, capsule_radius=None, floor=None,
@@ -236,7 +241,6 @@ class FemTissue:
                          np.float64).reshape(-1, T, 3).transpose(1, 0, 2)
         goal = np.stack([curve(t)[0] for t in times])
         det = self.determinants(frames, goal)
-        self.last_det = det
         return cvs, end, {"min_det": det.min(axis=1, initial=np.inf), "inverted": (det <= 0.0).sum(axis=1)}
 
     def determinants(self, x: np.ndarray, goal: np.ndarray) -> np.ndarray:
