@@ -600,8 +600,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         summary["loop"] = setup.params.get("loop") if isinstance(setup.params, dict) else None
     if baker.model is not None:
         summary["tissue"] = _tissue_json(setup, contact_parts)
-    if baker.fem is not None:
-        summary["fem"] = _fem_json(setup, baker, contact_parts)
+    summary["fem"] = _fem_json(setup, baker, contact_parts) if baker.fem is not None else None
     if baker.colliders is not None:
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
     summary["chains"] = baker.chain_json() if baker.chain_run is not None else None
