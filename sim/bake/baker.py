@@ -55,12 +55,12 @@ from jiggle.sim.bake.setup import BakeSetup
 from jiggle.sim.bake.writer import BakeWriter
 from jiggle.sim.jiggle.blend import blend, blend_weights, needs_simulation
 from jiggle.sim.jiggle.colliders import collider_model, contact_summary, muscle_contacts, skin_check
+from jiggle.sim.jiggle.goal_track import find_cuts
 from jiggle.sim.jiggle.keyed_solver import make_solver
 from jiggle.sim.jiggle.params import glued
 from jiggle.sim.jiggle.particles import muscle_model
 from jiggle.sim.jiggle.simulate import TIME_EPS, goals, simulate
 from jiggle.sim.jiggle.tissue_contacts import tissue_contact_model
-from jiggle.sim.jiggle.goal_track import find_cuts
 
 PARTIAL = ".partial"
 MANIFEST = "manifest.json"

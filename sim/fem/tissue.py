@@ -70,7 +70,6 @@ class FemPart:
     frequency_hz: float
     k_damp: float
     offset: int
-    mesher: str
 
 
 class FemTissue:
@@ -263,7 +262,7 @@ class FemTissue:
                 "contacts": "free vertices kept out of their part's capsules and above the floor, as far as their "
                             "goal is, after every step" if self.contacts else None,
                 "parts": {p.name: {"tets": int(len(p.mesh.tets)), "vertices": int(len(p.mesh.points)),
-                                   "mesher": p.mesher, "material": p.material.to_json(),
+                                   "mesher": p.mesh.mesher, "material": p.material.to_json(),
                                    "frequency_hz": round(p.frequency_hz, 4), "k_damp_pa_s": round(p.k_damp, 6)}
                           for p in self.parts}}
 
@@ -296,7 +295,7 @@ def fem_parts(rest_cvs: np.ndarray, cv_offsets: np.ndarray, names, materials: di
                        damping_ratio=mat.damping_ratio, name=mat.name)
         f = float(frequency(m, mat))
         parts.append(FemPart(muscle=int(m), name=str(names[m]), mesh=tm, material=mat, simulated=sim,
-                             frequency_hz=f, k_damp=damping_coefficient(sim, f, dt), offset=offset, mesher=tm.mesher))
+                             frequency_hz=f, k_damp=damping_coefficient(sim, f, dt), offset=offset))
         offset += len(tm.points)
     log(f"fem: {len(parts)} parts, {offset} vertices, {sum(len(p.mesh.tets) for p in parts)} tets "
         f"({time.perf_counter() - t:.1f} s)")
