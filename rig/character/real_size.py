@@ -9,7 +9,10 @@ film character in metres; a game file's unit is arbitrary. So the size is taken,
    the same Froude number v^2 / (g h), h the hip height) makes a walk's stride period T = K_WALK sqrt(h / g):
    K_WALK = 3.5 is a human's (hip 0.9 m, stride 1.06 s) and within 20% of a horse's and a dog's. A character whose
    file has a looping animation named like a walk, and legs that reach the floor, is as many times its file's size
-   as g (T / K_WALK)^2 is its hip height in the file;
+   as g (T / K_WALK)^2 is its hip height in the file. A walker without legs (a blob that waddles or hops, a
+   snake's slither) vaults over its base as an inverted pendulum of its centre of mass: its centre of mass height
+   (the skin's, area-weighted) stands for the hip height, as it nearly does for a human (0.55 of the height against
+   the hip's 0.52);
 3. the file's unit, taken as metres (after --unit and the human template's own size rule, rig.character.character
    template_scale).
 
@@ -81,6 +84,22 @@ def leg_height(bind_world: np.ndarray, parents: np.ndarray, floor_z: float, heig
     return float(np.median([p[k, 2] - floor_z for k in hips]))
 
 
+def centre_height(vertices: np.ndarray, faces: np.ndarray) -> float | None:
+    """metres: the height above its lowest point of the area-weighted centroid of a skin's triangles (vertices
+    (V, 3), faces (F, 3)); the vertices' mean without faces. None for an empty skin."""
+    v = np.asarray(vertices, np.float64)
+    if not len(v):
+        return None
+    f = np.asarray(faces, np.int64).reshape(-1, 3) if faces is not None and np.size(faces) else None
+    if f is None:
+        return float(v[:, 2].mean() - v[:, 2].min())
+    t = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    if not area.sum() > 0:
+        return float(v[:, 2].mean() - v[:, 2].min())
+    return float((area * t[:, :, 2].mean(axis=1)).sum() / area.sum() - v[:, 2].min())
+
+
 def is_walk(name: str) -> bool:
     words = [w for w in re.split(r"[^a-z]+", str(name).lower()) if w]
     return any(w.startswith(k) for w in words for k in WALK_WORDS)
@@ -98,16 +117,19 @@ def real_size(character, height_m: float | None = None, walk: tuple[str, float] 
     if walk is not None and h > 0:
         name, period = walk
         hip = leg_height(character.bind_world, character.parents, float(v[:, 2].min()), h, character.joint_names)
-        if hip is not None and period > 0:
+        what = "its hips are"
+        if hip is None:
+            hip, what = centre_height(v, getattr(character, "faces", None)), "it has no legs: its centre of mass is"
+        if hip is not None and hip > 0 and period > 0:
             real_hip = G * (period / K_WALK) ** 2
             k = real_hip / hip
             if SCALE_RANGE[0] <= k <= SCALE_RANGE[1]:
                 return RealSize(k, h * k, "walk",
                                 f"its walk {name!r} strides in {period:.3g} s, as a body of hip height {real_hip:.3g} m "
-                                f"walks (dynamic similarity, T = {K_WALK:g} sqrt(h / g)); its hips are {hip:.3g} m "
+                                f"walks (dynamic similarity, T = {K_WALK:g} sqrt(h / g)); {what} {hip:.3g} m "
                                 f"high in the file: {h * k:.3g} m tall, {k:.3g} x the file's size")
     return RealSize(1.0, h, "file", f"the file's unit taken as metres ({h:.3g} m tall): no --height, and no walk "
                                     "cycle with legs to infer the size from")
 
 
-__all__ = ["G", "K_WALK", "RealSize", "leg_height", "is_walk", "real_size"]
+__all__ = ["G", "K_WALK", "RealSize", "leg_height", "centre_height", "is_walk", "real_size"]

@@ -575,7 +575,8 @@ def apply_materials(jiggles, rig, entries, log=lambda s: None, scale: float = 1.
             raise InputError(f"--material {text}: no muscle is named or matches {name!r}; the muscles are "
                              f"{', '.join(rig.names[:12])}{' ...' if rig.M > 12 else ''}", field="--material")
         for m in hits:
-            out[m] = with_material(out[m], material, float(radii[m]) * scale, float(lengths[m]) * scale)
+            out[m] = with_material(out[m], material, float(radii[m]) * scale, float(lengths[m]) * scale,
+                                   rig.kinds[m])
             used[rig.names[m]] = {**material.to_json(), "entry": text}
         log(f"material {material.name} ({material.youngs_pa:g} Pa, nu {material.poisson:g}, {material.density:g} "
             f"kg/m^3, zeta {material.damping_ratio:g}) on {len(hits)} muscle(s) matching {name!r}")

@@ -23,7 +23,15 @@ tendon ends, where the goal weights are lowest and the mass is). So the part's g
 
     frequency_hz = f_fem / sqrt(w_belly / (1 - w_belly)),
 
-its damping ratio to the material's and its density to the material's. :func:`material_of` inverts the rule:
+its density to the material's and its damping ratio to the one that makes the part ring with the material's ratio:
+the particles' own ring-down damping is more than their goal springs' damping_ratio (each CV's damper is 2 zeta
+omega_i m_i at its own omega_i, the stiff tendon CVs' too, and the neighbour springs have dampers of their own), by
+PARTICLE_DAMPING's (A, B) of the part's kind (realized = A + B damping_ratio, fitted to the ring-downs of the
+calibration parts: benchmarks/fem_reference.py, "Particle damping"), so
+
+    damping_ratio = max((zeta - A) / B, 0).
+
+:func:`material_of` inverts the rule:
 the Material a part's goal springs stand for (E from its frequency, nu and rho of its kind), which bake.json
 records for every part, whichever set it.
 """
@@ -44,6 +52,26 @@ FEM_C_SLENDER, FEM_A = 0.2583, 0.203
 (rig.muscle.model.MuscleRig.rest_length): the same ring-downs fit within 10% (0.81-1.18 of it) where r alone spreads
 14% (0.76-1.31). A long part rings slower than a short one of the same radius (a long quadriceps at 0.89 of the r
 rule, a short, wide belly at 1.16): the rule the product uses wherever a part's length is known."""
+
+
+PARTICLE_DAMPING = {"fat": (0.180, 0.925), "muscle": (0.072, 1.040)}
+"""(A, B) per part kind: a part's particles ring down with zeta = A + B damping_ratio (benchmarks/results/
+fem_reference.md, "Particle damping": 8 ring-downs of CesiumMan's fat parts, rms 0.040; 28 of its muscles and of
+lofted ellipsoids, rms 0.044). A fat part's lower tendon-to-belly goal weights leave more of its mode on the stiff
+ends' dampers. Other kinds take the muscle's."""
+
+
+def particle_damping(zeta: float, kind: str | None = None) -> float:
+    """The goal springs' damping_ratio with which a part of `kind` rings down with damping ratio `zeta`
+    (PARTICLE_DAMPING inverted; 0 where zeta is below what the particles damp on their own)."""
+    A, B = PARTICLE_DAMPING.get(kind or "muscle", PARTICLE_DAMPING["muscle"])
+    return max((float(zeta) - A) / B, 0.0)
+
+
+def ring_damping(damping_ratio: float, kind: str | None = None) -> float:
+    """The damping ratio a part of `kind` with goal springs of `damping_ratio` rings down with (PARTICLE_DAMPING)."""
+    A, B = PARTICLE_DAMPING.get(kind or "muscle", PARTICLE_DAMPING["muscle"])
+    return A + B * float(damping_ratio)
 
 
 def belly_goal(jiggle) -> float:
@@ -73,34 +101,36 @@ def fem_frequency(material: Material, radius_m: float, length_m: float | None = 
     return shape_constant(radius_m, length_m) * material.shear_speed / max(float(radius_m), 1e-9)
 
 
-def with_material(jiggle, material: Material, radius_m: float, length_m: float | None = None):
+def with_material(jiggle, material: Material, radius_m: float, length_m: float | None = None,
+                  kind: str | None = None):
     """`jiggle` (sim.jiggle.params.MuscleJiggle) with its goal springs, damping ratio and density from `material`
-    for a part of mean radius `radius_m` and rest length `length_m` (metres, real size)."""
+    for a part of `kind` ("fat", "muscle": its template's, which sets how much its particles damp on their own),
+    mean radius `radius_m` and rest length `length_m` (metres, real size)."""
     f = fem_frequency(material, radius_m, length_m) / ring_factor(jiggle)
-    return replace(jiggle, frequency_hz=float(f), damping_ratio=float(material.damping_ratio),
+    return replace(jiggle, frequency_hz=float(f), damping_ratio=particle_damping(material.damping_ratio, kind),
                    density=float(material.density))
 
 
 def material_of(jiggle, kind: str, radius_m: float, length_m: float | None = None) -> Material:
-    """The Material a part's goal springs stand for: E from its frequency_hz (its reference value for a keyed one)
-    by the module's rule inverted (radius_m, length_m as fem_frequency), nu of its kind's material, its density and
-    damping ratio."""
+    """The Material a part of `kind` whose goal springs are `jiggle` stands for: E from its frequency_hz (its
+    reference value for a keyed one) by the module's rule inverted (radius_m, length_m as fem_frequency), nu of its
+    kind's material, its density, and the damping ratio it rings down with (ring_damping)."""
     ref = jiggle.reference() if jiggle.keyed else jiggle
     base = material_for(kind)
     f_fem = float(ref.frequency_hz) * ring_factor(ref)
     shear_speed = f_fem * max(float(radius_m), 1e-9) / shape_constant(radius_m, length_m)
     mu = float(ref.density) * shear_speed ** 2
     return Material(youngs_pa=2.0 * (1.0 + base.poisson) * mu, poisson=base.poisson, density=float(ref.density),
-                    damping_ratio=float(ref.damping_ratio),
-                    name=base.name if _same(ref, base, radius_m, length_m) else "custom")
+                    damping_ratio=ring_damping(ref.damping_ratio, kind),
+                    name=base.name if _same(ref, base, radius_m, length_m, kind) else "custom")
 
 
-def _same(jiggle, base: Material, radius_m: float, length_m: float | None = None) -> bool:
+def _same(jiggle, base: Material, radius_m: float, length_m: float | None = None, kind: str | None = None) -> bool:
     """Whether `jiggle` is what `base` gives (its frequency within 0.1%, its damping and density equal)."""
     f = fem_frequency(base, radius_m, length_m) / ring_factor(jiggle)
-    return (abs(float(jiggle.frequency_hz) / f - 1.0) < 1e-3 and abs(float(jiggle.damping_ratio) - base.damping_ratio)
-            < 1e-9 and abs(float(jiggle.density) - base.density) < 1e-9)
+    return (abs(float(jiggle.frequency_hz) / f - 1.0) < 1e-3 and abs(float(jiggle.damping_ratio) -
+            particle_damping(base.damping_ratio, kind)) < 1e-9 and abs(float(jiggle.density) - base.density) < 1e-9)
 
 
-__all__ = ["FEM_C", "FEM_C_SLENDER", "FEM_A", "shape_constant", "belly_goal", "ring_factor", "fem_frequency",
+__all__ = ["FEM_C", "FEM_C_SLENDER", "FEM_A", "PARTICLE_DAMPING", "particle_damping", "ring_damping", "shape_constant", "belly_goal", "ring_factor", "fem_frequency",
            "with_material", "material_of"]

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from jiggle.rig.character.real_size import G, K_WALK, leg_height, real_size
+from jiggle.rig.character.real_size import G, K_WALK, centre_height, leg_height, real_size
 
 ASSETS = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "assets")
 
@@ -79,3 +79,20 @@ def test_the_shared_horse_is_horse_sized():
         horse = load_character(path)
     size = real_size(horse, walk=("Walk", 1.1667))
     assert size.source == "walk" and 1.6 <= size.height_m <= 2.4, size.why
+
+
+def test_a_legless_walker_vaults_over_its_centre_of_mass():
+    """A blob without legs (one root joint, a box skin 2 m tall) that walks: its centre of mass height (1 m, the
+    skin's area-weighted centroid, not its vertices' mean) stands for the hip; a stride of a 0.25 m hip's makes it
+    a quarter of its file's size."""
+    import trimesh
+    box = trimesh.creation.box(extents=(1.0, 1.0, 2.0))
+    v = np.asarray(box.vertices) + (0, 0, 1.0)
+    v = np.concatenate([v, np.tile([[0.4, 0.4, 2.0]], (50, 1))])       # many vertices at the top: not the mean
+    f = np.asarray(box.faces)
+    assert centre_height(v, f) == pytest.approx(1.0) and v[:, 2].mean() > 1.5
+    blob = SimpleNamespace(vertices=v, faces=f, bind_world=np.eye(4)[None], parents=np.array([-1]),
+                           joint_names=["Body"])
+    size = real_size(blob, walk=("Walk", K_WALK * np.sqrt(0.25 / G)))
+    assert size.source == "walk" and size.scale == pytest.approx(0.25) and "no legs" in size.why
+    assert real_size(blob).source == "file"                            # no walk: the file's unit

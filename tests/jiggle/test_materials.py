@@ -12,7 +12,8 @@ import pytest
 
 from jiggle.rig.base.errors import InputError
 from jiggle.rig.muscle.material import FAT, MUSCLE, Material, parse_material
-from jiggle.sim.jiggle.materials import FEM_C, fem_frequency, material_of, ring_factor, with_material
+from jiggle.sim.jiggle.materials import (FEM_C, PARTICLE_DAMPING, fem_frequency, material_of, particle_damping,
+                                         ring_damping, ring_factor, with_material)
 from jiggle.sim.jiggle.params import MuscleJiggle, section_goals
 
 ASSETS = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "assets")
@@ -41,7 +42,7 @@ def test_the_slender_rule_takes_the_length_in():
     # a typical thigh muscle (r/L ~ 0.07) rings below the r rule's, a short wide belly (r/L ~ 0.25) above it
     assert fem_frequency(MUSCLE, 0.023, 0.33) < 0.92 * fem_frequency(MUSCLE, 0.023)
     assert fem_frequency(FAT, 0.029, 0.116) > 1.1 * fem_frequency(FAT, 0.029)
-    out = with_material(_jiggle(), FAT, 0.04, 0.2)
+    out = with_material(_jiggle(), FAT, 0.04, 0.2, "fat")
     assert out.frequency_hz * ring_factor(out) == pytest.approx(fem_frequency(FAT, 0.04, 0.2))
     back = material_of(out, "fat", 0.04, 0.2)
     assert back.name == "fat" and back.youngs_pa == pytest.approx(FAT.youngs_pa, rel=1e-9)
@@ -49,17 +50,33 @@ def test_the_slender_rule_takes_the_length_in():
 
 def test_a_material_sets_the_springs_and_reads_back():
     j = _jiggle()
-    out = with_material(j, FAT, 0.04)
+    out = with_material(j, FAT, 0.04, kind="fat")
     # the belly (goal weight 0.4) rings at frequency_hz sqrt(w / (1 - w)): that is the FEM's frequency
     assert out.frequency_hz * ring_factor(out) == pytest.approx(fem_frequency(FAT, 0.04))
-    assert out.damping_ratio == FAT.damping_ratio and out.density == FAT.density
+    # its particles ring down with the material's damping ratio (their own excess over the goal springs' taken off)
+    assert ring_damping(out.damping_ratio, "fat") == pytest.approx(FAT.damping_ratio)
+    assert out.damping_ratio < FAT.damping_ratio and out.density == FAT.density
     back = material_of(out, "fat", 0.04)
     assert back.name == "fat" and back.youngs_pa == pytest.approx(FAT.youngs_pa, rel=1e-9)
-    assert material_of(with_material(j, MUSCLE, 0.03), "muscle", 0.03).name == "muscle"
+    assert material_of(with_material(j, MUSCLE, 0.03, kind="muscle"), "muscle", 0.03).name == "muscle"
+    # the same material on a part of another kind is not the same springs
+    assert material_of(with_material(j, FAT, 0.04, kind="muscle"), "fat", 0.04).name == "custom"
     # a template's 11 Hz muscle of 2 cm radius stands for some E, which gives 11 Hz back
     t = _jiggle()
     e = material_of(t, "muscle", 0.02)
     assert e.name == "custom" and with_material(t, e, 0.02).frequency_hz == pytest.approx(10.0)
+
+
+def test_the_damping_rule_takes_the_particles_own_damping_off():
+    """Particles ring down with zeta = A + B damping_ratio (PARTICLE_DAMPING, per kind): the rule sets damping_ratio so
+    they ring with the material's, and reads it back; a zeta below what the particles damp alone gives 0."""
+    for kind, (A, B) in PARTICLE_DAMPING.items():
+        assert A > 0 and 0.5 < B < 1.5
+        for zeta in (0.3, 0.5, 0.8):
+            assert ring_damping(particle_damping(zeta, kind), kind) == pytest.approx(zeta)
+        assert particle_damping(0.5 * A, kind) == 0.0
+    assert particle_damping(0.3, "fat") < particle_damping(0.3, "muscle") < 0.3   # fat's parts damp more on their own
+    assert particle_damping(0.3, "tendon") == particle_damping(0.3, "muscle")
 
 
 @pytest.mark.parametrize("text, expect", [("fat", FAT), ("muscle", MUSCLE),
@@ -110,7 +127,8 @@ def test_material_on_the_command_line(tmp_path, capsys):
     f = muscles[fats[0]]            # its belly rings at the FEM's frequency for fat of its radius
     j = MuscleJiggle(name="x", frequency_hz=f["frequency"], damping_ratio=f["damping"], goal=f["goal"], density=1.0)
     assert f["frequency"] * ring_factor(j) == pytest.approx(fem_frequency(FAT, f["radius_m"], f["length_m"]), rel=1e-6)
-    assert f["damping"] == FAT.damping_ratio and f["density"] == FAT.density
+    assert f["damping"] == pytest.approx(particle_damping(FAT.damping_ratio, "fat")) and f["density"] == FAT.density
+    assert f["material"]["damping_ratio"] == pytest.approx(FAT.damping_ratio)
     assert main([*args, "--out", str(tmp_path / "bad"), "--material", "nosuch*=fat"]) == 2
     assert "no muscle is named or matches 'nosuch*'" in capsys.readouterr().err
 
