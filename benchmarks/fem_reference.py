@@ -41,7 +41,7 @@ from jiggle.rig.muscle import loft
 from jiggle.rig.muscle.material import FAT, MUSCLE, Material, material_for
 from jiggle.sim.fem import measure
 from jiggle.sim.fem.experiments import ellipsoid_rig, ringdown_run, step_drive
-from jiggle.sim.fem.solve import DT, ITERATIONS, damping_coefficient, simulate_part
+from jiggle.sim.fem.solve import DT, ITERATIONS, NUMERICAL_DAMPING, damping_coefficient, simulate_part
 from jiggle.sim.fem.tet_mesh import part_mesh
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -96,7 +96,7 @@ def particle_rule(material: Material, rig, m: int, jiggle, C_p: float, scale: fl
         materials = None
     if materials is not None and hasattr(materials, "shape_constant"):
         L = float(rig.rest_length[m]) * scale
-        return (materials.with_material(jiggle, material, r, L, rig.kinds[m]),
+        return (materials.with_material(jiggle, material, r, L, rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]]),
                 f"sim.jiggle.materials.with_material (r, L: C {materials.shape_constant(r, L):.4f})")
     if materials is not None and hasattr(materials, "with_material"):
         fc = getattr(materials, "FEM_C", float("nan"))
@@ -263,11 +263,14 @@ def calibration(log, quick: bool) -> dict:
 
 
 def particle_damping(log, quick: bool) -> dict:
-    """The particles' own ring-down damping against the goal springs' damping_ratio: every calibration part, each
-    kind's material set by the rule's frequency (sim.jiggle.materials.with_material), rung down (step_drive, as the
-    FEM's calibration) at damping_ratio zeta_set = 0.5 and 1 x the material's; realized = A + B zeta_set fitted per
-    kind (least squares). The neighbour springs' damping and the stiffer tendon CVs' goal dampers (each CV's damper is
-    2 zeta omega_i m_i at its own omega_i) add to the part's mode: sim.jiggle.materials.PARTICLE_DAMPING inverts this."""
+    """The particles' own ring-down damping against their linearized sway mode's (sim.jiggle.materials.sway_mode):
+    every calibration part, each material's rule frequency (sim.jiggle.materials.fem_frequency), rung down as the
+    FEM's calibration is (step_drive) at goal-spring damping_ratio 0, half and all of the material's; the ring-down's
+    ratio from its logarithmic decrement (measure.decrement, as the cases read it). MODAL_GAIN = the geometric mean
+    of measured over modal (damping_ratio > 0). The neighbour springs' dampers and the stiff tendon CVs' goal dampers
+    (2 zeta omega_i m_i at each CV's own omega_i) add to the sway: the rule (sim.jiggle.materials.particle_damping)
+    inverts MODAL_GAIN x sway_mode's ratio."""
+    from jiggle.sim.fem.solve import GoalCurve
     from jiggle.sim.jiggle import materials
     from jiggle.sim.jiggle.params import default_jiggles
     shapes = SHAPES[:2] if quick else SHAPES
@@ -276,10 +279,10 @@ def particle_damping(log, quick: bool) -> dict:
     rows = []
     for name, rig, m in parts:
         s = sizes(rig, m)
-        cvs = rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]]
+        sl = slice(rig.cv_offsets[m], rig.cv_offsets[m + 1])
+        cvs = rig.rest_cvs[sl]
         d = across(cvs)
         jiggles = default_jiggles(rig)
-        kind = rig.kinds[m]
         for mat in (FAT, MUSCLE):
             f = materials.fem_frequency(mat, s["r"], s["L"])
             ramp = min(0.05, 0.3 / f)
@@ -289,29 +292,27 @@ def particle_damping(log, quick: bool) -> dict:
             knots = np.append(knots, knots[-1] + np.arange(1, int(duration * RATE) + 2) / RATE)
             static = np.concatenate([static, np.repeat(static[-1:], len(knots) - len(static), axis=0)])
             times = np.arange(0.0, t_stop + duration + 1e-9, 1e-3)
-            from jiggle.sim.fem.solve import GoalCurve
             goal = np.stack([GoalCurve(knots, static)(t)[0] for t in times])
-            sl = slice(rig.cv_offsets[m], rig.cv_offsets[m + 1])
-            base = replace(jiggles[m], frequency_hz=materials.fem_frequency(mat, s["r"], s["L"]) /
-                           materials.ring_factor(jiggles[m]), density=mat.density)
-            for zs in (0.5 * mat.damping_ratio, mat.damping_ratio):
+            base = replace(jiggles[m], frequency_hz=f / materials.ring_factor(jiggles[m]), density=mat.density)
+            for zs in (0.0, 0.5 * mat.damping_ratio, mat.damping_ratio):
                 jig = list(jiggles)
                 jig[m] = replace(base, damping_ratio=zs)
                 dyn = particle_cvs(rig, jig, knots, static, times)
-                rd = measure.ringdown(measure.principal_signal(dyn[:, sl] - goal[:, sl]), times, t_stop, 3.0 / f)
-                rows.append({"part": name, "kind": kind, "material": mat.name, "zeta_set": zs,
-                             "zeta": rd.damping_ratio, "f_hz": rd.frequency_hz})
-                log(f"  {name:24s} {kind:6s} {mat.name:6s} zeta set {zs:.3f}: rings {rd.frequency_hz:6.2f} Hz, "
-                    f"zeta {rd.damping_ratio:.3f}")
-    fits = {}
-    for kind in sorted({r["kind"] for r in rows}):
-        x = np.array([r["zeta_set"] for r in rows if r["kind"] == kind])
-        y = np.array([r["zeta"] for r in rows if r["kind"] == kind])
-        B, A = np.polyfit(x, y, 1)
-        res = y - (A + B * x)
-        fits[kind] = {"A": float(A), "B": float(B), "rms": float(np.sqrt(np.mean(res ** 2))), "n": int(len(x))}
-        log(f"  {kind}: realized zeta = {A:.3f} + {B:.3f} zeta_set (rms {fits[kind]['rms']:.3f}, {len(x)} ring-downs)")
-    return {"rows": rows, "fits": fits}
+                delta, n = measure.decrement(measure.principal_signal(dyn[:, sl] - goal[:, sl]), times, t_stop)
+                zeta = delta / math.sqrt(4 * math.pi ** 2 + delta ** 2)
+                f_mode, z_mode = materials.sway_mode(jig[m], cvs)
+                rows.append({"part": name, "kind": rig.kinds[m], "material": mat.name, "zeta_set": zs, "zeta": zeta,
+                             "extrema": n, "zeta_modal": z_mode, "f_modal_hz": f_mode})
+                log(f"  {name:24s} {mat.name:6s} zeta set {zs:.3f}: rings down with {zeta:.3f} ({n} extrema); "
+                    f"sway mode {f_mode:6.2f} Hz, zeta {z_mode:.3f}")
+    used = [r for r in rows if r["zeta_set"] > 0 and r["zeta_modal"] > 0 and np.isfinite(r["zeta"])]
+    q = np.array([r["zeta"] / r["zeta_modal"] for r in used])
+    gain = float(np.exp(np.mean(np.log(q))))
+    fit = {"gain": gain, "spread": float(np.std(q) / np.mean(q)), "min": float(q.min()), "max": float(q.max()),
+           "n": int(len(q))}
+    log(f"  measured / modal: {gain:.3f} (spread {100 * fit['spread']:.0f}%, {q.min():.2f}-{q.max():.2f}, "
+        f"{len(q)} ring-downs)")
+    return {"rows": rows, "fit": fit}
 
 
 # ------------------------------------------------------------------------------------------------ 3. cases
@@ -363,18 +364,21 @@ def case_drive(name: str, log):
 
 def metrics(off: np.ndarray, times: np.ndarray, t_hold: float, window: float | None = None) -> dict:
     """Peak (mm), dominant frequency of the detrended signal while moving (Hz), ring-down in the hold (fitted over
-    `window` seconds: ~3 periods of the expected mode)."""
+    `window` seconds: ~3 periods of the expected mode) and its logarithmic decrement from successive extrema
+    (measure.decrement: log_dec; the single-mode fit's: log_dec_fit)."""
     sig = measure.principal_signal(off)
     moving = times <= t_hold
     f_dom = measure.dominant_frequency(measure.detrend(sig[moving], times[moving]), times[moving], fmin=0.5)
     # the ring-down along the hold's own principal direction: the whole run's is the motion's, which the free
     # decay after the stop need not follow (projected on it, the ring is weak and a slower drift outweighs it)
     hold = times >= t_hold - 1e-12
-    rd = measure.ringdown(measure.principal_signal(off[hold]), times[hold], t_hold, window)
-    return {"peak_mm": 1e3 * measure.peak_displacement(off),
+    sig_hold = measure.principal_signal(off[hold])
+    rd = measure.ringdown(sig_hold, times[hold], t_hold, window)
+    delta, n = measure.decrement(sig_hold, times[hold], t_hold)
+    return {"peak_mm": 1e3 * measure.peak_displacement(off), "log_dec_fit": rd.log_decrement, "extrema": n,
             "peak_moving_mm": 1e3 * measure.peak_displacement(off[moving]),
             "peak_hold_mm": 1e3 * measure.peak_displacement(off[times >= t_hold]), "f_dom_hz": f_dom,
-            "ring_f_hz": rd.frequency_hz, "zeta": rd.damping_ratio, "log_dec": rd.log_decrement,
+            "ring_f_hz": rd.frequency_hz, "zeta": rd.damping_ratio, "log_dec": delta,
             "ring_amp_mm": 1e3 * rd.amplitude, "magnitude": measure.offset_magnitude(off)}
 
 
@@ -391,7 +395,11 @@ def case(name: str, cal: dict, log) -> dict:
     f_rule = fem_frequency(mat, s["r"], s["L"])               # the product's rule (its slender form)
     t = time.perf_counter()
     mesh = part_mesh(k * rig.rest_cvs[sl])
-    run = simulate_part(mesh, mat, mesh.goals(k * static[:, sl]), knots, times, frequency_hz=f_rule)
+    from jiggle.sim.fem.modes import band, modes, rayleigh
+    found = modes(mesh, mat)
+    f1, f2 = band(found)
+    alpha, k_damp = rayleigh(mat.damping_ratio, f1, f2, mat.shear_pa, DT, NUMERICAL_DAMPING)
+    run = simulate_part(mesh, mat, mesh.goals(k * static[:, sl]), knots, times, k_damp=k_damp, alpha=alpha)
     fem_t = time.perf_counter() - t
     from jiggle.sim.fem.solve import GoalCurve
     curve = GoalCurve(knots, static[:, sl])
@@ -399,7 +407,8 @@ def case(name: str, cal: dict, log) -> dict:
     goal_cvs = mesh.cvs(run.goals)                             # the FEM's CVs embedded in its goal
     out = {"case": name, "part": rig.names[m], "kind": rig.kinds[m], "material": mat.name, "r_mm": 1e3 * s["r"],
            "real_scale": k,
-           "f_rule_hz": f_rule, "k_damp": damping_coefficient(mat, f_rule, DT), "tets": int(len(mesh.tets)),
+           "f_rule_hz": f_rule, "k_damp": k_damp, "alpha": alpha, "f_lowest_hz": found.lowest_hz,
+           "f_sway_hz": found.sway_hz, "band_hz": [f1, f2], "tets": int(len(mesh.tets)),
            "min_det": float(run.min_det.min()), "ms_per_step": run.ms_per_step, "fem_seconds": fem_t,
            "t_hold": t_hold - float(times[0]), "max_energy_J": float(run.energy.max()),
            "goal_cv_err_mm": float(1e3 * np.abs(goal_cvs - goal).max())}
@@ -501,22 +510,24 @@ def write(result: dict) -> None:
               f"ring at F_p f, so frequency_hz = f_fem / F_p. At the frequency that should match the fat FEM, F_p "
               f"(mean) = {c.get('F_p_matched', float('nan')):.3f}: not a constant (see the report).", ""]
     pd = result.get("particle_damping")
-    if pd:
-        L += ["## Particle damping: ring-down zeta against the goal springs' damping_ratio (calibration parts, each "
-              "material's rule frequency, the step drive)", "",
-              "| part | kind | material | zeta set | rings Hz | realized zeta |", "|---|---|---|---|---|---|"]
+    if pd and "fit" in pd:
+        L += ["## Particle damping: the ring-down's ratio against the sway mode's (calibration parts, each material's "
+              "rule frequency, the step drive)", "",
+              "| part | kind | material | damping_ratio set | ring-down zeta (decrement) | extrema | sway mode Hz | "
+              "sway mode zeta |", "|---|---|---|---|---|---|---|---|"]
         for r in pd["rows"]:
-            L.append(f"| {r['part']} | {r['kind']} | {r['material']} | {r['zeta_set']:.3f} | {r['f_hz']:.2f} | {r['zeta']:.3f} |")
-        L += ["", "| kind | A | B | rms | ring-downs |", "|---|---|---|---|---|"]
-        for k, v in pd["fits"].items():
-            L.append(f"| {k} | {v['A']:.3f} | {v['B']:.3f} | {v['rms']:.3f} | {v['n']} |")
-        L += ["", "realized zeta = A + B zeta_set: sim.jiggle.materials.PARTICLE_DAMPING sets zeta_set = (zeta - A) / B, "
-              "so the particles ring with the material's ratio.", ""]
+            L.append(f"| {r['part']} | {r['kind']} | {r['material']} | {r['zeta_set']:.3f} | {r['zeta']:.3f} | "
+                     f"{r['extrema']} | {r['f_modal_hz']:.2f} | {r['zeta_modal']:.3f} |")
+        v = pd["fit"]
+        L += ["", f"Measured over modal (damping_ratio > 0): {v['gain']:.3f}, spread {100 * v['spread']:.1f}% "
+              f"({v['min']:.2f}-{v['max']:.2f}, {v['n']} ring-downs): sim.jiggle.materials.MODAL_GAIN. The rule sets "
+              "damping_ratio so that MODAL_GAIN x the sway mode's ratio is the material's.", ""]
     cs = result.get("cases")
     if cs:
         L += ["## Cases: FEM vs particles on the same drive (last pose held 1.5 s at the end)", "",
               "| case | part | solver | f set Hz | zeta set | peak mm | peak while moving mm | peak in hold mm | "
-              "dominant f moving Hz | ring-down f Hz | ring-down zeta | log decrement |", "|" + "---|" * 12]
+              "dominant f moving Hz | ring-down f Hz | fit's zeta | fit's log decrement | log decrement (extrema) |",
+              "|" + "---|" * 13]
         for r in cs.values():
             sets = {"fem": (r["f_rule_hz"], None), "particles": (r["particles_default_f_hz"], r["particles_default_zeta"]),
                     "particles_material": (r["particles_material_f_hz"], r["particles_material_zeta"])}
@@ -524,7 +535,8 @@ def write(result: dict) -> None:
                 v = r[k]
                 zs = f"{z:.2f}" if z is not None else f"k_damp {r['k_damp']:.2f}"
                 L.append(f"| {r['case']} | {r['part']} | {k} | {f:.2f} | {zs} | {v['peak_mm']:.2f} | {v.get('peak_moving_mm', float('nan')):.2f} | {v['peak_hold_mm']:.2f} | "
-                         f"{v['f_dom_hz']:.2f} | {v['ring_f_hz']:.2f} | {v['zeta']:.2f} | {v['log_dec']:.2f} |")
+                         f"{v['f_dom_hz']:.2f} | {v['ring_f_hz']:.2f} | {v['zeta']:.2f} | "
+                         f"{v.get('log_dec_fit', float('nan')):.2f} | {v['log_dec']:.2f} ({v.get('extrema', 0)}) |")
         L += ["", "| case | real scale | FEM/particles peak | FEM/particles peak while moving | FEM/particles ring f | "
               "FEM/particles-from-material peak | ring f | log decrement | within 25% / 15% / 30% | FEM ms/step | tets | "
               "min det F | plot |", "|" + "---|" * 13]

@@ -111,7 +111,8 @@ def fem_tissue(setup: BakeSetup, idle: np.ndarray, colliders=None):
     rig, k = setup.rig, float(setup.real_scale)
     radii, lengths = rig.mean_radii(rig.rest_cvs) * k, np.asarray(rig.rest_length, np.float64) * k
     jiggles = setup.jiggles
-    materials = {m: material_of(jiggles[m], rig.kinds[m], float(radii[m]), float(lengths[m]))
+    materials = {m: material_of(jiggles[m], rig.kinds[m], float(radii[m]), float(lengths[m]),
+                                rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]])
                  for m in range(rig.M) if not idle[m]}
     parts = fem_parts(rig.rest_cvs, rig.cv_offsets, rig.names, materials, k,
                       lambda m, mat: fem_frequency(mat, float(radii[m]), float(lengths[m])))

@@ -576,7 +576,7 @@ def apply_materials(jiggles, rig, entries, log=lambda s: None, scale: float = 1.
                              f"{', '.join(rig.names[:12])}{' ...' if rig.M > 12 else ''}", field="--material")
         for m in hits:
             out[m] = with_material(out[m], material, float(radii[m]) * scale, float(lengths[m]) * scale,
-                                   rig.kinds[m])
+                                   rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]])
             used[rig.names[m]] = {**material.to_json(), "entry": text}
         log(f"material {material.name} ({material.youngs_pa:g} Pa, nu {material.poisson:g}, {material.density:g} "
             f"kg/m^3, zeta {material.damping_ratio:g}) on {len(hits)} muscle(s) matching {name!r}")
@@ -984,8 +984,8 @@ def _muscle_params(rig, jiggles, idle=None, scale: float = 1.0) -> dict:
                              "mass_kg": float(volumes[m] * j.density), **d,
                              "reach_m": j.reach if math.isfinite(j.reach) and not still else None,
                              "radius_m": float(radii[m]), "length_m": float(rig.rest_length[m]),
-                             "material": material_of(j, rig.kinds[m], radii[m] * scale,
-                                                     rig.rest_length[m] * scale).to_json(),
+                             "material": material_of(j, rig.kinds[m], radii[m] * scale, rig.rest_length[m] * scale,
+                                                     rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]]).to_json(),
                              **({"simulated": False} if still else {})}
     return out
 

@@ -46,6 +46,33 @@ def goal_rest_poses(
     poses_out[t] = wp.inverse(Dm)
 
 
+@wp.kernel
+def goal_drag_kernel(
+    # model
+    indices: wp.array[wp.int32],
+    rate: wp.array[float],
+    h: float,
+    # control
+    goal_velocity: wp.array[wp.vec3],
+    # state
+    qd: wp.array[wp.vec3],
+):
+    """The Rayleigh damping's mass-proportional part over a step of h seconds, exactly: vertex j = indices[i]'s
+    velocity relative to its goal's decays by exp(-rate[j] h) (rate: (N,) 1/s, alpha of its part)."""
+    i = wp.tid()
+    j = indices[i]
+    gv = goal_velocity[j]
+    qd[j] = gv + (qd[j] - gv) * wp.exp(-rate[j] * h)
+
+
+def goal_drag(indices, rate, h, goal_velocity, qd, device) -> None:
+    """Launch goal_drag_kernel over the free vertices (skipped when there are none)."""
+    if indices.shape[0] == 0:
+        return
+    wp.launch(goal_drag_kernel, dim=indices.shape[0], inputs=[indices, rate, float(h), goal_velocity], outputs=[qd],
+              device=device)
+
+
 def place(indices, goal, q, reference, device) -> None:
     """Launch place_attached over the attached vertices (skipped when there are none)."""
     if indices.shape[0] == 0:

@@ -11,7 +11,12 @@ same quantity for both solvers: dynamic - static.
   w_d = w sqrt(1 - zeta^2), started from the spectrum's peak: the natural frequency w / 2 pi (Hz) and the
   damping ratio zeta; the logarithmic decrement delta = 2 pi zeta / sqrt(1 - zeta^2) (the log of the ratio of
   successive peaks). The log decrement of successive peaks is the same thing for a clean single mode; the fit
-  also holds when the part rings for only one or two periods (zeta ~0.3-0.5 as muscle has).
+  also holds when the part rings for only one or two periods (zeta ~0.3-0.5 as muscle has);
+- decrement (after t_stop): the logarithmic decrement as its definition reads it, from the signal's successive
+  extrema (each swing's turning point, alternately on either side of where it settles): delta = 2 x the fall of
+  ln|extremum| per extremum, a least-squares line through the first extrema above the noise. Two modes of
+  different damping (a part that both sways and bulges) make the single-mode fit's zeta depend on its window; the
+  extrema are what an eye or a plot reads.
 """
 from __future__ import annotations
 
@@ -125,5 +130,33 @@ def ringdown(signal: np.ndarray, times: np.ndarray, t_stop: float, window: float
                     rms=float(np.sqrt(np.mean(best.fun ** 2))))
 
 
-__all__ = ["Ringdown", "goal_offsets", "peak_displacement", "offset_magnitude", "detrend", "principal_signal", "dominant_frequency",
+def decrement(signal: np.ndarray, times: np.ndarray, t_stop: float, most: int = 6, floor: float = 0.05
+              ) -> tuple[float, int]:
+    """(delta, n): the logarithmic decrement per period of signal (F,) at times (F,) seconds after t_stop, from its
+    successive extrema about its final value (see the module): delta = -2 x the slope of ln|extremum| against
+    its index, fitted to the first `most` extrema down to `floor` x the first's; n the extrema used (nan below 2)."""
+    keep = times >= t_stop - 1e-12
+    y = np.asarray(signal, dtype=np.float64)[keep]
+    y = y - y[-max(len(y) // 10, 1):].mean()              # about where it settles
+    if len(y) < 3:
+        return float("nan"), 0
+    s = np.sign(y)
+    amps, i = [], 0
+    while i < len(y):                                     # one extremum per run of a sign: its largest |y|
+        j = i
+        while j < len(y) and s[j] == s[i]:
+            j += 1
+        if s[i] != 0:
+            amps.append(float(np.abs(y[i:j]).max()))
+        i = j
+    if amps and amps[0] < max(amps):                      # a swing still building at the stop: from the largest
+        amps = amps[int(np.argmax(amps)):]
+    amps = [a for a in amps[:most] if a >= floor * amps[0]] if amps else []
+    if len(amps) < 2:
+        return float("nan"), len(amps)
+    slope = np.polyfit(np.arange(len(amps)), np.log(amps), 1)[0]
+    return float(-2.0 * slope), len(amps)
+
+
+__all__ = ["Ringdown", "decrement", "goal_offsets", "peak_displacement", "offset_magnitude", "detrend", "principal_signal", "dominant_frequency",
            "ringdown"]

@@ -220,7 +220,7 @@ def _goal_vbd():
 def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: np.ndarray, out_times: np.ndarray, *,
                   frequency_hz: float | None = None, k_damp: float | None = None, dt: float = DT,
                   iterations: int = ITERATIONS, rest: str = "goal", gravity: bool = False,
-                  stiffening: float = STIFFENING, device: str = "cpu") -> FemRun:
+                  stiffening: float = STIFFENING, alpha: float = 0.0, device: str = "cpu") -> FemRun:
     """Simulate the part `mesh` of `material` driven by its vertices' goals (K, N, 3) metres at knot times knots (K,)
     seconds (mesh.goals(static_cvs) for a part's static CVs (K, 40, 3); carried_goals for a rigid drive) and sample
     it at out_times (F,) seconds (ascending).
@@ -228,7 +228,9 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     Damping: k_damp (Pa s) when given, else damping_coefficient(material, frequency_hz, dt) (the numerical damping
     taken off) when frequency_hz is given, else none. rest : "goal" (the tets' rest shape follows the goal) or "bind" (the mesh's points).
     gravity : along -Z, 9.81 m/s^2. stiffening : b of the tissue's strain stiffening (STIFFENING; 0: a plain
-    Neo-Hookean solid). The body starts on its goal at out_times[0], moving with the goal's velocity.
+    Neo-Hookean solid). alpha : 1/s, the Rayleigh damping's mass-proportional part, on each free vertex's velocity
+    relative to its goal's (sim/fem/modes.py; 0: none). The body starts on its goal at out_times[0], moving with the
+    goal's velocity.
     """
     import time
 
@@ -271,6 +273,9 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
         solver.goal_end.assign(x0.astype(np.float32))
         fem_kernels.rest_poses(tets, solver.goal_end, model.tet_poses, device)
     base = wp.clone(model.tet_materials)
+    free_idx = wp.array(np.flatnonzero(~mesh.attached).astype(np.int32), dtype=wp.int32, device=device)
+    rate = wp.array(np.full(len(mesh.points), float(alpha), np.float32), dtype=float, device=device)
+    goal_vel = wp.zeros(len(mesh.points), dtype=wp.vec3, device=device)
 
     step_times = t0 + dt * np.arange(n_steps + 1)
     frames = np.empty((len(out_times), len(mesh.points), 3))
@@ -283,7 +288,7 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     clock = time.perf_counter()
     for n in range(1, n_steps + 1):
         t = step_times[n]
-        g, _ = curve(t)
+        g, gv = curve(t)
         solver.goal_end.assign(g.astype(np.float32))
         if rest == "goal":
             fem_kernels.rest_poses(tets, solver.goal_end, model.tet_poses, device)
@@ -292,6 +297,9 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
         s0.clear_forces()
         solver.step(s0, s1, control, None, dt)
         s0, s1 = s1, s0
+        if alpha > 0.0:
+            goal_vel.assign(gv.astype(np.float32))
+            fem_kernels.goal_drag(free_idx, rate, dt, goal_vel, s0.particle_qd, device)
         x, v = s0.particle_q.numpy().astype(np.float64), s0.particle_qd.numpy().astype(np.float64)
         while k < len(out_times) and out_times[k] <= t + 1e-12:
             s = min(1.0, 1.0 - (t - out_times[k]) / dt)                    # linear between the two steps

@@ -23,13 +23,15 @@ tendon ends, where the goal weights are lowest and the mass is). So the part's g
 
     frequency_hz = f_fem / sqrt(w_belly / (1 - w_belly)),
 
-its density to the material's and its damping ratio to the one that makes the part ring with the material's ratio:
-the particles' own ring-down damping is more than their goal springs' damping_ratio (each CV's damper is 2 zeta
-omega_i m_i at its own omega_i, the stiff tendon CVs' too, and the neighbour springs have dampers of their own), by
-PARTICLE_DAMPING's (A, B) of the part's kind (realized = A + B damping_ratio, fitted to the ring-downs of the
-calibration parts: benchmarks/fem_reference.py, "Particle damping"), so
-
-    damping_ratio = max((zeta - A) / B, 0).
+its density to the material's and its damping ratio to the one that makes the part ring down with the material's
+ratio. The particles damp more than their goal springs' damping_ratio says: each CV's damper is 2 zeta omega_i m_i
+at its own omega_i (the stiff tendon CVs' too), and the neighbour springs have dampers of their own, by an amount
+that depends on the part's goal weights (a human fat pad's soft belly between stiff ends adds ~0.1; a part of even
+goal weights, nothing). So the rule reads the part's own sway (:func:`sway_mode`: the damping ratio of the mode
+that carries its mass, by the linearized particle model's eigenvalues) and sets damping_ratio so that
+MODAL_GAIN x that ratio is the material's (:func:`particle_damping`). MODAL_GAIN is the ring-downs' (the solver's
+particles, measured as the reference measures a solid: benchmarks/fem_reference.py, "Particle damping") over the
+eigenvalues' (1.14, spread 8% over 36 ring-downs).
 
 :func:`material_of` inverts the rule:
 the Material a part's goal springs stand for (E from its frequency, nu and rho of its kind), which bake.json
@@ -54,24 +56,80 @@ FEM_C_SLENDER, FEM_A = 0.2583, 0.203
 rule, a short, wide belly at 1.16): the rule the product uses wherever a part's length is known."""
 
 
-PARTICLE_DAMPING = {"fat": (0.180, 0.925), "muscle": (0.072, 1.040)}
-"""(A, B) per part kind: a part's particles ring down with zeta = A + B damping_ratio (benchmarks/results/
-fem_reference.md, "Particle damping": 8 ring-downs of CesiumMan's fat parts, rms 0.040; 28 of its muscles and of
-lofted ellipsoids, rms 0.044). A fat part's lower tendon-to-belly goal weights leave more of its mode on the stiff
-ends' dampers. Other kinds take the muscle's."""
+MODAL_GAIN = 1.14
+"""The particles' ring-down damping ratio (the logarithmic decrement of their centre-of-mass sway after a stop,
+sim.fem.measure.decrement) over :func:`sway_mode`'s: benchmarks/results/fem_reference.md, "Particle damping" (the
+calibration parts, fat and muscle, at half and all of each material's ratio: 1.137, spread 8%, 1.01-1.43)."""
 
 
-def particle_damping(zeta: float, kind: str | None = None) -> float:
-    """The goal springs' damping_ratio with which a part of `kind` rings down with damping ratio `zeta`
-    (PARTICLE_DAMPING inverted; 0 where zeta is below what the particles damp on their own)."""
-    A, B = PARTICLE_DAMPING.get(kind or "muscle", PARTICLE_DAMPING["muscle"])
-    return max((float(zeta) - A) / B, 0.0)
+def sway_mode(jiggle, rest_cvs: np.ndarray) -> tuple[float, float]:
+    """(frequency Hz, damping ratio) of the particles' sway: the mode of a part's 40 particles (goal springs of
+    `jiggle`, MuscleJiggle, at its reference values; its neighbour springs; its friction) that carries the most of
+    its mass (the centre-of-mass wobble a ring-down reads), by the complex eigenvalues of the linearized model about
+    the goal (offsets below the tissue law's onset; each axis alike). rest_cvs : (40, 3) metres, the part's rest
+    CVs (its section masses and spring pairs). The frequency is the damped mode's |lambda| / 2 pi, the ratio
+    -Re(lambda) / |lambda|; (0, 0) for a part with every particle glued."""
+    from jiggle.sim.jiggle.particles import muscle_springs, section_masses
+    cvs = np.asarray(rest_cvs, np.float64).reshape(40, 3)
+    mj = jiggle.reference() if jiggle.keyed else jiggle
+    m = section_masses(cvs.reshape(5, 8, 3), 1.0)          # the ratio is the same for any total mass
+    k = mj.goal_stiffness()
+    free = np.flatnonzero(np.isfinite(k))
+    if not len(free):
+        return 0.0, 0.0
+    kf = np.where(np.isfinite(k), k, 0.0)
+    K = np.diag(m * kf)
+    C = np.diag(m * (2.0 * float(mj.damping_ratio) * np.sqrt(kf) + float(mj.friction)))
+    if mj.spring_frequency_hz > 0:
+        w = 2.0 * math.pi * float(mj.spring_frequency_hz)
+        ij = muscle_springs(cvs)
+        mr = m[ij[:, 0]] * m[ij[:, 1]] / (m[ij[:, 0]] + m[ij[:, 1]])
+        for A, v in ((K, mr * w * w), (C, 2.0 * float(mj.spring_damping_ratio) * mr * w)):
+            np.add.at(A, (ij[:, 0], ij[:, 0]), v)
+            np.add.at(A, (ij[:, 1], ij[:, 1]), v)
+            np.add.at(A, (ij[:, 0], ij[:, 1]), -v)
+            np.add.at(A, (ij[:, 1], ij[:, 0]), -v)
+    n = len(free)
+    inv_m = 1.0 / m[free]
+    A = np.zeros((2 * n, 2 * n))
+    A[:n, n:] = np.eye(n)
+    A[n:, :n] = -inv_m[:, None] * K[np.ix_(free, free)]
+    A[n:, n:] = -inv_m[:, None] * C[np.ix_(free, free)]
+    lam, vec = np.linalg.eig(A)
+    mf = m[free]
+    phi = vec[:n]
+    share = np.abs(mf @ phi) ** 2 / np.maximum((mf[:, None] * np.abs(phi) ** 2).sum(axis=0) * mf.sum(), 1e-300)
+    share = np.where(lam.imag >= 0, share, -1.0)            # one of each conjugate pair (an overdamped mode: real)
+    i = int(np.argmax(share))
+    mag = float(abs(lam[i]))
+    return mag / (2.0 * math.pi), float(-lam[i].real / max(mag, 1e-300))
 
 
-def ring_damping(damping_ratio: float, kind: str | None = None) -> float:
-    """The damping ratio a part of `kind` with goal springs of `damping_ratio` rings down with (PARTICLE_DAMPING)."""
-    A, B = PARTICLE_DAMPING.get(kind or "muscle", PARTICLE_DAMPING["muscle"])
-    return A + B * float(damping_ratio)
+def ring_damping(jiggle, rest_cvs: np.ndarray | None = None) -> float:
+    """The damping ratio a part with goal springs `jiggle` and rest CVs (40, 3) rings down with: MODAL_GAIN x its
+    sway_mode's; its damping_ratio where the CVs are not given."""
+    if rest_cvs is None:
+        ref = jiggle.reference() if jiggle.keyed else jiggle
+        return float(ref.damping_ratio)
+    return MODAL_GAIN * sway_mode(jiggle, rest_cvs)[1]
+
+
+def particle_damping(zeta: float, jiggle, rest_cvs: np.ndarray | None = None) -> float:
+    """The goal springs' damping_ratio with which the part (`jiggle` but for its damping ratio; rest CVs (40, 3))
+    rings down with damping ratio `zeta` (ring_damping inverted; `zeta` itself without the CVs; 0 where the part
+    damps that much with none)."""
+    from scipy.optimize import brentq
+    if rest_cvs is None:
+        return float(zeta)
+
+    def miss(d):
+        return ring_damping(replace(jiggle, damping_ratio=float(d)), rest_cvs) - float(zeta)
+    if miss(0.0) >= 0.0:
+        return 0.0
+    hi = max(2.0 * float(zeta), 0.1)
+    while miss(hi) < 0.0 and hi < 64.0:
+        hi *= 2.0
+    return float(brentq(miss, 0.0, hi, xtol=1e-6))
 
 
 def belly_goal(jiggle) -> float:
@@ -102,35 +160,38 @@ def fem_frequency(material: Material, radius_m: float, length_m: float | None = 
 
 
 def with_material(jiggle, material: Material, radius_m: float, length_m: float | None = None,
-                  kind: str | None = None):
+                  rest_cvs: np.ndarray | None = None):
     """`jiggle` (sim.jiggle.params.MuscleJiggle) with its goal springs, damping ratio and density from `material`
-    for a part of `kind` ("fat", "muscle": its template's, which sets how much its particles damp on their own),
-    mean radius `radius_m` and rest length `length_m` (metres, real size)."""
+    for a part of mean radius `radius_m` and rest length `length_m` (metres, real size) and rest CVs (40, 3) (its
+    shape: how much its particles damp on their own, particle_damping; None: the material's ratio as it is)."""
     f = fem_frequency(material, radius_m, length_m) / ring_factor(jiggle)
-    return replace(jiggle, frequency_hz=float(f), damping_ratio=particle_damping(material.damping_ratio, kind),
-                   density=float(material.density))
+    out = replace(jiggle, frequency_hz=float(f), density=float(material.density))
+    return replace(out, damping_ratio=particle_damping(material.damping_ratio, out, rest_cvs))
 
 
-def material_of(jiggle, kind: str, radius_m: float, length_m: float | None = None) -> Material:
+def material_of(jiggle, kind: str, radius_m: float, length_m: float | None = None,
+                rest_cvs: np.ndarray | None = None) -> Material:
     """The Material a part of `kind` whose goal springs are `jiggle` stands for: E from its frequency_hz (its
     reference value for a keyed one) by the module's rule inverted (radius_m, length_m as fem_frequency), nu of its
-    kind's material, its density, and the damping ratio it rings down with (ring_damping)."""
+    kind's material, its density, and the damping ratio it rings down with (ring_damping, of its rest CVs (40, 3)
+    when given)."""
     ref = jiggle.reference() if jiggle.keyed else jiggle
     base = material_for(kind)
     f_fem = float(ref.frequency_hz) * ring_factor(ref)
     shear_speed = f_fem * max(float(radius_m), 1e-9) / shape_constant(radius_m, length_m)
     mu = float(ref.density) * shear_speed ** 2
+    zeta = ring_damping(ref, rest_cvs)
     return Material(youngs_pa=2.0 * (1.0 + base.poisson) * mu, poisson=base.poisson, density=float(ref.density),
-                    damping_ratio=ring_damping(ref.damping_ratio, kind),
-                    name=base.name if _same(ref, base, radius_m, length_m, kind) else "custom")
+                    damping_ratio=zeta, name=base.name if _same(ref, base, zeta, radius_m, length_m) else "custom")
 
 
-def _same(jiggle, base: Material, radius_m: float, length_m: float | None = None, kind: str | None = None) -> bool:
-    """Whether `jiggle` is what `base` gives (its frequency within 0.1%, its damping and density equal)."""
+def _same(jiggle, base: Material, zeta: float, radius_m: float, length_m: float | None = None) -> bool:
+    """Whether `jiggle`, ringing down with `zeta`, is what `base` gives (its frequency and damping within 0.1%, its
+    density equal)."""
     f = fem_frequency(base, radius_m, length_m) / ring_factor(jiggle)
-    return (abs(float(jiggle.frequency_hz) / f - 1.0) < 1e-3 and abs(float(jiggle.damping_ratio) -
-            particle_damping(base.damping_ratio, kind)) < 1e-9 and abs(float(jiggle.density) - base.density) < 1e-9)
+    return (abs(float(jiggle.frequency_hz) / f - 1.0) < 1e-3 and abs(zeta - base.damping_ratio) <= 1e-3 *
+            max(base.damping_ratio, 1e-3) and abs(float(jiggle.density) - base.density) < 1e-9)
 
 
-__all__ = ["FEM_C", "FEM_C_SLENDER", "FEM_A", "PARTICLE_DAMPING", "particle_damping", "ring_damping", "shape_constant", "belly_goal", "ring_factor", "fem_frequency",
+__all__ = ["FEM_C", "FEM_C_SLENDER", "FEM_A", "MODAL_GAIN", "sway_mode", "particle_damping", "ring_damping", "shape_constant", "belly_goal", "ring_factor", "fem_frequency",
            "with_material", "material_of"]

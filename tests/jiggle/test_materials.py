@@ -4,6 +4,7 @@ on the command line, and the generic template's tissue the same on every clip of
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 import math
 import os
 
@@ -12,8 +13,8 @@ import pytest
 
 from jiggle.rig.base.errors import InputError
 from jiggle.rig.muscle.material import FAT, MUSCLE, Material, parse_material
-from jiggle.sim.jiggle.materials import (FEM_C, PARTICLE_DAMPING, fem_frequency, material_of, particle_damping,
-                                         ring_damping, ring_factor, with_material)
+from jiggle.sim.jiggle.materials import (FEM_C, MODAL_GAIN, fem_frequency, material_of, particle_damping,
+                                         ring_damping, ring_factor, sway_mode, with_material)
 from jiggle.sim.jiggle.params import MuscleJiggle, section_goals
 
 ASSETS = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "assets")
@@ -42,7 +43,7 @@ def test_the_slender_rule_takes_the_length_in():
     # a typical thigh muscle (r/L ~ 0.07) rings below the r rule's, a short wide belly (r/L ~ 0.25) above it
     assert fem_frequency(MUSCLE, 0.023, 0.33) < 0.92 * fem_frequency(MUSCLE, 0.023)
     assert fem_frequency(FAT, 0.029, 0.116) > 1.1 * fem_frequency(FAT, 0.029)
-    out = with_material(_jiggle(), FAT, 0.04, 0.2, "fat")
+    out = with_material(_jiggle(), FAT, 0.04, 0.2)
     assert out.frequency_hz * ring_factor(out) == pytest.approx(fem_frequency(FAT, 0.04, 0.2))
     back = material_of(out, "fat", 0.04, 0.2)
     assert back.name == "fat" and back.youngs_pa == pytest.approx(FAT.youngs_pa, rel=1e-9)
@@ -50,33 +51,60 @@ def test_the_slender_rule_takes_the_length_in():
 
 def test_a_material_sets_the_springs_and_reads_back():
     j = _jiggle()
-    out = with_material(j, FAT, 0.04, kind="fat")
+    out = with_material(j, FAT, 0.04)
     # the belly (goal weight 0.4) rings at frequency_hz sqrt(w / (1 - w)): that is the FEM's frequency
     assert out.frequency_hz * ring_factor(out) == pytest.approx(fem_frequency(FAT, 0.04))
-    # its particles ring down with the material's damping ratio (their own excess over the goal springs' taken off)
-    assert ring_damping(out.damping_ratio, "fat") == pytest.approx(FAT.damping_ratio)
-    assert out.damping_ratio < FAT.damping_ratio and out.density == FAT.density
+    assert out.damping_ratio == FAT.damping_ratio and out.density == FAT.density    # no CVs: the ratio as it is
     back = material_of(out, "fat", 0.04)
     assert back.name == "fat" and back.youngs_pa == pytest.approx(FAT.youngs_pa, rel=1e-9)
-    assert material_of(with_material(j, MUSCLE, 0.03, kind="muscle"), "muscle", 0.03).name == "muscle"
-    # the same material on a part of another kind is not the same springs
-    assert material_of(with_material(j, FAT, 0.04, kind="muscle"), "fat", 0.04).name == "custom"
+    assert material_of(with_material(j, MUSCLE, 0.03), "muscle", 0.03).name == "muscle"
     # a template's 11 Hz muscle of 2 cm radius stands for some E, which gives 11 Hz back
     t = _jiggle()
     e = material_of(t, "muscle", 0.02)
     assert e.name == "custom" and with_material(t, e, 0.02).frequency_hz == pytest.approx(10.0)
 
 
+def _part(length=0.2, radius=0.025):
+    """The rest CVs (40, 3) of a lofted ellipsoid part (sim.fem.experiments.ellipsoid_rig)."""
+    from jiggle.sim.fem.experiments import ellipsoid_rig
+    return ellipsoid_rig(length, (radius, radius)).rest_cvs[:40]
+
+
+def test_the_sway_mode_is_the_particles_linear_model():
+    """sway_mode: a part of even goal weights and no neighbour springs is 40 copies of one oscillator (its sway rings at
+    frequency_hz with the springs' own ratio); undamped neighbour springs stiffen the sway without damping it, and
+    their dampers add to its damping."""
+    cvs = _part()
+    even = MuscleJiggle(name="m", frequency_hz=5.0, damping_ratio=0.3, goal=np.full(40, 0.5), density=1000.0,
+                        spring_frequency_hz=0.0)
+    f, z = sway_mode(even, cvs)
+    assert f == pytest.approx(5.0, rel=1e-6) and z == pytest.approx(0.3, rel=1e-6)
+    stiff_ends = MuscleJiggle(name="m", frequency_hz=5.0, damping_ratio=0.3, goal=section_goals(0.95, 0.3),
+                              density=1000.0, spring_frequency_hz=8.0, spring_damping_ratio=0.0)
+    sprung = MuscleJiggle(name="m", frequency_hz=5.0, damping_ratio=0.3, goal=section_goals(0.95, 0.3), density=1000.0,
+                          spring_frequency_hz=8.0, spring_damping_ratio=0.5)
+    loose = replace(stiff_ends, spring_frequency_hz=0.0)          # uncoupled: the belly's CVs carry the most mass
+    assert sway_mode(loose, cvs)[0] == pytest.approx(5.0 * math.sqrt(0.3 / 0.7), rel=1e-6)
+    # undamped neighbour springs stiffen the sway without damping it; their dampers add to it
+    assert sway_mode(stiff_ends, cvs)[1] < 0.3 < sway_mode(sprung, cvs)[1]
+
+
 def test_the_damping_rule_takes_the_particles_own_damping_off():
-    """Particles ring down with zeta = A + B damping_ratio (PARTICLE_DAMPING, per kind): the rule sets damping_ratio so
-    they ring with the material's, and reads it back; a zeta below what the particles damp alone gives 0."""
-    for kind, (A, B) in PARTICLE_DAMPING.items():
-        assert A > 0 and 0.5 < B < 1.5
-        for zeta in (0.3, 0.5, 0.8):
-            assert ring_damping(particle_damping(zeta, kind), kind) == pytest.approx(zeta)
-        assert particle_damping(0.5 * A, kind) == 0.0
-    assert particle_damping(0.3, "fat") < particle_damping(0.3, "muscle") < 0.3   # fat's parts damp more on their own
-    assert particle_damping(0.3, "tendon") == particle_damping(0.3, "muscle")
+    """particle_damping sets the goal springs' ratio so the part rings down with the material's (MODAL_GAIN x its sway
+    mode's); a part that damps more on its own gets less; reading back gives the material's; none below what it
+    damps with none."""
+    cvs = _part()
+    j = replace(_jiggle(), spring_frequency_hz=4.0, spring_damping_ratio=0.2)     # the templates' neighbour springs
+    for zeta in (0.3, 0.5, 0.8):
+        d = particle_damping(zeta, j, cvs)
+        assert ring_damping(replace(j, damping_ratio=d), cvs) == pytest.approx(zeta, abs=1e-5)
+    even = replace(j, goal=np.full(40, 0.5), spring_frequency_hz=0.0)
+    assert particle_damping(0.3, j, cvs) < particle_damping(0.3, even, cvs) == pytest.approx(0.3 / MODAL_GAIN)
+    floor = ring_damping(replace(j, damping_ratio=0.0), cvs)
+    assert floor > 0 and particle_damping(0.5 * floor, j, cvs) == 0.0
+    out = with_material(j, FAT, 0.025, 0.2, cvs)
+    back = material_of(out, "fat", 0.025, 0.2, cvs)
+    assert back.name == "fat" and back.damping_ratio == pytest.approx(FAT.damping_ratio, rel=1e-4)
 
 
 @pytest.mark.parametrize("text, expect", [("fat", FAT), ("muscle", MUSCLE),
@@ -127,8 +155,9 @@ def test_material_on_the_command_line(tmp_path, capsys):
     f = muscles[fats[0]]            # its belly rings at the FEM's frequency for fat of its radius
     j = MuscleJiggle(name="x", frequency_hz=f["frequency"], damping_ratio=f["damping"], goal=f["goal"], density=1.0)
     assert f["frequency"] * ring_factor(j) == pytest.approx(fem_frequency(FAT, f["radius_m"], f["length_m"]), rel=1e-6)
-    assert f["damping"] == pytest.approx(particle_damping(FAT.damping_ratio, "fat")) and f["density"] == FAT.density
-    assert f["material"]["damping_ratio"] == pytest.approx(FAT.damping_ratio)
+    # the springs' ratio is less than the material's (the particles damp on their own); the part rings down with it
+    assert f["damping"] < FAT.damping_ratio and f["density"] == FAT.density
+    assert f["material"]["damping_ratio"] == pytest.approx(FAT.damping_ratio, rel=1e-3)
     assert main([*args, "--out", str(tmp_path / "bad"), "--material", "nosuch*=fat"]) == 2
     assert "no muscle is named or matches 'nosuch*'" in capsys.readouterr().err
 
