@@ -40,7 +40,7 @@ def figures(out: Path) -> dict:
     row = {"frames": bake["frames"], "frames_s": bake["timings"]["frames_s"], "peak_mm": metrics["skin"]["max_mm"],
            "torn_edges": t["torn_edges"]["value"], "gradient_p999": t["gradient_p999"]["value"],
            "folds_over_lbs": t["folds_added_over_lbs"]["value"]}
-    if "fem" in bake:
+    if bake.get("fem"):                  # null with the particles
         f = bake["fem"]
         row.update({"tets": f["tets"], "steps": f["steps"], "ms_per_step": f["ms_per_step"], "min_det": f["min_det"],
                     "inverted_max": f["inverted_max"], "fem_setup_s": bake["timings"].get("fem_setup_s")})

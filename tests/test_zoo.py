@@ -66,9 +66,17 @@ def test_sustained_jiggle_and_the_idle_order(zoo):
     order = zoo.idle_order(rows)
     assert [o["character"] for o in order] == ["Horse"]
     o = order[0]
-    assert o["peak_pct"]["idle"] == "Idle_2" and o["peak_pct"]["other"] == "Walk" and not o["peak_pct"]["below"]
-    assert o["sustained_pct"]["below"] and o["sustained_pct"]["other_pct"] == 0.60
-    assert "**no**" in "\n".join(zoo.idle_lines(order))
+    # its Idle is below every other cycle, Idle_2 included, both ways
+    assert o["idle"] == "Idle" and o["peak_pct"]["other"] == "Walk" and o["peak_pct"]["below"]
+    assert o["sustained_pct"]["below"] and o["sustained_pct"]["other_pct"] == 0.30
+    # its variant's one stroke peaks above the Walk, and sustains below it
+    v, w = o["variants_peak_pct"], o["variants_sustained_pct"]
+    assert v["idle"] == "Idle_2" and v["other"] == "Walk" and not v["below"] and w["below"]
+    text = "\n".join(zoo.idle_lines(order))
+    assert "**no**" in text and "Idle variants" in text
+    # an Idle above a calmer cycle is reported
+    calm = rows + [R("Horse", "Sleep", "baked", peak_pct=0.05, sustained_pct=0.01)]
+    assert not zoo.idle_order(calm)[0]["peak_pct"]["below"]
 
 
 def test_cycles_are_the_looping_animations(zoo):

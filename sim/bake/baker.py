@@ -104,18 +104,17 @@ def num_chunks(setup: BakeSetup) -> int:
 def fem_tissue(setup: BakeSetup, idle: np.ndarray, colliders=None):
     """The hero mode's solid (sim.fem.tissue.FemTissue) of the setup's simulated muscles: each one's material the
     one its goal springs stand for (sim.jiggle.materials.material_of, --material's when given) at the character's
-    real size (setup.real_scale), its fundamental by the materials' rule; contacts with the colliders' capsules (the
-    particles' pairs) and floor when given."""
+    real size (setup.real_scale), damped at its ratio across its mesh's low modes (sim.fem.modes); contacts with the
+    colliders' capsules (the particles' pairs) and floor when given."""
     from jiggle.sim.fem.tissue import FemTissue, fem_parts
-    from jiggle.sim.jiggle.materials import fem_frequency, material_of
+    from jiggle.sim.jiggle.materials import material_of
     rig, k = setup.rig, float(setup.real_scale)
     radii, lengths = rig.mean_radii(rig.rest_cvs) * k, np.asarray(rig.rest_length, np.float64) * k
     jiggles = setup.jiggles
     materials = {m: material_of(jiggles[m], rig.kinds[m], float(radii[m]), float(lengths[m]),
                                 rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]])
                  for m in range(rig.M) if not idle[m]}
-    parts = fem_parts(rig.rest_cvs, rig.cv_offsets, rig.names, materials, k,
-                      lambda m, mat: fem_frequency(mat, float(radii[m]), float(lengths[m])))
+    parts = fem_parts(rig.rest_cvs, rig.cv_offsets, rig.names, materials, k)
     kw = {}
     if colliders is not None:
         kw = {"pairs": (colliders.pair_offsets, colliders.pair_capsule), "capsule_radius": colliders.capsules.radius,

@@ -58,16 +58,16 @@ def step_drive(direction=(0.0, 1.0, 0.0), speed: float = 0.5, ramp: float = 0.05
 def ringdown_run(mesh: TetMesh, material: Material, *, duration: float = 1.0, fps: float = 200.0,
                  frequency_hz: float | None = None, k_damp: float | None = None, dt: float = DT,
                  iterations: int = ITERATIONS, window: float | None = None, stiffening: float = 0.0,
-                 **drive) -> tuple[FemRun, measure.Ringdown]:
+                 alpha: float = 0.0, **drive) -> tuple[FemRun, measure.Ringdown]:
     """The FEM of `mesh` of `material` under step_drive(**drive) (its goals carried rigidly) sampled at fps for
     `duration` seconds after the stop, and its ring-down (measure.ringdown of the mean surface offset from the goal).
-    Damping, dt, iterations, stiffening as simulate_part; window as measure.ringdown. stiffening defaults to 0: a
+    Damping (k_damp, alpha), dt, iterations, stiffening as simulate_part; window as measure.ringdown. stiffening defaults to 0: a
     ring-down calibrates the small-strain fundamental (the step drive's 0.5 m/s swings a soft fat ellipsoid far
     enough for the stiffening to raise its frequency ~10%; at 0.1 m/s it changes it by 0.5%)."""
     knots, carry, t_stop = step_drive(**drive)
     times = np.arange(0.0, t_stop + duration + 1e-9, 1.0 / fps)
     run = simulate_part(mesh, material, carried_goals(mesh, carry), knots, times, frequency_hz=frequency_hz,
-                        k_damp=k_damp, dt=dt, iterations=iterations, stiffening=stiffening)
+                        k_damp=k_damp, dt=dt, iterations=iterations, stiffening=stiffening, alpha=alpha)
     S = mesh.surface_count
     offsets = measure.goal_offsets(run.positions[:, :S], run.goals[:, :S])
     return run, measure.ringdown(measure.principal_signal(offsets), times, t_stop, window)

@@ -27,11 +27,22 @@ from jiggle.rig.muscle.material import Material
 
 @dataclass(frozen=True)
 class Modes:
-    """frequencies_hz : (n,) ascending, Hz. shares : (n,) the fraction of the free mass each mode moves as a whole
-    (|sum m phi|^2 / (sum m sum m |phi|^2), 1 for a rigid translation). sway : the index of the largest share."""
+    """frequencies_hz : (n,) ascending, Hz. means : (n, 3) each mode's mass-weighted mean displacement, normalized
+    (sum m phi / sqrt(sum m sum m |phi|^2)): its share of the free mass moved as a whole along each axis.
+    shares : (n,) |means|^2, the fraction of the free mass each mode moves as a whole (1 for a rigid translation).
+    sway : the index of the largest share."""
 
     frequencies_hz: np.ndarray
-    shares: np.ndarray
+    means: np.ndarray
+
+    @property
+    def shares(self) -> np.ndarray:
+        return (np.asarray(self.means) ** 2).sum(axis=1)
+
+    def along(self, direction) -> int:
+        """The index of the mode that moves the most mass along `direction` (3,)."""
+        d = np.asarray(direction, np.float64)
+        return int(np.argmax((np.asarray(self.means) @ (d / np.linalg.norm(d))) ** 2))
 
     @property
     def sway(self) -> int:
@@ -84,9 +95,8 @@ def modes(mesh, material: Material, count: int = 12, points: np.ndarray | None =
     order = np.argsort(w2)
     w2, phi = w2[order], phi[:, order]
     v = phi.reshape(len(free), 3, -1)
-    moved = np.linalg.norm(np.einsum("f,fik->ik", m[free], v), axis=0) ** 2
-    shares = moved / (m[free].sum() * (mm[:, None] * phi ** 2).sum(axis=0))
-    return Modes(frequencies_hz=np.sqrt(np.maximum(w2, 0.0)) / (2.0 * math.pi), shares=shares)
+    means = np.einsum("f,fik->ki", m[free], v) / np.sqrt(m[free].sum() * (mm[:, None] * phi ** 2).sum(axis=0))[:, None]
+    return Modes(frequencies_hz=np.sqrt(np.maximum(w2, 0.0)) / (2.0 * math.pi), means=means)
 
 
 def band(found: Modes) -> tuple[float, float]:

@@ -23,8 +23,11 @@ Damping: VBD's tet damping is viscous on the rate of C = F^T F, coefficient k_da
 R = V k_damp / 2 sum_ij Cdot_ij^2 = 2 V k_damp sum_ij edot_ij^2 in small strain (C = I + 2 e), a viscous stress
 4 k_damp edot against the shear's 2 mu e: stiffness-proportional (Rayleigh beta = 2 k_damp / mu), so a mode of
 angular frequency omega rings with zeta = beta omega / 2 = k_damp omega / mu. `damping_coefficient` sets
-k_damp = zeta mu / omega at the part's fundamental (the measured numbers: benchmarks/results/fem_reference.md).
-Higher modes are damped more (zeta_n = zeta omega_n / omega_1). VBD's backward Euler adds numerical damping.
+k_damp = zeta mu / omega at one frequency (the calibration's ring-downs: benchmarks/results/fem_reference.md).
+Higher modes are damped more (zeta_n = zeta omega_n / omega_1), lower ones less: a part's modes below its sway then
+ring on, so the reference and the hero mode add a mass-proportional part, `alpha` (1/s), a drag on each free
+vertex's velocity relative to its goal's, and take both from sim/fem/modes.py's Rayleigh band (the material's ratio
+at the part's lowest mode and at its sway). VBD's backward Euler adds numerical damping.
 
 Time: fixed steps of `dt` seconds from out_times[0]; output positions at out_times are linear between the
 bracketing steps (frame-rate independent; only dt changes the simulation).

@@ -4,7 +4,8 @@ What the particles do per part (a mass-spring particle on each of its 40 CVs pul
 the part's volume: each part's tet mesh (sim.fem.tet_mesh.part_mesh; a part whose loft folds into itself, the
 structured mesh of its loft coordinates) in one Newton model, simulated by Newton's SolverVBD exactly as the
 volumetric reference does (sim.fem.solve: the tets' rest shape follows the part's goal shape, the bone-attached
-core rides its goal, damping stiffness-proportional at the part's fundamental), and the part's 40 CVs embedded
+core rides its goal, Rayleigh damping at the material's ratio across its low modes: sim/fem/modes.py), and the part's
+40 CVs embedded
 in its tets (barycentric, sim.fem.tet_mesh.TetMesh.cv_bary): the dynamic CVs the bake blends, skins, caches and
 compares are the embedded ones, so nothing downstream knows which solver ran.
 
@@ -35,8 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from jiggle.rig.muscle.material import Material
-from jiggle.sim.fem.solve import (ITERATIONS, STIFFENING, STIFFENING_CAP, GoalCurve, _goal_vbd,
-                                  damping_coefficient)
+from jiggle.sim.fem.solve import ITERATIONS, STIFFENING, STIFFENING_CAP, GoalCurve, _goal_vbd
 from jiggle.sim.fem.tet_mesh import TetMesh, structured_part_mesh
 
 DT_MAX = 1.0 / 2000.0
@@ -59,8 +59,9 @@ rows ride the bone. 648 tets, 175 vertices a part. Why this mesh:
 @dataclass(frozen=True, eq=False)
 class FemPart:
     """One simulated part: muscle index, its mesh, its material in real units and as simulated (moduli over
-    real_scale^2), its fundamental (Hz, sim.jiggle.materials' rule), the tet damping k_damp (Pa s), and where its
-    vertices start in the model (offset)."""
+    real_scale^2), its sway's frequency (Hz, its mesh's modes: sim.fem.modes), the Rayleigh damping's band (f1, f2)
+    Hz, tet damping k_damp (Pa s) and goal-relative drag alpha (1/s), and where its vertices start in the model
+    (offset)."""
 
     muscle: int
     name: str
@@ -70,6 +71,8 @@ class FemPart:
     frequency_hz: float
     k_damp: float
     offset: int
+    alpha: float = 0.0
+    band_hz: tuple = ()
 
 
 class FemTissue:
@@ -143,6 +146,11 @@ class FemTissue:
         self.wp_tets = wp.array(self.tets, dtype=wp.int32, device=device)
         # contacts: the free vertices against their part's capsules and the floor
         self.free_idx = wp.array(np.flatnonzero(~self.attached).astype(np.int32), dtype=wp.int32, device=device)
+        # the Rayleigh damping's mass-proportional part: each vertex's part's alpha, on its velocity from its goal's
+        self.drag = any(p.alpha > 0.0 for p in self.parts)
+        self.wp_alpha = wp.array(np.concatenate([np.full(len(p.mesh.points), p.alpha, np.float32) for p in self.parts])
+                                 if self.parts else np.zeros(1, np.float32), dtype=float, device=device)
+        self.goal_velocity = wp.zeros(max(N, 1), dtype=wp.vec3, device=device)
         self.wp_vertex_part = wp.array(self.vertex_part, dtype=wp.int32, device=device)
         self.contacts = pairs is not None or floor is not None
         offs, caps = pairs if pairs is not None else (np.zeros(int(self.vertex_part.max(initial=0)) + 2, np.int32),
@@ -212,7 +220,7 @@ class FemTissue:
             h = (t1 - t0) / n
             for j in range(1, n + 1):
                 t = t0 + (t1 - t0) * j / n
-                g, _ = curve(t)
+                g, gv = curve(t)
                 solver.goal_end.assign(g.astype(np.float32))
                 self._kernels.rest_poses(self.wp_tets, solver.goal_end, model.tet_poses, self.device)
                 self._kernels.stiffen(self.wp_tets, model.tet_poses, self.base_materials, self.stiffening,
@@ -220,6 +228,10 @@ class FemTissue:
                 self.s0.clear_forces()
                 solver.step(self.s0, self.s1, self.control, None, h)
                 self.s0, self.s1 = self.s1, self.s0
+                if self.drag:
+                    self.goal_velocity.assign(gv.astype(np.float32))
+                    self._kernels.goal_drag(self.free_idx, self.wp_alpha, h, self.goal_velocity,
+                                            self.s0.particle_qd, self.device)
                 if self.contacts:
                     if ends is not None:
                         self.wp_ends.assign(_at(knots, ends, t).astype(np.float32))
@@ -263,7 +275,9 @@ class FemTissue:
                             "goal is, after every step" if self.contacts else None,
                 "parts": {p.name: {"tets": int(len(p.mesh.tets)), "vertices": int(len(p.mesh.points)),
                                    "mesher": p.mesh.mesher, "material": p.material.to_json(),
-                                   "frequency_hz": round(p.frequency_hz, 4), "k_damp_pa_s": round(p.k_damp, 6)}
+                                   "frequency_hz": round(p.frequency_hz, 4), "k_damp_pa_s": round(p.k_damp, 6),
+                                   "alpha_per_s": round(p.alpha, 6),
+                                   "damping_band_hz": [round(f, 4) for f in p.band_hz]}
                           for p in self.parts}}
 
 
@@ -278,12 +292,14 @@ def _at(knots: np.ndarray, values: np.ndarray, t: float) -> np.ndarray:
     return (1.0 - s) * values[j] + s * values[j + 1]
 
 
-def fem_parts(rest_cvs: np.ndarray, cv_offsets: np.ndarray, names, materials: dict, real_scale: float,
-              frequency, *, dt: float = DT_MAX, mesh=None, log=lambda s: None) -> list:
+def fem_parts(rest_cvs: np.ndarray, cv_offsets: np.ndarray, names, materials: dict, real_scale: float, *,
+              dt: float = DT_MAX, mesh=None, log=lambda s: None) -> list:
     """[FemPart] of the muscles in `materials` ({muscle index: Material in real units}): each one's mesh from its
-    rest CVs (rest_cvs (rig CVs, 3) metres as simulated), its material with moduli over real_scale^2, and k_damp for
-    its damping ratio at frequency(m, material) Hz (sim.jiggle.materials' fundamental), VBD's own taken off.
-    mesh : structured_part_mesh's keywords (None: HERO_MESH)."""
+    rest CVs (rest_cvs (rig CVs, 3) metres as simulated), its material with moduli over real_scale^2, and Rayleigh
+    damping at its material's ratio across its mesh's low modes (sim.fem.modes: the lowest and the sway), VBD's own
+    taken off. mesh : structured_part_mesh's keywords (None: HERO_MESH)."""
+    from jiggle.sim.fem.modes import band, modes, rayleigh
+    from jiggle.sim.fem.solve import NUMERICAL_DAMPING
     parts, offset = [], 0
     t = time.perf_counter()
     for m in sorted(materials):
@@ -293,9 +309,11 @@ def fem_parts(rest_cvs: np.ndarray, cv_offsets: np.ndarray, names, materials: di
         s2 = float(real_scale) ** 2
         sim = Material(youngs_pa=mat.youngs_pa / s2, poisson=mat.poisson, density=mat.density,
                        damping_ratio=mat.damping_ratio, name=mat.name)
-        f = float(frequency(m, mat))
+        found = modes(tm, sim)
+        f1, f2 = band(found)
+        alpha, k_damp = rayleigh(mat.damping_ratio, f1, f2, sim.shear_pa, dt, NUMERICAL_DAMPING)
         parts.append(FemPart(muscle=int(m), name=str(names[m]), mesh=tm, material=mat, simulated=sim,
-                             frequency_hz=f, k_damp=damping_coefficient(sim, f, dt), offset=offset))
+                             frequency_hz=found.sway_hz, k_damp=k_damp, offset=offset, alpha=alpha, band_hz=(f1, f2)))
         offset += len(tm.points)
     log(f"fem: {len(parts)} parts, {offset} vertices, {sum(len(p.mesh.tets) for p in parts)} tets "
         f"({time.perf_counter() - t:.1f} s)")
