@@ -129,6 +129,8 @@ def particle_damping(zeta: float, jiggle, rest_cvs: np.ndarray | None = None) ->
     hi = max(2.0 * float(zeta), 0.1)
     while miss(hi) < 0.0 and hi < 64.0:
         hi *= 2.0
+    if miss(hi) < 0.0:                  # past critical damping the sway no longer rings: as damped as it gets
+        return hi
     return float(brentq(miss, 0.0, hi, xtol=1e-6))
 
 

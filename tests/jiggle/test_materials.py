@@ -100,6 +100,7 @@ def test_the_damping_rule_takes_the_particles_own_damping_off():
         assert ring_damping(replace(j, damping_ratio=d), cvs) == pytest.approx(zeta, abs=1e-5)
     even = replace(j, goal=np.full(40, 0.5), spring_frequency_hz=0.0)
     assert particle_damping(0.3, j, cvs) < particle_damping(0.3, even, cvs) == pytest.approx(0.3 / MODAL_GAIN)
+    assert particle_damping(5.0, j, cvs) >= 1.0             # past critical: the most it can, no error
     floor = ring_damping(replace(j, damping_ratio=0.0), cvs)
     assert floor > 0 and particle_damping(0.5 * floor, j, cvs) == 0.0
     out = with_material(j, FAT, 0.025, 0.2, cvs)
