@@ -2,7 +2,7 @@
 shape: the static CVs of every knot (rig.static(world).cvs), the FEM's vertices through their loft coordinates.
 
     .venv/bin/python benchmarks/fem_reference.py [--case belly|thighs|cat|all|none] [--no-calibration]
-        [--no-damping] [--quick]
+        [--no-damping] [--no-particle-damping] [--quick]
 
 1. Damping (--damping, default on): an ellipsoid part of muscle, rung down undamped at several steps and VBD
    iteration counts (VBD's numerical damping), then at requested damping ratios 0.1 and 0.3 (k_damp from
@@ -15,12 +15,16 @@ shape: the static CVs of every knot (rig.static(world).cvs), the FEM's vertices 
    F_p = f_particles / frequency_hz, so frequency_hz = f_fem / F_p makes the particles ring as the FEM.
 3. Cases (--case): CesiumMan's belly fat on CMU 09_11 (its first ~3 s: the clip is 1.4 s), the generated body's
    right quadriceps on CMU 02_04 (the jump and landing, 4 s), the shared Cat's fat on its Walk (2 s of the cycle).
-   Every case holds the last pose 1.5 s at the end, so both solvers ring down. The FEM (the part's material, damped
-   at the C rule's frequency), the particles as a bake with the defaults sets them (prepare's jiggles), and the
+   Every case holds the last pose 1.5 s at the end, so both solvers ring down; both at the character's real size.
+   The FEM (the part's material, Rayleigh-damped across its mesh's low modes: sim.fem.modes), the particles as a
+   bake with the defaults sets them (prepare's jiggles), and the
    particles set from the material (sim.jiggle.materials.particle_params_from when present, else frequency_hz = C_p shear_speed / r with
    C_p = C / F_p from the calibration, damping = the material's ratio). Per solver: peak CV offset from the goal
    (mm), dominant frequency of the detrended offset during the motion, ring-down frequency and log decrement in
-   the hold; a PNG per case (offset magnitude over time).
+   the hold (from successive extrema, measure.decrement); a PNG per case (offset magnitude over time); whether the
+   particles' peak, frequency and decrement are within the issue's 25% / 15% / 30% of the FEM's.
+4. Particle damping (--no-particle-damping to skip): the particles' ring-downs of the calibration parts against
+   their linearized sway mode's damping ratio: sim.jiggle.materials.MODAL_GAIN.
 
 Writes benchmarks/results/fem_reference.md and .json (sections run are replaced, others kept) and
 benchmarks/results/fem_reference_<case>.png.
@@ -550,8 +554,10 @@ def write(result: dict) -> None:
         L += ["", "Ratios are FEM over the particles from the material; within: the particles' peak within 25% of the FEM's, "
               "their ring-down frequency within 15%, their log decrement within 30% (|particles / FEM - 1|)."]
         L += [""] + [f"- {r['case']}: particles from the material set by {r.get('particles_material_rule', '?')}; "
-                     f"FEM damped at k_damp {r['k_damp']:.2f} Pa s (the material's zeta at the rule's "
-                     f"{r['f_rule_hz']:.2f} Hz, VBD's own damping taken off)." for r in cs.values()]
+                     + (f"FEM: Rayleigh damping, the material's zeta at {r['band_hz'][0]:.2f} and {r['band_hz'][1]:.2f} Hz "
+                        f"(its mesh's lowest mode, and its sway {r['f_sway_hz']:.2f} Hz or twice the lowest): k_damp "
+                        f"{r['k_damp']:.2f} Pa s (VBD's own damping taken off), alpha {r['alpha']:.2f} 1/s."
+                        if "band_hz" in r else f"FEM damped at k_damp {r['k_damp']:.2f} Pa s.") for r in cs.values()]
         L.append("")
     (OUT / "fem_reference.md").write_text("\n".join(L) + "\n")
 
