@@ -188,14 +188,27 @@ def cesium_parts(log):
     return [(n, rig, rig.names.index(n)) for n in CESIUM_PARTS if n in rig.names]
 
 
-def particle_ringdown(rig, m, jiggles, direction, duration: float, frequency_hz: float) -> measure.Ringdown:
-    """The particles of part m (frequency_hz, damping 0, no reach, the rest of jiggles[m] kept) under step_drive(direction) of
-    the whole rig's rest CVs, rung down for `duration` seconds."""
-    knots, carry, t_stop = step_drive(direction=direction)
+def calibration_parts(log, quick: bool) -> list:
+    """[(name, rig, muscle index)]: the lofted ellipsoids of SHAPES and CesiumMan's CESIUM_PARTS (fewer with quick)."""
+    shapes = SHAPES[:2] if quick else SHAPES
+    parts = [(rig.names[0], rig, 0) for rig in (ellipsoid_rig(L, r) for L, r in shapes)]
+    return parts + cesium_parts(log)[:1 if quick else None]
+
+
+def step_goals(rig, direction, duration: float, ramp: float = 0.05, hold: float = 0.1, fps: float = FPS):
+    """(knots (K,), static CVs (K, rig CVs, 3), times (T,) at fps, t_stop): the whole rig's rest CVs carried by
+    step_drive(direction, ramp, hold), then held `duration` seconds."""
+    knots, carry, t_stop = step_drive(direction=tuple(direction), ramp=ramp, hold=hold)
     static = rig.rest_cvs[None] + carry[:, None, :3, 3]
     knots = np.append(knots, knots[-1] + np.arange(1, int(duration * RATE) + 2) / RATE)
     static = np.concatenate([static, np.repeat(static[-1:], len(knots) - len(static), axis=0)])
-    times = np.arange(0.0, t_stop + duration + 1e-9, 1 / FPS)
+    return knots, static, np.arange(0.0, t_stop + duration + 1e-9, 1.0 / fps), t_stop
+
+
+def particle_ringdown(rig, m, jiggles, direction, duration: float, frequency_hz: float) -> measure.Ringdown:
+    """The particles of part m (frequency_hz, damping 0, no reach, the rest of jiggles[m] kept) under step_drive(direction) of
+    the whole rig's rest CVs, rung down for `duration` seconds."""
+    knots, static, times, t_stop = step_goals(rig, direction, duration)
     jig = list(jiggles)
     # no reach: the tissue law stiffens the goal spring beyond half the reach, and a 1 Hz part on this drive swings
     # past it (it then rang at ~5 Hz whatever its frequency): F_p is the linear spring's
@@ -209,9 +222,7 @@ def particle_ringdown(rig, m, jiggles, direction, duration: float, frequency_hz:
 
 def calibration(log, quick: bool) -> dict:
     from jiggle.sim.jiggle.params import default_jiggles
-    shapes = SHAPES[:2] if quick else SHAPES
-    parts = [(rig.names[0], rig, 0) for rig in (ellipsoid_rig(L, r) for L, r in shapes)]
-    parts += cesium_parts(log)[:1 if quick else None]
+    parts = calibration_parts(log, quick)
     rows = []
     for name, rig, m in parts:
         s = sizes(rig, m)
@@ -277,9 +288,7 @@ def particle_damping(log, quick: bool) -> dict:
     from jiggle.sim.fem.solve import GoalCurve
     from jiggle.sim.jiggle import materials
     from jiggle.sim.jiggle.params import default_jiggles
-    shapes = SHAPES[:2] if quick else SHAPES
-    parts = [(rig.names[0], rig, 0) for rig in (ellipsoid_rig(L, r) for L, r in shapes)]
-    parts += cesium_parts(log)[:1 if quick else None]
+    parts = calibration_parts(log, quick)
     rows = []
     for name, rig, m in parts:
         s = sizes(rig, m)
@@ -291,11 +300,7 @@ def particle_damping(log, quick: bool) -> dict:
             f = materials.fem_frequency(mat, s["r"], s["L"])
             ramp = min(0.05, 0.3 / f)
             duration = min(max(4.0 / f, 0.25), 0.8)
-            knots, carry, t_stop = step_drive(direction=tuple(d), ramp=ramp, hold=0.1)
-            static = rig.rest_cvs[None] + carry[:, None, :3, 3]
-            knots = np.append(knots, knots[-1] + np.arange(1, int(duration * RATE) + 2) / RATE)
-            static = np.concatenate([static, np.repeat(static[-1:], len(knots) - len(static), axis=0)])
-            times = np.arange(0.0, t_stop + duration + 1e-9, 1e-3)
+            knots, static, times, t_stop = step_goals(rig, d, duration, ramp=ramp, fps=1000.0)
             goal = np.stack([GoalCurve(knots, static)(t)[0] for t in times])
             base = replace(jiggles[m], frequency_hz=f / materials.ring_factor(jiggles[m]), density=mat.density)
             for zs in (0.0, 0.5 * mat.damping_ratio, mat.damping_ratio):
