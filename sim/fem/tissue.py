@@ -4,10 +4,9 @@ What the particles do per part (a mass-spring particle on each of its 40 CVs pul
 the part's volume: each part's tet mesh (sim.fem.tet_mesh.part_mesh; a part whose loft folds into itself, the
 structured mesh of its loft coordinates) in one Newton model, simulated by Newton's SolverVBD exactly as the
 volumetric reference does (sim.fem.solve: the tets' rest shape follows the part's goal shape, the bone-attached
-core rides its goal, Rayleigh damping at the material's ratio across its low modes: sim/fem/modes.py), and the part's
-40 CVs embedded
-in its tets (barycentric, sim.fem.tet_mesh.TetMesh.cv_bary): the dynamic CVs the bake blends, skins, caches and
-compares are the embedded ones, so nothing downstream knows which solver ran.
+core rides its goal, Rayleigh damping at the material's ratio across its low modes: sim/fem/modes.py), and the
+part's 40 CVs embedded in its tets (barycentric, sim.fem.tet_mesh.TetMesh.cv_bary): the dynamic CVs the bake
+blends, skins, caches and compares are the embedded ones, so nothing downstream knows which solver ran.
 
 Material: each part's own (sim.jiggle.materials.material_of: the material its goal springs stand for, --material's
 when given), in real units at the character's real size. The simulation runs in the rig's metres, `real_scale`
