@@ -459,7 +459,7 @@ def plot(name, out, t, t_hold, res) -> None:
             lw=1.2)
     ax.axhline(0.0, color="0.5", lw=0.8, label="static (goal)")
     ax.axvline(t_hold, color="0.5", ls="--", lw=0.8)
-    ax.text(t_hold, ax.get_ylim()[1] * 0.95, " hold", va="top", color="0.4")
+    ax.text(t_hold, ax.get_ylim()[1] * 0.03, " hold", va="bottom", color="0.4")   # under the legend
     ax.set_xlabel("time (s)")
     ax.set_ylabel("largest CV offset from the goal (mm)")
     ax.set_title(f"{name}: {out['part']} - FEM vs particles, both driven by the static shape")
