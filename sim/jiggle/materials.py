@@ -69,26 +69,20 @@ def sway_mode(jiggle, rest_cvs: np.ndarray) -> tuple[float, float]:
     the goal (offsets below the tissue law's onset; each axis alike). rest_cvs : (40, 3) metres, the part's rest
     CVs (its section masses and spring pairs). The frequency is the damped mode's |lambda| / 2 pi, the ratio
     -Re(lambda) / |lambda|; (0, 0) for a part with every particle glued."""
-    from jiggle.sim.jiggle.particles import muscle_springs, section_masses
-    cvs = np.asarray(rest_cvs, np.float64).reshape(40, 3)
+    from jiggle.sim.jiggle.particles import muscle_terms
     mj = jiggle.reference() if jiggle.keyed else jiggle
-    m = section_masses(cvs.reshape(5, 8, 3), 1.0)          # the ratio is the same for any total mass
-    k = mj.goal_stiffness()
+    # the particle model's own terms (sim.jiggle.particles.muscle_terms); the ratio is the same for any total mass
+    m, k, c, ij, spring_k, spring_c = muscle_terms(rest_cvs, 1.0, mj)
     free = np.flatnonzero(np.isfinite(k))
     if not len(free):
         return 0.0, 0.0
-    kf = np.where(np.isfinite(k), k, 0.0)
-    K = np.diag(m * kf)
-    C = np.diag(m * (2.0 * float(mj.damping_ratio) * np.sqrt(kf) + float(mj.friction)))
-    if mj.spring_frequency_hz > 0:
-        w = 2.0 * math.pi * float(mj.spring_frequency_hz)
-        ij = muscle_springs(cvs)
-        mr = m[ij[:, 0]] * m[ij[:, 1]] / (m[ij[:, 0]] + m[ij[:, 1]])
-        for A, v in ((K, mr * w * w), (C, 2.0 * float(mj.spring_damping_ratio) * mr * w)):
-            np.add.at(A, (ij[:, 0], ij[:, 0]), v)
-            np.add.at(A, (ij[:, 1], ij[:, 1]), v)
-            np.add.at(A, (ij[:, 0], ij[:, 1]), -v)
-            np.add.at(A, (ij[:, 1], ij[:, 0]), -v)
+    K = np.diag(m * np.where(np.isfinite(k), k, 0.0))
+    C = np.diag(m * (c + float(mj.friction)))
+    for A, v in ((K, spring_k), (C, spring_c)):
+        np.add.at(A, (ij[:, 0], ij[:, 0]), v)
+        np.add.at(A, (ij[:, 1], ij[:, 1]), v)
+        np.add.at(A, (ij[:, 0], ij[:, 1]), -v)
+        np.add.at(A, (ij[:, 1], ij[:, 0]), -v)
     n = len(free)
     inv_m = 1.0 / m[free]
     A = np.zeros((2 * n, 2 * n))

@@ -270,17 +270,11 @@ class ParticleBuilder:
             self.begin_group(mj.name)
             if not (np.isfinite(volume) and volume > 0):
                 raise InputError(f"muscle {mj.name!r}: rest volume must be > 0 m^3, got {volume!r}", field="volume")
-            mass = section_masses(cvs, float(volume) * mj.density)
-            k = mj.goal_stiffness()
-            with np.errstate(invalid="ignore"):
-                c = np.where(np.isfinite(k), 2.0 * mj.damping_ratio * np.sqrt(k), 0.0)
+            mass, k, c, ij, spring_k, spring_c = muscle_terms(cvs, float(volume) * mj.density, mj)
             base = self.num_particles
             self.add_particles(cvs.reshape(CVS, 3), mass, k, c, mj.friction, mj.reach if mj.reach > 0 else math.inf)
-            if mj.spring_frequency_hz > 0:
-                w = 2.0 * math.pi * mj.spring_frequency_hz
-                ij = muscle_springs(cvs.reshape(CVS, 3))
-                m_ = mass[ij[:, 0]] * mass[ij[:, 1]] / (mass[ij[:, 0]] + mass[ij[:, 1]])   # reduced mass: a light
-                self.add_springs(base + ij, m_ * w * w, 2.0 * mj.spring_damping_ratio * m_ * w)  # end CV stays slow
+            if len(ij):
+                self.add_springs(base + ij, spring_k, spring_c)
 
     def finalize(self, device: str = "cpu", gravity: bool = False) -> ParticleModel:
         """Freeze into a ParticleModel on `device` (CPU default; CUDA works unchanged)."""
@@ -338,6 +332,22 @@ def section_masses(cvs: np.ndarray, total: float) -> np.ndarray:
     if not share.sum() > 0:
         share = np.ones(SECTIONS)
     return np.repeat(total * share / share.sum() / RING, RING)
+
+
+def muscle_terms(cvs: np.ndarray, total: float, jiggle: MuscleJiggle):
+    """One muscle's particle terms: (mass (40,) kg, goal stiffness (40,) 1/s^2 (inf: glued), goal damping (40,)
+    1/s, spring pairs (E, 2) (none without neighbour springs), their stiffness (E,) N/m and damping (E,) N s/m) for
+    rest CVs (5, 8, 3) metres, `total` kg and `jiggle` (a MuscleJiggle at its reference values)."""
+    mass = section_masses(np.asarray(cvs, np.float64).reshape(SECTIONS, RING, 3), total)
+    k = jiggle.goal_stiffness()
+    with np.errstate(invalid="ignore"):
+        c = np.where(np.isfinite(k), 2.0 * jiggle.damping_ratio * np.sqrt(k), 0.0)
+    if not jiggle.spring_frequency_hz > 0:
+        return mass, k, c, np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0)
+    w = 2.0 * math.pi * jiggle.spring_frequency_hz
+    ij = muscle_springs(np.asarray(cvs, np.float64).reshape(CVS, 3))
+    m_ = mass[ij[:, 0]] * mass[ij[:, 1]] / (mass[ij[:, 0]] + mass[ij[:, 1]])   # reduced mass: a light end CV stays slow
+    return mass, k, c, ij, m_ * w * w, 2.0 * jiggle.spring_damping_ratio * m_ * w
 
 
 def muscle_springs(cvs: np.ndarray) -> np.ndarray:
