@@ -187,3 +187,57 @@ def test_benchmarks_import(path, monkeypatch):
                  else [node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level else [])
         for name in names:
             assert importlib.util.find_spec(name) is not None, f"{path.name} line {node.lineno}: no module {name}"
+
+
+MOST_LINES = 100
+"""The longest a plain Python function (Warp kernels and funcs aside) may be in jiggle/, rig/, sim/ and scenes/."""
+SPINE = {("sim/bake/setup.py", "prepare"), ("rig/muscle/fit.py", "fit_musculature"), ("sim/jiggle/simulate.py", "run"),
+         ("sim/bake/baker.py", "Baker.bake"), ("sim/bake/baker.py", "Baker.chunk"),
+         ("sim/app/report/compare.py", "compare")}
+"""The bake's spine: each reads as the list of what it does (docs/contributing.md), at most SPINE_LINES long."""
+SPINE_LINES = 60
+
+
+def function_lengths(source: str) -> dict[str, int]:
+    """{qualified name: lines from its `def` to its last line} of every plain function of a module's source (methods as
+    Class.name), leaving out Warp kernels and funcs (their bodies are device code, read as one piece)."""
+    out = {}
+
+    def visit(node, prefix):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                warp = any(ast.unparse(d).startswith(("wp.kernel", "wp.func")) for d in child.decorator_list)
+                if not warp:
+                    out[prefix + child.name] = child.end_lineno - child.lineno + 1
+                visit(child, prefix + child.name + ".")
+            elif isinstance(child, ast.ClassDef):
+                visit(child, prefix + child.name + ".")
+    visit(ast.parse(source), "")
+    return out
+
+
+def test_functions_read_as_their_steps():
+    """No plain function is longer than MOST_LINES, and none of the bake's spine longer than SPINE_LINES (issue 58):
+    a long body threads its locals through hundreds of lines, where a new step has nowhere to go."""
+    long, spine = [], {}
+    for folder in ("jiggle", "rig", "sim", "scenes"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            inside = path.relative_to(ROOT)
+            if any((ROOT / p).is_symlink() for p in (inside, *inside.parents)):
+                continue                # jiggle/rig etc. are the stage folders again
+            rel = inside.as_posix()
+            for name, n in function_lengths(path.read_text(encoding="utf-8")).items():
+                if n > MOST_LINES:
+                    long.append(f"{rel}: {name} ({n} lines)")
+                if (rel, name) in SPINE:
+                    spine[(rel, name)] = n
+    assert not long, f"functions longer than {MOST_LINES} lines: {long}"
+    assert set(spine) == SPINE, f"the spine's functions moved: {sorted(SPINE - set(spine))}"
+    over = {f"{r}: {n}": k for (r, n), k in spine.items() if k > SPINE_LINES}
+    assert not over, f"the bake's spine, longer than {SPINE_LINES} lines: {over}"
+
+
+def test_function_lengths_count_def_to_end_and_skip_kernels():
+    src = ("import warp as wp\n@wp.kernel\ndef k():\n" + "    x = 1\n" * 150 + "class C:\n    def m(self):\n"
+           + "        y = 2\n" * 120 + "def f():\n    return 1\n")
+    assert function_lengths(src) == {"C.m": 121, "f": 2}

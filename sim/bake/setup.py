@@ -279,7 +279,8 @@ def prepare_from(clip, character, musculature=None, req: BakeRequest | None = No
 
 def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
             rigs: MutableMapping | None = None, given: tuple | None = None) -> BakeSetup:
-    """Resolve `req` against its scene and do the one-off work (see the module).
+    """Resolve `req` against its scene and do the one-off work (see the module), as a sequence of steps: each
+    decides one stage and owns its part of the bake's record (`params`, put together by `_record`).
 
     rigs : a cache of the per-character work (the character read or generated, its fitted muscles and
         bound skin: a FittedRig), by fitted_key; given, a request whose key is in it skips that work
@@ -287,30 +288,165 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         key are the same either way: nothing in that work depends on the clip beyond what the key names.
     given : (clip, character, musculature or None) in memory, used instead of reading them (`prepare_from`).
     """
-    from jiggle.sim.bake.scene import load_scene
     if req.device is not None:
         warp_device(req.device)             # before any work: a device that is not here is the user's mistake
-    solver = tissue_solver(req)
     timings = {}
     t = time.perf_counter()
-    scene = load_scene(req.scene) if req.scene is not None else None
-    own = req.character is not None and str(req.character).lower().endswith((".glb", ".gltf", ".fbx"))
-    if scene is None and req.clip is None and not own and given is None:   # a glTF character alone bakes its own
-        from jiggle.sim.bake.scene import default_scene
-        scene = load_scene(default_scene())
+    solver = tissue_solver(req)
+    scene = _scene(req, given)
     if scene is not None and scene.builtin is not None:
         return _prepare_builtin(req, scene, log)
-    spec = scene.character if scene is not None else None
-    pick = _picker(req, spec)
-    drive = req.drive or (scene.drive if scene is not None else "kinematic")
-    clip, clip_source = (given[0], given[0].name) if given is not None else _clip(req, scene)
+    inputs = _inputs(req, scene, given, solver)
     timings["read_s"] = time.perf_counter() - t
+    body = _timed(timings, "character_s", _character, req, inputs, rigs, given, log)
+    fit = _timed(timings, "fit_s", _fit, req, inputs, body, rigs, given, log)
+    timing = _timing(req, inputs, fit)
+    world_at = _timed(timings, "drive_s", _drive, fit.clip, inputs.drive, timing.knots, log)
+    tissue = _tissue(req, inputs, body, fit, timing, world_at, log, timings)
+    motion = _motion(req, inputs, body, fit, timing, world_at, log)
+    chains = _timed(timings, "chains_s", _chains, req, inputs.scene, fit.character, fit.mus, motion.knots,
+                    motion.world_at, log)
+    contacts = _collisions(tissue.settings, inputs.drive, fit, motion, log)
+    params = _record(inputs.record, body.record, fit.record, tissue.record, motion.record, chains.record,
+                     contacts.record)
+    return BakeSetup(name=scene.name if scene is not None else inputs.source.name, skin=fit.skin,
+                     jiggles=tuple(tissue.jiggles), settings=tissue.settings, times=motion.times, fps=motion.fps,
+                     knots=motion.knots, world_at=motion.world_at, joints_at=motion.joints_at,
+                     joint_names=motion.joint_names, formats=_formats(req, scene), chunk=params["chunk"],
+                     params=params, key=params_key(params), timings=timings, floor=contacts.floor,
+                     capsules=contacts.capsules, glb=_glb(req),
+                     scale=1.0 / fit.character.meta.get("template_scale", 1.0),
+                     loop=motion.loop if motion.loop.on else None, chains=chains.chains, tissue_solver=solver,
+                     real_scale=tissue.size.scale)
 
+
+RECORD_ORDER = ("jiggle_bake", "scene", "clip", "character", "template", "body_plan", "template_why", "tissue",
+                "rigid", "parts", "size_scale", "file_unit_m", "vertices", "drive", "fps", "frames", "start_s", "end_s",
+                "skinning", "settings", "muscles", "chunk", "loop", "pose_shapes", "chains", "collisions")
+"""The order of bake.json's setup entries (`params`); a step's entry not named here comes after them all."""
+
+
+def _record(*parts: Mapping) -> dict:
+    """The bake's parameter set (`params`, JSON-ready): every step's part of it, in RECORD_ORDER."""
+    merged = {k: v for part in parts for k, v in part.items()}
+    return {**{k: merged[k] for k in RECORD_ORDER if k in merged}, **merged}
+
+
+def _timed(timings: dict, name: str, step: Callable, *args):
+    """step(*args), its wall seconds stored in timings[name]."""
+    t = time.perf_counter()
+    out = step(*args)
+    timings[name] = time.perf_counter() - t
+    return out
+
+
+def _scene(req: BakeRequest, given: tuple | None):
+    """The scene the request bakes (sim.bake.scene.Scene): --scene's, else the built-in demo's when nothing else
+    gives a clip or a character with its own animation; None: the command line alone."""
+    from jiggle.sim.bake.scene import default_scene, load_scene
+    if req.scene is not None:
+        return load_scene(req.scene)
+    own = req.character is not None and str(req.character).lower().endswith((".glb", ".gltf", ".fbx"))
+    if req.clip is None and not own and given is None:   # a glTF character alone bakes its own
+        return load_scene(default_scene())
+    return None
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """What the request reads: its scene (or None), pick (the request's value over the scene's [character] one, see
+    _picker), the drive ("kinematic", "physics"), the clip as read (`source`, before any retarget) and its file
+    (clip_source: an absolute path, or the in-memory clip's name), the tissue solver; record: their bake.json part."""
+
+    scene: object
+    pick: Callable
+    drive: str
+    source: object
+    clip_source: str
+    solver: str
+    record: Mapping
+
+
+def _inputs(req: BakeRequest, scene, given: tuple | None, solver: str) -> Inputs:
+    """Step 1, the inputs: the motion read (or given) and what the request and its scene ask for."""
+    pick = _picker(req, scene.character if scene is not None else None)
+    drive = req.drive or (scene.drive if scene is not None else "kinematic")
+    source, clip_source = (given[0], given[0].name) if given is not None else _clip(req, scene)
+    record = {"jiggle_bake": VERSION,
+              "scene": None if scene is None else {"path": scene.path, "sha256": file_digest(scene.path)},
+              "clip": {"file": clip_source,
+                       "sha256": file_digest(clip_source) if os.path.isfile(clip_source) else None,
+                       "name": source.name, "duration_s": source.duration},
+              "drive": drive, "chunk": _chunk(req, scene)}
+    return Inputs(scene, pick, drive, source, clip_source, solver, MappingProxyType(record))
+
+
+@dataclass(frozen=True)
+class Retarget:
+    """A clip onto a character file's skeleton, at its scale, through the roles its fit found; a character with no file
+    (a generated body, one given in memory) is on the clip's own skeleton already.
+
+    source : the bake's clip as read (rig.motion.clip.Clip). character_file : the character's glTF/FBX or None.
+    skin : which skin of the file. clip_map, character_map : the joint maps (BakeRequest). log : progress lines.
+    """
+
+    source: object
+    character_file: str | None
+    skin: int
+    clip_map: str | None
+    character_map: str | None
+    log: Callable
+
+    def onto(self, character, mus, src=None):
+        """The clip (`src`, else the bake's) on `character`'s skeleton, at its scale, through the roles its fit found
+        (`mus`)."""
+        src = self.source if src is None else src
+        if self.character_file is None:
+            return src
+        from jiggle.rig.character.body_skeleton import hang, placed_parts
+        from jiggle.rig.motion.retarget_onto import retarget_onto
+        placed = placed_parts(character)
+        return retarget_onto(src, self.character_file, self.skin, self.clip_map, self.character_map, self.log,
+                             scale=character.meta.get("unit_scale", 1.0), character_roles=_fit_roles(character, mus),
+                             follow=(lambda c: hang(c, placed, character.bind_world)) if placed else None)
+
+
+def _fit_roles(character, mus):
+    """The fit's roles as a JointMap (rig.motion.retarget) for retargeting, one role a joint; None when the fit found
+    roles that are not retargeting's."""
+    from jiggle.rig.motion.retarget import ROLES, JointMap
+    if not (mus.roles and all(r in ROLES for r in mus.roles)):
+        return None
+    seen = {}              # the fit may alias a missing spine to the hips: one role a joint
+    for r, j in mus.roles.items():
+        seen.setdefault(j, r)
+    return JointMap(roles={r: (character.joint_names[j],) for j, r in seen.items()}, name="the fit's roles")
+
+
+@dataclass(frozen=True)
+class Body:
+    """The character as read or generated (before the fit's size rule): file (its glTF/FBX, None for a generated or
+    given one), options (rig.character.body.BodyOptions of a generated body, else None), the template asked for,
+    the character, `cached` (this character's FittedRig from `rigs`, else None) and rig_key (its key in `rigs`),
+    retarget (the clip onto it); record: its bake.json part."""
+
+    file: str | None
+    options: object
+    template: str
+    character: object
+    cached: FittedRig | None
+    rig_key: str | None
+    retarget: Retarget
+    record: Mapping
+
+
+def _character(req: BakeRequest, inputs: Inputs, rigs: MutableMapping | None, given: tuple | None, log) -> Body:
+    """Step 2, the character: read from its file, given, reused from `rigs`, or generated around the clip."""
     from jiggle.rig.character.body import BodyOptions
     from jiggle.rig.character.load import body_character, load_character
     t = time.perf_counter()
+    spec, pick, clip = inputs.scene.character if inputs.scene is not None else None, inputs.pick, inputs.source
     character_file = req.character or (spec.file if spec is not None else None)
-    source = clip
     body = None
     if character_file is not None and req.body:
         raise InputError(f"{', '.join('--' + k.replace('_', '-') for k in req.body)} shape a generated body; "
@@ -318,7 +454,6 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     if character_file is None and given is None:
         body = BodyOptions(**{**(dict(spec.body) if spec is not None else {}), **dict(req.body)})
     template = req.template or (spec.template if spec is not None else None) or "auto"
-    skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
     rig_key = cached = None
     if rigs is not None and given is None:
         rig_key = fitted_key(req, pick, character_file, body, template, clip)
@@ -332,69 +467,106 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                                    skin=pick("skin", 0))
     else:
         character = body_character(clip, body, k=pick("influences", 4))
-
-    def onto(character, mus, src=None):
-        """The clip (`src`, else the bake's) on `character`'s skeleton, at its scale, through the roles its fit found
-        (`mus`)."""
-        src = source if src is None else src
-        if character_file is None:
-            return src
-        from jiggle.rig.character.body_skeleton import hang, placed_parts
-        from jiggle.rig.motion.retarget import ROLES, JointMap
-        from jiggle.rig.motion.retarget_onto import retarget_onto
-        placed = placed_parts(character)
-        roles = None
-        if mus.roles and all(r in ROLES for r in mus.roles):
-            seen = {}              # the fit may alias a missing spine to the hips: one role a joint
-            for r, j in mus.roles.items():
-                seen.setdefault(j, r)
-            roles = JointMap(roles={r: (character.joint_names[j],) for j, r in seen.items()}, name="the fit's roles")
-        return retarget_onto(src, character_file, pick("skin", 0), req.clip_map, req.character_map, log,
-                             scale=character.meta.get("unit_scale", 1.0), character_roles=roles,
-                             follow=(lambda c: hang(c, placed, character.bind_world)) if placed else None)
     what = os.path.basename(character_file) if character_file is not None else "generated body"
-    reused = "reused, " if cached is not None else ""
     log(f"character: {what}, {character.num_vertices} vertices, {character.num_joints} joints "
-        f"({reused}{time.perf_counter() - t:.1f} s)")
-    timings["character_s"] = time.perf_counter() - t
+        f"({'reused, ' if cached is not None else ''}{time.perf_counter() - t:.1f} s)")
+    record = {"character": ({"file": os.path.abspath(character_file), "sha256": file_digest(character_file)}
+                            if character_file else {"generated": jsonable(body)} if given is None
+                            else {"in_memory": character.name or "character"})}
+    retarget = Retarget(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log)
+    return Body(character_file, body, template, character, cached, rig_key, retarget, MappingProxyType(record))
 
-    from jiggle.rig.character.character import TEMPLATE_HEIGHT_M, template_scale
-    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
-    from jiggle.rig.muscle.generic import GENERIC
-    from jiggle.rig.skin.muscle_skin import MuscleSkin
+
+@dataclass(frozen=True)
+class Fit:
+    """The character as simulated (maybe at its template's size), its fitted musculature (rig.muscle.fit), the bound
+    skin (rig.skin.muscle_skin.MuscleSkin, with this bake's pose shapes), the clip on the character, the template's
+    name, the template's default jiggles, idle ((M,) bool: muscles that drive nothing); record: its bake.json part."""
+
+    character: object
+    mus: object
+    skin: object
+    clip: object
+    template: str
+    jiggles: list
+    idle: np.ndarray
+    record: Mapping
+
+
+def _fit(req: BakeRequest, inputs: Inputs, body: Body, rigs: MutableMapping | None, given: tuple | None, log) -> Fit:
+    """Step 3, the fit: the template's muscles fitted to the character, the clip onto it, the skin bound."""
     from jiggle.sim.jiggle.params import default_jiggles
     t = time.perf_counter()
-    if cached is not None:
-        mus, skin = cached.musculature, cached.skin
-    elif given is not None and given[2] is not None:
-        mus = given[2]
-    else:
-        mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
-        if character_file is not None and pick("unit", None) in (None, "auto"):
-            # defaults are made for the template's size: a 0.22 m human is simulated at 1.7 m, scaled back
-            height = float(np.ptp(np.asarray(character.vertices)[:, 2]))
-            k = template_scale(mus.template.name, height)
-            if k != 1.0:
-                log(f"size: {height:.3g} m tall by the file, outside the {mus.template.name} template's "
-                    f"{TEMPLATE_HEIGHT_M[mus.template.name][1]:g}-{TEMPLATE_HEIGHT_M[mus.template.name][2]:g} m: "
-                    f"simulated at {height * k:.3g} m, the result scaled back to the file's size (--unit says "
-                    f"the file's unit instead)")
-                character = character.scaled(k)
-                character = replace(character, meta={**character.meta, "template_scale": k})
-                mus = fit_musculature(character, template, FitOptions(joint_map=req.character_map))
-    clip = onto(character, mus)
-    if template == "auto":
-        template = mus.template.name
+    character, mus = _musculature(req, inputs.pick, body, given, log)
+    clip = body.retarget.onto(character, mus)
+    template = mus.template.name if body.template == "auto" else body.template
     log(f"body plan: {mus.plan.kind} ({mus.plan.reason}); template {mus.template.name}: {mus.why}")
     for p in mus.parts:             # the generic template: what each body part got, and why
         if p.segments or p.kind is None:
             log(f"  {p.label}: {p.kind or 'no tissue'} ({p.reason})")
     jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
-    if cached is None:
-        skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=character_file,
+    skin, skin_record = _skin(req, inputs, body, character, mus, rigs, log)
+    idle = idle_of(skin, mus.rig.M)
+    if idle.any():
+        names = [mus.rig.names[m] for m in np.nonzero(idle)[0]]
+        log(f"not simulated: {len(names)} of {mus.rig.M} muscles drive nothing, none of their skin being soft "
+            f"({', '.join(names[:8])}{' ...' if len(names) > 8 else ''})")
+        skin_record["rigid"]["not_simulated"] = names
+    log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
+        f"pairs ({'reused, ' if body.cached is not None else ''}{time.perf_counter() - t:.1f} s)")
+    record = {"template": template if not os.path.isfile(str(template)) else
+              {"file": os.path.abspath(template), "sha256": file_digest(template)},
+              "body_plan": mus.plan.to_json(), "template_why": mus.why or None,
+              "parts": [p.to_json() for p in mus.parts] or None,
+              "size_scale": character.meta.get("template_scale", 1.0),
+              # metres per unit of the character's file, as its caches are written: a DCC that imported the file as
+              # it is (Blender: a glTF unit a Blender unit) divides the caches' positions by it to land on its mesh
+              "file_unit_m": character.meta.get("unit_scale", 1.0) / character.meta.get("template_scale", 1.0),
+              "vertices": character.num_vertices, **skin_record}
+    return Fit(character, mus, skin, clip, template, jiggles, idle, MappingProxyType(record))
+
+
+def _musculature(req: BakeRequest, pick: Callable, body: Body, given: tuple | None, log) -> tuple:
+    """(character, musculature): the cached or given fit, else the template fitted to the character; a character file
+    whose size is outside its template's heights (and whose unit is not given) is scaled to the template's size and
+    fitted again, since the defaults are made for it (rig.character.character.template_scale)."""
+    from jiggle.rig.character.character import TEMPLATE_HEIGHT_M, template_scale
+    from jiggle.rig.muscle.fit import FitOptions, fit_musculature
+    character = body.character
+    if body.cached is not None:
+        return character, body.cached.musculature
+    if given is not None and given[2] is not None:
+        return character, given[2]
+    mus = fit_musculature(character, body.template, FitOptions(joint_map=req.character_map))
+    if body.file is not None and pick("unit", None) in (None, "auto"):
+        # defaults are made for the template's size: a 0.22 m human is simulated at 1.7 m, scaled back
+        height = float(np.ptp(np.asarray(character.vertices)[:, 2]))
+        k = template_scale(mus.template.name, height)
+        if k != 1.0:
+            log(f"size: {height:.3g} m tall by the file, outside the {mus.template.name} template's "
+                f"{TEMPLATE_HEIGHT_M[mus.template.name][1]:g}-{TEMPLATE_HEIGHT_M[mus.template.name][2]:g} m: "
+                f"simulated at {height * k:.3g} m, the result scaled back to the file's size (--unit says "
+                f"the file's unit instead)")
+            character = character.scaled(k)
+            character = replace(character, meta={**character.meta, "template_scale": k})
+            mus = fit_musculature(character, body.template, FitOptions(joint_map=req.character_map))
+    return character, mus
+
+
+def _skin(req: BakeRequest, inputs: Inputs, body: Body, character, mus, rigs: MutableMapping | None, log) -> tuple:
+    """(skin, record): the skin bound to the fitted muscles (the cached one, else bound and stored in `rigs`), this
+    bake's copy carrying the scene's pose shapes; the rigid pieces it decided, logged. record: the bake.json entries
+    skinning, rigid and pose_shapes."""
+    from jiggle.rig.skin.muscle_skin import MuscleSkin
+    pick, scene = inputs.pick, inputs.scene
+    skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
+    if body.cached is not None:
+        skin = body.cached.skin
+    else:
+        skin = MuscleSkin.from_musculature(mus, skinning=skinning, method=method, character_path=body.file,
                                            mush=mush, device=warp_device(req.device or "cpu"), rigid=req.rigid or "auto")
         if rigs is not None:
-            rigs[rig_key] = FittedRig(character, mus, skin)
+            rigs[body.rig_key] = FittedRig(character, mus, skin)
     if scene is not None and scene.pose_shapes:
         # the fitted skin (maybe a worker's cached one) stays as it is: this bake's copy carries the shapes
         skin = copy.copy(skin)
@@ -403,37 +575,103 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     rigid = getattr(skin, "rigid", None)
     # the decisions, also when every rigidly bound piece is flesh (RBF skinning keeps no piece rigid)
     gear = getattr(skin, "gear", None) if getattr(skin, "skinning", "shell") != "rbf" else None
-    record = rigid if rigid is not None else gear if gear is not None and gear.decided else None
-    log(record.describe() if record is not None else "rigid parts: none; all the skin is tissue")
-    idle = idle_of(skin, mus.rig.M)
-    if idle.any():
-        names = [mus.rig.names[m] for m in np.nonzero(idle)[0]]
-        log(f"not simulated: {len(names)} of {mus.rig.M} muscles drive nothing, none of their skin being soft "
-            f"({', '.join(names[:8])}{' ...' if len(names) > 8 else ''})")
-    log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
-        f"pairs ({reused}{time.perf_counter() - t:.1f} s)")
-    timings["fit_s"] = time.perf_counter() - t
+    decided = rigid if rigid is not None else gear if gear is not None and gear.decided else None
+    log(decided.describe() if decided is not None else "rigid parts: none; all the skin is tissue")
+    record = {"rigid": {"option": req.rigid or "auto", "parts": decided.to_json() if decided is not None else None},
+              "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush}}
+    if skin.rig.pose_shapes is not None:
+        record["pose_shapes"] = [{"muscle": sh.muscle, "joint": sh.joint, "angles_deg": list(sh.angles),
+                                  "scales": [list(r) for r in sh.scales]} for sh in skin.rig.pose_shapes.shapes]
+    return skin, record
 
+
+@dataclass(frozen=True)
+class Timing:
+    """The output times before any loop: fps (frames per second), times ((T,) seconds of the clip), the muscles'
+    solver settings (the scene's and the command line's), their goal rate (Hz, None: the default) and knots ((K,)
+    goal knot times, seconds)."""
+
+    fps: float
+    times: np.ndarray
+    solver_settings: JiggleSettings
+    goal_rate: float | None
+    knots: np.ndarray
+
+
+def _timing(req: BakeRequest, inputs: Inputs, fit: Fit) -> Timing:
+    """Step 4, the timing: output frames and goal knots over the clip."""
+    scene = inputs.scene
     fps = float(req.fps or (scene.fps if scene is not None else None) or BAKE_FPS)
-    times = output_times(clip.duration, fps, req.start, req.end, req.frames)
-    solver_settings = _settings(req, scene, jiggles)[0]     # the muscles' own settings follow the drive
+    times = output_times(fit.clip.duration, fps, req.start, req.end, req.frames)
+    solver_settings = _settings(req, scene, fit.jiggles)[0]     # the muscles' own settings follow the drive
     goal_rate = solver_settings.goal_rate
     knots = knot_times(times, goal_rate or max(DEFAULT_GOAL_RATE, fps))
-    t = time.perf_counter()
-    world_at = _drive(clip, drive, knots, log)
-    timings["drive_s"] = time.perf_counter() - t
-    tissue_from = {"template": os.path.basename(str(template)), "tuned_on": None}
-    if mus.template.name == GENERIC and not idle.all():
+    return Timing(fps, times, solver_settings, goal_rate, knots)
+
+
+@dataclass(frozen=True)
+class Tissue:
+    """The tissue as simulated: jiggles (one MuscleJiggle a muscle, every layer of parameters applied), settings
+    (JiggleSettings), size (rig.character.real_size.RealSize); record: its bake.json part."""
+
+    jiggles: list
+    settings: JiggleSettings
+    size: object
+    record: Mapping
+
+
+def _tissue(req: BakeRequest, inputs: Inputs, body: Body, fit: Fit, timing: Timing, world_at, log,
+            timings: dict) -> Tissue:
+    """Step 5, the tissue: the generic template tuned once for the character, its real size, the materials asked
+    for, then the scene's and the command line's parameters over them."""
+    from jiggle.rig.muscle.generic import GENERIC
+    jiggles, mus = fit.jiggles, fit.mus
+    tissue_from = {"template": os.path.basename(str(fit.template)), "tuned_on": None}
+    if mus.template.name == GENERIC and not fit.idle.all():
         # one tissue per character: tuned on the character's own most vigorous cycle, whichever clip is baked
-        t = time.perf_counter()
-        jiggles, tissue_from = _character_tissue(jiggles, mus, skin, solver_settings, character, character_file,
-                                                 onto, clip, drive, world_at, knots, log)
-        timings["tune_s"] = time.perf_counter() - t
-    size = _real_size(character, character_file, mus, onto, req.height, log)
+        jiggles, tissue_from = _timed(timings, "tune_s", _character_tissue, jiggles, mus, fit.skin,
+                                      timing.solver_settings, fit.character, body.file, body.retarget.onto, fit.clip,
+                                      inputs.drive, world_at, timing.knots, log)
+    size = _real_size(fit.character, body.file, mus, body.retarget.onto, req.height, log)
     materials_used = {}
     if req.materials:
         jiggles, materials_used = apply_materials(jiggles, mus.rig, req.materials, log, scale=size.scale)
-    settings, jiggles = _settings(req, scene, jiggles)
+    settings, jiggles = _settings(req, inputs.scene, jiggles)
+    record = {"tissue": {"solver": inputs.solver, **tissue_from, "materials": materials_used or None,
+                         "real_size": size.to_json(), "material_rule": MATERIAL_RULE},
+              "settings": jsonable(settings), "muscles": _muscle_params(mus.rig, jiggles, fit.idle, scale=size.scale)}
+    return Tissue(jiggles, settings, size, MappingProxyType(record))
+
+
+MATERIAL_RULE = ("each part's goal springs stand for a material (muscles.NAME.material): E from frequency_hz by "
+                 "sim.jiggle.materials (f_fem = FEM_C_SLENDER (r / L)^FEM_A sqrt(mu / rho) / r at the part's mean radius "
+                 "r and rest length L at real size, radius_m and length_m x real_size.scale), nu of its kind, its "
+                 "density and damping ratio")
+"""bake.json's tissue.material_rule: how a part's springs and its material relate."""
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The motion as baked, a game cycle extended periodically (sim.bake.loop): fps, times ((T,) seconds), knots
+    ((K,) seconds), world_at (knot times -> (k, J, 4, 4) the character's joints), joints_at and joint_names (the
+    clip's own joints, for the npz), loop (sim.bake.loop.Loop); record: its bake.json part."""
+
+    fps: float
+    times: np.ndarray
+    knots: np.ndarray
+    world_at: Callable
+    joints_at: Callable
+    joint_names: tuple
+    loop: object
+    record: Mapping
+
+
+def _motion(req: BakeRequest, inputs: Inputs, body: Body, fit: Fit, timing: Timing, world_at, log) -> Motion:
+    """Step 6, the loop: whether the clip is a game cycle, baked in its periodic steady state (its times, knots and
+    drive extended periodically), and the clip's own joints for the caches."""
+    from jiggle.sim.bake.loop import judge
+    source, clip, character = inputs.source, fit.clip, fit.character
+    fps, times, knots = timing.fps, timing.times, timing.knots
     if source is clip:
         joints_at, joint_names = world_at, tuple(clip.joint_names)
     else:
@@ -442,69 +680,47 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
         sk = Skeleton(source)
         joints_at = lambda ts: transforms(*sk.world(np.asarray(ts)))  # noqa: E731
         joint_names = tuple(source.joint_names)
-    from jiggle.sim.bake.loop import judge      # a game cycle: its times, knots and drive extended periodically
-    loop = judge(req.loop, clip=clip, drive=drive, world_at=world_at, height=float(np.ptp(np.asarray(
-        character.vertices)[:, 2])), times=times, fps=fps, end=req.end, frames=req.frames, own=character_file is not None
-        and os.path.abspath(character_file) == clip_source, goal_rate=goal_rate,
+    loop = judge(req.loop, clip=clip, drive=inputs.drive, world_at=world_at, height=float(np.ptp(np.asarray(
+        character.vertices)[:, 2])), times=times, fps=fps, end=req.end, frames=req.frames, own=body.file is not None
+        and os.path.abspath(body.file) == inputs.clip_source, goal_rate=timing.goal_rate,
         joints_at=None if source is clip else joints_at, log=log)
     if loop.on:
         fps, times, knots, world_at = loop.fps, loop.times, loop.knots, loop.world_at
         joints_at = world_at if source is clip else loop.joints_at
+    record = {"fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
+              "loop": loop.to_json()}
+    return Motion(fps, times, knots, world_at, joints_at, joint_names, loop, MappingProxyType(record))
 
-    params = {
-        "jiggle_bake": VERSION,
-        "scene": None if scene is None else {"path": scene.path, "sha256": file_digest(scene.path)},
-        "clip": {"file": clip_source, "sha256": file_digest(clip_source) if os.path.isfile(clip_source) else None,
-                 "name": source.name, "duration_s": source.duration},
-        "character": ({"file": os.path.abspath(character_file), "sha256": file_digest(character_file)}
-                      if character_file else {"generated": jsonable(body)} if given is None
-                      else {"in_memory": character.name or "character"}),
-        "template": template if not os.path.isfile(str(template)) else
-        {"file": os.path.abspath(template), "sha256": file_digest(template)},
-        "body_plan": mus.plan.to_json(),
-        "template_why": mus.why or None,
-        "tissue": {"solver": solver, **tissue_from, "materials": materials_used or None, "real_size": size.to_json(),
-                   "material_rule": "each part's goal springs stand for a material (muscles.NAME.material): E from "
-                                    "frequency_hz by sim.jiggle.materials (f_fem = FEM_C_SLENDER (r / L)^FEM_A "
-                                    "sqrt(mu / rho) / r at the part's mean radius r and rest length L at real size, "
-                                    "radius_m and length_m x real_size.scale), nu of its kind, its density and "
-                                    "damping ratio"},
-        "rigid": {"option": req.rigid or "auto", "parts": record.to_json() if record is not None else None,
-                  **({"not_simulated": [mus.rig.names[m] for m in np.nonzero(idle)[0]]} if idle.any() else {})},
-        "parts": [p.to_json() for p in mus.parts] or None,
-        "size_scale": character.meta.get("template_scale", 1.0),
-        # metres per unit of the character's file, as its caches are written: a DCC that imported the file as it
-        # is (Blender: a glTF unit a Blender unit) divides the caches' positions by it to land on its mesh
-        "file_unit_m": character.meta.get("unit_scale", 1.0) / character.meta.get("template_scale", 1.0),
-        "vertices": character.num_vertices,
-        "drive": drive, "fps": fps, "frames": len(times), "start_s": float(times[0]), "end_s": float(times[-1]),
-        "skinning": {"deformer": skinning, "method": method, "influences": pick("influences", 4), "mush": mush},
-        "settings": jsonable(settings),
-        "muscles": _muscle_params(mus.rig, jiggles, idle, scale=size.scale),
-        "chunk": _chunk(req, scene),
-        "loop": loop.to_json(),
-    }
-    if skin.rig.pose_shapes is not None:
-        params["pose_shapes"] = [{"muscle": sh.muscle, "joint": sh.joint, "angles_deg": list(sh.angles),
-                                  "scales": [list(r) for r in sh.scales]} for sh in skin.rig.pose_shapes.shapes]
-    t = time.perf_counter()
-    chains = _chains(req, scene, character, mus, skin, knots, world_at, log)
-    timings["chains_s"] = time.perf_counter() - t
-    params["chains"] = {"mode": req.chains or (scene.chains if scene is not None else None) or "auto",
-                        "chains": chains.to_json(character.joint_names) if chains is not None else []}
-    floor = capsules = None
-    if settings.collisions:
-        # a body that stands at rest has a floor; a flying or floating one (no limb on the ground) has none
-        floor = _floor(character, drive, world_at, knots) if mus.plan.ground_limbs > 0 else None
-        params["collisions"] = {"capsules": settings.colliders, "floor_m": None if floor is None else round(floor, 6)}
-        if settings.colliders == "model":
-            capsules, params["collisions"]["model_geoms"] = _model_capsules(clip, character, log)
-    return BakeSetup(name=scene.name if scene is not None else source.name, skin=skin, jiggles=tuple(jiggles),
-                     settings=settings, times=times, fps=fps, knots=knots, world_at=world_at,
-                     joints_at=joints_at, joint_names=joint_names, formats=_formats(req, scene),
-                     chunk=params["chunk"], params=params, key=params_key(params), timings=timings, floor=floor,
-                     capsules=capsules, glb=_glb(req), scale=1.0 / character.meta.get("template_scale", 1.0),
-                     loop=loop if loop.on else None, chains=chains, tissue_solver=solver, real_scale=size.scale)
+
+@dataclass(frozen=True)
+class Chains:
+    """The chains that swing (sim.chain.build.ChainSetup, None: none); record: their bake.json part."""
+
+    chains: object
+    record: Mapping
+
+
+@dataclass(frozen=True)
+class Collisions:
+    """What the particles collide with: floor (metres, world z; None: none), capsules (rig.character.capsules
+    BoneCapsules of --colliders model; None: the character's own bone capsules); record: their bake.json part."""
+
+    floor: float | None
+    capsules: object
+    record: Mapping
+
+
+def _collisions(settings: JiggleSettings, drive: str, fit: Fit, motion: Motion, log) -> Collisions:
+    """Step 8, the collisions (settings.collisions): a body that stands at rest has a floor, a flying or floating one
+    (no limb on the ground) has none; --colliders model takes the MuJoCo model's capsules."""
+    if not settings.collisions:
+        return Collisions(None, None, MappingProxyType({}))
+    floor = _floor(fit.character, drive, motion.world_at, motion.knots) if fit.mus.plan.ground_limbs > 0 else None
+    record = {"capsules": settings.colliders, "floor_m": None if floor is None else round(floor, 6)}
+    capsules = None
+    if settings.colliders == "model":
+        capsules, record["model_geoms"] = _model_capsules(fit.clip, fit.character, log)
+    return Collisions(floor, capsules, MappingProxyType({"collisions": record}))
 
 
 def tissue_joints(rig) -> set:
@@ -514,9 +730,9 @@ def tissue_joints(rig) -> set:
     return set(joints[:, [0, 8]].ravel().tolist()) if joints.size else set()
 
 
-def _chains(req: BakeRequest, scene, character, mus, skin, knots: np.ndarray, world_at, log):
-    """The chains that swing (sim.chain.build.ChainSetup) or None, logged: found on the character (--chains), their
-    parameters from the scene's [chains.NAME] tables and the command line."""
+def _chains(req: BakeRequest, scene, character, mus, knots: np.ndarray, world_at, log) -> Chains:
+    """Step 7, the chains that swing (sim.chain.build.ChainSetup) or None, logged: found on the character (--chains),
+    their parameters from the scene's [chains.NAME] tables and the command line."""
     from jiggle.rig.character.capsules import bone_capsules
     from jiggle.rig.character.chains import find_chains
     from jiggle.sim.chain.build import make
@@ -529,9 +745,11 @@ def _chains(req: BakeRequest, scene, character, mus, skin, knots: np.ndarray, wo
         if entries:
             raise InputError(f"chain parameters are given but no chain swings (--chains {mode})",
                              field=entries[0][2] if isinstance(entries[0][2], str) else "--chains")
-        return None
-    return make(character, found, bone_capsules(character), _chain_floor(character, mus, world_at, knots), entries,
-                knots, world_at)
+        return Chains(None, MappingProxyType({"chains": {"mode": mode, "chains": []}}))
+    chains = make(character, found, bone_capsules(character), _chain_floor(character, mus, world_at, knots), entries,
+                  knots, world_at)
+    record = {"chains": {"mode": mode, "chains": chains.to_json(character.joint_names) if chains is not None else []}}
+    return Chains(chains, MappingProxyType(record))
 
 
 def _chain_floor(character, mus, world_at, knots):
