@@ -47,6 +47,8 @@ import json
 import math
 import os
 import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -554,6 +556,49 @@ def _label(value) -> str | None:
 
 
 # ---------------------------------------------------------------------------------------- all
+@contextmanager
+def _timed(timings: dict, key: str):
+    """Records timings[key]: the seconds (time.perf_counter) the with-block took, when it returns."""
+    t0 = time.perf_counter()
+    yield
+    timings[key] = time.perf_counter() - t0
+
+
+@dataclass(frozen=True)
+class _Run:
+    """One compare's outputs while it writes them: OUT_DIR, the files an earlier run recorded (own, from
+    compare.json), the name each output is written under (as_name, see _names), what this run wrote (files:
+    key -> path, in writing order, metrics.json's "files") and how long each step took (timings: key -> seconds,
+    metrics.json's "timings_s")."""
+    out_dir: str
+    own: set
+    as_name: dict
+    timings: dict
+    files: dict = field(default_factory=dict)
+
+    @classmethod
+    def claim(cls, out_dir: str, timings: dict) -> _Run:
+        """The names this run writes under, recorded in compare.json before anything else is written, so a run cut
+        short leaves no file of its own that a later run would not remove."""
+        own = compare_files(out_dir)
+        as_name = _names(out_dir, own)
+        _write_json(os.path.join(out_dir, as_name[COMPARE_RECORD]),     # before writing: what this run may write
+                    {"format": COMPARE_RECORD_FORMAT, "files": sorted(own | set(as_name.values()))})
+        return cls(out_dir, own, as_name, timings)
+
+    def path(self, name: str) -> str:
+        """Where the output `name` (of the module docstring) is written."""
+        return os.path.join(self.out_dir, self.as_name[name])
+
+    def finish(self) -> None:
+        """Removes an earlier run's outputs not written again (pictures beside these numbers would read as this
+        run's) and records in compare.json what this run wrote."""
+        written = {os.path.basename(p) for p in self.files.values()} | {self.as_name[COMPARE_RECORD]}
+        remove_listed(self.out_dir, self.own - written)
+        _write_json(os.path.join(self.out_dir, self.as_name[COMPARE_RECORD]), {"format": COMPARE_RECORD_FORMAT,
+                                                                             "files": sorted(written)})
+
+
 def compare(out_dir: str, *, render: bool = True, video: bool = True,
             progress: Callable[[int], None] | None = None) -> dict:
     """Analyse OUT_DIR/bake.npz and write the files of the module docstring into OUT_DIR.
@@ -569,91 +614,124 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     """
     out_dir = os.fspath(out_dir)
     timings = {}
-    t0 = time.perf_counter()
-    data = load_bake(out_dir)
-    timings["read_s"] = time.perf_counter() - t0
+    with _timed(timings, "read_s"):
+        data = load_bake(out_dir)
+    with _timed(timings, "analysis_s"):
+        tissue = read_contacts(out_dir, "tissue")
+        an = analyse(data, tissue)
+    run = _Run.claim(out_dir, timings)
+    with _timed(timings, "plots_s"):
+        _write_plots(run, data, an)
+    with _timed(timings, "quality_s"):
+        quality_m = skin_quality.measure(data, an["reference"], an["reference_name"])
+        quality = skin_quality.summarise(quality_m, data.times)
+        run.files["quality_plot"] = skin_quality.plot_quality(run.path("quality.png"), data.times, quality)
+    chains = _chains(run, data, an, quality_m)
+    collisions = _collisions(run, data.times)
+    pictures = bool(render and data.skin_static.shape[1])
+    video_info = _render(run, data, an, quality_m, quality, video, progress) if pictures else None
+    glb = _glb(run, data, pictures)
 
-    t0 = time.perf_counter()
-    tissue = read_contacts(out_dir, "tissue")
-    an = analyse(data, tissue)
-    T, V = data.skin_static.shape[:2]
-    times, names, params = data.times, list(data.muscle_names), an["params"]
-    skin, peak, arrays, order = an["skin"], an["peak"], an["skin_arrays"], an["order"]
-    amp, energy, energy_unit, dominant = an["amplitude"], an["energy"], an["energy_unit"], an["dominant_hz"]
-    timings["analysis_s"] = time.perf_counter() - t0
+    run.files["metrics"] = run.path("metrics.json")
+    run.files["report"] = run.path("report.html")
+    metrics = clean(_metrics(data, an, tissue, run, quality=quality, chains=chains, collisions=collisions, glb=glb,
+                             video=video_info))
+    _write_json(run.files["metrics"], metrics)
+    from jiggle.sim.app.report.page import write_report
+    with _timed(timings, "report_s"):
+        write_report(run.files["report"], metrics, run.files)
+    metrics["timings_s"] = clean(timings)
+    run.finish()
+    return {"files": run.files, "metrics": metrics}
 
-    files = {}
-    own = compare_files(out_dir)
-    as_name = _names(out_dir, own)
-    _write_json(os.path.join(out_dir, as_name[COMPARE_RECORD]),     # before writing: what this run may write
-                {"format": COMPARE_RECORD_FORMAT, "files": sorted(own | set(as_name.values()))})
 
-    def out(name):
-        return os.path.join(out_dir, as_name[name])
-
-    t0 = time.perf_counter()
-    with atomic_path(out("displacement.npz")) as tmp, open(tmp, "wb") as fh:
+def _write_plots(run: _Run, data: BakeData, an: dict) -> None:
+    """displacement.npz (per-vertex max_m, rms_m (V,) float32 metres) and the plots of the muscles and the skin:
+    amplitude, limits (muscles with a reach only), energy, spectrum, displacement; an is analyse's."""
+    times, names, order = data.times, list(data.muscle_names), an["order"]
+    arrays, energy = an["skin_arrays"], an["energy"]
+    with atomic_path(run.path("displacement.npz")) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, max_m=arrays["max_m"].astype(np.float32), rms_m=arrays["rms_m"].astype(np.float32))
-    files["displacement"] = out("displacement.npz")
-    files["amplitude"] = plot_amplitude(out("amplitude.png"), times, amp, names, order)
+    run.files["displacement"] = run.path("displacement.npz")
+    run.files["amplitude"] = plot_amplitude(run.path("amplitude.png"), times, an["amplitude"], names, order)
     rho = an["reach_fraction"]
     if an["limits"]["muscles_with_reach"]:
         by_rho = [int(i) for i in np.argsort(-rho.max(axis=0), kind="stable")] if rho.size else []
-        files["limits_plot"] = plot_limits(out("limits.png"), times, rho, names, by_rho)
+        run.files["limits_plot"] = plot_limits(run.path("limits.png"), times, rho, names, by_rho)
     by_energy = [int(i) for i in np.argsort(-energy.max(axis=0), kind="stable")]
-    files["energy"] = plot_energy(out("energy.png"), times, energy, names, by_energy, energy_unit)
-    files["spectrum"] = plot_spectrum(out("spectrum.png"), an["freqs"], an["spectrum"], names, order, dominant)
-    files["displacement_plot"] = plot_displacement(out("displacement.png"), times, arrays, peak["frame"])
-    timings["plots_s"] = time.perf_counter() - t0
+    run.files["energy"] = plot_energy(run.path("energy.png"), times, energy, names, by_energy, an["energy_unit"])
+    run.files["spectrum"] = plot_spectrum(run.path("spectrum.png"), an["freqs"], an["spectrum"], names, order,
+                                          an["dominant_hz"])
+    run.files["displacement_plot"] = plot_displacement(run.path("displacement.png"), times, arrays,
+                                                       an["peak"]["frame"])
 
-    t0 = time.perf_counter()
-    quality_m = skin_quality.measure(data, an["reference"], an["reference_name"])
-    quality = skin_quality.summarise(quality_m, times)
-    files["quality_plot"] = skin_quality.plot_quality(out("quality.png"), times, quality)
-    timings["quality_s"] = time.perf_counter() - t0
 
-    chains = None                                # a bake without chains: no section, no plot
-    if data.chain_tip_names is not None:
-        from jiggle.sim.app.report.chains import chain_metrics, plot_chains
-        t0 = time.perf_counter()
-        chains, chain_arrays = chain_metrics(data, read_contacts(out_dir, "chains"), quality_m["quality"],
+def _chains(run: _Run, data: BakeData, an: dict, quality_m: dict) -> dict | None:
+    """metrics.json's "chains" and chains.png (sim.app.report.chains); None, and no plot, for a bake without
+    chains. quality_m: skin_quality.measure's."""
+    if data.chain_tip_names is None:
+        return None
+    from jiggle.sim.app.report.chains import chain_metrics, plot_chains
+    with _timed(run.timings, "chains_s"):
+        chains, chain_arrays = chain_metrics(data, read_contacts(run.out_dir, "chains"), quality_m["quality"],
                                              an["reference"])
-        files["chains_plot"] = plot_chains(out("chains.png"), times, list(data.chain_tip_names), chains,
-                                           chain_arrays)
-        timings["chains_s"] = time.perf_counter() - t0
+        run.files["chains_plot"] = plot_chains(run.path("chains.png"), data.times, list(data.chain_tip_names),
+                                               chains, chain_arrays)
+    return chains
 
-    contacts = read_contacts(out_dir)            # a bake without collisions: no section, no plot
+
+def _collisions(run: _Run, times: np.ndarray) -> dict | None:
+    """metrics.json's "collisions" (collision_metrics) and contacts.png; None, and no plot, for a bake without
+    collisions. times : (T,) seconds."""
+    contacts = read_contacts(run.out_dir)
     collisions = collision_metrics(contacts, times) if contacts is not None else None
     if collisions is not None:
-        files["contacts_plot"] = plot_contacts(out("contacts.png"), times, collisions)
+        run.files["contacts_plot"] = plot_contacts(run.path("contacts.png"), times, collisions)
+    return collisions
 
-    video_info = None
-    if render and V:
-        from jiggle.sim.app.report.compare_render import render_outputs
-        t0 = time.perf_counter()
-        rendered = render_outputs(data, peak["frame"], an["disp"], out_dir, video=video, progress=progress,
-                                  name=as_name.__getitem__, reference=an["reference"])
-        files.update(rendered["files"])
-        video_info = rendered.get("video")
-        timings.update(rendered["timings"])
-        t0 = time.perf_counter()
+
+def _render(run: _Run, data: BakeData, an: dict, quality_m: dict, quality: dict, video: bool,
+            progress: Callable[[int], None] | None) -> dict | None:
+    """The pictures: peak.png and the video (sim.app.report.compare_render), then the skin quality's close-ups of
+    its worst frames; returns metrics.json's "video" (None without one). quality_m, quality: skin_quality's
+    measure and summarise."""
+    from jiggle.sim.app.report.compare_render import render_outputs
+    rendered = render_outputs(data, an["peak"]["frame"], an["disp"], run.out_dir, video=video, progress=progress,
+                              name=run.as_name.__getitem__, reference=an["reference"])
+    run.files.update(rendered["files"])
+    run.timings.update(rendered["timings"])
+    with _timed(run.timings, "quality_render_s"):
         closeups = skin_quality.render_closeups(data, quality_m, quality["worst_frames"], an["disp"],
-                                                out("quality_closeups.png"), reference=an["reference"])
+                                                run.path("quality_closeups.png"), reference=an["reference"])
         if closeups:
-            files["quality_closeups"] = closeups
-        timings["quality_render_s"] = time.perf_counter() - t0
-    glb = None
-    if "glb" in (read_contacts(out_dir, "files") or {}) and os.path.isfile(os.path.join(out_dir, "bake.glb")):
-        from jiggle.sim.app.report.glb import glb_check
-        t0 = time.perf_counter()
-        glb, drawn = glb_check(out_dir, data, out("glb_closeup.png") if render and V else None)
+            run.files["quality_closeups"] = closeups
+    return rendered.get("video")
+
+
+def _glb(run: _Run, data: BakeData, pictures: bool) -> dict | None:
+    """metrics.json's "glb" (sim.app.report.glb) for a bake that wrote bake.glb, and glb_closeup.png with
+    pictures; None for a bake without a glb."""
+    if not ("glb" in (read_contacts(run.out_dir, "files") or {})
+            and os.path.isfile(os.path.join(run.out_dir, "bake.glb"))):
+        return None
+    from jiggle.sim.app.report.glb import glb_check
+    with _timed(run.timings, "glb_s"):
+        glb, drawn = glb_check(run.out_dir, data, run.path("glb_closeup.png") if pictures else None)
         if drawn:
-            files["glb_closeup"] = drawn
-        timings["glb_s"] = time.perf_counter() - t0
-    files["metrics"] = out("metrics.json")
-    files["report"] = out("report.html")
-    metrics = {
-        "format": FORMAT, "bake": os.path.abspath(os.path.join(out_dir, BAKE)),
+            run.files["glb_closeup"] = drawn
+    return glb
+
+
+def _metrics(data: BakeData, an: dict, tissue: dict | None, run: _Run, *, quality: dict, chains: dict | None,
+             collisions: dict | None, glb: dict | None, video: dict | None) -> dict:
+    """metrics.json's dict before clean(): the bake, analyse's numbers (an) and the rules behind them, the sections
+    a bake has (chains, collisions, glb: None leaves one out), the video, the files written so far and the
+    timings (run.timings itself, not a copy). tissue: bake.json's "tissue" (read_contacts) or None."""
+    T, V = data.skin_static.shape[:2]
+    times, names, params = data.times, list(data.muscle_names), an["params"]
+    energy_unit = an["energy_unit"]
+    return {
+        "format": FORMAT, "bake": os.path.abspath(os.path.join(run.out_dir, BAKE)),
         "title": _title(params),
         "source": {"clip": params.get("clip"), "character": params.get("character"),
                    **{k: params[k] for k in ("scene", "template", "drive", "skinning") if k in params}},
@@ -661,7 +739,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         "frames": T, "fps": data.fps, "duration_s": float(times[-1] - times[0]) if T else 0.0,
         "start_s": float(times[0]), "end_s": float(times[-1]), "vertices": V, "muscle_count": len(names),
         "reference": an["reference_name"],
-        "skin": skin, "peak": peak, "skin_quality": quality,
+        "skin": an["skin"], "peak": an["peak"], "skin_quality": quality,
         **({"chains": chains} if chains is not None else {}),
         **({"collisions": collisions} if collisions is not None else {}),
         **({"glb": glb} if glb is not None else {}),
@@ -681,24 +759,10 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
                        "end), seconds after the peak; null: never",
         "muscles": an["muscles"],
         "limits": {**an["limits"], "hard_stop_rule": (tissue or {}).get("hard_stop_rule")},
-        "video": video_info,
-        "files": {k: os.path.basename(v) for k, v in files.items()},
-        "timings_s": timings,
+        "video": video,
+        "files": {k: os.path.basename(v) for k, v in run.files.items()},
+        "timings_s": run.timings,
     }
-    metrics = clean(metrics)
-    _write_json(files["metrics"], metrics)
-
-    from jiggle.sim.app.report.page import write_report
-    t0 = time.perf_counter()
-    write_report(files["report"], metrics, files)
-    timings["report_s"] = time.perf_counter() - t0
-    metrics["timings_s"] = clean(timings)
-    # an earlier run's outputs not written again (pictures beside these numbers would read as this run's)
-    written = {os.path.basename(p) for p in files.values()} | {as_name[COMPARE_RECORD]}
-    remove_listed(out_dir, own - written)
-    _write_json(os.path.join(out_dir, as_name[COMPARE_RECORD]), {"format": COMPARE_RECORD_FORMAT,
-                                                               "files": sorted(written)})
-    return {"files": files, "metrics": metrics}
 
 
 def loop_metrics(data, params: dict, reference: np.ndarray | None = None) -> dict:
