@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import threading
 import warnings
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -99,27 +100,9 @@ class MuscleSkin:
                  skinning: str = "shell", method: str = "lbs", weights: np.ndarray | None = None,
                  margin: float = 0.25, star: bool = True, device: str = "cpu", rbf=None, segmentation=None,
                  roles=None, spread: float = JIGGLE_REACH, mush: int = 0, rigid=None):
-        if skinning not in SKINNING:
-            raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
-        if method not in ("lbs", "dqs"):
-            raise InputError(f"expected 'lbs' or 'dqs', got {method!r}", field="method")
-        if rig.num_joints != character.num_joints:
-            raise InputError(f"the muscle rig has {rig.num_joints} joints, the character {character.num_joints}",
-                             field="rig")
-        if not (np.isfinite(margin) and margin >= 0.0):
-            raise InputError(f"expected a number >= 0, got {margin}", field="margin")
-        if not (np.isfinite(spread) and spread >= 0.0):
-            raise InputError(f"expected a number >= 0, got {spread}", field="spread")
+        shells, painted = _checked_inputs(character, rig, shells, weights, skinning=skinning, method=method,
+                                          margin=margin, spread=spread)
         M, V = rig.M, character.num_vertices
-        shells = [default_shell(k) for k in rig.kinds] if shells is None else list(shells)
-        if len(shells) != M or not all(isinstance(s, ShellParams) for s in shells):
-            raise InputError(f"expected {M} ShellParams, one per muscle, got {len(shells)}", field="shells")
-        painted = np.ones((V, M), np.float32) if weights is None else np.asarray(weights, np.float32)
-        if painted.shape != (V, M):
-            raise InputError(f"expected ({V}, {M}) weights (vertices, muscles), got {painted.shape}",
-                             field="weights")
-        if not np.all((painted >= 0.0) & (painted <= 1.0)):
-            raise InputError("painted weights must lie in [0, 1] (and not be NaN)", field="weights")
 
         self.character, self.rig, self.shells = character, rig, tuple(shells)
         self.skinning, self.method, self.device = skinning, method, wp.get_device(device)
@@ -156,20 +139,10 @@ class MuscleSkin:
         self.table = shell_table(shells, star=self.frames.star if star else None,
                                  star_index=self.frames.star_index if star else None)
         self.skinner = character_skinner(character, device)
-        if isinstance(mush, bool) or int(mush) != mush or mush < 0:
-            raise InputError(f"expected a whole number >= 0, got {mush!r}", field="mush")
-        self.mush = (DeltaMush(character.vertices, character.faces, iterations=int(mush), device=device)
-                     if mush else None)
+        self.mush = _delta_mush(character, mush, device)
         """rig.skin.delta_mush.DeltaMush over the smooth skin (or the RBF skin), or None."""
         if skinning == "rbf":  # the feature points carry the muscles: no (vertex, muscle) pairs to cull
-            from jiggle.rig.skin.rbf_skin import RBFSkin, RBFSkinOptions
-            self.pair_offsets, self.pair_muscle = np.zeros(V + 1, np.int64), np.zeros(0, np.int64)
-            self.pair_weight = np.zeros(0, np.float32)
-            self.deformer = RBFSkin(character, rig, segmentation=segmentation, roles=roles,
-                                    options=rbf or RBFSkinOptions(), device=device)
-            self.jiggle_mask = self.deformer.jiggle_mask
-            # no deformer displacement to spread here: the skin's jiggle is spread instead (skin_frames)
-            self.jiggle_spread = self._surface(spread, None)
+            self._bind_rbf(rbf, segmentation, roles, spread, device)
             return
         offsets, muscle = cull_pairs(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
                                      star=self.table.star, star_index=self.table.star_index)
@@ -179,33 +152,17 @@ class MuscleSkin:
         vertex = np.repeat(np.arange(V), np.diff(offsets))
         if self.rigid is not None:      # gear and hard shells: no pair, so no deformer and no spread moves them
             from jiggle.rig.character.gear import ride
-            keep = ~self.rigid.mask[vertex]
-            muscle, vertex = muscle[keep], vertex[keep]
+            offsets, muscle, vertex, influence = _soft_pairs(self.rigid.mask, offsets, muscle, vertex, influence)
             self.idle = np.bincount(muscle, minlength=M) == 0
-            influence = None if influence is None else influence[keep]
-            offsets = np.concatenate([[0], np.cumsum(np.bincount(vertex, minlength=V))]).astype(offsets.dtype)
             self.ride = ride(character, self.rigid)
         pair_w = painted[vertex, muscle]
         self.pair_offsets, self.pair_muscle = offsets, muscle
         if skinning == "shell":
-            # every pull fades out before the culling line (shells.pair_envelope)
-            fall = pair_envelope(character.vertices, self.frames.E_rest, self.table.drop_off, margin,
-                                 offsets, muscle, star=self.table.star, star_index=self.table.star_index)
-            if influence is not None:
-                fall = np.where(np.isnan(influence), fall, influence)
-            self.pair_weight = (pair_w * fall).astype(np.float32)
-            self.deformer = ShellDeformer(self.table, offsets, muscle, self.pair_weight, device=device)
+            self.pair_weight, self.deformer = self._shell_deformer(offsets, muscle, pair_w, influence, margin,
+                                                                   device)
         else:
-            fall = self._bind_falloff(vertex, muscle)
-            if influence is not None:   # the map stands for the fall-off beta, the muscle's weight w stays
-                fall = np.where(np.isnan(influence), fall, self.table.weight[muscle] * influence)
-            self.pair_weight = (pair_w * fall).astype(np.float32)
-            binding = bind_influence(character.vertices, offsets, muscle, rig.rest_cvs)
-            # like the shells' limit: a pair moves its vertex by at most the muscle's drop-off distance
-            # (d x its mean rest radius), so no large pull folds the skin where it fades
-            reach = self.table.drop_off * rig.mean_radii(rig.rest_cvs)
-            self.deformer = InfluenceDeformer(binding, offsets, muscle, self.pair_weight, M, device=device,
-                                              reach=np.maximum(reach, 1e-9))
+            self.pair_weight, self.deformer = self._influence_deformer(vertex, offsets, muscle, pair_w, influence,
+                                                                       device)
         # the muscles' displacement of the skin, spread over its surface (rig/skin/surface_smoothing.py)
         self.spread = self._surface(spread, np.diff(offsets) > 0)
         # the batched deformers hand the spread their paired vertices' displacements: its ring 0
@@ -214,6 +171,47 @@ class MuscleSkin:
         self.spread_on_device = not self.device.is_cpu
         """pose_batch spreads on the device (SurfaceSmoothing.spread_device) and copies back finished skins:
         a GPU's way; on the CPU the host spread (SciPy, blocks kept in the cache) is several times faster."""
+
+    def _bind_rbf(self, rbf, segmentation, roles, spread: float, device) -> None:
+        """Binds the "rbf" skin: no (vertex, muscle) pairs, the RBF skin (rig.skin.rbf_skin.RBFSkin) as the
+        deformer, its jiggle mask, and the spread of the jiggle over `spread` x the character's size."""
+        from jiggle.rig.skin.rbf_skin import RBFSkin, RBFSkinOptions
+        V = self.character.num_vertices
+        self.pair_offsets, self.pair_muscle = np.zeros(V + 1, np.int64), np.zeros(0, np.int64)
+        self.pair_weight = np.zeros(0, np.float32)
+        self.deformer = RBFSkin(self.character, self.rig, segmentation=segmentation, roles=roles,
+                                options=rbf or RBFSkinOptions(), device=device)
+        self.jiggle_mask = self.deformer.jiggle_mask
+        # no deformer displacement to spread here: the skin's jiggle is spread instead (skin_frames)
+        self.jiggle_spread = self._surface(spread, None)
+
+    def _shell_deformer(self, offsets: np.ndarray, muscle: np.ndarray, pair_w: np.ndarray, influence, margin: float,
+                        device) -> tuple[np.ndarray, ShellDeformer]:
+        """The pairs' weights (P,) float32 (painted weight x fall-off, or x the painted influence `influence`
+        (P,) where it is not NaN) and the ShellDeformer over the pairs (CSR `offsets` (V + 1,), `muscle` (P,))."""
+        # every pull fades out before the culling line (shells.pair_envelope)
+        fall = pair_envelope(self.character.vertices, self.frames.E_rest, self.table.drop_off, margin,
+                             offsets, muscle, star=self.table.star, star_index=self.table.star_index)
+        if influence is not None:
+            fall = np.where(np.isnan(influence), fall, influence)
+        pair_weight = (pair_w * fall).astype(np.float32)
+        return pair_weight, ShellDeformer(self.table, offsets, muscle, pair_weight, device=device)
+
+    def _influence_deformer(self, vertex: np.ndarray, offsets: np.ndarray, muscle: np.ndarray, pair_w: np.ndarray,
+                            influence, device) -> tuple[np.ndarray, InfluenceDeformer]:
+        """The pairs' weights (P,) float32 (painted weight x the muscle's weight x its fall-off at bind, the
+        painted influence `influence` (P,) standing for the fall-off where it is not NaN) and the
+        InfluenceDeformer binding each pair's vertex (`vertex` (P,), CSR `offsets` (V + 1,), `muscle` (P,))."""
+        fall = self._bind_falloff(vertex, muscle)
+        if influence is not None:   # the map stands for the fall-off beta, the muscle's weight w stays
+            fall = np.where(np.isnan(influence), fall, self.table.weight[muscle] * influence)
+        pair_weight = (pair_w * fall).astype(np.float32)
+        binding = bind_influence(self.character.vertices, offsets, muscle, self.rig.rest_cvs)
+        # like the shells' limit: a pair moves its vertex by at most the muscle's drop-off distance
+        # (d x its mean rest radius), so no large pull folds the skin where it fades
+        reach = self.table.drop_off * self.rig.mean_radii(self.rig.rest_cvs)
+        return pair_weight, InfluenceDeformer(binding, offsets, muscle, pair_weight, self.rig.M, device=device,
+                                              reach=np.maximum(reach, 1e-9))
 
     def _influence_table(self) -> np.ndarray | None:
         """(V, M) float32 influence maps of the character in rig order (NaN: not painted), or None;
@@ -401,73 +399,114 @@ class MuscleSkin:
             curves = [static.curve if k is None else k for k in curves]
         before = self._launch_count()
         if self.skinning == "rbf":
-            out = self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
-            out = [o if self.mush is None else self.mush.apply(o) for o in out]
-            extra = S                                     # the RBF skinner: one launch per set
-            if smooth:
-                out.append(self.lbs_batch(world))
-            self.launches += self._launch_count() - before + extra
-            return (lambda: out) if defer else out
+            return self._pose_batch_rbf(world, cvs_sets, first_frame, defer, smooth, before)
+        chunk = self._chunk(S, T, V, defer, smooth, reuse)
+        points, base = self._smooth_batch(world, chunk)
+        out = self._deform_batch(world, points, cvs_sets, curves, first_frame, chunk)
+        if chunk.spread and self.spread_on_device:
+            return self._finish_on_device(points, out, base, chunk, before)
+        return self._finish_on_host(out, base, chunk, before)
+
+    def _pose_batch_rbf(self, world: np.ndarray, cvs_sets: list, first_frame: int, defer: bool, smooth: bool,
+                        before: int):
+        """pose_batch of the "rbf" skin: the RBF skin of each CV set (T, N, 3) (one launch per set), mushed
+        when the skin mushes, plus lbs_batch's smooth skin with `smooth`; `before`: _launch_count() at the start."""
+        S = len(cvs_sets)
+        out = self.deformer.pose_batch(world, [self._finite_cvs(c, world, first_frame) for c in cvs_sets])
+        out = [o if self.mush is None else self.mush.apply(o) for o in out]
+        extra = S                                     # the RBF skinner: one launch per set
+        if smooth:
+            out.append(self.lbs_batch(world))
+        self.launches += self._launch_count() - before + extra
+        return (lambda: out) if defer else out
+
+    def _chunk(self, S: int, T: int, V: int, defer: bool, smooth: bool, reuse: bool) -> _Chunk:
+        """How pose_batch runs a chunk of T frames for S sets (shell and influence skins): where its
+        arrays live and whether the deformers' displacement is spread."""
         cpu = self.device.is_cpu
         # reuse: this call's generation of kept buffers; None: new arrays where they outlive the call
         slot = self._next_slot() if reuse and cpu else None
         keep = (defer or smooth or slot is not None) and cpu      # base outlives this call
+        spread = self.spread.steps > 0 and len(self.spread.rows) > 0
+        # where the displacements go: a host array that outlives the call (defer), else the deformer's buffer
+        hold = spread and cpu and (defer or slot is not None)
+        return _Chunk(S, T, V, cpu, slot, keep, spread, hold, smooth, defer)
+
+    def _smooth_batch(self, world: np.ndarray, chunk: _Chunk):
+        """The smooth skin of the chunk's T frames, one launch (and the Delta Mush's): the device's (T, V) vec3
+        points and the host's (T, V, 3) float32 array `base` (the kept buffer "smooth" when it outlives the
+        call, `chunk.keep`)."""
+        T, V, slot = chunk.T, chunk.V, chunk.slot
         matrices = self.character.skin_matrices(world)
-        if keep and self.mush is None:      # skinned straight into the host array returned: no copy
+        if chunk.keep and self.mush is None:      # skinned straight into the host array returned: no copy
             base = self._host(slot, "smooth", (T, V, 3))
             points = self.skinner.launch_batch(matrices, self.method, out=_on_device(base, self.device))
         else:
             points = self._smooth_points(self.skinner.launch_batch(matrices, self.method))
             base = points.numpy()
-            if keep:                        # the device buffers are reused by the next call
+            if chunk.keep:                        # the device buffers are reused by the next call
                 base = _copy_into(self._host(slot, "smooth", (T, V, 3)), base)
-        spread = self.spread.steps > 0 and len(self.spread.rows) > 0
-        # where the displacements go: a host array that outlives the call (defer), else the deformer's buffer
-        hold = spread and cpu and (defer or slot is not None)
+        return points, base
+
+    def _deform_batch(self, world: np.ndarray, points, cvs_sets: list, curves: list, first_frame: int,
+                      chunk: _Chunk):
+        """The shells' (or the influence objects') one launch over the smooth skin `points` (T, V) vec3 for
+        all sets and frames: a Warp array, (S, P, T, 3) the paired vertices' displacements with a spread
+        (in the kept buffer "moved" with `chunk.hold`, shells), else (S, T, V, 3) the skins."""
         if self.skinning == "shell":
             # only "trajectory" muscles read the paths along the action curves
             paths = bool(np.any(self.table.mode == MODES.index("trajectory")))
             arrays, skipped = self.frames.frame_sets(world, cvs_sets, curves, first_frame, paths=paths)
             for sk in skipped:
-                for s in sk:
+                for s in sk:        # stacklevel 3: pose_batch's caller
                     warnings.warn(f"{s.message}; the skin there follows the bones only", JiggleWarning,
-                                  stacklevel=2)
+                                  stacklevel=3)
             batch = ShellBatch(*arrays)
-            if spread:
-                held = self._host(slot, "moved", (S, self.deformer.model.num_paired, T, 3)) if hold else None
-                out = self.deformer.launch_displace(points, batch, out=_on_device(held, self.device))
-            else:
-                out = self.deformer.launch_batch(points, batch)
-        else:
-            cur, ref = self._influence_cvs(world, cvs_sets, first_frame)
-            out = self.deformer.launch_batch(points, cur, ref, displace=spread)
-        if spread and self.spread_on_device:
-            # a GPU spreads on the device and hands back the finished skins (new arrays, copied in `finish`,
-            # which may run in another thread: the device keeps the order of the work)
-            skins = [self.spread.spread_device(points, out[s]) for s in range(S)]
-            self.launches += self._launch_count() - before + len(self.spread.front) * S + S
+            if chunk.spread:
+                shape = (chunk.S, self.deformer.model.num_paired, chunk.T, 3)
+                held = self._host(chunk.slot, "moved", shape) if chunk.hold else None
+                return self.deformer.launch_displace(points, batch, out=_on_device(held, self.device))
+            return self.deformer.launch_batch(points, batch)
+        cur, ref = self._influence_cvs(world, cvs_sets, first_frame)
+        return self.deformer.launch_batch(points, cur, ref, displace=chunk.spread)
 
-            def finish():
-                return [sk.numpy() for sk in skins] + ([base] if smooth else [])
-            return self._finish(finish, base, S, defer)
+    def _finish_on_device(self, points, out, base: np.ndarray, chunk: _Chunk, before: int):
+        """pose_batch's end on a GPU: each set's displacements `out` (S, P, T, 3) spread on the device
+        over the smooth skin `points` (T, V) vec3; `before`: _launch_count() at the start."""
+        S = chunk.S
+        # a GPU spreads on the device and hands back the finished skins (new arrays, copied in `finish`,
+        # which may run in another thread: the device keeps the order of the work)
+        skins = [self.spread.spread_device(points, out[s]) for s in range(S)]
+        self.launches += self._launch_count() - before + len(self.spread.front) * S + S
+
+        def finish():
+            return [sk.numpy() for sk in skins] + ([base] if chunk.smooth else [])
+        return self._finish(finish, base, S, chunk.defer)
+
+    def _finish_on_host(self, out, base: np.ndarray, chunk: _Chunk, before: int):
+        """pose_batch's end on the host: the deformers' Warp array `out` copied back, then each set's
+        displacements (S, P, T, 3) spread over the smooth skin `base` (T, V, 3) (`_spread_moved`), or the
+        skins (S, T, V, 3) as they are; `before`: _launch_count() at the start."""
+        S, T, V, slot = chunk.S, chunk.T, chunk.V, chunk.slot
         out = out.numpy()
-        if hold and self.skinning != "shell":
+        if chunk.hold and self.skinning != "shell":
             out = _copy_into(self._host(slot, "moved", out.shape), out)
         # out: (S, P, T, 3) displacements with a spread, else (S, T, V, 3)
         self.launches += self._launch_count() - before
-        if spread:
+        if chunk.spread:
             moved = out            # a host array of its own when it outlives the call (hold), or the GPU's copy
             sets = [self._host(slot, f"set{s}", (T, V, 3)) for s in range(S)] if slot is not None else None
 
             def finish():
-                return self._spread_moved(base, moved, threads=not defer, out=sets) + ([base] if smooth else [])
+                return self._spread_moved(base, moved, threads=not chunk.defer, out=sets) + (
+                    [base] if chunk.smooth else [])
         else:
-            sets = ([_copy_into(self._host(slot, f"set{s}", (T, V, 3)), out[s]) for s in range(S)] if cpu
-                    else [out[s] for s in range(S)]) + ([base] if smooth else [])
+            sets = ([_copy_into(self._host(slot, f"set{s}", (T, V, 3)), out[s]) for s in range(S)] if chunk.cpu
+                    else [out[s] for s in range(S)]) + ([base] if chunk.smooth else [])
 
             def finish():
                 return sets
-        return self._finish(finish, base, S, defer)
+        return self._finish(finish, base, S, chunk.defer)
 
     def _finish(self, finish, base: np.ndarray, S: int, defer: bool):
         """pose_batch's end: `finish` (or a function doing it, `defer`), with the rigid pieces set on
@@ -607,6 +646,69 @@ class MuscleSkin:
         at = "" if frame is None else f" at frame {frame}"
         warnings.warn(f"muscle {names} skipped{at}: {why}; the skin there follows the bones only",
                       JiggleWarning, stacklevel=3)
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """How MuscleSkin.pose_batch runs one chunk of T frames for S sets over V vertices (shell and
+    influence skins): set once per call by MuscleSkin._chunk, read by its steps."""
+    S: int
+    T: int
+    V: int
+    cpu: bool           # the skin's device is the CPU
+    slot: dict | None   # reuse: this call's generation of kept host buffers; None: new arrays where they outlive it
+    keep: bool          # the smooth skin `base` outlives this call (a host buffer of its own)
+    spread: bool        # the deformers' displacement is spread over the surface
+    hold: bool          # the displacements go to a host buffer that outlives the call, not the deformer's
+    smooth: bool        # the smooth skin is returned too, after the S sets
+    defer: bool         # a function finishing the skins is returned
+
+
+def _checked_inputs(character: Character, rig: MuscleRig, shells, weights, *, skinning: str, method: str,
+                    margin: float, spread: float) -> tuple[list[ShellParams], np.ndarray]:
+    """MuscleSkin's arguments checked (InputError naming the one at fault): the shells, one ShellParams
+    per muscle (each kind's default for None), and the painted weights (V, M) float32 in [0, 1]."""
+    if skinning not in SKINNING:
+        raise InputError(f"expected one of {', '.join(SKINNING)}, got {skinning!r}", field="skinning")
+    if method not in ("lbs", "dqs"):
+        raise InputError(f"expected 'lbs' or 'dqs', got {method!r}", field="method")
+    if rig.num_joints != character.num_joints:
+        raise InputError(f"the muscle rig has {rig.num_joints} joints, the character {character.num_joints}",
+                         field="rig")
+    if not (np.isfinite(margin) and margin >= 0.0):
+        raise InputError(f"expected a number >= 0, got {margin}", field="margin")
+    if not (np.isfinite(spread) and spread >= 0.0):
+        raise InputError(f"expected a number >= 0, got {spread}", field="spread")
+    M, V = rig.M, character.num_vertices
+    shells = [default_shell(k) for k in rig.kinds] if shells is None else list(shells)
+    if len(shells) != M or not all(isinstance(s, ShellParams) for s in shells):
+        raise InputError(f"expected {M} ShellParams, one per muscle, got {len(shells)}", field="shells")
+    painted = np.ones((V, M), np.float32) if weights is None else np.asarray(weights, np.float32)
+    if painted.shape != (V, M):
+        raise InputError(f"expected ({V}, {M}) weights (vertices, muscles), got {painted.shape}",
+                         field="weights")
+    if not np.all((painted >= 0.0) & (painted <= 1.0)):
+        raise InputError("painted weights must lie in [0, 1] (and not be NaN)", field="weights")
+    return shells, painted
+
+
+def _delta_mush(character: Character, mush, device) -> DeltaMush | None:
+    """The Delta Mush of `mush` steps (a whole number >= 0, else InputError) over the character's skin,
+    or None for 0."""
+    if isinstance(mush, bool) or int(mush) != mush or mush < 0:
+        raise InputError(f"expected a whole number >= 0, got {mush!r}", field="mush")
+    return (DeltaMush(character.vertices, character.faces, iterations=int(mush), device=device)
+            if mush else None)
+
+
+def _soft_pairs(rigid: np.ndarray, offsets: np.ndarray, muscle: np.ndarray, vertex: np.ndarray, influence):
+    """The (vertex, muscle) pairs on soft vertices only, for the rigid vertices `rigid` (V,) bool: CSR
+    `offsets` (V + 1,) recounted, `muscle`, `vertex` and `influence` (P,) (or None) kept where soft."""
+    keep = ~rigid[vertex]
+    muscle, vertex = muscle[keep], vertex[keep]
+    influence = None if influence is None else influence[keep]
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(vertex, minlength=len(rigid)))]).astype(offsets.dtype)
+    return offsets, muscle, vertex, influence
 
 
 def _on_device(a: np.ndarray | None, device):
