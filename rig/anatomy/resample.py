@@ -134,6 +134,30 @@ def insert_points(vertices, faces, face, bary, *, edge_tol: float = EDGE_TOL) ->
     """
     V0 = _check_vertices(vertices)
     F0 = _check_faces(faces, len(V0))
+    fc, b = _check_points(face, bary, F0, edge_tol)
+    mesh = _Refinement.start(V0, F0, fc, b)
+    while True:
+        pending = np.nonzero(mesh.new_vertex < 0)[0]
+        if pending.size == 0:
+            break
+        where = mesh.locate(pending, edge_tol)
+        mesh.snap_to_corners(where)
+        ops = mesh.claim_splits(where)
+        if not ops:
+            continue                                # only corner points this round: all resolved
+        ids = mesh.add_vertices(where, ops)
+        mesh.relocate(mesh.split_faces(ops, ids))
+
+    V = len(V0)
+    S, W = mesh.blends()
+    verts = np.einsum("vk,vkx->vx", W, V0[S])
+    verts[:V] = V0                                  # the original vertices exactly
+    return Resampled(verts, mesh.cur, S, W, V, mesh.origin), mesh.new_vertex
+
+
+def _check_points(face, bary, F0: np.ndarray, edge_tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """The points checked: their faces (n,) int64 in `F0` (F, 3) and their barycentric coordinates (n, 3)
+    float64, clipped to >= 0 and renormalised to sum 1."""
     fc = np.asarray(face)
     if fc.ndim != 1 or not (fc.size == 0 or np.issubdtype(fc.dtype, np.integer)):
         raise InputError(f"expected an (n,) int array, got shape {fc.shape} dtype {fc.dtype}", field="face")
@@ -157,40 +181,83 @@ def insert_points(vertices, faces, face, bary, *, edge_tol: float = EDGE_TOL) ->
                              field="face")
     b = np.maximum(b, 0.0)
     b /= b.sum(1, keepdims=True)
+    return fc, b
 
-    V = len(V0)
-    iv = np.arange(V, dtype=np.int64)
-    src = [np.stack([iv, iv, iv], axis=1)]
-    bw = [np.tile([1.0, 0.0, 0.0], (V, 1))]
-    nv = V
-    cur = F0.copy()
-    origin = np.arange(len(F0), dtype=np.int64)
-    n = len(fc)
-    new_vertex = np.full(n, -1, dtype=np.int64)
-    pf = fc.copy()                         # current face of each pending point (a descendant of fc)
 
-    while True:
-        pending = np.nonzero(new_vertex < 0)[0]
-        if pending.size == 0:
-            break
-        S, W = np.concatenate(src), np.concatenate(bw)
-        l = _local(cur[pf[pending]], F0[origin[pf[pending]]], S, W, b[pending])
+@dataclass(frozen=True, eq=False)
+class _Located:
+    """Where the pending points lie at the start of a round, and the vertex blends then."""
+
+    pending: np.ndarray     # (m,) int64, the points without a vertex yet
+    local: np.ndarray       # (m, 3) float64, their barycentric coordinates in their current face
+    small: np.ndarray       # (m, 3) bool, the coordinates below edge_tol
+    zeros: np.ndarray       # (m,) int, how many: 0 inside, 1 on an edge, 2 or 3 at a corner
+    S: np.ndarray           # (nv, 3) int64 and (nv, 3) float64: every vertex's (source, bary)
+    W: np.ndarray
+
+
+@dataclass(eq=False)
+class _Refinement:
+    """The mesh while points go in, round by round. Every vertex is a blend of original vertices (the
+    batches of `src` (m, 3) int64 / `bw` (m, 3) float64, original vertices first); `cur` (F', 3) int64
+    are the current faces, `origin` (F',) int64 the original face of each; `new_vertex` (n,) int64 is
+    each point's vertex (-1 while pending) and `pf` (n,) int64 its current face, a descendant of the
+    original face `b` (n, 3) float64 gives its coordinates in."""
+
+    V0: np.ndarray
+    F0: np.ndarray
+    b: np.ndarray
+    src: list
+    bw: list
+    nv: int
+    cur: np.ndarray
+    origin: np.ndarray
+    new_vertex: np.ndarray
+    pf: np.ndarray
+
+    @classmethod
+    def start(cls, V0: np.ndarray, F0: np.ndarray, fc: np.ndarray, b: np.ndarray) -> _Refinement:
+        """The original mesh (V0 (V, 3), F0 (F, 3)) with the points (faces fc (n,), coordinates b (n, 3))
+        all pending."""
+        V = len(V0)
+        iv = np.arange(V, dtype=np.int64)
+        return cls(V0=V0, F0=F0, b=b, src=[np.stack([iv, iv, iv], axis=1)], bw=[np.tile([1.0, 0.0, 0.0], (V, 1))],
+                   nv=V, cur=F0.copy(), origin=np.arange(len(F0), dtype=np.int64),
+                   new_vertex=np.full(len(fc), -1, dtype=np.int64),
+                   pf=fc.copy())            # current face of each pending point (a descendant of fc)
+
+    def blends(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every vertex's (source (nv, 3) int64, bary (nv, 3) float64) over the original vertices."""
+        return np.concatenate(self.src), np.concatenate(self.bw)
+
+    def locate(self, pending: np.ndarray, edge_tol: float) -> _Located:
+        """Where the `pending` points lie in their current faces."""
+        S, W = self.blends()
+        pf, F0, origin = self.pf, self.F0, self.origin
+        l = _local(self.cur[pf[pending]], F0[origin[pf[pending]]], S, W, self.b[pending])
         small = l <= edge_tol
-        zeros = small.sum(1)
-        # at a corner: no insertion
-        at = zeros >= 2
-        if at.any():
-            k = np.argmax(l[at], axis=1)
-            new_vertex[pending[at]] = cur[pf[pending[at]], k]
+        return _Located(pending, l, small, small.sum(1), S, W)
+
+    def snap_to_corners(self, at: _Located) -> None:
+        """Give the points at a corner that corner's vertex (no insertion)."""
+        corner = at.zeros >= 2
+        if corner.any():
+            k = np.argmax(at.local[corner], axis=1)
+            self.new_vertex[at.pending[corner]] = self.cur[self.pf[at.pending[corner]], k]
+
+    def claim_splits(self, at: _Located) -> list:
+        """This round's insertions, at most one per face: [(point, [(face, kind, k)])], kind 3 a point inside
+        the face, 2 a point on its edge opposite corner k (every face on that edge split with it)."""
+        cur, pf, pending, l, nv = self.cur, self.pf, at.pending, at.local, self.nv
         claimed = np.zeros(len(cur), bool)
         ops = []                                   # (point, [(face, kind, k)]) kinds: 3 split, 2 edge split
-        inner = np.nonzero(zeros == 0)[0]
+        inner = np.nonzero(at.zeros == 0)[0]
         if inner.size:
             _, first = np.unique(pf[pending[inner]], return_index=True)
             chosen = inner[first]
             claimed[pf[pending[chosen]]] = True
             ops.extend((int(pending[i]), [(int(pf[pending[i]]), 3, -1)]) for i in chosen)
-        on_edge = np.nonzero(zeros == 1)[0]
+        on_edge = np.nonzero(at.zeros == 1)[0]
         if on_edge.size:
             keys, owner = _edge_index(cur, nv)
             for i in on_edge:
@@ -210,24 +277,32 @@ def insert_points(vertices, faces, face, bary, *, edge_tol: float = EDGE_TOL) ->
                         kg = int(np.nonzero((cur[g] != a) & (cur[g] != c))[0][0])
                         parts.append((g, 2, kg))
                 ops.append((p, parts))
-        if not ops:
-            continue                                # only corner points this round: all resolved
-        # new vertices of this round, in the original face of the point
+        return ops
+
+    def add_vertices(self, at: _Located, ops: list) -> np.ndarray:
+        """New vertices (ids (m,) int64) for the points of `ops`, blended in their original faces: an edge
+        point by its coordinates in the current face's corners, an inner one by its given coordinates."""
+        cur, pf, F0, origin = self.cur, self.pf, self.F0, self.origin
         pts = np.array([p for p, _ in ops], dtype=np.int64)
-        pos = np.searchsorted(pending, pts)
-        lw = l[pos].copy()
-        lw[small[pos]] = 0.0
+        pos = np.searchsorted(at.pending, pts)
+        lw = at.local[pos].copy()
+        lw[at.small[pos]] = 0.0
         lw /= lw.sum(1, keepdims=True)
-        edge = zeros[pos] == 1
-        cw = _corner_weights(cur[pf[pts]], F0[origin[pf[pts]]], S, W)        # (m, 3 corners, 3)
-        weights = np.where(edge[:, None], np.einsum("mc,mcj->mj", lw, cw), b[pts])
-        ids = nv + np.arange(len(pts), dtype=np.int64)
-        src.append(F0[origin[pf[pts]]])
-        bw.append(weights)
-        nv += len(pts)
-        new_vertex[pts] = ids
-        # split the faces
+        edge = at.zeros[pos] == 1
+        cw = _corner_weights(cur[pf[pts]], F0[origin[pf[pts]]], at.S, at.W)        # (m, 3 corners, 3)
+        weights = np.where(edge[:, None], np.einsum("mc,mcj->mj", lw, cw), self.b[pts])
+        ids = self.nv + np.arange(len(pts), dtype=np.int64)
+        self.src.append(F0[origin[pf[pts]]])
+        self.bw.append(weights)
+        self.nv += len(pts)
+        self.new_vertex[pts] = ids
+        return ids
+
+    def split_faces(self, ops: list, ids: np.ndarray) -> dict:
+        """Split the faces of `ops` at their new vertices `ids`, each keeping its winding; returns {face:
+        [face, its new children]}."""
         add, add_origin, children = [], [], {}
+        cur, origin = self.cur, self.origin
         F = len(cur)
         for (p, parts), q in zip(ops, ids):
             for g, kind, k in parts:
@@ -245,12 +320,17 @@ def insert_points(vertices, faces, face, bary, *, edge_tol: float = EDGE_TOL) ->
                     add.append(tri)
                     add_origin.append(origin[g])
                 children[g] = kids
-        cur = np.concatenate([cur, np.array(add, dtype=np.int64).reshape(-1, 3)])
-        origin = np.concatenate([origin, np.array(add_origin, dtype=np.int64)])
-        # re-locate the still pending points of split faces into the child holding them
-        moved = np.nonzero((new_vertex < 0) & np.isin(pf, np.fromiter(children, np.int64)))[0]
+        self.cur = np.concatenate([cur, np.array(add, dtype=np.int64).reshape(-1, 3)])
+        self.origin = np.concatenate([origin, np.array(add_origin, dtype=np.int64)])
+        return children
+
+    def relocate(self, children: dict) -> None:
+        """Move the still pending points of split faces into the child holding them (the child where their
+        smallest coordinate is largest)."""
+        pf, F0 = self.pf, self.F0
+        moved = np.nonzero((self.new_vertex < 0) & np.isin(pf, np.fromiter(children, np.int64)))[0]
         if moved.size:
-            S, W = np.concatenate(src), np.concatenate(bw)
+            S, W = self.blends()
             kids = np.full((moved.size, 3), -1, dtype=np.int64)
             for r, p in enumerate(moved):
                 kk = children[int(pf[p])]
@@ -262,16 +342,11 @@ def insert_points(vertices, faces, face, bary, *, edge_tol: float = EDGE_TOL) ->
                 if ok.size == 0:
                     continue
                 g = kids[ok, c]
-                m = _local(cur[g], F0[origin[g]], S, W, b[moved[ok]]).min(1)
+                m = _local(self.cur[g], F0[self.origin[g]], S, W, self.b[moved[ok]]).min(1)
                 better = m > best[ok]
                 best[ok[better]] = m[better]
                 pick[ok[better]] = g[better]
             pf[moved] = pick
-
-    S, W = np.concatenate(src), np.concatenate(bw)
-    verts = np.einsum("vk,vkx->vx", W, V0[S])
-    verts[:V] = V0                                  # the original vertices exactly
-    return Resampled(verts, cur, S, W, V, origin), new_vertex
 
 
 def _edge_index(faces: np.ndarray, nv: int) -> tuple[np.ndarray, np.ndarray]:

@@ -394,16 +394,36 @@ def find_rigid(character) -> RigidParts:
 
     Returns a RigidParts (how "auto").
     """
-    V = character.num_vertices
     rigid_v, joint = _rigid_vertices(character)
     welded = _welded(character)
     label = welded[3]
-    n = int(label.max()) + 1 if V else 0
+    bound = _bound_pieces(label, rigid_v)
+    named, named_rule = _named_gear(character)
+    shapes = piece_shapes(character, welded, gaps=np.nonzero(bound)[0]) if bound.any() else []
+    rule_of = _hard_by_name_or_shape(label, bound, named, named_rule, shapes)     # rules 1 and 2
+    if shapes:
+        body = _body_volume(character, welded, joint, bound, shapes, rule_of)     # rule 3
+        if body is not None:
+            rule_of[body] = (RULE_BODY, False)
+    for k in np.nonzero(bound)[0]:
+        rule_of.setdefault(k, (RULE_PIECE, True))                                 # rule 4
+    mask, why, soft, decided = _tally(character, label, joint, rule_of, named, named_rule)
+    return _summary(character, mask | named, label, "auto", why, soft=soft, decided=decided)
+
+
+def _bound_pieces(label: np.ndarray, rigid_v: np.ndarray) -> np.ndarray:
+    """(pieces,) bool: the pieces (`label` (V,)) at least ALMOST_ALL of whose vertices are bound rigidly
+    (`rigid_v` (V,) bool)."""
+    n = int(label.max()) + 1 if len(label) else 0
     count = np.bincount(label, minlength=n)
     frac = np.bincount(label, weights=rigid_v.astype(np.float64), minlength=n) / np.maximum(count, 1)
-    bound = frac >= ALMOST_ALL
+    return frac >= ALMOST_ALL
 
-    # rule 1: parts (and materials) named like gear
+
+def _named_gear(character) -> tuple[np.ndarray, np.ndarray]:
+    """Rule 1: (V,) bool the vertices of parts (or materials) named like gear, none holding more than
+    MAIN_BODY of the skin, and (V,) object the rule that named each (RULE_NAMED before RULE_MATERIAL), ""."""
+    V = character.num_vertices
     named = np.zeros(V, bool)
     named_rule = np.full(V, "", object)
     lists = [(character.meta.get("parts", []) or [], GEAR_WORDS, RULE_NAMED),
@@ -414,9 +434,14 @@ def find_rigid(character) -> RigidParts:
                 new = ~named[first:first + cnt]
                 named_rule[first:first + cnt][new] = rule
                 named[first:first + cnt] = True
+    return named, named_rule
 
+
+def _hard_by_name_or_shape(label: np.ndarray, bound: np.ndarray, named: np.ndarray, named_rule: np.ndarray,
+                           shapes: list) -> dict:
+    """{piece: (rule, True)} for the rigidly bound pieces wholly named like gear (rule 1) or whose shape
+    (piece_shapes) is a shell, a sheet, a plate or a spike (rule 2)."""
     rule_of = {}                    # piece -> (rule, hard)
-    shapes = piece_shapes(character, welded, gaps=np.nonzero(bound)[0]) if bound.any() else []
     for k in np.nonzero(bound)[0]:
         vs = label == k
         if named[vs].all():
@@ -429,24 +454,36 @@ def find_rigid(character) -> RigidParts:
             rule = _shape_rule(s)
         if rule is not None:
             rule_of[k] = (rule, True)
-    # rule 3: the body's own volume, when the largest closed piece is rigidly bound and not decided above
-    if shapes:
-        vol = np.array([s["volume"] for s in shapes])
-        big = int(np.argmax(vol))
-        s = shapes[big]
-        named_big = rule_of.get(big, ("", True))[0] in (RULE_NAMED, RULE_MATERIAL)
-        ridden = np.bincount(joint[label == big], minlength=character.num_joints)
-        jointed = int(np.count_nonzero(ridden >= JOINTED * ridden.sum())) >= 2
-        if (bound[big] and not named_big and vol[big] >= BODY_SHARE * vol.sum() > 0.0
-                and (jointed or (big not in rule_of and s["fill"] >= BODY_FILL))):
-            rivals = [k for k in range(n) if vol[k] > 0.0]
-            inside = _skeleton_inside(character, welded, rivals)
-            if inside[big] >= max(inside.values()):
-                rule_of[big] = (RULE_BODY, False)
-    for k in np.nonzero(bound)[0]:
-        rule_of.setdefault(k, (RULE_PIECE, True))
+    return rule_of
 
-    mask = np.zeros(V, bool)
+
+def _body_volume(character, welded, joint: np.ndarray, bound: np.ndarray, shapes: list, rule_of: dict) -> int | None:
+    """Rule 3: the piece that is the body's own volume, when the largest closed piece is rigidly bound, not
+    named as gear, holds BODY_SHARE of the closed pieces' volume, is jointed or bulky and rounded (not hard
+    by its shape, BODY_FILL), and no other piece holds more bone length; else None. `joint` (V,): the joint
+    of each vertex's largest weight."""
+    label = welded[3]
+    vol = np.array([s["volume"] for s in shapes])
+    big = int(np.argmax(vol))
+    s = shapes[big]
+    named_big = rule_of.get(big, ("", True))[0] in (RULE_NAMED, RULE_MATERIAL)
+    ridden = np.bincount(joint[label == big], minlength=character.num_joints)
+    jointed = int(np.count_nonzero(ridden >= JOINTED * ridden.sum())) >= 2
+    if (bound[big] and not named_big and vol[big] >= BODY_SHARE * vol.sum() > 0.0
+            and (jointed or (big not in rule_of and s["fill"] >= BODY_FILL))):
+        rivals = [k for k in range(len(bound)) if vol[k] > 0.0]
+        inside = _skeleton_inside(character, welded, rivals)
+        if inside[big] >= max(inside.values()):
+            return big
+    return None
+
+
+def _tally(character, label: np.ndarray, joint: np.ndarray, rule_of: dict, named: np.ndarray,
+           named_rule: np.ndarray) -> tuple[np.ndarray, dict, dict, tuple]:
+    """What the rules decided: (V,) bool the vertices of hard pieces, {rule: vertices} hard (named parts
+    that are not rigidly bound pieces counted as a whole), {rule: vertices} left soft, and one dict per
+    decided piece (RigidParts.decided)."""
+    mask = np.zeros(character.num_vertices, bool)
     why, soft, decided = {}, {}, []
     part_of = _part_names(character)
     for k, (rule, hard) in sorted(rule_of.items()):
@@ -463,7 +500,7 @@ def find_rigid(character) -> RigidParts:
             c = int(np.count_nonzero(extra & (named_rule == rule)))
             if c:
                 why[rule] = why.get(rule, 0) + c
-    return _summary(character, mask | named, label, "auto", why, soft=soft, decided=tuple(decided))
+    return mask, why, soft, tuple(decided)
 
 
 def _part_names(character) -> np.ndarray:

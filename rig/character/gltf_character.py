@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -166,107 +167,191 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
     """
     skel = read_gltf_skeleton(path, skin)
     doc = GltfDocument(path)
-    g = doc.gltf
     p = doc.path
-    # skin joint k -> tree index
-    tree_of_skin = np.full(len(g.skins[skin].joints), -1, np.int64)
-    for t, sj in enumerate(skel.skin_joint):
-        if sj >= 0:
-            tree_of_skin[sj] = t
-
-    from jiggle.rig.character.painted_maps import assemble, parse_jiggle_attribute, primitive_maps
+    tree_of_skin = _tree_of_skin(doc, skel, skin)
+    from jiggle.rig.character.painted_maps import assemble, parse_jiggle_attribute
     jiggle_attribute = parse_jiggle_attribute(jiggle_attribute)
-    pos, nrm, uv, faces, jnt, wgt, parts = [], [], [], [], [], [], []
-    prims, maps = [], []
-    has_normals, has_uvs, offset = True, True, 0
     placed, skipped = _placed_meshes(doc, skel, skin)
+    merged = _Merge(doc, tree_of_skin, skin, jiggle_attribute, skipped)
     for ni, place, rigid_joint in placed:
-        nd = g.nodes[ni]
-        for pi, prim in enumerate(g.meshes[nd.mesh].primitives):
-            what = f"meshes[{nd.mesh}].primitives[{pi}]"
-            mode = 4 if prim.mode is None else prim.mode
-            if mode not in (4, 5, 6):
-                skipped.append(f"{what} (mode {mode}, not triangles)")
-                continue
-            a = prim.attributes
-            if getattr(a, "POSITION", None) is None:
-                raise InputError("a primitive without POSITION", p, field=f"{what}.attributes")
-            v = doc.accessor(a.POSITION, f"{what}.attributes.POSITION")
-            if v.shape[1] != 3:
-                raise InputError(f"POSITION must be VEC3, found {v.shape[1]} components", p,
-                                 field=f"{what}.attributes.POSITION")
-            require_finite_positions(v, p, f"{what}.attributes.POSITION")
-            nv = len(v)
-            idx = doc.accessor(prim.indices, f"{what}.indices")[:, 0].astype(np.int64) \
-                if prim.indices is not None else np.arange(nv)
-            if len(idx) and (idx.min() < 0 or idx.max() >= nv):
-                raise InputError(f"index {int(idx.max())} is past the primitive's {nv} vertices", p,
-                                 field=f"{what}.indices")
-            pos.append(v @ place[:3, :3].T + place[:3, 3])
-            if getattr(a, "NORMAL", None) is not None:
-                nrm.append(doc.accessor(a.NORMAL, f"{what}.attributes.NORMAL") @ place[:3, :3].T)
-            else:
-                has_normals = False
-            if getattr(a, "TEXCOORD_0", None) is not None:
-                uv.append(doc.accessor(a.TEXCOORD_0, f"{what}.attributes.TEXCOORD_0")[:, :2])
-            else:
-                has_uvs = False
-            faces.append(triangles(mode, idx) + offset)
-            several = len(g.meshes[nd.mesh].primitives) > 1
-            parts.append([doc.node_names[ni] + (f".{pi}" if several else ""), int(offset), int(nv)])
-            prims.append([int(nd.mesh), int(pi), int(offset), int(nv)])
-            maps.append((int(offset), int(nv), primitive_maps(doc, a, nv, what, jiggle_attribute)))
-            if rigid_joint is not None:
-                jnt.append(np.full((nv, 1), rigid_joint))
-                wgt.append(np.ones((nv, 1)))
-            else:
-                sets = _influence_sets(a)
-                if not sets:
-                    raise InputError("a primitive of the skinned mesh has no JOINTS_0/WEIGHTS_0", p,
-                                     field=f"{what}.attributes")
-                js, ws = [], []
-                for n, (ja, wa) in enumerate(sets):
-                    if ja is None or wa is None:
-                        raise InputError(f"JOINTS_{n} and WEIGHTS_{n} must come together", p,
-                                         field=f"{what}.attributes")
-                    jv = doc.accessor(ja, f"{what}.attributes.JOINTS_{n}")
-                    wv = doc.accessor(wa, f"{what}.attributes.WEIGHTS_{n}")
-                    if len(jv) != nv or len(wv) != nv or jv.shape[1] != wv.shape[1]:
-                        raise InputError(f"JOINTS_{n}/WEIGHTS_{n} do not match POSITION ({nv} vertices)", p,
-                                         field=f"{what}.attributes")
-                    js.append(jv)
-                    ws.append(wv)
-                jv = np.concatenate(js, 1).astype(np.int64)
-                bad = (jv < 0) | (jv >= len(tree_of_skin))
-                live = np.concatenate(ws, 1) > 0
-                if np.any(bad & live):
-                    vtx, c = np.argwhere(bad & live)[0]
-                    raise InputError(f"joint index {int(jv[vtx, c])} at vertex {int(vtx)} is out of range: skin "
-                                     f"{skin} has {len(tree_of_skin)} joints (0..{len(tree_of_skin) - 1})", p,
-                                     field=f"{what}.attributes.JOINTS")
-                jnt.append(np.where(bad, -1, tree_of_skin[np.clip(jv, 0, len(tree_of_skin) - 1)]))
-                wgt.append(np.concatenate(ws, 1))
-            offset += nv
-    if not pos:
+        for pi, prim in enumerate(doc.gltf.meshes[doc.gltf.nodes[ni].mesh].primitives):
+            merged.add(ni, pi, prim, place, rigid_joint)
+    if not merged.pos:
         raise InputError(f"skin {skin} deforms no triangle mesh", p, field=f"skins[{skin}]")
-    if skipped:
-        warnings.warn(f"{p}: left out of the character: {', '.join(skipped)}", JiggleWarning, stacklevel=2)
+    if merged.skipped:
+        warnings.warn(f"{p}: left out of the character: {', '.join(merged.skipped)}", JiggleWarning, stacklevel=2)
 
-    vertices = np.concatenate(pos)
+    vertices = np.concatenate(merged.pos)
     s = resolve_unit(unit, float(np.ptp(vertices[:, 2])), p)
     vertices = vertices * s
-    width = max(w.shape[1] for w in wgt)
-    pad = lambda a, fill: np.pad(a, ((0, 0), (0, width - a.shape[1])), constant_values=fill)  # noqa: E731
-    raw_j = np.concatenate([pad(a, 0) for a in jnt])
-    raw_w = np.concatenate([pad(a, 0.0) for a in wgt])
-    faces = drop_degenerate_faces(vertices, np.concatenate(faces), p)
+    raw_j, raw_w = merged.influences()
+    faces = drop_degenerate_faces(vertices, np.concatenate(merged.faces), p)
+    bind_world, bind_m = _scaled_binds(skel, s)
+    joints, weights = clean_weights(raw_j, raw_w, skel.num_joints, vertices, bind_world[:, :3, 3], k, p,
+                                    "JOINTS/WEIGHTS")
+    normals = _unit_normals(merged.nrm if merged.has_normals else None, vertices, faces)
+    springs = read_vrm_springs(p, skel.joint_names, s, doc=doc)
+    character = Character(
+        vertices=vertices, faces=faces, normals=normals,
+        uvs=np.concatenate(merged.uv) if merged.has_uvs and merged.uv else None,
+        joint_names=skel.joint_names, parents=skel.parents, bind_world=bind_world, bind_matrices=bind_m,
+        joints=joints, weights=weights, skeleton=_scaled_clip(skel.to_clip(), s), name=skel.name, source=p,
+        meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin), "parts": merged.parts,
+              "primitives": merged.prims, **({"spring_bones": springs} if springs else {})},
+        maps=assemble(merged.maps, len(vertices), os.path.basename(p)))
+    check_height(character.height, p)
+    return character
+
+
+def _scaled_binds(skel, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The skeleton's bind world transforms and bind matrices (J, 4, 4), translations scaled by `s` (the
+    file unit in metres)."""
     bind_world = skel.bind_world.copy()
     bind_world[:, :3, 3] *= s
     bind_m = np.array(skel.bind_matrices)
     bind_m[:, :3, 3] *= s
-    joints, weights = clean_weights(raw_j, raw_w, skel.num_joints, vertices, bind_world[:, :3, 3], k, p,
-                                    "JOINTS/WEIGHTS")
-    if has_normals:
+    return bind_world, bind_m
+
+
+def _tree_of_skin(doc: GltfDocument, skel, skin: int) -> np.ndarray:
+    """(skin joints,) int64: the tree joint of each joint of skin `skin`, -1 where the tree has none."""
+    tree_of_skin = np.full(len(doc.gltf.skins[skin].joints), -1, np.int64)
+    for t, sj in enumerate(skel.skin_joint):
+        if sj >= 0:
+            tree_of_skin[sj] = t
+    return tree_of_skin
+
+
+@dataclass
+class _Merge:
+    """The triangle primitives of a skin's character merged one by one into one skin, in vertex order.
+
+    Per primitive: `pos` (n, 3) placed positions in file units; `nrm` (n, 3) placed normals (not unit);
+    `uv` (n, 2); `faces` (f, 3) int64 into the merged vertices; `jnt` (n, w) int64 tree joints (-1 for
+    an out-of-range index of weight 0) and `wgt` (n, w) their weights; `parts`, `prims`, `maps` as
+    the Character's meta and painted maps read them. `skipped`: what is left out, for the notice.
+    """
+    doc: GltfDocument
+    tree_of_skin: np.ndarray
+    skin: int
+    jiggle_attribute: str
+    skipped: list
+    pos: list = field(default_factory=list)
+    nrm: list = field(default_factory=list)
+    uv: list = field(default_factory=list)
+    faces: list = field(default_factory=list)
+    jnt: list = field(default_factory=list)
+    wgt: list = field(default_factory=list)
+    parts: list = field(default_factory=list)
+    prims: list = field(default_factory=list)
+    maps: list = field(default_factory=list)
+    has_normals: bool = True
+    has_uvs: bool = True
+    offset: int = 0
+
+    def add(self, ni: int, pi: int, prim, place: np.ndarray, rigid_joint: int | None) -> None:
+        """Merge primitive `pi` of mesh node `ni`, placed by `place` (4, 4), bound with weight 1 to tree
+        joint `rigid_joint` or, when None, by its own JOINTS_n / WEIGHTS_n; points and lines are skipped."""
+        from jiggle.rig.character.painted_maps import primitive_maps
+        doc, g = self.doc, self.doc.gltf
+        nd = g.nodes[ni]
+        what = f"meshes[{nd.mesh}].primitives[{pi}]"
+        mode = 4 if prim.mode is None else prim.mode
+        if mode not in (4, 5, 6):
+            self.skipped.append(f"{what} (mode {mode}, not triangles)")
+            return
+        a = prim.attributes
+        v, idx = _primitive_geometry(doc, prim, what)
+        nv, offset = len(v), self.offset
+        self.pos.append(v @ place[:3, :3].T + place[:3, 3])
+        if getattr(a, "NORMAL", None) is not None:
+            self.nrm.append(doc.accessor(a.NORMAL, f"{what}.attributes.NORMAL") @ place[:3, :3].T)
+        else:
+            self.has_normals = False
+        if getattr(a, "TEXCOORD_0", None) is not None:
+            self.uv.append(doc.accessor(a.TEXCOORD_0, f"{what}.attributes.TEXCOORD_0")[:, :2])
+        else:
+            self.has_uvs = False
+        self.faces.append(triangles(mode, idx) + offset)
+        several = len(g.meshes[nd.mesh].primitives) > 1
+        self.parts.append([doc.node_names[ni] + (f".{pi}" if several else ""), int(offset), int(nv)])
+        self.prims.append([int(nd.mesh), int(pi), int(offset), int(nv)])
+        self.maps.append((int(offset), int(nv), primitive_maps(doc, a, nv, what, self.jiggle_attribute)))
+        if rigid_joint is not None:
+            self.jnt.append(np.full((nv, 1), rigid_joint))
+            self.wgt.append(np.ones((nv, 1)))
+        else:
+            jv, wv = _skin_influences(doc, a, nv, what, self.tree_of_skin, self.skin)
+            self.jnt.append(jv)
+            self.wgt.append(wv)
+        self.offset += nv
+
+    def influences(self) -> tuple[np.ndarray, np.ndarray]:
+        """(V, w) int64 joints and (V, w) weights of every merged vertex, padded with joint 0 and weight 0
+        to the widest primitive's w."""
+        width = max(w.shape[1] for w in self.wgt)
+        pad = lambda a, fill: np.pad(a, ((0, 0), (0, width - a.shape[1])), constant_values=fill)  # noqa: E731
+        raw_j = np.concatenate([pad(a, 0) for a in self.jnt])
+        raw_w = np.concatenate([pad(a, 0.0) for a in self.wgt])
+        return raw_j, raw_w
+
+
+def _primitive_geometry(doc: GltfDocument, prim, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle primitive's checked POSITION (n, 3), file units, and index list (m,) int64 into it."""
+    p = doc.path
+    a = prim.attributes
+    if getattr(a, "POSITION", None) is None:
+        raise InputError("a primitive without POSITION", p, field=f"{what}.attributes")
+    v = doc.accessor(a.POSITION, f"{what}.attributes.POSITION")
+    if v.shape[1] != 3:
+        raise InputError(f"POSITION must be VEC3, found {v.shape[1]} components", p,
+                         field=f"{what}.attributes.POSITION")
+    require_finite_positions(v, p, f"{what}.attributes.POSITION")
+    nv = len(v)
+    idx = doc.accessor(prim.indices, f"{what}.indices")[:, 0].astype(np.int64) \
+        if prim.indices is not None else np.arange(nv)
+    if len(idx) and (idx.min() < 0 or idx.max() >= nv):
+        raise InputError(f"index {int(idx.max())} is past the primitive's {nv} vertices", p,
+                         field=f"{what}.indices")
+    return v, idx
+
+
+def _skin_influences(doc: GltfDocument, a, nv: int, what: str, tree_of_skin: np.ndarray,
+                     skin: int) -> tuple[np.ndarray, np.ndarray]:
+    """A skinned primitive's JOINTS_n / WEIGHTS_n sets side by side, checked: (nv, w) int64 tree joints
+    (-1 where an index out of the skin's range carries weight 0) and (nv, w) weights."""
+    p = doc.path
+    sets = _influence_sets(a)
+    if not sets:
+        raise InputError("a primitive of the skinned mesh has no JOINTS_0/WEIGHTS_0", p,
+                         field=f"{what}.attributes")
+    js, ws = [], []
+    for n, (ja, wa) in enumerate(sets):
+        if ja is None or wa is None:
+            raise InputError(f"JOINTS_{n} and WEIGHTS_{n} must come together", p,
+                             field=f"{what}.attributes")
+        jv = doc.accessor(ja, f"{what}.attributes.JOINTS_{n}")
+        wv = doc.accessor(wa, f"{what}.attributes.WEIGHTS_{n}")
+        if len(jv) != nv or len(wv) != nv or jv.shape[1] != wv.shape[1]:
+            raise InputError(f"JOINTS_{n}/WEIGHTS_{n} do not match POSITION ({nv} vertices)", p,
+                             field=f"{what}.attributes")
+        js.append(jv)
+        ws.append(wv)
+    jv = np.concatenate(js, 1).astype(np.int64)
+    bad = (jv < 0) | (jv >= len(tree_of_skin))
+    live = np.concatenate(ws, 1) > 0
+    if np.any(bad & live):
+        vtx, c = np.argwhere(bad & live)[0]
+        raise InputError(f"joint index {int(jv[vtx, c])} at vertex {int(vtx)} is out of range: skin "
+                         f"{skin} has {len(tree_of_skin)} joints (0..{len(tree_of_skin) - 1})", p,
+                         field=f"{what}.attributes.JOINTS")
+    return np.where(bad, -1, tree_of_skin[np.clip(jv, 0, len(tree_of_skin) - 1)]), np.concatenate(ws, 1)
+
+
+def _unit_normals(nrm: list | None, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) unit normals: the file's (`nrm`, per primitive) normalised, the mesh's own where a file
+    normal is zero or where the file has none (`nrm` None)."""
+    if nrm is not None:
         normals = np.concatenate(nrm)
         length = np.linalg.norm(normals, axis=1, keepdims=True)
         normals = np.where(length > 1e-12, normals / np.maximum(length, 1e-12), 0.0)
@@ -276,16 +361,7 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
     else:
         from jiggle.rig.character.normals import vertex_normals
         normals = vertex_normals(vertices, faces)
-    springs = read_vrm_springs(p, skel.joint_names, s, doc=doc)
-    character = Character(
-        vertices=vertices, faces=faces, normals=normals, uvs=np.concatenate(uv) if has_uvs and uv else None,
-        joint_names=skel.joint_names, parents=skel.parents, bind_world=bind_world, bind_matrices=bind_m,
-        joints=joints, weights=weights, skeleton=_scaled_clip(skel.to_clip(), s), name=skel.name, source=p,
-        meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin), "parts": parts,
-              "primitives": prims, **({"spring_bones": springs} if springs else {})},
-        maps=assemble(maps, len(vertices), os.path.basename(p)))
-    check_height(character.height, p)
-    return character
+    return normals
 
 
 def _scaled_clip(clip, s: float):

@@ -251,6 +251,29 @@ class _Buffer:
         return b"".join(self.parts)
 
 
+class _Accessors:
+    """The document's accessors, each on a view of its own in the one buffer `buf`."""
+
+    def __init__(self, buf: _Buffer):
+        self.buf = buf
+        self.accessors: list[dict] = []
+
+    def add(self, arr: np.ndarray, ctype: int, kind: str, target: int | None, bounds: bool = False,
+            normalized: bool = False) -> int:
+        """The index of a new accessor over `arr` (count, ...) written little-endian, as glTF component type
+        `ctype` and type `kind` ("SCALAR", "VEC3", ...); `bounds` adds its min and max."""
+        arr = np.ascontiguousarray(arr)
+        acc = {"bufferView": self.buf.view(arr.astype(arr.dtype.newbyteorder("<")).tobytes(), target),
+               "componentType": ctype, "count": int(len(arr)), "type": kind}
+        if normalized:
+            acc["normalized"] = True
+        if bounds:
+            acc["min"] = np.atleast_1d(arr.min(0)).tolist()   # a list even for SCALAR accessors
+            acc["max"] = np.atleast_1d(arr.max(0)).tolist()
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+
 def _animation_arrays(c, clip, path: str, name: str) -> dict:
     """Key times (T,) float32 seconds, node rotations (T, J, 4) x,y,z,w and translations (T, J, 3)
     (glTF Y-up on the roots) of `clip` on character `c`, and which joints need a translation channel."""
@@ -277,44 +300,55 @@ def _animation_arrays(c, clip, path: str, name: str) -> dict:
 def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
               animations: dict | None = None, custom: dict | None = None,
               compact: bool = False) -> tuple[dict, bytes]:
+    """The glTF JSON document of character `c` (its arrays `a` from _checked_arrays) and its binary buffer:
+    the mesh's accessors first, then the material's images, then the animations' keys."""
     buf = _Buffer()
-    accessors: list[dict] = []
+    acc = _Accessors(buf)
+    attributes = _mesh_attributes(acc, a, c.num_joints, custom, compact)
+    indices = acc.add(a["faces"].reshape(-1), _UINT32, "SCALAR", _ELEMENT_ARRAY_BUFFER)
+    ibm = acc.add(a["ibm"], _FLOAT, "MAT4", None)
 
-    def accessor(arr: np.ndarray, ctype: int, kind: str, target: int | None, bounds: bool = False,
-                 normalized: bool = False) -> int:
-        arr = np.ascontiguousarray(arr)
-        acc = {"bufferView": buf.view(arr.astype(arr.dtype.newbyteorder("<")).tobytes(), target),
-               "componentType": ctype, "count": int(len(arr)), "type": kind}
-        if normalized:
-            acc["normalized"] = True
-        if bounds:
-            acc["min"] = np.atleast_1d(arr.min(0)).tolist()   # a list even for SCALAR accessors
-            acc["max"] = np.atleast_1d(arr.max(0)).tolist()
-        accessors.append(acc)
-        return len(accessors) - 1
+    doc: dict = {"asset": {"version": "2.0", "generator": GENERATOR}}
+    if extras is not None:
+        doc["asset"]["extras"] = extras
+    mat = _embed_material(doc, buf, material)
+    doc.update(_scene(c, a, name, {"attributes": attributes, "indices": indices, "mode": 4, "material": 0},
+                      mat, ibm))
+    anims = _animations(acc, c, a, animations, compact)
+    if anims:
+        doc["animations"] = anims
+    doc.update({"accessors": acc.accessors, "bufferViews": buf.views, "buffers": [{"byteLength": buf.size}]})
+    # keep the usual top-level order for a human reader
+    order = ["asset", "scene", "scenes", "nodes", "meshes", "materials", "textures", "images", "samplers", "skins",
+             "animations", "accessors", "bufferViews", "buffers"]
+    return {k: doc[k] for k in order if k in doc}, buf.bytes()
 
-    J = c.num_joints
-    attributes = {"POSITION": accessor(a["positions"], _FLOAT, "VEC3", _ARRAY_BUFFER, bounds=True),
-                  "NORMAL": accessor(a["normals"], _FLOAT, "VEC3", _ARRAY_BUFFER)}
+
+def _mesh_attributes(acc: _Accessors, a: dict, J: int, custom: dict | None, compact: bool) -> dict:
+    """{attribute: accessor} of the mesh primitive: POSITION, NORMAL, TEXCOORD_0 when there are UVs,
+    JOINTS_n / WEIGHTS_n sets of four (joints as bytes and weights as normalized shorts when `compact`),
+    then the `custom` (V,) float attributes."""
+    attributes = {"POSITION": acc.add(a["positions"], _FLOAT, "VEC3", _ARRAY_BUFFER, bounds=True),
+                  "NORMAL": acc.add(a["normals"], _FLOAT, "VEC3", _ARRAY_BUFFER)}
     if a["uvs"] is not None:
-        attributes["TEXCOORD_0"] = accessor(a["uvs"], _FLOAT, "VEC2", _ARRAY_BUFFER)
+        attributes["TEXCOORD_0"] = acc.add(a["uvs"], _FLOAT, "VEC2", _ARRAY_BUFFER)
     small = compact and J < 256
     weights = _unit_shorts(a["weights"]) if compact else a["weights"]
     joints = np.where(weights > 0, a["joints"], 0)     # a weight rounded to 0 names joint 0, as padding does
     for n in range(joints.shape[1] // 4):
         jn = joints[:, 4 * n:4 * n + 4]
-        attributes[f"JOINTS_{n}"] = accessor(jn.astype(np.uint8) if small else jn, _UINT8 if small else _UINT16,
-                                             "VEC4", _ARRAY_BUFFER)
-        attributes[f"WEIGHTS_{n}"] = accessor(weights[:, 4 * n:4 * n + 4], _UINT16 if compact else _FLOAT, "VEC4",
-                                              _ARRAY_BUFFER, normalized=compact)
+        attributes[f"JOINTS_{n}"] = acc.add(jn.astype(np.uint8) if small else jn, _UINT8 if small else _UINT16,
+                                            "VEC4", _ARRAY_BUFFER)
+        attributes[f"WEIGHTS_{n}"] = acc.add(weights[:, 4 * n:4 * n + 4], _UINT16 if compact else _FLOAT, "VEC4",
+                                             _ARRAY_BUFFER, normalized=compact)
     for k, v in (custom or {}).items():
-        attributes[k] = accessor(v, _FLOAT, "SCALAR", _ARRAY_BUFFER, bounds=True)
-    indices = accessor(a["faces"].reshape(-1), _UINT32, "SCALAR", _ELEMENT_ARRAY_BUFFER)
-    ibm = accessor(a["ibm"], _FLOAT, "MAT4", None)
+        attributes[k] = acc.add(v, _FLOAT, "SCALAR", _ARRAY_BUFFER, bounds=True)
+    return attributes
 
-    doc: dict = {"asset": {"version": "2.0", "generator": GENERATOR}}
-    if extras is not None:
-        doc["asset"]["extras"] = extras
+
+def _embed_material(doc: dict, buf: _Buffer, material: dict | None) -> dict:
+    """The mesh's material: the plain default, or the copied one (_source_material) whose images go into
+    the buffer and whose copyright, images, textures and samplers go into `doc`."""
     mat = dict(_DEFAULT_MATERIAL)
     if material is not None:
         mat = material["material"]
@@ -331,7 +365,12 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
             doc["textures"] = material["textures"]
             if material["samplers"]:
                 doc["samplers"] = material["samplers"]
+    return mat
 
+
+def _scene(c, a: dict, name: str, primitive: dict, mat: dict, ibm: int) -> dict:
+    """The document's scene, nodes (one per joint, then the skinned mesh node), mesh, material and skin."""
+    J = c.num_joints
     parents = np.asarray(c.parents)
     nodes = []
     for j in range(J):
@@ -346,40 +385,40 @@ def _document(c, a: dict, material: dict | None, name: str, extras: dict | None,
     skin = {"name": f"{name} skin", "joints": list(range(J)), "inverseBindMatrices": ibm}
     if len(roots) == 1:
         skin["skeleton"] = roots[0]
-    doc.update({
+    return {
         "scene": 0,
         "scenes": [{"name": name, "nodes": roots + [J]}],
         "nodes": nodes,
-        "meshes": [{"name": name, "primitives": [{"attributes": attributes, "indices": indices, "mode": 4,
-                                                   "material": 0}]}],
+        "meshes": [{"name": name, "primitives": [primitive]}],
         "materials": [mat],
         "skins": [skin],
-    })
+    }
+
+
+def _animations(acc: _Accessors, c, a: dict, animations: dict | None, compact: bool) -> list:
+    """One glTF animation per clip (arrays from _animation_arrays): a rotation channel per joint and a
+    translation channel where the joint leaves its bind translation; leaf rotations as normalized shorts
+    when `compact`."""
+    J = c.num_joints
     anims = []
     inner = set(int(p) for p in c.parents if p >= 0)
     for aname, an in (animations or {}).items():
         samplers, channels = [], []
-        times = accessor(an["times"], _FLOAT, "SCALAR", None, bounds=True)
+        times = acc.add(an["times"], _FLOAT, "SCALAR", None, bounds=True)
         for j in range(J):
             for kind, values in (("rotation", an["rotations"][:, j]), ("translation", an["translations"][:, j])):
                 # a translation that stays at the node's own (the bind pose's) needs no channel
                 if kind == "translation" and np.abs(values - a["translations"][j]).max() <= 1e-9:
                     continue
                 if kind == "rotation" and compact and j not in inner:   # a leaf: no child amplifies it
-                    out = accessor(np.round(np.clip(values, -1, 1) * 32767).astype(np.int16), _INT16, "VEC4", None,
-                                   normalized=True)
+                    out = acc.add(np.round(np.clip(values, -1, 1) * 32767).astype(np.int16), _INT16, "VEC4", None,
+                                  normalized=True)
                 else:
-                    out = accessor(values.astype(np.float32), _FLOAT, "VEC4" if kind == "rotation" else "VEC3", None)
+                    out = acc.add(values.astype(np.float32), _FLOAT, "VEC4" if kind == "rotation" else "VEC3", None)
                 samplers.append({"input": times, "output": out, "interpolation": "LINEAR"})
                 channels.append({"sampler": len(samplers) - 1, "target": {"node": j, "path": kind}})
         anims.append({"name": aname, "channels": channels, "samplers": samplers})
-    if anims:
-        doc["animations"] = anims
-    doc.update({"accessors": accessors, "bufferViews": buf.views, "buffers": [{"byteLength": buf.size}]})
-    # keep the usual top-level order for a human reader
-    order = ["asset", "scene", "scenes", "nodes", "meshes", "materials", "textures", "images", "samplers", "skins",
-             "animations", "accessors", "bufferViews", "buffers"]
-    return {k: doc[k] for k in order if k in doc}, buf.bytes()
+    return anims
 
 
 def _unit_shorts(weights: np.ndarray) -> np.ndarray:
