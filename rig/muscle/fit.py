@@ -211,6 +211,39 @@ class _Bone:
         return self.start + self.length * (xyz @ self.frame)
 
 
+@dataclass(frozen=True, eq=False)
+class _FitSkin:
+    """The skin the muscles are fitted to: the character's, subdivided when coarse (_dense_skin).
+
+    vertices (V', 3) metres, faces (F', 3) int32, region (V',) the segmentation's region of each vertex,
+    face_region (F',) each triangle's region, centroids (F', 3), normals (F', 3) area-weighted (twice
+    the triangle's area long), mesh the trimesh of vertices and faces (for rays and inside tests),
+    size metres, its largest extent along an axis.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    region: np.ndarray
+    face_region: np.ndarray
+    centroids: np.ndarray
+    normals: np.ndarray
+    mesh: object
+    size: float
+
+
+def _fit_skin(character: Character, seg, min_vertices: int) -> _FitSkin:
+    """The skin to fit to: `character`'s, subdivided to `min_vertices` (_dense_skin), with its regions from
+    the segmentation `seg` and the per-triangle data the fit uses."""
+    import trimesh
+    V, F, region = _dense_skin(character.vertices, character.faces, seg, min_vertices)
+    face_region = _face_regions(region, F)
+    centroids = V[F].mean(axis=1)
+    normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # area-weighted
+    mesh = trimesh.Trimesh(V, F, process=False)
+    size = max(float(np.ptp(V, axis=0).max()), 1e-9)
+    return _FitSkin(V, F, region, face_region, centroids, normals, mesh, size)
+
+
 def bone_frame(start: np.ndarray, end: np.ndarray, front: np.ndarray, fallback: np.ndarray | None = None
                ) -> np.ndarray:
     """(3, 3) rows e_along, e_front, e_side of a bone at bind: e_front is `front` (the character's front,
@@ -335,129 +368,176 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
     over RMS_REFUSE) is dropped from the rig and listed in `skipped` and `refused`, or raises
     InputError when `options.strict`. Dropping a muscle leaves the others' loft fits as they were.
     """
-    import trimesh
-
-    from jiggle.rig.character.body_skeleton import original_parents
-    from jiggle.rig.muscle.generic import generic_front, generic_parts, generic_template
-    from jiggle.rig.muscle.model import MuscleSpec, build_muscle_rig
     from jiggle.rig.muscle.segmentation import segment_skin
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     choice = choose_template(character, template, options.joint_map, roles, front)
-    body, order, plan, roles, why = choice.body, choice.order, choice.plan, choice.roles, choice.why
-    generic = choice.template is None
-    tpl = choice.template
-    shape = character if body is character.skeleton else \
-        replace(character, parents=original_parents(body, order))   # the skin's bones on that tree
-    pos = character.bind_positions
-    if front is not None:
-        front = np.asarray(front, float) / np.linalg.norm(front)
-    elif generic:
-        front = generic_front(character)
-    else:
-        front = choice.front
+    shape = _skin_skeleton(character, choice)
+    front = _front(character, choice, front)
     seg = segment_skin(shape, iterations=options.iterations, lam=options.lam, exclude=options.exclude,
                        overrides=options.overrides)
     timings["segmentation"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    V, F, region = _dense_skin(character.vertices, character.faces, seg, options.min_vertices)
-    face_region = _face_regions(region, F)
-    centroids = V[F].mean(axis=1)
-    normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # area-weighted
-    skin = trimesh.Trimesh(V, F, process=False)
-    names = character.joint_names
-    size = max(float(np.ptp(V, axis=0).max()), 1e-9)
-
-    fitted: list[FittedMuscle] = []
+    skin = _fit_skin(character, seg, options.min_vertices)
     skipped: list[tuple[str, str]] = []
-    parts: tuple = ()
-
-    def skip(name: str, reason: str) -> None:
-        skipped.append((name, reason))
-        warnings.warn(f"muscle {name!r} skipped: {reason}", JiggleWarning, stacklevel=3)
-
-    if generic:
-        segs = seg.segments
-        parts = tuple(generic_parts(V, F, face_region, segs, character.normals, seg.region))
-        tpl, where = generic_template(parts)
-        for pair in tpl.pairs:
-            m = pair.muscles[0]
-            p = parts[where[m.name]]
-            start, end = segs.start[p.segments[0]], segs.end[p.segments[-1]]
-            bone = _Bone(label=p.label, parent=p.joint, child=p.child, start=start, end=end,
-                         frame=bone_frame(start, end, front),
-                         faces=np.flatnonzero(np.isin(face_region, p.segments)))
-            fitted.append(_fit_one(m.name, m, pair, bone, bone.faces, None, V, F, normals, skin, roles, options,
-                                   group=p.label, belly=False))
-    for pair in (() if generic else tpl.pairs):
-        p_joint, c_joint = roles[pair.parent], roles[pair.child]
-        label = f"{names[p_joint]}>{names[c_joint]}"
-        chain = _chain(shape.parents, p_joint, c_joint)
-        if chain is None:
-            raise InputError(f"the template bone {pair.parent}>{pair.child} does not follow the skeleton: "
-                             f"{names[c_joint]!r} is not below {names[p_joint]!r}", tpl.source or None,
-                             field=f"bone {pair.parent}>{pair.child}")
-        start, end = pos[p_joint], pos[c_joint]
-        if np.linalg.norm(end - start) < 1e-4 * size:
-            for m in pair.muscles:
-                skip(m.name, f"its bone {label} has zero length")
-            continue
-        segs = seg.segments
-        # a chain joint at its parent's place (CMU's LowerBack on Hips) starts no segment of its own:
-        # rig.muscle.segmentation collapsed it, and its bone is the segment from the joint it collapsed into
-        starts = chain[:-1] + [_collapsed_into(shape.parents, pos, j) for j in chain[:-1]]
-        on_chain = np.isin(segs.parent, starts) & np.isin(segs.child, chain[1:])
-        bone = _Bone(label=label, parent=p_joint, child=c_joint, start=start, end=end,
-                     frame=bone_frame(start, end, UP, front) if pair.reference == "up" else
-                     bone_frame(start, end, front),
-                     faces=np.nonzero(np.isin(face_region, np.nonzero(on_chain)[0]))[0])
-        for m in pair.muscles:
-            plane = _plane(bone, pair, m)
-            pieces = _sub_region(bone, m, plane, centroids)
-            if len(pieces) == 0:
-                skip(m.name, f"its region on {label} is empty")
-                continue
-            strips = _strips(V, F, pieces, bone, m.count) if m.kind == "multi_belly" else [pieces]
-            for k, faces in enumerate(strips):
-                name = m.name if len(strips) == 1 else f"{m.name}_{k + 1}"
-                if len(faces) < 3:
-                    skip(name, f"its region on {label} has only {len(faces)} triangles")
-                    continue
-                fitted.append(_fit_one(name, m, pair, bone, faces, plane, V, F, normals, skin, roles,
-                                       options, group=m.name if len(strips) > 1 else label,
-                                       belly=len(strips) > 1))
+    if choice.template is None:
+        tpl, parts, fitted = _fit_generic(character, seg, skin, front, choice.roles, options)
+    else:
+        tpl, parts = choice.template, ()
+        fitted = _fit_template(tpl, character, shape, seg, skin, choice.roles, front, options, skipped)
     timings["fit"] = time.perf_counter() - t1
     if not fitted:
         raise InputError("no muscle of the template could be fitted to this character", character.source or None)
 
     t2 = time.perf_counter()
-
-    def build(muscles):
-        specs = [MuscleSpec(name=f.name, kind=f.kind, group=f.group, bone=f.bone,
-                            bones=f.joints, points=f.points, ends=f.ellipsoid.ends, up=f.ellipsoid.axes[1],
-                            surface=f.vertices, rim_scale=f.spec.rim_scale, bulge_scale=f.spec.bulge_scale,
-                            main_scale=f.spec.main_scale, bulge_position=f.spec.bulge_position, tone=f.spec.tone,
-                            middle_offset=np.zeros(3))
-                 for f in muscles]
-        return build_muscle_rig(specs, character.bind_world, volume=options.volume)
-
-    rig = build(fitted)
+    rig = _build_rig(character, fitted, options.volume)
     timings["muscle model"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
+    fitted, rig, quality, refused = _judge_fits(character, fitted, rig, skin, options, skipped)
+    timings["quality"] = time.perf_counter() - t3
+    timings["total"] = time.perf_counter() - t0
+    return Musculature(character=character, template=tpl, roles=choice.roles, segmentation=seg, front=front,
+                       skin=(skin.vertices, skin.faces, skin.region), muscles=tuple(fitted), rig=rig,
+                       skipped=tuple(skipped), timings=timings, plan=choice.plan, quality=tuple(quality),
+                       refused=tuple(refused), why=choice.why, parts=parts)
+
+
+def _skin_skeleton(character: Character, choice: TemplateChoice) -> Character:
+    """`character` with the parents of the body's skeleton (choice.body: helper bones set aside), the tree
+    the skin is segmented on; `character` itself when the body is its skeleton."""
+    from jiggle.rig.character.body_skeleton import original_parents
+    if choice.body is character.skeleton:
+        return character
+    return replace(character, parents=original_parents(choice.body, choice.order))
+
+
+def _front(character: Character, choice: TemplateChoice, front: np.ndarray | None) -> np.ndarray:
+    """(3,) the character's front: `front` made unit when given, else the generic template's or the one
+    read off the roles (choice.front)."""
+    from jiggle.rig.muscle.generic import generic_front
+    if front is not None:
+        return np.asarray(front, float) / np.linalg.norm(front)
+    if choice.template is None:
+        return generic_front(character)
+    return choice.front
+
+
+def _skip(skipped: list, name: str, reason: str) -> None:
+    """Leave the muscle `name` out: list (name, reason) in `skipped` and warn. Called from the fit's steps,
+    one call below fit_musculature, so that the warning points at fit_musculature's caller."""
+    skipped.append((name, reason))
+    warnings.warn(f"muscle {name!r} skipped: {reason}", JiggleWarning, stacklevel=4)
+
+
+def _fit_generic(character: Character, seg, skin: _FitSkin, front: np.ndarray, roles: dict, options: FitOptions
+                 ) -> tuple[object, tuple, list[FittedMuscle]]:
+    """The generic template (rig.muscle.generic) made from the skin's segmentation by bone, the parts it
+    judged, and its muscles fitted, one on each part's whole region (its chain of bone segments)."""
+    from jiggle.rig.muscle.generic import generic_parts, generic_template
+    segs = seg.segments
+    parts = tuple(generic_parts(skin.vertices, skin.faces, skin.face_region, segs, character.normals, seg.region))
+    tpl, where = generic_template(parts)
+    fitted = []
+    for pair in tpl.pairs:
+        m = pair.muscles[0]
+        p = parts[where[m.name]]
+        start, end = segs.start[p.segments[0]], segs.end[p.segments[-1]]
+        bone = _Bone(label=p.label, parent=p.joint, child=p.child, start=start, end=end,
+                     frame=bone_frame(start, end, front),
+                     faces=np.flatnonzero(np.isin(skin.face_region, p.segments)))
+        fitted.append(_fit_one(m.name, m, pair, bone, bone.faces, None, skin, roles, options,
+                               group=p.label, belly=False))
+    return tpl, parts, fitted
+
+
+def _fit_template(tpl, character: Character, shape: Character, seg, skin: _FitSkin, roles: dict,
+                  front: np.ndarray, options: FitOptions, skipped: list) -> list[FittedMuscle]:
+    """Every muscle of `tpl` fitted to its sub-region of its pair's bone region (each belly of a
+    multi-belly muscle to its strip); a muscle whose bone has zero length or whose region is empty or
+    under three triangles is skipped (_skip)."""
+    fitted = []
+    for pair in tpl.pairs:
+        label, bone = _template_bone(pair, tpl, character, shape, seg, skin, roles, front)
+        if bone is None:
+            for m in pair.muscles:
+                _skip(skipped, m.name, f"its bone {label} has zero length")
+            continue
+        for m in pair.muscles:
+            plane = _plane(bone, pair, m)
+            pieces = _sub_region(bone, m, plane, skin.centroids)
+            if len(pieces) == 0:
+                _skip(skipped, m.name, f"its region on {label} is empty")
+                continue
+            strips = _strips(skin.vertices, skin.faces, pieces, bone, m.count) if m.kind == "multi_belly" else [pieces]
+            for k, faces in enumerate(strips):
+                name = m.name if len(strips) == 1 else f"{m.name}_{k + 1}"
+                if len(faces) < 3:
+                    _skip(skipped, name, f"its region on {label} has only {len(faces)} triangles")
+                    continue
+                fitted.append(_fit_one(name, m, pair, bone, faces, plane, skin, roles, options,
+                                       group=m.name if len(strips) > 1 else label, belly=len(strips) > 1))
+    return fitted
+
+
+def _template_bone(pair, tpl, character: Character, shape: Character, seg, skin: _FitSkin, roles: dict,
+                   front: np.ndarray) -> tuple[str, _Bone | None]:
+    """The "parent>child" joint names of `pair`'s bone, and the bone on this character (None when it has
+    zero length): the straight line between its joints, its frame, and the skin triangles of the bone
+    segments along the chain of joints between them. InputError when the child is not below the parent."""
+    names, pos = character.joint_names, character.bind_positions
+    p_joint, c_joint = roles[pair.parent], roles[pair.child]
+    label = f"{names[p_joint]}>{names[c_joint]}"
+    chain = _chain(shape.parents, p_joint, c_joint)
+    if chain is None:
+        raise InputError(f"the template bone {pair.parent}>{pair.child} does not follow the skeleton: "
+                         f"{names[c_joint]!r} is not below {names[p_joint]!r}", tpl.source or None,
+                         field=f"bone {pair.parent}>{pair.child}")
+    start, end = pos[p_joint], pos[c_joint]
+    if np.linalg.norm(end - start) < 1e-4 * skin.size:
+        return label, None
+    segs = seg.segments
+    # a chain joint at its parent's place (CMU's LowerBack on Hips) starts no segment of its own:
+    # rig.muscle.segmentation collapsed it, and its bone is the segment from the joint it collapsed into
+    starts = chain[:-1] + [_collapsed_into(shape.parents, pos, j) for j in chain[:-1]]
+    on_chain = np.isin(segs.parent, starts) & np.isin(segs.child, chain[1:])
+    return label, _Bone(label=label, parent=p_joint, child=c_joint, start=start, end=end,
+                        frame=bone_frame(start, end, UP, front) if pair.reference == "up" else
+                        bone_frame(start, end, front),
+                        faces=np.nonzero(np.isin(skin.face_region, np.nonzero(on_chain)[0]))[0])
+
+
+def _build_rig(character: Character, fitted: list[FittedMuscle], volume: str):
+    """The muscle rig (rig.muscle.model.MuscleRig) of the fitted muscles, in their order."""
+    from jiggle.rig.muscle.model import MuscleSpec, build_muscle_rig
+    specs = [MuscleSpec(name=f.name, kind=f.kind, group=f.group, bone=f.bone,
+                        bones=f.joints, points=f.points, ends=f.ellipsoid.ends, up=f.ellipsoid.axes[1],
+                        surface=f.vertices, rim_scale=f.spec.rim_scale, bulge_scale=f.spec.bulge_scale,
+                        main_scale=f.spec.main_scale, bulge_position=f.spec.bulge_position, tone=f.spec.tone,
+                        middle_offset=np.zeros(3))
+             for f in fitted]
+    return build_muscle_rig(specs, character.bind_world, volume=volume)
+
+
+def _judge_fits(character: Character, fitted: list[FittedMuscle], rig, skin: _FitSkin, options: FitOptions,
+                skipped: list) -> tuple[list[FittedMuscle], object, list, list]:
+    """The fit quality check (rig.muscle.fit_quality.assess) of every fitted muscle: a poor fit is kept with
+    a warning, a refused one is skipped (_skip) and dropped from the rig, which is rebuilt without it
+    (InputError instead when options.strict, or when every muscle is refused). Returns the kept muscles,
+    their rig, their MuscleQuality and the refused muscles' MuscleQuality."""
     quality = assess([f.name for f in fitted], rig.surface(rig.rest_cvs), rig.fit_rms, rig.fit_max,
-                     [f.radius for f in fitted], skin)
+                     [f.radius for f in fitted], skin.mesh)
     refused = [q for q in quality if q.status == "refused"]
     if refused and options.strict:
         raise InputError("the fit refuses " + "; ".join(f"muscle {q.name!r}: {', '.join(q.reasons)}" for q in refused)
                          + f" (thresholds: {thresholds()})", character.source or None, field="fit quality")
     for q in quality:
         if q.status == "warn":
-            warnings.warn(f"muscle {q.name!r} fits poorly: {'; '.join(q.reasons)}", JiggleWarning, stacklevel=2)
+            warnings.warn(f"muscle {q.name!r} fits poorly: {'; '.join(q.reasons)}", JiggleWarning, stacklevel=3)
         elif q.status == "refused":
-            skip(q.name, "refused by the fit quality check: " + "; ".join(q.reasons))
+            _skip(skipped, q.name, "refused by the fit quality check: " + "; ".join(q.reasons))
     if refused:
         keep = [i for i, q in enumerate(quality) if q.status != "refused"]
         if not keep:
@@ -465,12 +545,8 @@ def fit_musculature(character: Character, template="auto", options: FitOptions =
                              + "; ".join(f"{q.name}: {', '.join(q.reasons)}" for q in refused), character.source or None)
         # each muscle's loft is fitted on its own, so the kept ones are rebuilt unchanged
         fitted, quality = [fitted[i] for i in keep], [quality[i] for i in keep]
-        rig = build(fitted)
-    timings["quality"] = time.perf_counter() - t3
-    timings["total"] = time.perf_counter() - t0
-    return Musculature(character=character, template=tpl, roles=roles, segmentation=seg, front=front,
-                       skin=(V, F, region), muscles=tuple(fitted), rig=rig, skipped=tuple(skipped), timings=timings,
-                       plan=plan, quality=tuple(quality), refused=tuple(refused), why=why, parts=parts)
+        rig = _build_rig(character, fitted, options.volume)
+    return fitted, rig, quality, refused
 
 
 AXIS_SAMPLES = 21  # points along a fitted ellipsoid's major axis tested against the skin
@@ -618,19 +694,22 @@ def _strips(V: np.ndarray, F: np.ndarray, faces: np.ndarray, bone: _Bone, count:
     return [np.sort(faces[order[k == i]]) for i in range(count)]
 
 
-def _fit_one(name, m, pair, bone: _Bone, faces, plane, V, F, normals, skin, roles, options: FitOptions,
+def _fit_one(name, m, pair, bone: _Bone, faces, plane, skin: _FitSkin, roles, options: FitOptions,
              group: str, belly: bool) -> FittedMuscle:
+    """The muscle `name` of template entry `m` fitted to the triangles `faces` of `skin` (indices into
+    skin.faces) on `bone`: ellipsoid, major axis kept inside the skin, conformed mesh, attachments."""
+    V, F, normals = skin.vertices, skin.faces, skin.normals
     n = normals[faces].sum(axis=0)
     area2 = np.linalg.norm(normals[faces], axis=1).sum()
     # a patch of skin (pectoral, fat) has a clear outward side; a ring around a limb does not
     outward = n / np.linalg.norm(n) if np.linalg.norm(n) > 0.3 * area2 else (plane[1] if plane else None)
     thickness = max(m.thickness_min, m.depth if m.kind == "fat" else 0.0)
     e = fit_ellipsoid(V, F[faces], along=bone.frame[0], outward=outward, thickness_min=thickness)
-    e = _axis_inside(e, skin, bone)
+    e = _axis_inside(e, skin.mesh, bone)
     pts, tri = e.mesh(options.subdivisions)
     allowed = np.zeros(len(F), bool)
     allowed[bone.faces] = True
-    conformed, report = conform(e, pts, skin, nu=m.nu, plane=plane, reach=options.reach, allowed=allowed,
+    conformed, report = conform(e, pts, skin.mesh, nu=m.nu, plane=plane, reach=options.reach, allowed=allowed,
                                 faces=tri, smoothing=options.smoothing)
     ends = e.ends
 

@@ -569,109 +569,139 @@ def _stem(path: str | None) -> str:
     return os.path.splitext(os.path.basename(path))[0] if path else "template"
 
 
+def _muscle_of(kw: dict, jiggle: dict, shell: dict | None, c: _Checker, fld: str) -> MuscleTemplate:
+    """The MuscleTemplate of the fields read (`kw`, {MuscleTemplate field: value}) and the jiggle and
+    shell values given ({TOML key: value}; `shell` None when the file gives no shell), the kind's
+    defaults filling what is missing; `fld` is the muscle's field (``pair[0].muscle[1]``)."""
+    kind = kw.get("kind", "muscle")
+    kw["jiggle"] = _jiggle_of(kind, jiggle)
+    if shell is not None:
+        kw["shell"] = _shell_of(kind, shell, c, f"{fld}.shell")
+    return MuscleTemplate(**kw)
+
+
 # ----------------------------------------------------------------------------------- TOML
+_TOML_MUSCLE_KEYS = ("name", "pair_id", "type", "kind", "count", *ATTACHMENTS, "span", "sector", "rim_scale",
+                     "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min", "depth", "jiggle",
+                     "shell")
+_TOML_NUMBERS = ("rim_scale", "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min", "depth")
+
+
+class _TomlReader:
+    """Reads the tables of a parsed TOML template; every problem fails through the _Checker, naming the
+    file and the field."""
+
+    def __init__(self, path: str | None):
+        self.path = path
+        self.c = _Checker(path, None)
+
+    def keys(self, table, fld, allowed, required=()):
+        """Fail unless `table` is a table whose keys are among `allowed` and include `required`."""
+        if not isinstance(table, dict):
+            self.c.fail(f"expected a table, got {table!r}", fld)
+        extra = [k for k in table if k not in allowed]
+        if extra:
+            self.c.fail(f"unknown key(s) {', '.join(map(repr, extra))}; expected {', '.join(allowed)}",
+                        f"{fld}.{extra[0]}" if fld else extra[0])
+        for k in required:
+            if k not in table:
+                self.c.fail(f"missing key {k!r}", f"{fld}.{k}" if fld else k)
+
+    def num(self, v, fld):
+        """`v` as a float; fail unless it is a TOML number."""
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.c.fail(f"expected a number, got {v!r}", fld)
+        return float(v)
+
+    def integer(self, v, fld):
+        """`v`; fail unless it is a TOML integer."""
+        if isinstance(v, bool) or not isinstance(v, int):
+            self.c.fail(f"expected an integer, got {v!r}", fld)
+        return v
+
+    def string(self, v, fld):
+        """`v`; fail unless it is a TOML string."""
+        if not isinstance(v, str):
+            self.c.fail(f"expected a string, got {v!r}", fld)
+        return v
+
+    def pair_of(self, v, fld, conv):
+        """(2,) tuple of `v`, a list of two values, each converted by `conv(value, fld)`."""
+        if not isinstance(v, list) or len(v) != 2:
+            self.c.fail(f"expected a list of two values, got {v!r}", fld)
+        return tuple(conv(x, fld) for x in v)
+
+    def template(self, doc: dict) -> tuple[str, tuple[BoneMusclePair, ...]]:
+        """The name and the pairs of the document `doc`."""
+        self.keys(doc, "", ("name", "pair"), required=("pair",))
+        name = self.string(doc["name"], "name") if "name" in doc else _stem(self.path)
+        if not isinstance(doc["pair"], list):
+            self.c.fail("expected an array of tables [[pair]]", "pair")
+        return name, tuple(self.pair(pt, f"pair[{i}]") for i, pt in enumerate(doc["pair"]))
+
+    def pair(self, pt, pf) -> BoneMusclePair:
+        """One [[pair]] table; `pf` its field (``pair[3]``)."""
+        self.keys(pt, pf, ("bone", "partition", "reference", "muscle"), required=("bone", "muscle"))
+        parent, child = self.pair_of(pt["bone"], f"{pf}.bone", self.string)
+        partition = self.num(pt["partition"], f"{pf}.partition") if "partition" in pt else 0.0
+        reference = self.string(pt["reference"], f"{pf}.reference") if "reference" in pt else "front"
+        if not isinstance(pt["muscle"], list):
+            self.c.fail("expected an array of tables [[pair.muscle]]", f"{pf}.muscle")
+        muscles = tuple(self.muscle(mt, f"{pf}.muscle[{j}]") for j, mt in enumerate(pt["muscle"]))
+        return BoneMusclePair(parent, child, partition, muscles, reference)
+
+    def attachment(self, v, fld) -> Attachment:
+        """An inline table { parent_joint, position } of a muscle's attachment point."""
+        self.keys(v, fld, ("parent_joint", "position"))
+        pos = None
+        if "position" in v:
+            pv, pf = v["position"], f"{fld}.position"
+            self.keys(pv, pf, ("type", "x", "y", "z"), required=("type", "x", "y", "z"))
+            pos = Position(self.string(pv["type"], f"{pf}.type"), tuple(self.num(pv[a], f"{pf}.{a}") for a in "xyz"))
+        joint = self.string(v["parent_joint"], f"{fld}.parent_joint") if "parent_joint" in v else None
+        return Attachment(joint, pos)
+
+    def muscle(self, mt, mf) -> MuscleTemplate:
+        """One [[pair.muscle]] table; `mf` its field (``pair[3].muscle[1]``)."""
+        self.keys(mt, mf, _TOML_MUSCLE_KEYS, required=("name",))
+        kw = {"name": self.string(mt["name"], f"{mf}.name")}
+        if "pair_id" in mt:
+            kw["pair_id"] = self.integer(mt["pair_id"], f"{mf}.pair_id")
+        for k in ("type", "kind"):
+            if k in mt:
+                kw[k] = self.string(mt[k], f"{mf}.{k}")
+        if "count" in mt:
+            kw["count"] = self.integer(mt["count"], f"{mf}.count")
+        for w in ATTACHMENTS:
+            if w in mt:
+                kw[w] = self.attachment(mt[w], f"{mf}.{w}")
+        for k in ("span", "sector"):
+            if k in mt:
+                kw[k] = self.pair_of(mt[k], f"{mf}.{k}", self.num)
+        for k in _TOML_NUMBERS:
+            if k in mt:
+                kw[k] = self.num(mt[k], f"{mf}.{k}")
+        jiggle, shell = {}, None
+        if "jiggle" in mt:
+            jf = f"{mf}.jiggle"
+            self.keys(mt["jiggle"], jf, tuple(k for k, _, _ in _JIGGLE))
+            jiggle = {k: self.num(v, f"{jf}.{k}") for k, v in mt["jiggle"].items()}
+        if "shell" in mt:
+            sf = f"{mf}.shell"
+            self.keys(mt["shell"], sf, tuple(k for k, _ in _SHELL))
+            shell = {k: self.string(v, f"{sf}.{k}") if k == "mode" else self.num(v, f"{sf}.{k}")
+                     for k, v in mt["shell"].items()}
+        return _muscle_of(kw, jiggle, shell, self.c, mf)
+
+
 def template_from_toml(text: str, path: str | None = None) -> Template:
     """Parse the TOML form; InputError naming `path` and the field for any problem."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise InputError(f"not valid TOML: {e}", path) from None
-    c = _Checker(path, None)
-
-    def keys(table, fld, allowed, required=()):
-        if not isinstance(table, dict):
-            c.fail(f"expected a table, got {table!r}", fld)
-        extra = [k for k in table if k not in allowed]
-        if extra:
-            c.fail(f"unknown key(s) {', '.join(map(repr, extra))}; expected {', '.join(allowed)}",
-                   f"{fld}.{extra[0]}" if fld else extra[0])
-        for k in required:
-            if k not in table:
-                c.fail(f"missing key {k!r}", f"{fld}.{k}" if fld else k)
-
-    def num(v, fld):
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            c.fail(f"expected a number, got {v!r}", fld)
-        return float(v)
-
-    def integer(v, fld):
-        if isinstance(v, bool) or not isinstance(v, int):
-            c.fail(f"expected an integer, got {v!r}", fld)
-        return v
-
-    def string(v, fld):
-        if not isinstance(v, str):
-            c.fail(f"expected a string, got {v!r}", fld)
-        return v
-
-    def pair_of(v, fld, conv):
-        if not isinstance(v, list) or len(v) != 2:
-            c.fail(f"expected a list of two values, got {v!r}", fld)
-        return tuple(conv(x, fld) for x in v)
-
-    def attachment(v, fld):
-        keys(v, fld, ("parent_joint", "position"))
-        pos = None
-        if "position" in v:
-            pv, pf = v["position"], f"{fld}.position"
-            keys(pv, pf, ("type", "x", "y", "z"), required=("type", "x", "y", "z"))
-            pos = Position(string(pv["type"], f"{pf}.type"), tuple(num(pv[a], f"{pf}.{a}") for a in "xyz"))
-        joint = string(v["parent_joint"], f"{fld}.parent_joint") if "parent_joint" in v else None
-        return Attachment(joint, pos)
-
-    muscle_keys = ("name", "pair_id", "type", "kind", "count", *ATTACHMENTS, "span", "sector", "rim_scale",
-                   "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min", "depth", "jiggle", "shell")
-    keys(doc, "", ("name", "pair"), required=("pair",))
-    name = string(doc["name"], "name") if "name" in doc else _stem(path)
-    if not isinstance(doc["pair"], list):
-        c.fail("expected an array of tables [[pair]]", "pair")
-    pairs = []
-    for i, pt in enumerate(doc["pair"]):
-        pf = f"pair[{i}]"
-        keys(pt, pf, ("bone", "partition", "reference", "muscle"), required=("bone", "muscle"))
-        parent, child = pair_of(pt["bone"], f"{pf}.bone", string)
-        partition = num(pt["partition"], f"{pf}.partition") if "partition" in pt else 0.0
-        reference = string(pt["reference"], f"{pf}.reference") if "reference" in pt else "front"
-        if not isinstance(pt["muscle"], list):
-            c.fail("expected an array of tables [[pair.muscle]]", f"{pf}.muscle")
-        muscles = []
-        for j, mt in enumerate(pt["muscle"]):
-            mf = f"{pf}.muscle[{j}]"
-            keys(mt, mf, muscle_keys, required=("name",))
-            kw = {"name": string(mt["name"], f"{mf}.name")}
-            if "pair_id" in mt:
-                kw["pair_id"] = integer(mt["pair_id"], f"{mf}.pair_id")
-            for k in ("type", "kind"):
-                if k in mt:
-                    kw[k] = string(mt[k], f"{mf}.{k}")
-            if "count" in mt:
-                kw["count"] = integer(mt["count"], f"{mf}.count")
-            for w in ATTACHMENTS:
-                if w in mt:
-                    kw[w] = attachment(mt[w], f"{mf}.{w}")
-            for k in ("span", "sector"):
-                if k in mt:
-                    kw[k] = pair_of(mt[k], f"{mf}.{k}", num)
-            for k in ("rim_scale", "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min",
-                      "depth"):
-                if k in mt:
-                    kw[k] = num(mt[k], f"{mf}.{k}")
-            given = {}
-            if "jiggle" in mt:
-                jf = f"{mf}.jiggle"
-                keys(mt["jiggle"], jf, tuple(k for k, _, _ in _JIGGLE))
-                given = {k: num(v, f"{jf}.{k}") for k, v in mt["jiggle"].items()}
-            kw["jiggle"] = _jiggle_of(kw.get("kind", "muscle"), given)
-            given = {}
-            if "shell" in mt:
-                sf = f"{mf}.shell"
-                keys(mt["shell"], sf, tuple(k for k, _ in _SHELL))
-                given = {k: string(v, f"{sf}.{k}") if k == "mode" else num(v, f"{sf}.{k}")
-                         for k, v in mt["shell"].items()}
-                kw["shell"] = _shell_of(kw.get("kind", "muscle"), given, c, sf)
-            muscles.append(MuscleTemplate(**kw))
-        pairs.append(BoneMusclePair(parent, child, partition, tuple(muscles), reference))
-    return validate_template(Template(name, tuple(pairs), source=path or ""), path)
+    name, pairs = _TomlReader(path).template(doc)
+    return validate_template(Template(name, pairs, source=path or ""), path)
 
 
 def _toml_str(s: str) -> str:
@@ -775,182 +805,221 @@ def _parse_xml(data: bytes, path: str | None) -> tuple[ET.Element, dict[int, int
     return root, builder.lines
 
 
+_XML_MUSCLE_CHILDREN = ("name", *_XML_ATTACH.values(), "span", "sector", "sections", "shape", "jiggle", "shell")
+
+
+class _XmlReader:
+    """Reads the elements of a parsed XML template. Every field read is recorded in `lines` ({field:
+    line}, kept for validate_template's errors too) with the line of its element; every problem fails
+    through the _Checker, naming the file, the field (in the TOML spelling) and the line.
+
+    elem_lines : {id(element): line}, from _parse_xml.
+    """
+
+    def __init__(self, path: str | None, elem_lines: dict[int, int]):
+        self.path = path
+        self.elem_lines = elem_lines
+        self.lines: dict[str, int] = {}
+        self.c = _Checker(path, self.lines)
+
+    def at(self, elem, fld):
+        """`fld`, its line recorded as `elem`'s unless one is recorded already."""
+        if id(elem) in self.elem_lines:
+            self.lines.setdefault(fld, self.elem_lines[id(elem)])
+        return fld
+
+    def no_text(self, elem, fld):
+        """Fail when `elem` holds text besides its child elements."""
+        for text in (elem.text, *(ch.tail for ch in elem)):
+            if text and text.strip():
+                self.c.fail(f"unexpected text {text.strip()!r} in <{elem.tag}>", fld)
+
+    def children(self, elem, fld, allowed, repeat=()):
+        """{tag: [elements]} of elem's children; unknown tags and repeats of single ones are errors."""
+        self.no_text(elem, fld)
+        out: dict[str, list] = {}
+        for ch in elem:
+            if ch.tag not in allowed:
+                self.at(ch, f"{fld}.{ch.tag}")
+                self.c.fail(f"unknown element <{ch.tag}> in <{elem.tag}>; expected "
+                            f"{', '.join('<' + a + '>' for a in allowed)}", f"{fld}.{ch.tag}")
+            if ch.tag in out and ch.tag not in repeat:
+                self.at(ch, f"{fld}.{ch.tag}")
+                self.c.fail(f"<{ch.tag}> given twice in <{elem.tag}>", f"{fld}.{ch.tag}")
+            out.setdefault(ch.tag, []).append(ch)
+        return out
+
+    def attrs(self, elem, fld, allowed, required=()):
+        """The attributes of `elem`; fail unless they are among `allowed` and include `required`."""
+        extra = [a for a in elem.attrib if a not in allowed]
+        if extra:
+            self.c.fail(f"unknown attribute(s) {', '.join(extra)} of <{elem.tag}>; expected "
+                        f"{', '.join(allowed) or 'none'}", fld)
+        for a in required:
+            if a not in elem.attrib:
+                self.c.fail(f"<{elem.tag}> needs the attribute {a}", fld)
+        return elem.attrib
+
+    def leaf(self, elem, fld, allowed, required=()):
+        """The attributes of `elem`, an element of attributes only (no text, no children), at field `fld`."""
+        self.at(elem, fld)
+        given = self.attrs(elem, fld, allowed, required)
+        self.children(elem, fld, ())
+        return given
+
+    def text_of(self, elem, fld):
+        """The stripped, non-empty text of `elem`, an element of text only."""
+        if len(elem):
+            self.c.fail(f"<{elem.tag}> holds text only, found <{elem[0].tag}>", fld)
+        text = (elem.text or "").strip()
+        if not text:
+            self.c.fail(f"<{elem.tag}> is empty", fld)
+        return text
+
+    def num(self, s, fld):
+        """The attribute text `s` as a float."""
+        try:
+            return float(s)
+        except ValueError:
+            self.c.fail(f"expected a number, got {s!r}", fld)
+
+    def integer(self, s, fld):
+        """The attribute text `s` as an int."""
+        try:
+            return int(s.strip())
+        except ValueError:
+            self.c.fail(f"expected an integer, got {s!r}", fld)
+
+    def template(self, root) -> tuple[str, tuple[BoneMusclePair, ...]]:
+        """The name and the pairs of the document whose root element is `root`."""
+        if root.tag == "boneMusclePair":
+            return _stem(self.path), (self.pair(root, 0),)
+        if root.tag == "musculoskeletalTemplate":
+            self.at(root, "name")
+            name = self.attrs(root, "name", ("name",)).get("name", _stem(self.path))
+            kids = self.children(root, "pair", ("boneMusclePair",), repeat=("boneMusclePair",))
+            return name, tuple(self.pair(e, i) for i, e in enumerate(kids.get("boneMusclePair", [])))
+        self.lines["template"] = self.elem_lines.get(id(root), 1)
+        self.c.fail(f"the root element is <{root.tag}>; expected <musculoskeletalTemplate> or <boneMusclePair>",
+                    "template")
+
+    def pair(self, elem, i) -> BoneMusclePair:
+        """One <boneMusclePair>, the template's pair `i`."""
+        pf = self.at(elem, f"pair[{i}]")
+        self.attrs(elem, pf, ())
+        kids = self.children(elem, pf, ("bone", "partition", "muscle"), repeat=("muscle",))
+        if "bone" not in kids:
+            self.c.fail("<boneMusclePair> needs a <bone>", f"{pf}.bone")
+        parent, child = self.bone(kids["bone"][0], f"{pf}.bone")
+        partition, reference = 0.0, "front"
+        if "partition" in kids:
+            e = kids["partition"][0]
+            f = self.at(e, f"{pf}.partition")
+            given = self.attrs(e, f, ("angle", "reference"), required=("angle",))
+            partition = self.num(given["angle"], f)
+            reference = given.get("reference", "front")
+            self.children(e, f, ())
+        if "muscle" not in kids:
+            self.c.fail("<boneMusclePair> has no <muscle>", f"{pf}.muscle")
+        muscles = tuple(self.muscle(e, f"{pf}.muscle[{j}]") for j, e in enumerate(kids["muscle"]))
+        return BoneMusclePair(parent, child, partition, muscles, reference)
+
+    def bone(self, elem, fld) -> tuple[str, str]:
+        """(parent, child) role labels of a <bone> element."""
+        self.at(elem, fld)
+        kids = self.children(elem, fld, ("parentJoint", "childJoint"))
+        for tag in ("parentJoint", "childJoint"):
+            if tag not in kids:
+                self.c.fail(f"<bone> needs a <{tag}>", fld)
+        return tuple(self.text_of(kids[t][0], fld) for t in ("parentJoint", "childJoint"))
+
+    def attachment(self, elem, fld) -> Attachment:
+        """An attachment element (<origin>, <oHinge>, <iHinge>, <insertion>): <parentJoint>, <position>."""
+        self.at(elem, fld)
+        self.attrs(elem, fld, ())
+        kids = self.children(elem, fld, ("parentJoint", "position"))
+        joint = pos = None
+        if "parentJoint" in kids:
+            joint = self.text_of(kids["parentJoint"][0], self.at(kids["parentJoint"][0], f"{fld}.parent_joint"))
+        if "position" in kids:
+            pe = kids["position"][0]
+            pf = self.at(pe, f"{fld}.position")
+            for a in ("type", "x", "y", "z"):
+                self.at(pe, f"{pf}.{a}")
+            given = self.leaf(pe, pf, ("type", "x", "y", "z"), required=("type", "x", "y", "z"))
+            pos = Position(given["type"], tuple(self.num(given[k], f"{pf}.{k}") for k in "xyz"))
+        return Attachment(joint, pos)
+
+    def muscle(self, elem, mf) -> MuscleTemplate:
+        """One <muscle>; `mf` its field (``pair[3].muscle[1]``)."""
+        self.at(elem, mf)
+        kw = self.muscle_attrs(elem, mf)
+        kids = self.children(elem, mf, _XML_MUSCLE_CHILDREN)
+        if "name" not in kids:
+            self.c.fail("<muscle> needs a <name>", f"{mf}.name")
+        kw["name"] = self.text_of(kids["name"][0], self.at(kids["name"][0], f"{mf}.name"))
+        for w, tag in _XML_ATTACH.items():
+            if tag in kids:
+                kw[w] = self.attachment(kids[tag][0], f"{mf}.{w}")
+        for k, ends in (("span", ("t0", "t1")), ("sector", ("a0", "a1"))):
+            if k in kids:
+                f = f"{mf}.{k}"
+                given = self.leaf(kids[k][0], f, ends, required=ends)
+                kw[k] = tuple(self.num(given[x], f) for x in ends)
+        for tag, table in (("sections", _SECTIONS), ("shape", _SHAPE)):
+            if tag in kids:
+                e = kids[tag][0]
+                given = self.leaf(e, f"{mf}.{tag}", tuple(x for _, x in table))
+                for key, x in table:
+                    if x in given:
+                        f = self.at(e, f"{mf}.{key}")
+                        kw[key] = self.integer(given[x], f) if key == "count" else self.num(given[x], f)
+        return _muscle_of(kw, self.jiggle(kids, mf), self.shell(kids, mf), self.c, mf)
+
+    def muscle_attrs(self, elem, mf) -> dict:
+        """{MuscleTemplate field: value} of the <muscle> element's attributes (pairId, type, kind)."""
+        a = self.attrs(elem, mf, ("pairId", "type", "kind"))
+        kw = {}
+        if "pairId" in a:
+            kw["pair_id"] = self.integer(a["pairId"], self.at(elem, f"{mf}.pair_id"))
+        for k in ("type", "kind"):
+            if k in a:
+                kw[k] = a[k].strip()
+                self.at(elem, f"{mf}.{k}")
+        return kw
+
+    def jiggle(self, kids, mf) -> dict:
+        """{TOML key: value} of the muscle's <jiggle> element ({} when it has none)."""
+        if "jiggle" not in kids:
+            return {}
+        e = kids["jiggle"][0]
+        jf = f"{mf}.jiggle"
+        given = self.leaf(e, jf, tuple(x for _, x, _ in _JIGGLE))
+        return {key: self.num(given[x], self.at(e, f"{jf}.{key}")) for key, x, _ in _JIGGLE if x in given}
+
+    def shell(self, kids, mf) -> dict | None:
+        """{TOML key: value} of the muscle's <shell> element (None when it has none)."""
+        if "shell" not in kids:
+            return None
+        e = kids["shell"][0]
+        sf = f"{mf}.shell"
+        ea = self.leaf(e, sf, tuple(x for _, x in _SHELL))
+        given = {key: ea[x].strip() if key == "mode" else self.num(ea[x], self.at(e, f"{sf}.{key}"))
+                 for key, x in _SHELL if x in ea}
+        if "mode" in given:
+            self.at(e, f"{sf}.mode")
+        return given
+
+
 def template_from_xml(data: bytes | str, path: str | None = None) -> Template:
     """Parse the XML form (root ``musculoskeletalTemplate``, or a single ``boneMusclePair``);
     InputError naming `path`, the line and the field for any problem."""
     if isinstance(data, str):
         data = data.encode("utf-8")
     root, elem_lines = _parse_xml(data, path)
-    lines: dict[str, int] = {}
-    c = _Checker(path, lines)
-
-    def at(elem, fld):
-        if id(elem) in elem_lines:
-            lines.setdefault(fld, elem_lines[id(elem)])
-        return fld
-
-    def no_text(elem, fld):
-        for text in (elem.text, *(ch.tail for ch in elem)):
-            if text and text.strip():
-                c.fail(f"unexpected text {text.strip()!r} in <{elem.tag}>", fld)
-
-    def children(elem, fld, allowed, repeat=()):
-        """{tag: [elements]} of elem's children; unknown tags and repeats of single ones are errors."""
-        no_text(elem, fld)
-        out: dict[str, list] = {}
-        for ch in elem:
-            if ch.tag not in allowed:
-                at(ch, f"{fld}.{ch.tag}")
-                c.fail(f"unknown element <{ch.tag}> in <{elem.tag}>; expected "
-                       f"{', '.join('<' + a + '>' for a in allowed)}", f"{fld}.{ch.tag}")
-            if ch.tag in out and ch.tag not in repeat:
-                at(ch, f"{fld}.{ch.tag}")
-                c.fail(f"<{ch.tag}> given twice in <{elem.tag}>", f"{fld}.{ch.tag}")
-            out.setdefault(ch.tag, []).append(ch)
-        return out
-
-    def attrs(elem, fld, allowed, required=()):
-        extra = [a for a in elem.attrib if a not in allowed]
-        if extra:
-            c.fail(f"unknown attribute(s) {', '.join(extra)} of <{elem.tag}>; expected "
-                   f"{', '.join(allowed) or 'none'}", fld)
-        for a in required:
-            if a not in elem.attrib:
-                c.fail(f"<{elem.tag}> needs the attribute {a}", fld)
-        return elem.attrib
-
-    def text_of(elem, fld):
-        if len(elem):
-            c.fail(f"<{elem.tag}> holds text only, found <{elem[0].tag}>", fld)
-        text = (elem.text or "").strip()
-        if not text:
-            c.fail(f"<{elem.tag}> is empty", fld)
-        return text
-
-    def num(s, fld):
-        try:
-            return float(s)
-        except ValueError:
-            c.fail(f"expected a number, got {s!r}", fld)
-
-    def integer(s, fld):
-        try:
-            return int(s.strip())
-        except ValueError:
-            c.fail(f"expected an integer, got {s!r}", fld)
-
-    def bone(elem, fld):
-        at(elem, fld)
-        kids = children(elem, fld, ("parentJoint", "childJoint"))
-        for tag in ("parentJoint", "childJoint"):
-            if tag not in kids:
-                c.fail(f"<bone> needs a <{tag}>", fld)
-        return tuple(text_of(kids[t][0], fld) for t in ("parentJoint", "childJoint"))
-
-    def attachment(elem, fld):
-        at(elem, fld)
-        attrs(elem, fld, ())
-        kids = children(elem, fld, ("parentJoint", "position"))
-        joint = pos = None
-        if "parentJoint" in kids:
-            joint = text_of(kids["parentJoint"][0], at(kids["parentJoint"][0], f"{fld}.parent_joint"))
-        if "position" in kids:
-            pe = kids["position"][0]
-            pf = at(pe, f"{fld}.position")
-            for a in ("type", "x", "y", "z"):
-                at(pe, f"{pf}.{a}")
-            a = attrs(pe, pf, ("type", "x", "y", "z"), required=("type", "x", "y", "z"))
-            children(pe, pf, ())
-            pos = Position(a["type"], tuple(num(a[k], f"{pf}.{k}") for k in "xyz"))
-        return Attachment(joint, pos)
-
-    def muscle(elem, mf):
-        at(elem, mf)
-        a = attrs(elem, mf, ("pairId", "type", "kind"))
-        kw = {}
-        if "pairId" in a:
-            kw["pair_id"] = integer(a["pairId"], at(elem, f"{mf}.pair_id"))
-        for k in ("type", "kind"):
-            if k in a:
-                kw[k] = a[k].strip()
-                at(elem, f"{mf}.{k}")
-        kids = children(elem, mf, ("name", *_XML_ATTACH.values(), "span", "sector", "sections", "shape", "jiggle",
-                                           "shell"))
-        if "name" not in kids:
-            c.fail("<muscle> needs a <name>", f"{mf}.name")
-        kw["name"] = text_of(kids["name"][0], at(kids["name"][0], f"{mf}.name"))
-        for w, tag in _XML_ATTACH.items():
-            if tag in kids:
-                kw[w] = attachment(kids[tag][0], f"{mf}.{w}")
-        for k, ends in (("span", ("t0", "t1")), ("sector", ("a0", "a1"))):
-            if k in kids:
-                e = kids[k][0]
-                f = at(e, f"{mf}.{k}")
-                ea = attrs(e, f, ends, required=ends)
-                children(e, f, ())
-                kw[k] = tuple(num(ea[x], f) for x in ends)
-        for tag, table in (("sections", _SECTIONS), ("shape", _SHAPE)):
-            if tag in kids:
-                e = kids[tag][0]
-                at(e, f"{mf}.{tag}")
-                ea = attrs(e, f"{mf}.{tag}", tuple(x for _, x in table))
-                children(e, f"{mf}.{tag}", ())
-                for key, x in table:
-                    if x in ea:
-                        f = at(e, f"{mf}.{key}")
-                        kw[key] = integer(ea[x], f) if key == "count" else num(ea[x], f)
-        given = {}
-        if "jiggle" in kids:
-            e = kids["jiggle"][0]
-            jf = at(e, f"{mf}.jiggle")
-            ea = attrs(e, jf, tuple(x for _, x, _ in _JIGGLE))
-            children(e, jf, ())
-            given = {key: num(ea[x], at(e, f"{jf}.{key}")) for key, x, _ in _JIGGLE if x in ea}
-        kw["jiggle"] = _jiggle_of(kw.get("kind", "muscle"), given)
-        if "shell" in kids:
-            e = kids["shell"][0]
-            sf = at(e, f"{mf}.shell")
-            ea = attrs(e, sf, tuple(x for _, x in _SHELL))
-            children(e, sf, ())
-            given = {key: ea[x].strip() if key == "mode" else num(ea[x], at(e, f"{sf}.{key}"))
-                     for key, x in _SHELL if x in ea}
-            if "mode" in given:
-                at(e, f"{sf}.mode")
-            kw["shell"] = _shell_of(kw.get("kind", "muscle"), given, c, sf)
-        return MuscleTemplate(**kw)
-
-    def pair(elem, i):
-        pf = at(elem, f"pair[{i}]")
-        attrs(elem, pf, ())
-        kids = children(elem, pf, ("bone", "partition", "muscle"), repeat=("muscle",))
-        if "bone" not in kids:
-            c.fail("<boneMusclePair> needs a <bone>", f"{pf}.bone")
-        parent, child = bone(kids["bone"][0], f"{pf}.bone")
-        partition, reference = 0.0, "front"
-        if "partition" in kids:
-            e = kids["partition"][0]
-            f = at(e, f"{pf}.partition")
-            given = attrs(e, f, ("angle", "reference"), required=("angle",))
-            partition = num(given["angle"], f)
-            reference = given.get("reference", "front")
-            children(e, f, ())
-        if "muscle" not in kids:
-            c.fail("<boneMusclePair> has no <muscle>", f"{pf}.muscle")
-        muscles = tuple(muscle(e, f"{pf}.muscle[{j}]") for j, e in enumerate(kids["muscle"]))
-        return BoneMusclePair(parent, child, partition, muscles, reference)
-
-    if root.tag == "boneMusclePair":
-        name, pairs = _stem(path), (pair(root, 0),)
-    elif root.tag == "musculoskeletalTemplate":
-        at(root, "name")
-        name = attrs(root, "name", ("name",)).get("name", _stem(path))
-        kids = children(root, "pair", ("boneMusclePair",), repeat=("boneMusclePair",))
-        pairs = tuple(pair(e, i) for i, e in enumerate(kids.get("boneMusclePair", [])))
-    else:
-        lines["template"] = elem_lines.get(id(root), 1)
-        c.fail(f"the root element is <{root.tag}>; expected <musculoskeletalTemplate> or <boneMusclePair>",
-               "template")
-    return validate_template(Template(name, pairs, source=path or ""), path, lines)
+    reader = _XmlReader(path, elem_lines)
+    name, pairs = reader.template(root)
+    return validate_template(Template(name, pairs, source=path or ""), path, reader.lines)
 
 
 def template_to_xml(t: Template) -> str:
