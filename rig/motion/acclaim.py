@@ -236,6 +236,26 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
     """Read an Acclaim skeleton file. See the module docstring for the readings."""
     p = require_file(path, "ASF skeleton file")
     lines = _read_text(p, "ASF")
+    sections, section_line = _asf_sections(lines, p)
+    length_unit, angle_unit = _parse_units(sections.get("units", []), p)
+    to_rad = np.pi / 180.0 if angle_unit == "deg" else 1.0
+    root = _parse_root(sections["root"], p, to_rad, length_unit, section_line["root"])
+    bones = _parse_bones(sections["bonedata"], p, to_rad, INCH / length_unit)
+    by_name = {b.name: k for k, b in enumerate(bones)}
+    if "root" in by_name:
+        raise InputError("a bone is named 'root', the name of the root", p, bones[by_name["root"]].line,
+                         "name")
+    children, child_line = _parse_hierarchy(sections["hierarchy"], p, by_name)
+    order_out, parents = _depth_first(children, by_name, bones, child_line, p)
+    name = " ".join(sections["name"][0][1]) if sections.get("name") else ""
+    return AsfSkeleton(name=name or os.path.splitext(os.path.basename(p))[0], path=p,
+                       metres_per_unit=INCH / length_unit, angle_unit=angle_unit, root=root,
+                       bones=tuple(bones[k] for k in order_out), parents=tuple(parents))
+
+
+def _asf_sections(lines: list[str], p: str) -> tuple[dict[str, list[tuple[int, list[str]]]], dict[str, int]]:
+    """The file's ``:section`` blocks: {section: [(1-based line, tokens), ...]} without comments, and
+    the line each section starts on. InputError when a section repeats or a required one is absent."""
     sections: dict[str, list[tuple[int, list[str]]]] = {}
     section_line: dict[str, int] = {}
     current = None
@@ -260,10 +280,13 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
         if need not in sections:
             raise InputError(f"the file has no :{need} section; expected an Acclaim ASF skeleton", p,
                              len(lines) or None)
+    return sections, section_line
 
-    # :units
+
+def _parse_units(rows: list[tuple[int, list[str]]], p: str) -> tuple[float, str]:
+    """The ``:units`` section: (file units per inch, "deg" or "rad"); defaults 1.0 and "deg"."""
     length_unit, angle_unit = 1.0, "deg"
-    for ln, toks in sections.get("units", []):
+    for ln, toks in rows:
         key = toks[0].lower()
         if key not in ("length", "angle", "mass"):
             continue
@@ -282,11 +305,15 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
             if angle_unit not in ("deg", "rad"):
                 raise InputError(f"unknown angle unit {toks[1]!r}; expected 'deg' or 'rad'", p, ln,
                                  "units angle")
-    to_rad = np.pi / 180.0 if angle_unit == "deg" else 1.0
+    return length_unit, angle_unit
 
-    # :root
+
+def _parse_root(rows: list[tuple[int, list[str]]], p: str, to_rad: float, length_unit: float,
+                section_line: int) -> AsfRoot:
+    """The ``:root`` section; `to_rad` converts the ASF's angles to radians, `length_unit` is file
+    units per inch and `section_line` the section's 1-based line (for a missing ``order``)."""
     order, axis, position, orientation = None, "XYZ", np.zeros(3), np.zeros(3)
-    for ln, toks in sections["root"]:
+    for ln, toks in rows:
         key = toks[0].lower()
         if key == "order":
             order = tuple(t.lower() for t in toks[1:])
@@ -307,20 +334,18 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
             raise InputError(f"unknown root field {toks[0]!r}; expected order, axis, position or "
                              f"orientation", p, ln, "root")
     if order is None:
-        raise InputError("the :root section has no 'order'", p, section_line["root"], "root order")
-    root = AsfRoot(order, axis, frozen_array(position), frozen_array(orientation))
+        raise InputError("the :root section has no 'order'", p, section_line, "root order")
+    return AsfRoot(order, axis, frozen_array(position), frozen_array(orientation))
 
-    bones = _parse_bones(sections["bonedata"], p, to_rad, INCH / length_unit)
-    by_name = {b.name: k for k, b in enumerate(bones)}
-    if "root" in by_name:
-        raise InputError("a bone is named 'root', the name of the root", p, bones[by_name["root"]].line,
-                         "name")
 
-    # :hierarchy
+def _parse_hierarchy(rows: list[tuple[int, list[str]]], p: str, by_name: dict[str, int]
+                     ) -> tuple[dict[str, list[str]], dict[str, int]]:
+    """The ``:hierarchy`` section: {parent name: [child names in file order]} and the 1-based line
+    naming each child. InputError for an unknown bone or a bone given two parents."""
     children: dict[str, list[str]] = {}
     child_line: dict[str, int] = {}
     opened = False
-    for ln, toks in sections["hierarchy"]:
+    for ln, toks in rows:
         key = toks[0].lower()
         if key == "begin" and len(toks) == 1:
             opened = True
@@ -341,6 +366,14 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
                                  "hierarchy")
             child_line[c] = ln
             children.setdefault(parent, []).append(c)
+    return children, child_line
+
+
+def _depth_first(children: dict[str, list[str]], by_name: dict[str, int], bones: list[AsfBone],
+                 child_line: dict[str, int], p: str) -> tuple[list[int], list[int]]:
+    """Clip order of the bones (indices into `bones`, depth first from the root, children in file
+    order) and each one's parent as a position in that order (-1: a child of the root). InputError
+    when a bone is not reached from the root."""
     order_out: list[int] = []
     parents: list[int] = []
     stack = [(c, -1) for c in reversed(children.get("root", []))]
@@ -356,10 +389,7 @@ def read_asf(path: str | os.PathLike) -> AsfSkeleton:
         at = child_line.get(b.name, b.line)
         raise InputError(f"bone {b.name!r} is not connected to the root in :hierarchy (a loop or a "
                          f"missing parent)", p, at, "hierarchy")
-    name = " ".join(sections["name"][0][1]) if sections.get("name") else ""
-    return AsfSkeleton(name=name or os.path.splitext(os.path.basename(p))[0], path=p,
-                       metres_per_unit=INCH / length_unit, angle_unit=angle_unit, root=root,
-                       bones=tuple(bones[k] for k in order_out), parents=tuple(parents))
+    return order_out, parents
 
 
 def _check_length(metres: float, p: str, ln: int, what: str) -> None:
@@ -509,8 +539,28 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
     if not isinstance(fps, numbers.Real) or isinstance(fps, bool) or not np.isfinite(fps) or fps <= 0:
         raise InputError(f"fps must be a positive number, got {fps!r}", field="fps")
     lines = _read_text(p, "AMC")
+    degrees, start = _amc_header(lines)
+    table = _amc_table(lines, start, asf, p)
+    to_rad = np.pi / 180.0 if degrees else 1.0
+    names, parents, offsets, axes, ends = asf._layout()
+    with np.errstate(over="ignore", invalid="ignore"):  # huge values -> inf; the Clip rejects them
+        rotations, translations = _amc_motion(asf, table, to_rad, parents, offsets, axes)
+        far = ~(np.abs(translations) * asf.metres_per_unit <= MAX_OFFSET).all(axis=2)
+    if far.any():
+        f, j = np.argwhere(far)[0]
+        dist = np.linalg.norm(translations[f, j]) * asf.metres_per_unit
+        raise InputError(f"frame {f + 1} places {names[j]!r} {dist:.4g} m from its parent (the origin for the "
+                         f"root); expected at most {MAX_OFFSET:g} m (a broken number or a wrong :units length?)",
+                         p, table.frame_lines[f], names[j])
+    meta = {"format": "ASF/AMC", "frames_in_file": table.frames, "angles": "degrees" if degrees else "radians",
+            "fps": f"{fps:g} (given)" if fps != CMU_FPS else f"{CMU_FPS:g} (CMU default)"}
+    return _make_clip(asf, names, parents, offsets, rotations, translations, ends, fps,
+                      os.path.splitext(os.path.basename(p))[0], p, meta)
 
-    # Header: comments (#) and keywords (:) before the first frame number.
+
+def _amc_header(lines: list[str]) -> tuple[bool, int]:
+    """(angles in degrees, index of the first line after the header): comments (#) and keywords (:)
+    before the first frame number; ``:RADIANS``/``:DEGREES`` set the unit (degrees when absent)."""
     degrees = True
     start = len(lines)
     for i, raw in enumerate(lines):
@@ -526,8 +576,49 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
             continue  # :FULLY-SPECIFIED and other flags
         start = i
         break
+    return degrees, start
 
-    # Columns per name: the root's from its `order`, each bone's from its `dof`.
+
+@dataclass(frozen=True, eq=False)
+class _AmcTable:
+    """An AMC's value lines, gathered per name, checked for layout but not yet parsed as numbers.
+
+    rows : {name: [the values text of each frame]} for the root and each bone with dofs.
+    ncols : {name: number of values per frame} for the root and every bone (0 for no dofs).
+    frame_lines : 1-based line of each frame number.
+    lines, start, path : the file's lines, the index of its first frame line, and its path.
+    """
+
+    rows: dict[str, list[str]]
+    ncols: dict[str, int]
+    frame_lines: list[int]
+    lines: list[str]
+    start: int
+    path: str
+
+    @property
+    def frames(self) -> int:
+        return len(self.frame_lines)
+
+    def values(self, name: str) -> np.ndarray:
+        """(F, ncols) float64 in file units, checked finite."""
+        try:
+            v = np.array(" ".join(self.rows[name]).split(), dtype=np.float64)
+        except ValueError:
+            v = None
+        if v is None or not np.all(np.isfinite(v)):
+            # Rare path: find the offending line again (not tracked per line on the fast path).
+            for ln in range(self.start, len(self.lines)):
+                parts = self.lines[ln].split()
+                if parts and parts[0] == name:
+                    for tok in parts[1:]:
+                        _num(tok, self.path, ln + 1, name)
+        return v.reshape(self.frames, self.ncols[name])
+
+
+def _amc_table(lines: list[str], start: int, asf: AsfSkeleton, p: str) -> _AmcTable:
+    """Gather the frames from line index `start` on: frame numbers count up by one and every frame
+    lists each bone with dofs once, with as many values as its dofs (the root: its ``order``)."""
     ncols = {"root": len(asf.root.order)}
     ncols.update({b.name: len(b.dof) for b in asf.bones})
     rows: dict[str, list[str]] = {n: [] for n, c in ncols.items() if c > 0}
@@ -554,95 +645,79 @@ def read_amc(path: str | os.PathLike, asf: AsfSkeleton | str | os.PathLike,
             continue
         if prev_frame is None:
             raise InputError(f"expected a frame number before {head!r}", p, i + 1, "frame")
-        name = head
-        if name not in ncols:
-            raise InputError(f"bone {name!r} is not in the skeleton {os.path.basename(asf.path)}",
-                             p, i + 1, name)
-        if name in seen:
-            raise InputError(f"bone {name!r} appears twice in frame {prev_frame}", p, i + 1, name)
-        vals = rest.split()
-        if len(vals) != ncols[name]:
-            want = " ".join(asf.root.order) if name == "root" else " ".join(asf.bone(name).dof)
-            raise InputError(f"expected {ncols[name]} values ({want or 'no dofs'}), found {len(vals)}",
-                             p, i + 1, name)
-        seen.add(name)
-        if ncols[name]:
-            rows[name].append(rest)
+        _check_bone_line(head, rest, ncols, seen, prev_frame, asf, p, i + 1)
+        seen.add(head)
+        if ncols[head]:
+            rows[head].append(rest)
     if prev_frame is None:
         raise InputError("the file has no frames; a clip needs at least one", p, len(lines) or None, "frame")
     if seen != expect:
         _missing(expect - seen, p, frame_lines[-1], prev_frame, last=True)
-    F = len(frame_lines)
+    return _AmcTable(rows, ncols, frame_lines, lines, start, p)
 
-    def values(name: str) -> np.ndarray:
-        """(F, ncols) float64 in file units, checked finite."""
-        try:
-            v = np.array(" ".join(rows[name]).split(), dtype=np.float64)
-        except ValueError:
-            v = None
-        if v is None or not np.all(np.isfinite(v)):
-            # Rare path: find the offending line again (not tracked per line on the fast path).
-            for ln in range(start, len(lines)):
-                parts = lines[ln].split()
-                if parts and parts[0] == name:
-                    for tok in parts[1:]:
-                        _num(tok, p, ln + 1, name)
-        return v.reshape(F, ncols[name])
 
-    to_rad = np.pi / 180.0 if degrees else 1.0
-    names, parents, offsets, axes, ends = asf._layout()
-    J = len(names)
+def _check_bone_line(name: str, rest: str, ncols: dict[str, int], seen: set[str], frame: int,
+                     asf: AsfSkeleton, p: str, line: int) -> None:
+    """InputError when the line `name rest...` of frame `frame` names no bone of the skeleton, a bone
+    already listed in the frame, or holds a wrong number of values."""
+    if name not in ncols:
+        raise InputError(f"bone {name!r} is not in the skeleton {os.path.basename(asf.path)}",
+                         p, line, name)
+    if name in seen:
+        raise InputError(f"bone {name!r} appears twice in frame {frame}", p, line, name)
+    vals = rest.split()
+    if len(vals) != ncols[name]:
+        want = " ".join(asf.root.order) if name == "root" else " ".join(asf.bone(name).dof)
+        raise InputError(f"expected {ncols[name]} values ({want or 'no dofs'}), found {len(vals)}",
+                         p, line, name)
+
+
+def _amc_motion(asf: AsfSkeleton, table: _AmcTable, to_rad: float, parents: list[int],
+                offsets: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Local rotations (F, J, 4) and translations (F, J, 3) (file units, Y-up) of the clip's joints
+    (``root``, then the bones) from the AMC values; `offsets` (J, 3) and axis frames `axes` (J, 4)
+    as ``AsfSkeleton._layout`` gives them."""
+    F, J = table.frames, len(parents)
     rotations = quat.identity((F, J))
     translations = np.broadcast_to(offsets, (F, J, 3)).copy()
-    with np.errstate(over="ignore", invalid="ignore"):  # huge values -> inf; the Clip rejects them
-        # Root: translation replaces position per axis; rotations apply in the order listed.
-        if "root" in rows:
-            v = values("root")
-            rot_cols, rot_order = [], ""
-            for c, d in enumerate(asf.root.order):
-                if d[0] == "t":
-                    translations[:, 0, "xyz".index(d[1])] = v[:, c]
-                else:
-                    rot_cols.append(c)
-                    rot_order += d[1].upper()
-            if rot_order:
-                m = quat.from_euler(v[:, rot_cols[::-1]] * to_rad, rot_order[::-1], degrees=False)
-                rotations[:, 0] = quat.mul(quat.mul(axes[0], m), quat.conj(axes[0]))
-        ang = np.zeros((F, J, 3))  # rx, ry, rz of every bone, radians (zero where no dof)
-        rotating = []
-        for k, b in enumerate(asf.bones):
-            if not b.dof:
-                continue
-            j = k + 1
-            v = values(b.name)
-            for c, d in enumerate(b.dof):
-                if d[0] == "r":
-                    ang[:, j, "xyz".index(d[1])] = v[:, c] * to_rad
-                elif d[0] == "t":  # a move of the bone's start, in its axis frame C
-                    e = np.zeros(3)
-                    e["xyz".index(d[1])] = 1.0
-                    translations[:, j] += v[:, c, None] * quat.rotate(axes[j], e)
-                else:  # "l": the bone grows along its direction; its children move with the tip
-                    for ch in range(J):
-                        if parents[ch] == j:
-                            translations[:, ch] += v[:, c, None] * b.direction
-            if any(d[0] == "r" for d in b.dof):
-                rotating.append(j)
-        if rotating:  # all bones in one call: M = Rz Ry Rx, then L = C M C^-1
-            m = _rzryrx(ang[:, rotating])
-            c = axes[rotating]
-            rotations[:, rotating] = quat.mul(quat.mul(c, m), quat.conj(c))
-        far = ~(np.abs(translations) * asf.metres_per_unit <= MAX_OFFSET).all(axis=2)
-    if far.any():
-        f, j = np.argwhere(far)[0]
-        dist = np.linalg.norm(translations[f, j]) * asf.metres_per_unit
-        raise InputError(f"frame {f + 1} places {names[j]!r} {dist:.4g} m from its parent (the origin for the "
-                         f"root); expected at most {MAX_OFFSET:g} m (a broken number or a wrong :units length?)",
-                         p, frame_lines[f], names[j])
-    meta = {"format": "ASF/AMC", "frames_in_file": F, "angles": "degrees" if degrees else "radians",
-            "fps": f"{fps:g} (given)" if fps != CMU_FPS else f"{CMU_FPS:g} (CMU default)"}
-    return _make_clip(asf, names, parents, offsets, rotations, translations, ends, fps,
-                      os.path.splitext(os.path.basename(p))[0], p, meta)
+    # Root: translation replaces position per axis; rotations apply in the order listed.
+    if "root" in table.rows:
+        v = table.values("root")
+        rot_cols, rot_order = [], ""
+        for c, d in enumerate(asf.root.order):
+            if d[0] == "t":
+                translations[:, 0, "xyz".index(d[1])] = v[:, c]
+            else:
+                rot_cols.append(c)
+                rot_order += d[1].upper()
+        if rot_order:
+            m = quat.from_euler(v[:, rot_cols[::-1]] * to_rad, rot_order[::-1], degrees=False)
+            rotations[:, 0] = quat.mul(quat.mul(axes[0], m), quat.conj(axes[0]))
+    ang = np.zeros((F, J, 3))  # rx, ry, rz of every bone, radians (zero where no dof)
+    rotating = []
+    for k, b in enumerate(asf.bones):
+        if not b.dof:
+            continue
+        j = k + 1
+        v = table.values(b.name)
+        for c, d in enumerate(b.dof):
+            if d[0] == "r":
+                ang[:, j, "xyz".index(d[1])] = v[:, c] * to_rad
+            elif d[0] == "t":  # a move of the bone's start, in its axis frame C
+                e = np.zeros(3)
+                e["xyz".index(d[1])] = 1.0
+                translations[:, j] += v[:, c, None] * quat.rotate(axes[j], e)
+            else:  # "l": the bone grows along its direction; its children move with the tip
+                for ch in range(J):
+                    if parents[ch] == j:
+                        translations[:, ch] += v[:, c, None] * b.direction
+        if any(d[0] == "r" for d in b.dof):
+            rotating.append(j)
+    if rotating:  # all bones in one call: M = Rz Ry Rx, then L = C M C^-1
+        m = _rzryrx(ang[:, rotating])
+        c = axes[rotating]
+        rotations[:, rotating] = quat.mul(quat.mul(c, m), quat.conj(c))
+    return rotations, translations
 
 
 def _missing(names: set[str], p: str, line: int, frame: int, last: bool = False) -> None:

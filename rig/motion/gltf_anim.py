@@ -245,7 +245,35 @@ def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = N
     if not channels:
         raise InputError(f"animation {aname!r} has no translation, rotation or scale channel", doc.path,
                          field=f"animations[{ai}].channels")
+    order, parents = joint_tree(doc, _skeleton_members(doc, skin, channels))
 
+    t0 = min(float(c[3][0]) for c in channels)
+    t1 = max(float(c[3][-1]) for c in channels)
+    if fps is None:
+        fps, rule = _frame_rate(channels)
+    else:
+        rule = "given"
+    times = _frame_times(t0, t1, fps)
+
+    trs, animated = _sample_nodes(doc, order, parents, channels, times, aname, skin)
+    if skin is not None and g.skins:
+        _check_scales(doc, ai, aname, set(trs), trs, times)
+    rot, tra = _posed_locals(doc, order, parents, trs, times.shape[0])
+    rest_rot, rest_tra = _rest_locals(doc, order, parents)
+
+    meta = {"format": "glTF", "animation": aname, "animation_index": ai, "start_time": t0,
+            "end_time": t1, "fps_rule": rule, "channels": len(channels),
+            "animated_joints": sum(nd in animated for nd in order),
+            "joint_source": f"skin {skin}" if (skin is not None and g.skins) else "animated nodes"}
+    return Clip(joint_names=[doc.node_names[nd] for nd in order], parents=parents, offsets=rest_tra,
+                rest_rotations=rest_rot, rotations=rot, translations=tra, fps=fps,
+                name=os.path.splitext(os.path.basename(doc.path))[0], source=doc.path, meta=meta)
+
+
+def _skeleton_members(doc: GltfDocument, skin: int | None, channels) -> list[int]:
+    """The nodes the skeleton is built from: the joints of skin `skin`, or, with ``skin=None`` or
+    in a file without skins, the nodes the channels animate."""
+    g = doc.gltf
     if skin is not None and g.skins:
         if not isinstance(skin, (int, np.integer)) or not 0 <= skin < len(g.skins):
             raise InputError(f"skin {skin!r} does not exist; the file has skins 0..{len(g.skins) - 1}",
@@ -255,21 +283,24 @@ def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = N
             raise InputError("the skin lists no joints", doc.path, field=f"skins[{skin}].joints")
     else:
         members = sorted({c[0] for c in channels})
-    order, parents = joint_tree(doc, members)
-    J = len(order)
+    return members
 
-    t0 = min(float(c[3][0]) for c in channels)
-    t1 = max(float(c[3][-1]) for c in channels)
-    if fps is None:
-        fps, rule = _frame_rate(channels)
-    else:
-        rule = "given"
+
+def _frame_times(t0: float, t1: float, fps: float) -> np.ndarray:
+    """(T,) seconds: frames at `fps` from `t0` to `t1` or just before it (a frame within 1e-4 of a
+    frame interval of `t1` lands on it)."""
     span = (t1 - t0) * fps
     n = int(round(span)) + 1 if abs(span - round(span)) < 1e-4 else int(np.floor(span)) + 1
-    times = t0 + np.arange(n) / fps
-    T = n
+    return t0 + np.arange(n) / fps
 
-    # Every node the clip depends on: the joints and everything above the roots.
+
+def _sample_nodes(doc: GltfDocument, order: list[int], parents, channels, times: np.ndarray, aname: str,
+                  skin: int | None) -> tuple[dict[int, dict], set[int]]:
+    """Every node the clip depends on (the joints `order` and everything above the roots) posed at
+    `times` (T,): {node: {"translation": (T, 3), "rotation": (T, 4) w,x,y,z, "scale": (T, 3),
+    "matrix": (4, 4) or None}}, its rest TRS where no channel drives it; and the animated nodes
+    among them. Channels on other nodes are ignored with a JiggleWarning."""
+    T = times.shape[0]
     needed = set(order)
     for j, nd in enumerate(order):
         if parents[j] < 0:
@@ -290,28 +321,39 @@ def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = N
         listed = ", ".join(f"{n!r} ({'/'.join(p)})" for n, p in list(outside.items())[:8])
         more = f" and {len(outside) - 8} more" if len(outside) > 8 else ""
         warnings.warn(f"{doc.path}: animation {aname!r} also drives {len(outside)} node(s) that are not joints of "
-                      f"skin {skin} nor above them, ignored: {listed}{more}", JiggleWarning, stacklevel=2)
-    if skin is not None and g.skins:
-        _check_scales(doc, ai, aname, needed, trs, times)
+                      f"skin {skin} nor above them, ignored: {listed}{more}", JiggleWarning, stacklevel=3)
+    return trs, animated
 
-    def local(nd):
-        d = trs[nd]
-        if d["matrix"] is not None:
-            return np.broadcast_to(d["matrix"], (T, 4, 4))
-        return trs_matrix(d["translation"], d["rotation"], d["scale"])
 
-    local_m = np.stack([local(nd) for nd in order], axis=1)
+def _node_matrix(d: dict, T: int) -> np.ndarray:
+    """(T, 4, 4) local matrices of a node sampled by `_sample_nodes`."""
+    if d["matrix"] is not None:
+        return np.broadcast_to(d["matrix"], (T, 4, 4))
+    return trs_matrix(d["translation"], d["rotation"], d["scale"])
+
+
+def _posed_locals(doc: GltfDocument, order: list[int], parents, trs: dict[int, dict], T: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid local rotations (T, J, 4) and translations (T, J, 3) of the joints `order` per frame,
+    everything above a root (and Z-up) folded into it (rig.motion.gltf_io.rigid_locals)."""
+    J = len(order)
+    local_m = np.stack([_node_matrix(trs[nd], T) for nd in order], axis=1)
     local_r = np.stack([trs[nd]["rotation"] for nd in order], axis=1)
     above = np.broadcast_to(np.eye(4), (T, J, 4, 4)).copy()
     for j, nd in enumerate(order):
         if parents[j] < 0:
             m = np.broadcast_to(Z_UP, (T, 4, 4)).copy()
             for a in doc.ancestors(nd)[::-1]:
-                m = m @ local(a)
+                m = m @ _node_matrix(trs[a], T)
             above[:, j] = m
     rot, tra, _ = rigid_locals(parents, above, local_m, local_r)
+    return rot, tra
 
-    # Rest pose: the same folding on the nodes' own TRS.
+
+def _rest_locals(doc: GltfDocument, order: list[int], parents) -> tuple[np.ndarray, np.ndarray]:
+    """Rest pose: rigid local rotations (J, 4) and translations (J, 3), the same folding as
+    `_posed_locals` on the nodes' own TRS."""
+    J = len(order)
     rest = [doc.node_trs(nd) for nd in order]
     rest_m = np.stack([m if m is not None else trs_matrix(t, r, s) for t, r, s, m in rest])[None]
     rest_r = np.stack([r for _, r, _, _ in rest])[None]
@@ -324,11 +366,4 @@ def read_gltf_animation(path: str | os.PathLike, animation: str | int | None = N
                 m = m @ (mm if mm is not None else trs_matrix(t, r, s))
             rest_above[0, j] = m
     rest_rot, rest_tra, _ = rigid_locals(parents, rest_above, rest_m, rest_r)
-
-    meta = {"format": "glTF", "animation": aname, "animation_index": ai, "start_time": t0,
-            "end_time": t1, "fps_rule": rule, "channels": len(channels),
-            "animated_joints": sum(nd in animated for nd in order),
-            "joint_source": f"skin {skin}" if (skin is not None and g.skins) else "animated nodes"}
-    return Clip(joint_names=[doc.node_names[nd] for nd in order], parents=parents, offsets=rest_tra[0],
-                rest_rotations=rest_rot[0], rotations=rot, translations=tra, fps=fps,
-                name=os.path.splitext(os.path.basename(doc.path))[0], source=doc.path, meta=meta)
+    return rest_rot[0], rest_tra[0]

@@ -102,7 +102,30 @@ def read_keyframes(path: str | os.PathLike) -> Clip:
     """Read a keyframed TOML clip (see module docstring) into a :class:`Clip`."""
     p, doc = read_toml(path, "keyframe file")
     where = _Where(p)
+    fps, order, loop, cycles = _parse_settings(doc, p, where)
+    names, parents, offsets = _parse_joints(doc, p, where)
+    end_parents, end_offsets = _parse_ends(doc, p, where, names)
+    times, angles, root = _parse_keys(doc, p, where, names, offsets)
+    frames = (times[-1] - times[0]) * cycles * fps
+    if not frames <= MAX_FRAMES:
+        raise InputError(f"the keys span {times[-1] - times[0]:.6g} s; at {fps:g} fps and {cycles} cycles that is "
+                         f"{frames:.4g} frames, over the {MAX_FRAMES:,} a clip may have", p,
+                         where.line("time", "keys", len(times) - 1), f"keys[{len(times) - 1}].time")
+    times = np.array(times) - times[0]
+    if loop and not (np.allclose(angles[0], angles[-1]) and np.allclose(root[0], root[-1])):
+        raise InputError("a looping cycle must end on the pose it starts with", p, field="keys")
+    rotations, translations = _sample(times, angles, root, offsets, fps, order, loop, cycles)
+    J = len(names)
+    return Clip(joint_names=names, parents=parents, offsets=np.array(offsets),
+                rest_rotations=quat.identity((J,)), rotations=rotations, translations=translations,
+                fps=float(fps), end_parents=np.array(end_parents, dtype=np.int32),
+                end_offsets=np.array(end_offsets).reshape(-1, 3),
+                name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), source=p,
+                meta={"format": "keyframes (TOML)", "keys": len(times), "cycles": cycles, "loop": loop})
 
+
+def _parse_settings(doc: dict, p: str, where: _Where) -> tuple[float, str, bool, int]:
+    """The top-level settings: (fps, euler order such as "XYZ", loop, cycles), checked."""
     fps = doc.get("fps", 60)
     if not _number(fps) or not np.isfinite(fps) or fps <= 0 or fps > MAX_FPS:
         raise InputError(f"expected a positive number of frames per second (at most {MAX_FPS:g}), found {fps!r}", p,
@@ -118,7 +141,11 @@ def read_keyframes(path: str | os.PathLike) -> Clip:
     if not isinstance(cycles, int) or isinstance(cycles, bool) or not 1 <= cycles <= MAX_CYCLES:
         raise InputError(f"expected a whole number in [1, {MAX_CYCLES}], found {cycles!r}", p, where.line("cycles"),
                          "cycles")
+    return fps, order, loop, cycles
 
+
+def _parse_joints(doc: dict, p: str, where: _Where) -> tuple[list[str], list[int], list[np.ndarray]]:
+    """The ``[[joints]]``: names, parent indices (-1 for the root) and offsets, each (3,) metres."""
     joints = doc.get("joints")
     if not isinstance(joints, list) or not joints:
         raise InputError("expected a list of [[joints]] tables", p, where.line("joints"), "joints")
@@ -137,6 +164,11 @@ def read_keyframes(path: str | os.PathLike) -> Clip:
         parents.append(names.index(par) if par else -1)
         offsets.append(_vec3(j.get("offset", [0, 0, 0]), p, f"joints[{k}].offset", where.line("offset", "joints", k),
                              MAX_OFFSET))
+    return names, parents, offsets
+
+
+def _parse_ends(doc: dict, p: str, where: _Where, names: list[str]) -> tuple[list[int], list[np.ndarray]]:
+    """The ``[[ends]]``: parent joint indices and offsets, each (3,) metres."""
     ends = doc.get("ends", [])
     if not isinstance(ends, list):
         raise InputError("expected a list of [[ends]] tables", p, where.line("ends"), "ends")
@@ -148,7 +180,13 @@ def read_keyframes(path: str | os.PathLike) -> Clip:
         end_parents.append(names.index(e["parent"]))
         end_offsets.append(_vec3(e.get("offset"), p, f"ends[{k}].offset", where.line("offset", "ends", k),
                                  MAX_OFFSET))
+    return end_parents, end_offsets
 
+
+def _parse_keys(doc: dict, p: str, where: _Where, names: list[str], offsets: list[np.ndarray]
+                ) -> tuple[list[float], np.ndarray, np.ndarray]:
+    """The ``[[keys]]``: times (K,) seconds, increasing; joint angles (K, J, 3) degrees (zero where
+    a key omits a joint); root positions (K, 3) metres (the root's offset where a key omits it)."""
     keys = doc.get("keys")
     if not isinstance(keys, list) or len(keys) < 2:
         raise InputError("expected at least two [[keys]]", p, where.line("keys"), "keys")
@@ -176,14 +214,13 @@ def read_keyframes(path: str | os.PathLike) -> Clip:
             if jn not in names:
                 raise InputError(f"no joint named {jn!r}", p, where.line(jn, "keys", k), f"keys[{k}].rotate.{jn}")
             angles[k, names.index(jn)] = _vec3(a, p, f"keys[{k}].rotate.{jn}", where.line(jn, "keys", k))
-    frames = (times[-1] - times[0]) * cycles * fps
-    if not frames <= MAX_FRAMES:
-        raise InputError(f"the keys span {times[-1] - times[0]:.6g} s; at {fps:g} fps and {cycles} cycles that is "
-                         f"{frames:.4g} frames, over the {MAX_FRAMES:,} a clip may have", p,
-                         where.line("time", "keys", len(keys) - 1), f"keys[{len(keys) - 1}].time")
-    times = np.array(times) - times[0]
-    if loop and not (np.allclose(angles[0], angles[-1]) and np.allclose(root[0], root[-1])):
-        raise InputError("a looping cycle must end on the pose it starts with", p, field="keys")
+    return times, angles, root
+
+
+def _sample(times: np.ndarray, angles: np.ndarray, root: np.ndarray, offsets: list[np.ndarray], fps: float,
+            order: str, loop: bool, cycles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Spline the keys (times (K,) seconds from 0, angles (K, J, 3) degrees, root (K, 3) metres)
+    at `fps` over `cycles` plays: local rotations (n, J, 4) and translations (n, J, 3) metres."""
     bc = "periodic" if loop else "natural"
     period = times[-1]
     n = int(np.floor(period * cycles * fps + 1e-9)) + 1
@@ -191,15 +228,10 @@ def read_keyframes(path: str | os.PathLike) -> Clip:
     local_t = np.mod(t, period) if loop else np.minimum(t, period)
     if loop and cycles > 0:
         local_t[-1] = period if abs(t[-1] - period * cycles) < 1e-9 else local_t[-1]
-    ang = CubicSpline(times, angles.reshape(len(times), -1), bc_type=bc)(local_t).reshape(n, len(names), 3)
+    J = angles.shape[1]
+    ang = CubicSpline(times, angles.reshape(len(times), -1), bc_type=bc)(local_t).reshape(n, J, 3)
     rpos = CubicSpline(times, root, bc_type=bc)(local_t)
-    J = len(names)
     rotations = quat.from_euler(ang[..., [("XYZ".index(c)) for c in order]], order, degrees=True)
     translations = np.broadcast_to(np.array(offsets), (n, J, 3)).copy()
     translations[:, 0] = rpos
-    return Clip(joint_names=names, parents=parents, offsets=np.array(offsets),
-                rest_rotations=quat.identity((J,)), rotations=rotations, translations=translations,
-                fps=float(fps), end_parents=np.array(end_parents, dtype=np.int32),
-                end_offsets=np.array(end_offsets).reshape(-1, 3),
-                name=str(doc.get("name", os.path.splitext(os.path.basename(p))[0])), source=p,
-                meta={"format": "keyframes (TOML)", "keys": len(keys), "cycles": cycles, "loop": loop})
+    return rotations, translations

@@ -190,6 +190,39 @@ def bone_pairs(roles: set[str]) -> list[tuple[str, str]]:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _Matched:
+    """The clip and the character matched by role, with the poses retargeting compares (world,
+    Z-up, metres; Jc clip joints, J character joints, T frames).
+
+    mc, mk : {role: joint index} in the clip and in the character.
+    used : the roles both maps resolve.
+    cr_r, cr_p : (Jc, 4) rotations and (Jc, 3) positions of the clip's rest pose.
+    cw_r, cw_p : (T, Jc, 4) rotations and (T, Jc, 3) positions of the clip's frames.
+    kb_r, kb_p : (J, 4) rotations and (J, 3) positions of the character's bind pose.
+    """
+
+    mc: dict[str, int]
+    mk: dict[str, int]
+    used: set[str]
+    cr_r: np.ndarray
+    cr_p: np.ndarray
+    cw_r: np.ndarray
+    cw_p: np.ndarray
+    kb_r: np.ndarray
+    kb_p: np.ndarray
+
+
+def _match(clip: Clip, clip_map: JointMap, character: CharacterSkeleton, character_map: JointMap) -> _Matched:
+    """Resolve both joint maps and take the clip's rest and frames and the character's bind pose."""
+    mc = clip_map.resolve(clip.joint_names, f"of clip {clip.name!r}")
+    mk = character_map.resolve(character.joint_names, f"of character {character.name!r}")
+    cr_r, cr_p = clip.rest_world()
+    cw_r, cw_p = clip.world()
+    kb_r = quat.from_matrix(character.bind_world[:, :3, :3])
+    return _Matched(mc, mk, set(mc) & set(mk), cr_r, cr_p, cw_r, cw_p, kb_r, character.bind_positions)
+
+
 def retarget(clip: Clip, clip_map: JointMap, character: CharacterSkeleton, character_map: JointMap, *,
              scale: float | None = None, floor: float = 0.0, contact: str = "per_frame") -> Clip:
     """The clip's motion on the character's skeleton (see the module docstring for the method).
@@ -211,100 +244,26 @@ def retarget(clip: Clip, clip_map: JointMap, character: CharacterSkeleton, chara
         raise InputError(f"contact must be 'per_frame' or 'constant', got {contact!r}", field="contact")
     if not np.isfinite(floor):
         raise InputError(f"floor must be a finite height in metres, got {floor}", field="floor")
-    mc = clip_map.resolve(clip.joint_names, f"of clip {clip.name!r}")
-    mk = character_map.resolve(character.joint_names, f"of character {character.name!r}")
-    used = set(mc) & set(mk)
+    m = _match(clip, clip_map, character, character_map)
     T, J = clip.num_frames, character.num_joints
 
-    cr_r, cr_p = clip.rest_world()
-    cw_r, cw_p = clip.world()
-    kb_r = quat.from_matrix(character.bind_world[:, :3, :3])
-    kb_p = character.bind_positions
-
-    yaw = _yaw_between(_facing(kb_p, mk), _facing(cr_p, mc))
-    align: dict[str, np.ndarray] = {}
-    for role in used:
-        nxt = _next_role(role, used, cr_p, kb_p, mc, mk)
-        if nxt is None:
-            align[role] = yaw
-            continue
-        d_c = cr_p[mc[nxt]] - cr_p[mc[role]]
-        d_k = quat.rotate(yaw, kb_p[mk[nxt]] - kb_p[mk[role]])
-        align[role] = quat.mul(quat.between(d_k, d_c), yaw)
-
-    # World rotation targets, parents first.
-    by_joint = {mk[r]: r for r in used}
-    world = np.empty((T, J, 4))
-    for k in range(J):
-        p = character.parents[k]
-        if k in by_joint:
-            r = by_joint[k]
-            c = mc[r]
-            delta = quat.mul(cw_r[:, c], quat.conj(cr_r[c]))
-            world[:, k] = quat.mul(delta, quat.mul(align[r], kb_r[k]))
-        elif p < 0:
-            world[:, k] = quat.mul(yaw, kb_r[k])
-        else:
-            world[:, k] = quat.mul(world[:, p], character.bind_rotations[k])
-    local = np.empty_like(world)
-    for k in range(J):
-        p = character.parents[k]
-        local[:, k] = world[:, k] if p < 0 else quat.mul(quat.conj(world[:, p]), world[:, k])
+    yaw = _yaw_between(_facing(m.kb_p, m.mk), _facing(m.cr_p, m.mc))
+    align = _rest_alignment(m, yaw)
+    by_joint = {m.mk[r]: r for r in m.used}
+    local = _local_rotations(m, character, by_joint, align, yaw, T)
 
     # Root path.
-    feet = [r for s in SIDES for r in (f"{s}_foot", f"{s}_toe") if r in used]
-
-    def hip_height(pos, m):
-        return float(pos[m["hips"], 2] - min(pos[m[r], 2] for r in feet))
-
-    h_c, h_k = hip_height(cr_p, mc), hip_height(kb_p, mk)
-    if scale is None:
-        if h_c <= MIN_BONE:
-            raise InputError(f"the clip's hips are {h_c:.3g} m above its feet in the rest pose; cannot scale "
-                             f"the root path (pass scale=)", clip.source or None, field="scale")
-        scale = h_k / h_c
-    elif not np.isfinite(scale) or scale <= 0:
-        raise InputError(f"scale must be a positive number, got {scale}", field="scale")
-    hips_c, hips_k = mc["hips"], mk["hips"]
-    target = np.empty((T, 3))
-    target[:, :2] = kb_p[hips_k, :2] + scale * (cw_p[:, hips_c, :2] - cw_p[0, hips_c, :2])
-    target[:, 2] = scale * cw_p[:, hips_c, 2]
-
-    translations = np.broadcast_to(character.bind_translations, (T, J, 3)).copy()
-    roots = np.nonzero(character.parents < 0)[0]
-    hip_root = int(hips_k)
-    while character.parents[hip_root] >= 0:
-        hip_root = int(character.parents[hip_root])
-    probe = Clip(character.joint_names, character.parents, character.bind_translations, character.bind_rotations,
-                 local, translations, clip.fps)
-    _, pos = probe.world()
-    translations[:, hip_root] += target - pos[:, hips_k]
-    _, pos = probe.world(local, translations)
-
-    # Feet on the character's floor. Clearance of a foot: its lowest foot/toe joint above that joint's
-    # rest height (0 = as low as standing in the rest pose); the clip's floor is where its clearance
-    # is lowest over the clip.
-    def clearance(p, m, rest_p, base):
-        return np.stack([np.min(p[:, [m[r] for r in (f"{s}_foot", f"{s}_toe") if r in used], 2]
-                                - (rest_p[[m[r] for r in (f"{s}_foot", f"{s}_toe") if r in used], 2] - base),
-                                axis=1) for s in SIDES], axis=1)
-
-    c_clip = clearance(cw_p, mc, cr_p, min(cr_p[mc[r], 2] for r in feet))
-    c_clip -= c_clip.min()
-    c_char = clearance(pos, mk, kb_p, floor) - floor
-    if contact == "per_frame":
-        # The lower foot of the clip sets the height: the character's clearance follows the clip's,
-        # scaled, with a soft minimum over the feet (2 cm) so the correction stays continuous.
-        w = np.exp(-(c_clip - c_clip.min(axis=1, keepdims=True)) / 0.02)
-        w /= w.sum(axis=1, keepdims=True)
-        lift = np.sum(w * (scale * c_clip - c_char), axis=1)
-    else:
-        lift = np.full(T, -float(c_char.min()))
+    feet = [r for s in SIDES for r in (f"{s}_foot", f"{s}_toe") if r in m.used]
+    h_c, h_k = _hip_height(m.cr_p, m.mc, feet), _hip_height(m.kb_p, m.mk, feet)
+    scale = _path_scale(scale, h_c, h_k, clip)
+    translations, hip_root, pos = _place_hips(m, character, local, clip.fps, scale, T)
+    lift = _floor_lift(m, pos, feet, scale, floor, contact, T)
     translations[:, hip_root, 2] += lift
 
+    roots = np.nonzero(character.parents < 0)[0]
     meta = {"format": "retargeted", "from": clip.name, "from_format": clip.meta.get("format", ""),
             "character": character.name, "clip_map": clip_map.name, "character_map": character_map.name,
-            "roles": sorted(used), "scale": scale, "clip_hip_height_m": h_c, "character_hip_height_m": h_k,
+            "roles": sorted(m.used), "scale": scale, "clip_hip_height_m": h_c, "character_hip_height_m": h_k,
             "yaw_deg": float(np.degrees(2 * np.arctan2(yaw[3], yaw[0]))), "contact": contact,
             "vertical_correction_m": [float(lift.min()), float(lift.max())],
             "floor_m": floor, "unmapped_joints": [character.joint_names[k] for k in range(J) if k not in by_joint],
@@ -312,6 +271,113 @@ def retarget(clip: Clip, clip_map: JointMap, character: CharacterSkeleton, chara
     return Clip(joint_names=character.joint_names, parents=character.parents, offsets=character.bind_translations,
                 rest_rotations=character.bind_rotations, rotations=local, translations=translations, fps=clip.fps,
                 name=f"{clip.name} on {character.name}", source=clip.source, meta=meta)
+
+
+def _rest_alignment(m: _Matched, yaw: np.ndarray) -> dict[str, np.ndarray]:
+    """{role: A_r (4,)}, the rotation taking the character's rest bone of each used role onto the
+    clip's after the facing turn `yaw` (module docstring, step 2)."""
+    align: dict[str, np.ndarray] = {}
+    for role in m.used:
+        nxt = _next_role(role, m.used, m.cr_p, m.kb_p, m.mc, m.mk)
+        if nxt is None:
+            align[role] = yaw
+            continue
+        d_c = m.cr_p[m.mc[nxt]] - m.cr_p[m.mc[role]]
+        d_k = quat.rotate(yaw, m.kb_p[m.mk[nxt]] - m.kb_p[m.mk[role]])
+        align[role] = quat.mul(quat.between(d_k, d_c), yaw)
+    return align
+
+
+def _local_rotations(m: _Matched, character: CharacterSkeleton, by_joint: dict[int, str],
+                     align: dict[str, np.ndarray], yaw: np.ndarray, T: int) -> np.ndarray:
+    """(T, J, 4) local rotations of the character's joints (module docstring, step 3): mapped joints
+    follow their clip joint's world delta, unmapped ones keep their bind-local rotation."""
+    J = character.num_joints
+    # World rotation targets, parents first.
+    world = np.empty((T, J, 4))
+    for k in range(J):
+        p = character.parents[k]
+        if k in by_joint:
+            r = by_joint[k]
+            c = m.mc[r]
+            delta = quat.mul(m.cw_r[:, c], quat.conj(m.cr_r[c]))
+            world[:, k] = quat.mul(delta, quat.mul(align[r], m.kb_r[k]))
+        elif p < 0:
+            world[:, k] = quat.mul(yaw, m.kb_r[k])
+        else:
+            world[:, k] = quat.mul(world[:, p], character.bind_rotations[k])
+    local = np.empty_like(world)
+    for k in range(J):
+        p = character.parents[k]
+        local[:, k] = world[:, k] if p < 0 else quat.mul(quat.conj(world[:, p]), world[:, k])
+    return local
+
+
+def _hip_height(pos: np.ndarray, m: dict[str, int], feet: list[str]) -> float:
+    """Metres from the lowest of the `feet` roles' joints up to the hips in a pose `pos` (J, 3)."""
+    return float(pos[m["hips"], 2] - min(pos[m[r], 2] for r in feet))
+
+
+def _path_scale(scale: float | None, h_c: float, h_k: float, clip: Clip) -> float:
+    """The root path scale: `scale` checked, or the hip heights' ratio `h_k / h_c` when None."""
+    if scale is None:
+        if h_c <= MIN_BONE:
+            raise InputError(f"the clip's hips are {h_c:.3g} m above its feet in the rest pose; cannot scale "
+                             f"the root path (pass scale=)", clip.source or None, field="scale")
+        scale = h_k / h_c
+    elif not np.isfinite(scale) or scale <= 0:
+        raise InputError(f"scale must be a positive number, got {scale}", field="scale")
+    return scale
+
+
+def _place_hips(m: _Matched, character: CharacterSkeleton, local: np.ndarray, fps: float, scale: float,
+                T: int) -> tuple[np.ndarray, int, np.ndarray]:
+    """Move the root joint above the hips so the hips follow the clip's, scaled (module docstring,
+    step 4, before the floor correction). Returns translations (T, J, 3), that root's index and
+    the joint world positions (T, J, 3) it gives."""
+    J = character.num_joints
+    hips_c, hips_k = m.mc["hips"], m.mk["hips"]
+    target = np.empty((T, 3))
+    target[:, :2] = m.kb_p[hips_k, :2] + scale * (m.cw_p[:, hips_c, :2] - m.cw_p[0, hips_c, :2])
+    target[:, 2] = scale * m.cw_p[:, hips_c, 2]
+
+    translations = np.broadcast_to(character.bind_translations, (T, J, 3)).copy()
+    hip_root = int(hips_k)
+    while character.parents[hip_root] >= 0:
+        hip_root = int(character.parents[hip_root])
+    probe = Clip(character.joint_names, character.parents, character.bind_translations, character.bind_rotations,
+                 local, translations, fps)
+    _, pos = probe.world()
+    translations[:, hip_root] += target - pos[:, hips_k]
+    _, pos = probe.world(local, translations)
+    return translations, hip_root, pos
+
+
+def _clearance(p: np.ndarray, m: dict[str, int], rest_p: np.ndarray, base: float, used: set[str]) -> np.ndarray:
+    """(T, 2) per frame and foot (left, right): the lowest of its foot/toe joints in `p` (T, J, 3)
+    above that joint's rest height in `rest_p` (J, 3) less `base`, metres."""
+    return np.stack([np.min(p[:, [m[r] for r in (f"{s}_foot", f"{s}_toe") if r in used], 2]
+                            - (rest_p[[m[r] for r in (f"{s}_foot", f"{s}_toe") if r in used], 2] - base),
+                            axis=1) for s in SIDES], axis=1)
+
+
+def _floor_lift(m: _Matched, pos: np.ndarray, feet: list[str], scale: float, floor: float, contact: str,
+                T: int) -> np.ndarray:
+    """(T,) metres to raise the hips by so the character's feet stay on its floor, given its joint
+    positions `pos` (T, J, 3) before the correction (module docstring, step 4)."""
+    # Feet on the character's floor. Clearance of a foot: its lowest foot/toe joint above that joint's
+    # rest height (0 = as low as standing in the rest pose); the clip's floor is where its clearance
+    # is lowest over the clip.
+    c_clip = _clearance(m.cw_p, m.mc, m.cr_p, min(m.cr_p[m.mc[r], 2] for r in feet), m.used)
+    c_clip -= c_clip.min()
+    c_char = _clearance(pos, m.mk, m.kb_p, floor, m.used) - floor
+    if contact == "per_frame":
+        # The lower foot of the clip sets the height: the character's clearance follows the clip's,
+        # scaled, with a soft minimum over the feet (2 cm) so the correction stays continuous.
+        w = np.exp(-(c_clip - c_clip.min(axis=1, keepdims=True)) / 0.02)
+        w /= w.sum(axis=1, keepdims=True)
+        return np.sum(w * (scale * c_clip - c_char), axis=1)
+    return np.full(T, -float(c_char.min()))
 
 
 def foot_clearance(clip: Clip, character: CharacterSkeleton, character_map: JointMap, floor: float = 0.0
