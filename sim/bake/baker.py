@@ -38,12 +38,14 @@ folder only once every chunk is in them, so no cache that looks complete is ever
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import re
 import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -98,6 +100,30 @@ def chunk_frames(setup: BakeSetup, c: int) -> tuple[int, int]:
 
 def num_chunks(setup: BakeSetup) -> int:
     return -(-len(setup.times) // setup.chunk)
+
+
+@dataclass(frozen=True)
+class _ChunkSpan:
+    """Where a chunk lies: its output frames [f0, f1), the frame `a` its run starts from (f0 - 1 after the first
+    chunk: it goes on from the frame before it), its goal knots (K,) seconds (MARGIN past each end) and its output
+    frames' places among them, `at` (F,)."""
+    f0: int
+    f1: int
+    a: int
+    knots: np.ndarray
+    at: np.ndarray
+
+
+def _chunk_span(setup: BakeSetup, c: int) -> _ChunkSpan:
+    """Chunk c's frames and goal knots (see _ChunkSpan)."""
+    f0, f1 = chunk_frames(setup, c)
+    a = max(f0 - 1, 0)                       # a chunk after the first goes on from the frame before it
+    times = setup.times
+    ka = max(0, int(np.searchsorted(setup.knots, times[a] - TIME_EPS)) - MARGIN)
+    kb = min(len(setup.knots), int(np.searchsorted(setup.knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
+    kt = setup.knots[ka:kb]
+    at = np.searchsorted(kt, times[f0:f1] - TIME_EPS)     # the output frames among the knots
+    return _ChunkSpan(f0, f1, a, kt, at)
 
 
 # ---------------------------------------------------------------------------------------- chunks
@@ -213,61 +239,19 @@ class Baker:
         chunk's first frame - 1, None for chunk 0). One stage after another, each for the whole chunk:
         drive -> static CVs -> goals, simulate -> blend -> skin."""
         s, rig = self.setup, self.setup.rig
-        f0, f1 = chunk_frames(s, c)
-        a = max(f0 - 1, 0)                       # a chunk after the first goes on from the frame before it
-        times = s.times
-        ka = max(0, int(np.searchsorted(s.knots, times[a] - TIME_EPS)) - MARGIN)
-        kb = min(len(s.knots), int(np.searchsorted(s.knots, times[f1 - 1] + TIME_EPS, side="right")) + MARGIN)
-        kt = s.knots[ka:kb]
-        at = np.searchsorted(kt, times[f0:f1] - TIME_EPS)     # the output frames among the knots
+        span = _chunk_span(s, c)
+        f0, f1 = span.f0, span.f1
 
         with self._timed("drive_s"):
-            world_k = np.asarray(s.world_at(kt), dtype=np.float64)
-            joints = np.asarray(s.joints_at(times[f0:f1]), dtype=np.float32)
+            world_k = np.asarray(s.world_at(span.knots), dtype=np.float64)
+            joints = np.asarray(s.joints_at(s.times[f0:f1]), dtype=np.float32)
         with self._timed("static_s"):
             static = rig.static(world_k, device=s.settings.device)
-            st, curve, world = static.cvs[at], static.curve[at], world_k[at]
-        contacts = {}
+            st, curve, world = static.cvs[span.at], static.curve[span.at], world_k[span.at]
         with self._timed("simulate_s"):
-            new_state = None
-            if self.fem is not None:
-                # a loop's first chunk goes on from the cycle's steady state, as a later chunk from the one before
-                given = state if c > 0 or s.loop is not None else None
-                cuts = find_cuts(kt, static.cvs, s.settings.cut_ratio, s.settings.cut_jump)
-                ends = None if self.colliders is None else \
-                    self.colliders.capsules.ends(world_k).reshape(len(kt), -1, 3)
-                part, new_state, rec = self.fem.run(kt, static.cvs, times[a:f1], start=given, cuts=cuts,
-                                                    capsule_ends=ends)
-                skip = 1 if c > 0 else 0
-                dyn = np.array(st, np.float64)
-                dyn[:, self.fem.cv_index] = part[skip:]
-                contacts["fem_min_det"] = rec["min_det"][skip:].astype(np.float32)
-                contacts["fem_inverted"] = rec["inverted"][skip:].astype(np.int32)
-            elif self.model is None:
-                dyn = st
-            else:
-                self.solver.stops.zero_()                # this chunk's hard stops only
-                track = goals(rig, kt, static.cvs, s.settings)
-                colliders = None if self.colliders is None else self.colliders.at(kt, world_k, track.cut)
-                sink = {}
-                # a loop's first chunk goes on from the cycle's steady state (sim/bake/loop.py), as a later chunk
-                # goes on from the one before
-                given = state if c > 0 or s.loop is not None else None
-                dyn, new_state = simulate(self.model, track, times[a:f1], s.settings, solver=self.solver,
-                                          preroll=0.0 if given is not None else None, start=given,
-                                          colliders=colliders, contacts=sink, tissue=self.tissue)
-                dyn = dyn[1:] if c > 0 else dyn
-                if colliders is not None:
-                    per = muscle_contacts(sink["records"][1:] if c > 0 else sink["records"], rig.cv_offsets)
-                    contacts = {"contact_depth": per["depth"].astype(np.float32),
-                                "contact_hit": per["hit"].astype(np.int32),
-                                "contact_impulse": per["impulse"].astype(np.float32)}
-                # the tissue law's hard stops in this chunk, per muscle (sim/jiggle/tissue_law.py: it makes none)
-                stops = self.solver.hard_stops()
-                contacts["hard_stops"] = np.add.reduceat(stops, rig.cv_offsets[:-1]).astype(np.int64) \
-                    if len(stops) else np.zeros(rig.M, np.int64)
+            dyn, new_state, contacts = self._simulate(c, state, span, world_k, static, st)
             cvs = blend(st, dyn, self.blend[f0:f1])
-        chain = None
+        swung = chain = None
         with self._timed("skin_s"):
             # reuse: the skins of chunk c live in buffers chunk c + 2 writes again; the bake finishes and writes
             # chunk c before it starts chunk c + 2 (bake(), sim/bake/baker.py)
@@ -277,9 +261,78 @@ class Baker:
                 from jiggle.sim.chain.simulate import chain_world
                 swung = chain_world(world, s.chains.model, self.chain_run.rotations[f0:f1], self.chain_riders)
                 chain = (self.chain_skin.vertices, self.chain_skin.delta(world, swung))
+        out = self._chunk_arrays(span, joints, st, cvs, swung, new_state, contacts)
+        finish = functools.partial(self._finish, span, world, out, pending, chain)
+        if self.defer:
+            out["finish"] = finish
+            return out
+        return finish()
+
+    def _simulate(self, c: int, state, span: _ChunkSpan, world_k: np.ndarray, static, st: np.ndarray):
+        """(dyn, new_state, contacts) of chunk c: its dynamic CVs (F, N, 3) metres at its output frames (the FEM
+        solids', the particles', or the static CVs `st` when nothing is simulated), the (x, v) state at its end
+        (None without one) and its contact arrays {CONTACT_KEYS key: array}. world_k (K, J, 4, 4): the joints at
+        the chunk's knots; static: rig.static's result there."""
+        # a loop's first chunk goes on from the cycle's steady state (sim/bake/loop.py), as a later chunk
+        # goes on from the one before
+        given = state if c > 0 or self.setup.loop is not None else None
+        if self.fem is not None:
+            return self._simulate_fem(c, given, span, world_k, static, st)
+        if self.model is None:
+            return st, None, {}
+        return self._simulate_particles(c, given, span, world_k, static)
+
+    def _simulate_fem(self, c: int, given, span: _ChunkSpan, world_k: np.ndarray, static, st: np.ndarray):
+        """The hero mode's chunk (sim.fem.tissue.FemTissue.run) from the frame before it: the static CVs `st`
+        (F, N, 3) with the solids' CVs put in, the solids' state at its end, and per frame the smallest det F
+        and the inverted tets."""
+        s, kt = self.setup, span.knots
+        cuts = find_cuts(kt, static.cvs, s.settings.cut_ratio, s.settings.cut_jump)
+        ends = None if self.colliders is None else \
+            self.colliders.capsules.ends(world_k).reshape(len(kt), -1, 3)
+        part, new_state, rec = self.fem.run(kt, static.cvs, s.times[span.a:span.f1], start=given, cuts=cuts,
+                                            capsule_ends=ends)
+        skip = 1 if c > 0 else 0
+        dyn = np.array(st, np.float64)
+        dyn[:, self.fem.cv_index] = part[skip:]
+        contacts = {"fem_min_det": rec["min_det"][skip:].astype(np.float32),
+                    "fem_inverted": rec["inverted"][skip:].astype(np.int32)}
+        return dyn, new_state, contacts
+
+    def _simulate_particles(self, c: int, given, span: _ChunkSpan, world_k: np.ndarray, static):
+        """The particles' chunk (sim.jiggle.simulate: goals, simulate) from the frame before it: the dynamic CVs
+        (F, N, 3), the particles' (x, v) at its end, and the contacts per frame and muscle (with colliders) and
+        the chunk's hard stops per muscle."""
+        s, rig, kt = self.setup, self.setup.rig, span.knots
+        self.solver.stops.zero_()                # this chunk's hard stops only
+        track = goals(rig, kt, static.cvs, s.settings)
+        colliders = None if self.colliders is None else self.colliders.at(kt, world_k, track.cut)
+        sink = {}
+        dyn, new_state = simulate(self.model, track, s.times[span.a:span.f1], s.settings, solver=self.solver,
+                                  preroll=0.0 if given is not None else None, start=given,
+                                  colliders=colliders, contacts=sink, tissue=self.tissue)
+        dyn = dyn[1:] if c > 0 else dyn
+        contacts = {}
+        if colliders is not None:
+            per = muscle_contacts(sink["records"][1:] if c > 0 else sink["records"], rig.cv_offsets)
+            contacts = {"contact_depth": per["depth"].astype(np.float32),
+                        "contact_hit": per["hit"].astype(np.int32),
+                        "contact_impulse": per["impulse"].astype(np.float32)}
+        # the tissue law's hard stops in this chunk, per muscle (sim/jiggle/tissue_law.py: it makes none)
+        stops = self.solver.hard_stops()
+        contacts["hard_stops"] = np.add.reduceat(stops, rig.cv_offsets[:-1]).astype(np.int64) \
+            if len(stops) else np.zeros(rig.M, np.int64)
+        return dyn, new_state, contacts
+
+    def _chunk_arrays(self, span: _ChunkSpan, joints: np.ndarray, st: np.ndarray, cvs: np.ndarray, swung,
+                      new_state, contacts: dict) -> dict:
+        """The chunk's arrays but its skins: frames [f0, f1], joint_world (F, J, 4, 4), cvs_static and cvs_dynamic
+        (F, N, 3) float32; with chains (swung: (F, J, 4, 4) the swung skeleton) their joints and tips at the file's
+        size; the state at its end; its contacts."""
+        s, f0, f1 = self.setup, span.f0, span.f1
         out = {"frames": np.array([f0, f1]), "joint_world": joints, "cvs_static": st.astype(np.float32),
                "cvs_dynamic": cvs.astype(np.float32)}
-        if chain is not None:
+        if swung is not None:
             cw = np.array(swung[:, self.chain_joints], np.float32)
             cw[..., :3, 3] *= np.float32(s.scale)
             out["chain_world"] = cw
@@ -288,41 +341,40 @@ class Baker:
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
         out.update(contacts)
+        return out
 
-        def finish() -> dict:
-            """The chunk's skins finished (the surface spread) and checked: the arrays to save."""
-            t = time.perf_counter()
-            skin_static, skin_final, *smooth = pending()
-            if chain is not None:               # the chains' share of the final skin (rig/skin/chain_skin.py)
-                skin_final[:, chain[0]] += chain[1]
-                out["chain_delta"] = (chain[1] * np.float32(s.scale)).astype(np.float32)
-            self.timings["skin_s"] += time.perf_counter() - t
-            for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
-                bad = ~np.isfinite(skin)
-                if bad.any():                   # never into a cache: stop while the chunks so far are kept
-                    k, v = np.argwhere(bad)[0][:2]
-                    raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; "
-                                     "nothing of this chunk was written", field=name)
-            arrays = {k: v for k, v in out.items() if k != "finish"}
-            if smooth:
-                arrays["skin_lbs"] = smooth[0]
-            if self.skin_check is not None:
-                # the jiggle keeps the final skin out of other parts' capsules the static skin is not in (in
-                # place, before anything is written), and both skins' vertices inside are counted per frame
-                kept = self.skin_check.keep_out(world, skin_static, skin_final, s.settings.device,
-                                                rigid=getattr(s.skin, "ride", None))
-                arrays["inside_static"], arrays["inside_final"] = kept["static"], kept["final"]
-                arrays["skin_kept_out"], arrays["skin_pulled_m"] = kept["kept"], kept["pulled_m"]
-            arrays = {**arrays, "skin_static": skin_static, "skin_final": skin_final}
-            if s.scale != 1.0:          # simulated at its template's size: written at the file's (BakeSetup.scale)
-                for k in SCALED_KEYS:
-                    if k in arrays:
-                        arrays[k] = (arrays[k] * np.float32(s.scale)).astype(arrays[k].dtype)
-            return arrays
-        if self.defer:
-            out["finish"] = finish
-            return out
-        return finish()
+    def _finish(self, span: _ChunkSpan, world: np.ndarray, out: dict, pending, chain) -> dict:
+        """The chunk's skins finished (the surface spread) and checked: the arrays to save. out: the chunk's arrays
+        (_chunk_arrays); pending: skin_frames's deferred skins; chain: (vertices, offsets) the chains move, or None."""
+        s, f0, times = self.setup, span.f0, self.setup.times
+        t = time.perf_counter()
+        skin_static, skin_final, *smooth = pending()
+        if chain is not None:               # the chains' share of the final skin (rig/skin/chain_skin.py)
+            skin_final[:, chain[0]] += chain[1]
+            out["chain_delta"] = (chain[1] * np.float32(s.scale)).astype(np.float32)
+        self.timings["skin_s"] += time.perf_counter() - t
+        for name, skin in (("skin_static", skin_static), ("skin_final", skin_final)):
+            bad = ~np.isfinite(skin)
+            if bad.any():                   # never into a cache: stop while the chunks so far are kept
+                k, v = np.argwhere(bad)[0][:2]
+                raise InputError(f"not finite at frame {f0 + k} (t = {times[f0 + k]:.4f} s), vertex {v}; "
+                                 "nothing of this chunk was written", field=name)
+        arrays = {k: v for k, v in out.items() if k != "finish"}
+        if smooth:
+            arrays["skin_lbs"] = smooth[0]
+        if self.skin_check is not None:
+            # the jiggle keeps the final skin out of other parts' capsules the static skin is not in (in
+            # place, before anything is written), and both skins' vertices inside are counted per frame
+            kept = self.skin_check.keep_out(world, skin_static, skin_final, s.settings.device,
+                                            rigid=getattr(s.skin, "ride", None))
+            arrays["inside_static"], arrays["inside_final"] = kept["static"], kept["final"]
+            arrays["skin_kept_out"], arrays["skin_pulled_m"] = kept["kept"], kept["pulled_m"]
+        arrays = {**arrays, "skin_static": skin_static, "skin_final": skin_final}
+        if s.scale != 1.0:          # simulated at its template's size: written at the file's (BakeSetup.scale)
+            for k in SCALED_KEYS:
+                if k in arrays:
+                    arrays[k] = (arrays[k] * np.float32(s.scale)).astype(arrays[k].dtype)
+        return arrays
 
     @contextlib.contextmanager
     def _timed(self, stage: str):
@@ -509,28 +561,13 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
         raise InputError(f"cannot create the output folder: {e.strerror or e}", out_dir, field="--out") from None
     if not os.access(out_dir, os.W_OK | os.X_OK):
         raise InputError("the output folder is not writable", out_dir, field="--out")
-    n = num_chunks(setup)
-    manifest = {"format": MANIFEST_FORMAT, "key": setup.key, "frames": len(setup.times), "chunk": setup.chunk,
-                "chunks": n, "params": setup.params,
-                "files": sorted(os.path.basename(p) for p in cache_paths(out_dir, setup.formats).values())}
-    # the manifest lists the caches this bake will write: a new bake removes those of one interrupted
-    # while writing them (and nothing else)
+    manifest = _manifest(setup, out_dir)
     t_start = time.perf_counter()
     done, state, crcs = 0, None, None
     if resume:
-        done, state, crcs = _resume(setup, out_dir, manifest_path, log)
-        old = _read_json(manifest_path)
-        if isinstance(old, dict) and old.get("files") != manifest["files"]:     # same key: list the caches
-            _write_json(manifest_path, {**old, "files": sorted(set(old.get("files") or []) | set(manifest["files"]))})
+        done, state, crcs = _reopen(setup, out_dir, manifest_path, manifest, log)
     else:
-        if os.path.lexists(partial) and not _partial_is_ours(partial):
-            raise InputError(f"{PARTIAL} here holds files that are not an unfinished bake's; move it away, or bake "
-                             "into another folder", partial, field="--out")
-        _remove_finished(out_dir)           # reads the old manifest's list: before .partial goes
-        if os.path.isdir(partial):
-            log(f"removing an unfinished bake in {out_dir} (--resume would have finished it)")
-        shutil.rmtree(partial, ignore_errors=True)
-        _write_json(manifest_path, manifest)
+        _start_over(out_dir, partial, manifest_path, manifest, log)
     if progress is not None and done:
         progress(chunk_frames(setup, done - 1)[1])
     contact_parts = _resumed_contacts(out_dir, done) if done else {}
@@ -544,48 +581,112 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     writer = BakeWriter(setup, partial, None if not done else (crcs, chunk_frames(setup, done - 1)[1]),
                         smooth=baker.smooth)
     baker.timings["write_s"] += time.perf_counter() - t
+    save = _ChunkSaver(setup, out_dir, baker, writer, contact_parts, progress)
+    files, seam, loop_s, write_s = _bake_chunks(setup, baker, save, done, state, t_start)
+    summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
+    _add_records(summary, setup, baker, warmup, seam, contact_parts)
+    _write_json(os.path.join(out_dir, SUMMARY), summary)
+    shutil.rmtree(partial, ignore_errors=True)
+    if "glb" in setup.formats:                  # fitted from the finished npz; recorded in bake.json when written
+        _add_glb(setup, out_dir, summary, log)
+    return summary
 
-    def finish_and_save(c: int, arrays: dict) -> None:
+
+def _manifest(setup: BakeSetup, out_dir: str) -> dict:
+    """The unfinished bake's manifest (.partial/manifest.json): the parameters' key and the caches this bake will
+    write (a new bake removes those of one interrupted while writing them, and nothing else)."""
+    n = num_chunks(setup)
+    return {"format": MANIFEST_FORMAT, "key": setup.key, "frames": len(setup.times), "chunk": setup.chunk,
+            "chunks": n, "params": setup.params,
+            "files": sorted(os.path.basename(p) for p in cache_paths(out_dir, setup.formats).values())}
+
+
+def _reopen(setup: BakeSetup, out_dir: str, manifest_path: str, manifest: dict,
+            log) -> tuple[int, tuple | None, dict | None]:
+    """--resume: (chunks already baked, the particle state after them, the caches' progress then) of the unfinished
+    bake (_resume), its manifest listing this bake's caches too."""
+    done, state, crcs = _resume(setup, out_dir, manifest_path, log)
+    old = _read_json(manifest_path)
+    if isinstance(old, dict) and old.get("files") != manifest["files"]:     # same key: list the caches
+        _write_json(manifest_path, {**old, "files": sorted(set(old.get("files") or []) | set(manifest["files"]))})
+    return done, state, crcs
+
+
+def _start_over(out_dir: str, partial: str, manifest_path: str, manifest: dict, log) -> None:
+    """A new bake: what earlier bakes and compares recorded writing here removed, an unfinished bake's .partial
+    with them (InputError when .partial holds anything else), and the new manifest written."""
+    if os.path.lexists(partial) and not _partial_is_ours(partial):
+        raise InputError(f"{PARTIAL} here holds files that are not an unfinished bake's; move it away, or bake "
+                         "into another folder", partial, field="--out")
+    _remove_finished(out_dir)           # reads the old manifest's list: before .partial goes
+    if os.path.isdir(partial):
+        log(f"removing an unfinished bake in {out_dir} (--resume would have finished it)")
+    shutil.rmtree(partial, ignore_errors=True)
+    _write_json(manifest_path, manifest)
+
+
+@dataclass(frozen=True)
+class _ChunkSaver:
+    """The bake's last step for each chunk, in the worker thread (_bake_chunks): its skins finished, its frames
+    written into the caches, its marker into .partial, its progress reported; its CONTACT_KEYS arrays kept in
+    contact_parts ({chunk: {key: array}}) for bake.json."""
+    setup: BakeSetup
+    out_dir: str
+    baker: Baker
+    writer: BakeWriter
+    contact_parts: dict
+    progress: Callable[[int], None] | None
+
+    def __call__(self, c: int, arrays: dict) -> None:
         """In the worker thread: finish chunk c's skins, write its frames into the caches and its marker
         (the particle state and the caches' progress), report it."""
         finish = arrays.pop("finish", None)     # out of the dict first: the closure holds the dict, a cycle
         if finish is not None:                  # would keep every chunk's skins until the garbage collector ran
             arrays = finish()
         t = time.perf_counter()
-        f0, f1 = chunk_frames(setup, c)
-        crcs = writer.append(f0, arrays)
+        f0, f1 = chunk_frames(self.setup, c)
+        crcs = self.writer.append(f0, arrays)
         marker = {"frames": arrays["frames"], "progress": np.array(json.dumps(crcs))}
         if "state_x" in arrays:
             marker["state_x"], marker["state_v"] = arrays["state_x"], arrays["state_v"]
         for k in CONTACT_KEYS:                  # the contacts and skin checks, for bake.json after a resume
             if k in arrays:
                 marker[k] = arrays[k]
-                contact_parts[c] = {**contact_parts.get(c, {}), k: arrays[k]}
-        _save_chunk(chunk_path(out_dir, c), marker)
-        baker.timings["write_s"] += time.perf_counter() - t
+                self.contact_parts[c] = {**self.contact_parts.get(c, {}), k: arrays[k]}
+        _save_chunk(chunk_path(self.out_dir, c), marker)
+        self.baker.timings["write_s"] += time.perf_counter() - t
         if os.environ.get(PAUSE_ENV):
             time.sleep(float(os.environ[PAUSE_ENV]))
-        if progress is not None:
-            progress(f1 - f0)
+        if self.progress is not None:
+            self.progress(f1 - f0)
 
+
+def _bake_chunks(setup: BakeSetup, baker: Baker, save: _ChunkSaver, done: int, state,
+                 t_start: float) -> tuple[dict, dict | None, float, float]:
+    """The chunks from `done` on baked in order, the first going on from `state` ((x, v) or None), each saved by
+    `save`; then the caches completed into the folder. (files {format: path}, the loop's seam (_seam) or None,
+    seconds from t_start to the last chunk written, seconds completing the caches). The caches' writer is closed
+    whatever happens; an interrupted bake lets the chunk in the worker land first."""
+    writer = save.writer
     # chunk c's skins are finished and written in a worker thread while chunk c + 1 is driven, shaped
     # and simulated here: the two cores share the work, the arithmetic (and so every cache) is the same
     worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jiggle-bake")
     pending = None
     try:
-        for c in range(done, n):
+        for c in range(done, num_chunks(setup)):
             arrays = baker.chunk(c, state)
             state = (arrays["state_x"], arrays["state_v"]) if "state_x" in arrays else None
             if pending is not None:
                 pending.result()                # chunk c - 1 written (or its error raised here)
-            pending = worker.submit(finish_and_save, c, arrays)
+            pending = worker.submit(save, c, arrays)
         if pending is not None:
             done_chunk, pending = pending, None
             done_chunk.result()
         loop_s = time.perf_counter() - t_start
         t = time.perf_counter()
         seam = _seam(setup, writer) if setup.loop is not None else None
-        files = writer.finish(out_dir, {f: os.path.basename(p) for f, p in cache_paths(out_dir, setup.formats).items()})
+        files = writer.finish(save.out_dir, {f: os.path.basename(p)
+                                             for f, p in cache_paths(save.out_dir, setup.formats).items()})
         write_s = time.perf_counter() - t
     finally:
         if pending is not None:                 # interrupted: let the chunk in the worker land first
@@ -593,7 +694,13 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
                 pending.result()
         worker.shutdown(wait=True)
         writer.close()
-    summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
+    return files, seam, loop_s, write_s
+
+
+def _add_records(summary: dict, setup: BakeSetup, baker: Baker, warmup: dict | None, seam: dict | None,
+                 contact_parts: dict) -> None:
+    """bake.json's records of the stages added to `summary`: "loop" (with its warm-up and seam), "tissue" (with
+    particles), "fem", "contacts" (with colliders) and "chains"."""
     if setup.loop is not None:
         summary["loop"] = {**setup.loop.to_json(), "warmup": warmup, "seam": seam}
     else:
@@ -604,16 +711,17 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     if baker.colliders is not None:
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
     summary["chains"] = baker.chain_json() if baker.chain_run is not None else None
-    _write_json(os.path.join(out_dir, SUMMARY), summary)
-    shutil.rmtree(partial, ignore_errors=True)
-    if "glb" in setup.formats:                  # fitted from the finished npz; recorded in bake.json when written
-        from jiggle.sim.bake.glb import write_for_bake
-        log("fitting jiggle bones for the glb")
-        rep = write_for_bake(setup, out_dir, bones=setup.glb.get("bones"),
-                             max_influences=setup.glb.get("max_influences", 4))
-        summary["glb"] = {k: v for k, v in rep.items() if k != "bone_names"}
-        summary["files"]["glb"] = rep["file"]
-    return summary
+
+
+def _add_glb(setup: BakeSetup, out_dir: str, summary: dict, log) -> None:
+    """The glb's jiggle bones fitted from the finished npz and written (sim.bake.glb.write_for_bake); its record
+    added to `summary` ("glb", files' "glb")."""
+    from jiggle.sim.bake.glb import write_for_bake
+    log("fitting jiggle bones for the glb")
+    rep = write_for_bake(setup, out_dir, bones=setup.glb.get("bones"),
+                         max_influences=setup.glb.get("max_influences", 4))
+    summary["glb"] = {k: v for k, v in rep.items() if k != "bone_names"}
+    summary["files"]["glb"] = rep["file"]
 
 
 def _warm_up(setup: BakeSetup, baker: Baker, path: str, log) -> tuple[dict, tuple]:

@@ -164,6 +164,38 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         (sim.jiggle.tissue_contacts.integrate_tissue; hit ids C + 1 + muscle in the records, which `contacts`
         then receives with or without colliders). None: the one-launch run, as before.
     """
+    out_times = _check_run(track, out_times, preroll, start)
+    solver = solver or ParticleSolver(model)
+    t0 = out_times[0]
+    given, start = start, np.array([t0])
+    if preroll > 0:
+        track, start, colliders = _preroll_track(model, track, t0, preroll, colliders)
+    control = track.to_device(model.device)
+    grid = step_times(np.concatenate([start, out_times]) if preroll > 0 else out_times, track.times, substeps,
+                      solver.max_step)
+    if given is not None:
+        given = _start_state(model, given)
+    output = _Output(model, out_times, grid, colliders is not None or tissue is not None, contacts)
+    how = ("given", given) if given is not None else ("rest",) if preroll > 0 else ("restart", t0)
+    if getattr(solver, "use_graph", False) and solver.graph is None:
+        solver.graph = ChunkGraph(solver)
+    graph = getattr(solver, "graph", None)
+    if graph is not None and graph.supports(solver):
+        end = _run_graph(graph, model, track, control, grid, output, how, colliders, tissue)
+        if return_state:
+            return output.out, end
+        return output.out
+
+    state = _run_steps(model, solver, track, control, grid, output, how, colliders, tissue)
+    if return_state:
+        x, v = state.numpy()
+        return output.out, (np.array(x, dtype=np.float32), np.array(v, dtype=np.float32))
+    return output.out
+
+
+def _check_run(track: GoalTrack, out_times, preroll: float, start) -> np.ndarray:
+    """out_times as a float64 array (T,) seconds, checked: increasing, inside the track, and no preroll for a
+    run that goes on from a given state (InputError otherwise)."""
     out_times = np.asarray(out_times, dtype=np.float64)
     if out_times.ndim != 1 or len(out_times) == 0 or np.any(np.diff(out_times) <= 0):
         raise InputError("output times must be a non-empty increasing array", field="times")
@@ -172,75 +204,96 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
                          f"[{track.times[0]:.4f}, {track.times[-1]:.4f}] s", field="times")
     if start is not None and preroll > 0:
         raise InputError("a run that goes on from a given state has no preroll", field="preroll")
-    solver = solver or ParticleSolver(model)
-    t0 = out_times[0]
-    given, start = start, np.array([t0])
-    if preroll > 0:
-        # bind pose -> first frame over preroll / 2, then hold; knots at the track's first spacing
-        g0 = track.sample(t0)[0]
-        dt_k = float(np.min(np.diff(track.times))) if track.num_knots > 1 else preroll / 8
-        n = max(4, int(math.ceil(preroll / dt_k)))
-        pre = t0 - preroll + preroll * np.arange(n) / n
-        a = np.clip((pre - pre[0]) / (0.5 * preroll), 0.0, 1.0)
-        a = a * a * (3.0 - 2.0 * a)
-        pre_pos = model.rest[None] + a[:, None, None] * (g0 - model.rest)[None]
-        keep = track.times >= t0 - TIME_EPS
-        times = np.concatenate([pre, track.times[keep]])
-        pos = np.concatenate([pre_pos, track.pos[keep]])
-        cuts = np.concatenate([np.zeros(n, bool), track.cut[keep[:-1]]])
-        track = build_track(times, pos, cuts=cuts)
-        start = np.array([pre[0]])
-        if colliders is not None:
-            ends = colliders.control.track.pos
-            colliders = colliders.model.on_track(times, np.concatenate([np.repeat(ends[:1], n, axis=0), ends[keep]]),
-                                                 cuts)
-    control = track.to_device(model.device)
-    grid = step_times(np.concatenate([start, out_times]) if preroll > 0 else out_times, track.times, substeps,
-                      solver.max_step)
-    if given is not None:
-        x, v = (np.asarray(a, dtype=np.float32) for a in given)
-        if x.shape != (model.num_particles, 3) or v.shape != x.shape:
-            raise InputError(f"a start state must be two ({model.num_particles}, 3) arrays, got {x.shape} and "
-                             f"{v.shape}", field="start")
-    out = np.empty((len(out_times), model.num_particles, 3))
-    records = None
-    if colliders is not None or tissue is not None:
-        records = np.zeros((len(out_times), model.num_particles, 3), np.float32)
-        records[..., 2] = -1.0
-        if contacts is not None:
-            contacts["records"] = records
-    wanted = np.searchsorted(out_times, grid - TIME_EPS)
-    is_out = (wanted < len(out_times)) & (np.abs(out_times[np.minimum(wanted, len(out_times) - 1)] - grid) <= TIME_EPS)
+    return out_times
 
-    def save(ks: np.ndarray, frames: np.ndarray) -> None:
+
+def _preroll_track(model: ParticleModel, track: GoalTrack, t0: float, preroll: float, colliders):
+    """(track, start, colliders) of a run with a preroll: the goal track from `preroll` seconds before t0, the bind
+    pose blended to the first frame over preroll / 2 and held (knots at the track's first spacing), then the
+    track from t0 on; start (1,) its first time (s); the colliders on its knots, the capsules holding their
+    first pose through the preroll (None stays None)."""
+    g0 = track.sample(t0)[0]
+    dt_k = float(np.min(np.diff(track.times))) if track.num_knots > 1 else preroll / 8
+    n = max(4, int(math.ceil(preroll / dt_k)))
+    pre = t0 - preroll + preroll * np.arange(n) / n
+    a = np.clip((pre - pre[0]) / (0.5 * preroll), 0.0, 1.0)
+    a = a * a * (3.0 - 2.0 * a)
+    pre_pos = model.rest[None] + a[:, None, None] * (g0 - model.rest)[None]
+    keep = track.times >= t0 - TIME_EPS
+    times = np.concatenate([pre, track.times[keep]])
+    pos = np.concatenate([pre_pos, track.pos[keep]])
+    cuts = np.concatenate([np.zeros(n, bool), track.cut[keep[:-1]]])
+    track = build_track(times, pos, cuts=cuts)
+    start = np.array([pre[0]])
+    if colliders is not None:
+        ends = colliders.control.track.pos
+        colliders = colliders.model.on_track(times, np.concatenate([np.repeat(ends[:1], n, axis=0), ends[keep]]),
+                                             cuts)
+    return track, start, colliders
+
+
+def _start_state(model: ParticleModel, given) -> tuple[np.ndarray, np.ndarray]:
+    """A run's given start (x, v) as two (N, 3) float32 arrays (m, m/s); InputError for other shapes."""
+    x, v = (np.asarray(a, dtype=np.float32) for a in given)
+    if x.shape != (model.num_particles, 3) or v.shape != x.shape:
+        raise InputError(f"a start state must be two ({model.num_particles}, 3) arrays, got {x.shape} and "
+                         f"{v.shape}", field="start")
+    return x, v
+
+
+class _Output:
+    """A run's output frames: `out` (T, N, 3) float64 positions (m), `records` (T, N, 3) float32 contact records
+    (None without colliders or tissue; handed to `contacts` as "records"), and where the step grid (G,) meets
+    the output times: `wanted` (G,) the output frame at or after each grid time, `is_out` (G,) bool whether
+    it is that frame."""
+
+    def __init__(self, model: ParticleModel, out_times: np.ndarray, grid: np.ndarray, recording: bool,
+                 contacts: dict | None):
+        self.model, self.out_times = model, out_times
+        self.out = np.empty((len(out_times), model.num_particles, 3))
+        self.records = None
+        if recording:
+            self.records = np.zeros((len(out_times), model.num_particles, 3), np.float32)
+            self.records[..., 2] = -1.0
+            if contacts is not None:
+                contacts["records"] = self.records
+        self.wanted = np.searchsorted(out_times, grid - TIME_EPS)
+        self.is_out = (self.wanted < len(out_times)) & (
+            np.abs(out_times[np.minimum(self.wanted, len(out_times) - 1)] - grid) <= TIME_EPS)
+
+    def save(self, ks: np.ndarray, frames: np.ndarray) -> None:
         """Output frames ks (R,) from positions (R, N, 3); the first that is not finite names its muscle."""
-        out[ks] = frames
+        self.out[ks] = frames
         if not np.isfinite(frames).all():
             r, p = np.argwhere(~np.isfinite(frames).all(axis=2))[0]
             k = int(ks[r])
-            raise FloatingPointError(f"{model.group_of(int(p))}: the simulation produced NaN at frame {k} "
-                                     f"(t = {out_times[k]:.4f} s)")
+            raise FloatingPointError(f"{self.model.group_of(int(p))}: the simulation produced NaN at frame {k} "
+                                     f"(t = {self.out_times[k]:.4f} s)")
 
-    how = ("given", (x, v)) if given is not None else ("rest",) if preroll > 0 else ("restart", t0)
-    if getattr(solver, "use_graph", False) and solver.graph is None:
-        solver.graph = ChunkGraph(solver)
-    graph = getattr(solver, "graph", None)
-    if graph is not None and graph.supports(solver):
-        # the chunk as one device program (sim/jiggle/graph.py): nothing read back until its end
-        if tissue is not None:
-            from jiggle.sim.jiggle.tissue_contacts import _check
-            _check(model, tissue)
-        frames, recs, end = graph.run(track, control, grid, out_times, wanted, is_out, how, colliders, tissue,
-                                      lambda t: start_offsets(model, track, t))
-        save(np.arange(len(out_times)), frames)
-        if records is not None:
-            records[...] = recs
-        if return_state:
-            return out, end
-        return out
 
+def _run_graph(graph: ChunkGraph, model: ParticleModel, track: GoalTrack, control, grid: np.ndarray,
+               output: _Output, how: tuple, colliders, tissue):
+    """The run as one device program (sim/jiggle/graph.py), nothing read back until its end: the output frames
+    and records saved into `output`; the (x, v) state at the end."""
+    if tissue is not None:
+        from jiggle.sim.jiggle.tissue_contacts import _check
+        _check(model, tissue)
+    frames, recs, end = graph.run(track, control, grid, output.out_times, output.wanted, output.is_out, how,
+                                  colliders, tissue, lambda t: start_offsets(model, track, t))
+    output.save(np.arange(len(output.out_times)), frames)
+    if output.records is not None:
+        output.records[...] = recs
+    return end
+
+
+def _run_steps(model: ParticleModel, solver: ParticleSolver, track: GoalTrack, control, grid: np.ndarray,
+               output: _Output, how: tuple, colliders, tissue):
+    """The run step by step from the host (sim/jiggle/step_sequence.py): cut-free stretches in one launch each,
+    glued cut intervals, restarts past the cuts; the output frames and records saved into `output`. The
+    particles' state at the end (on the device)."""
+    wanted = output.wanted
     state, nxt = model.state(), model.state()
-    for step in step_sequence(track, grid, is_out):        # sim/jiggle/step_sequence.py: the graph walks it too
+    for step in step_sequence(track, grid, output.is_out):        # the graph walks it too
         kind, g, e, ks = step
         if kind == "stretch":
             # the cut-free stretch grid[g..e] in one launch, its output frames read back once
@@ -250,9 +303,9 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
                 frames = integrate_tissue(solver, state, nxt, control, grid[g:e + 1], record=ks,
                                           colliders=colliders, tissue=tissue)
             if len(ks):
-                save(wanted[g + ks], frames)
-                if records is not None:
-                    records[wanted[g + ks]] = solver.contact_records
+                output.save(wanted[g + ks], frames)
+                if output.records is not None:
+                    output.records[wanted[g + ks]] = solver.contact_records
             state, nxt = nxt, state
             continue
         if kind == "glue":
@@ -266,11 +319,8 @@ def run(model: ParticleModel, track: GoalTrack, out_times: np.ndarray, substeps:
         else:
             restart(model, solver, state, control, how[1])
         if len(ks):
-            save(wanted[e:e + 1], state.x.numpy()[None])
-    if return_state:
-        x, v = state.numpy()
-        return out, (np.array(x, dtype=np.float32), np.array(v, dtype=np.float32))
-    return out
+            output.save(wanted[e:e + 1], state.x.numpy()[None])
+    return state
 
 
 def goals(rig, knots: np.ndarray, static_cvs: np.ndarray, settings: JiggleSettings, cuts=None) -> GoalTrack:
