@@ -426,12 +426,11 @@ def _fit_roles(character, mus):
 @dataclass(frozen=True)
 class Body:
     """The character as read or generated (before the fit's size rule): file (its glTF/FBX, None for a generated or
-    given one), options (rig.character.body.BodyOptions of a generated body, else None), the template asked for,
-    the character, `cached` (this character's FittedRig from `rigs`, else None) and rig_key (its key in `rigs`),
-    retarget (the clip onto it); record: its bake.json part."""
+    given one), the template asked for, the character, `cached` (this character's FittedRig from `rigs`, else None)
+    and rig_key (its key in `rigs`), retarget (the clip onto it); record: its bake.json part (a generated body's
+    options among it)."""
 
     file: str | None
-    options: object
     template: str
     character: object
     cached: FittedRig | None
@@ -474,7 +473,7 @@ def _character(req: BakeRequest, inputs: Inputs, rigs: MutableMapping | None, gi
                             if character_file else {"generated": jsonable(body)} if given is None
                             else {"in_memory": character.name or "character"})}
     retarget = Retarget(clip, character_file, pick("skin", 0), req.clip_map, req.character_map, log)
-    return Body(character_file, body, template, character, cached, rig_key, retarget, MappingProxyType(record))
+    return Body(character_file, template, character, cached, rig_key, retarget, MappingProxyType(record))
 
 
 @dataclass(frozen=True)
@@ -511,7 +510,7 @@ def _fit(req: BakeRequest, inputs: Inputs, body: Body, rigs: MutableMapping | No
         names = [mus.rig.names[m] for m in np.nonzero(idle)[0]]
         log(f"not simulated: {len(names)} of {mus.rig.M} muscles drive nothing, none of their skin being soft "
             f"({', '.join(names[:8])}{' ...' if len(names) > 8 else ''})")
-        skin_record["rigid"]["not_simulated"] = names
+        skin_record["rigid"]["not_simulated"] = names      # the rigid record says which muscles that leaves idle
     log(f"muscles: {mus.rig.M} from template {os.path.basename(str(template))!r}, {skin.num_pairs} (vertex, muscle) "
         f"pairs ({'reused, ' if body.cached is not None else ''}{time.perf_counter() - t:.1f} s)")
     record = {"template": template if not os.path.isfile(str(template)) else
