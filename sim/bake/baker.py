@@ -44,6 +44,7 @@ import os
 import re
 import shutil
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
@@ -51,7 +52,7 @@ from typing import Callable
 import numpy as np
 
 from jiggle.rig.base.atomic import atomic_path
-from jiggle.rig.base.errors import InputError
+from jiggle.rig.base.errors import InputError, JiggleWarning
 from jiggle.rig.skin.muscle_skin import skin_frames
 from jiggle.sim.bake.setup import BakeSetup
 from jiggle.sim.bake.writer import BakeWriter
@@ -585,6 +586,7 @@ def bake(setup: BakeSetup, out_dir: str, *, resume: bool = False, progress: Call
     files, seam, loop_s, write_s = _bake_chunks(setup, baker, save, done, state, t_start)
     summary = _summary(setup, out_dir, files, baker, loop_s, write_s, resumed=done)
     _add_records(summary, setup, baker, warmup, seam, contact_parts)
+    _warn_inverted(summary.get("fem"), len(setup.times))
     _write_json(os.path.join(out_dir, SUMMARY), summary)
     shutil.rmtree(partial, ignore_errors=True)
     if "glb" in setup.formats:                  # fitted from the finished npz; recorded in bake.json when written
@@ -711,6 +713,16 @@ def _add_records(summary: dict, setup: BakeSetup, baker: Baker, warmup: dict | N
     if baker.colliders is not None:
         summary["contacts"] = _contacts_json(setup, baker, contact_parts)
     summary["chains"] = baker.chain_json() if baker.chain_run is not None else None
+
+
+def _warn_inverted(fem: dict | None, frames: int) -> None:
+    """A JiggleWarning when the hero solid (bake.json "fem") inverted tets at any output frame: the skin rides CVs
+    embedded in it and can look clean, so the bake says so rather than writing it silently."""
+    if fem and fem.get("inverted_max"):
+        warnings.warn(JiggleWarning(
+            f"the hero solid inverted: up to {fem['inverted_max']} tets on {fem.get('frames_with_inverted')} of "
+            f"{frames} output frames (smallest det F {fem.get('min_det')}); the caches hold the skin it drove "
+            "(bake.json fem, compare's fem_inverted_tets target)"), stacklevel=3)
 
 
 def _add_glb(setup: BakeSetup, out_dir: str, summary: dict, log) -> None:

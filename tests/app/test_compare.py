@@ -365,3 +365,25 @@ def test_a_bake_without_reaches_has_no_limit_flags(baked):
     assert not (baked[0] / "limits.png").exists()
     assert m["limits"]["muscles_with_reach"] == 0 and m["limits"]["flags"] == []
     assert all(x["near_limit_fraction"] is None and x["hard_stops"] is None for x in m["muscles"].values())
+
+
+def test_an_inverted_hero_solid_fails_a_skin_target(tmp_path):
+    """A hero-mode bake whose solid inverted tets (bake.json "fem") fails compare's fem_inverted_tets target, in
+    metrics.json and in the report, however clean its skin; one with none passes it; a particle bake has no such
+    target."""
+    data, _ = known_bake()
+    write_npz(data, tmp_path / "bake.npz")
+    fem = {"inverted_max": 3, "frames_with_inverted": 2, "min_det": -0.4}
+    (tmp_path / "bake.json").write_text(json.dumps({"fem": fem}))
+    targets = compare(str(tmp_path), render=False)["metrics"]["skin_quality"]["targets"]
+    t = targets["fem_inverted_tets"]
+    assert t["value"] == 3 and t["limit"] == 0 and t["pass"] is False
+    assert t["frames"] == 2 and t["min_det"] == -0.4
+    assert targets["torn_edges"]["pass"]                   # the skin itself scores clean
+    html = (tmp_path / "report.html").read_text()
+    assert re.search(r"fem_inverted_tets</th><td>3 \(limit 0\) <b[^>]*>FAIL", html), "the report shows the failure"
+    (tmp_path / "bake.json").write_text(json.dumps({"fem": {**fem, "inverted_max": 0, "frames_with_inverted": 0,
+                                                            "min_det": 0.3}}))
+    assert compare(str(tmp_path), render=False)["metrics"]["skin_quality"]["targets"]["fem_inverted_tets"]["pass"]
+    (tmp_path / "bake.json").write_text(json.dumps({"fem": None}))
+    assert "fem_inverted_tets" not in compare(str(tmp_path), render=False)["metrics"]["skin_quality"]["targets"]

@@ -166,3 +166,19 @@ def test_a_hero_loop_warms_up_to_its_steady_state(tmp_path):
     assert loop["on"] and loop["warmup"]["converged"] and loop["warmup"]["cycles"] >= 3
     assert loop["seam"]["wrap_mm"] < 0.05 * loop["seam"]["wrap_step_mm"]
     assert summary["fem"]["inverted_max"] == 0
+
+
+def test_an_inverted_solid_is_never_written_silently():
+    """The bake warns (a JiggleWarning, the CLI's `jiggle: warning:` line) when the hero solid inverted tets at an
+    output frame, naming how many, on how many frames and the smallest det F; nothing when none did or with no
+    solid."""
+    import warnings
+
+    from jiggle.rig.base.errors import JiggleWarning
+    from jiggle.sim.bake.baker import _warn_inverted
+    with pytest.warns(JiggleWarning, match=r"up to 142 tets on 24 of 60 output frames \(smallest det F -2.23\)"):
+        _warn_inverted({"inverted_max": 142, "frames_with_inverted": 24, "min_det": -2.23}, 60)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_inverted({"inverted_max": 0, "frames_with_inverted": 0, "min_det": 0.3}, 60)
+        _warn_inverted(None, 60)

@@ -625,6 +625,8 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     with _timed(timings, "quality_s"):
         quality_m = skin_quality.measure(data, an["reference"], an["reference_name"])
         quality = skin_quality.summarise(quality_m, data.times)
+        if (solid := skin_quality.fem_target(read_contacts(out_dir, "fem"))) is not None:
+            quality["targets"]["fem_inverted_tets"] = solid
         run.files["quality_plot"] = skin_quality.plot_quality(run.path("quality.png"), data.times, quality)
     chains = _chains(run, data, an, quality_m)
     collisions = _collisions(run, data.times)

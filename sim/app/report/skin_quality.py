@@ -13,7 +13,9 @@ Targets (the numbers a clean skin keeps, in metrics.json under skin_quality.targ
   summed over the clip (a frame's count is a handful on a clean skin, too few to hold to 10% alone;
   the worst frame's excess is reported beside it);
 - no edge torn by the jiggle (gradient > 1), and the 99.9th percentile of the gradient below
-  GRADIENT_P999 in every frame.
+  GRADIENT_P999 in every frame;
+- in the FEM hero mode, no tetrahedron inverted (det F <= 0) at any output frame (bake.json "fem"): the skin rides CVs
+  embedded in the solid, so a solid folded through itself can leave the skin looking clean (fem_target).
 
 The jiggle is the tissue's: measured from the skin that follows the swung chains (BakeData.skin_swung(), the
 static skin itself without chains), so a tail's swing is neither jiggle nor a tear; the chains' own skin is
@@ -167,6 +169,17 @@ def check_targets(m: dict, rest_folded: int, edges: int) -> dict:
                             "pass": bool(j["gradient_p999"].max() < GRADIENT_P999),
                             "rule": "99.9th percentile of the jiggle displacement gradient, every frame"}
     return out
+
+
+def fem_target(fem: dict | None) -> dict | None:
+    """The hero mode's target from bake.json's "fem" ({"value": the most tets inverted at one output frame, "limit":
+    0, "pass", "frames": output frames with any, "min_det": the smallest det F}), None for a bake without a solid."""
+    if not isinstance(fem, dict) or not isinstance(fem.get("inverted_max"), int):
+        return None
+    worst = fem["inverted_max"]
+    return {"value": worst, "limit": 0, "pass": worst == 0, "frames": fem.get("frames_with_inverted"),
+            "min_det": fem.get("min_det"),
+            "rule": "tetrahedra of the hero solid inverted (det F <= 0 against their goal shape) at one output frame"}
 
 
 def worst_frames(m: dict, times: np.ndarray, count: int = QUALITY_SHOTS) -> list[int]:
