@@ -297,7 +297,8 @@ class Baker:
         dyn = np.array(st, np.float64)
         dyn[:, self.fem.cv_index] = part[skip:]
         contacts = {"fem_min_det": rec["min_det"][skip:].astype(np.float32),
-                    "fem_inverted": rec["inverted"][skip:].astype(np.int32)}
+                    "fem_inverted": rec["inverted"][skip:].astype(np.int32),
+                    "fem_part_min_det": rec["part_min_det"][skip:].astype(np.float32)}
         return dyn, new_state, contacts
 
     def _simulate_particles(self, c: int, given, span: _ChunkSpan, world_k: np.ndarray, static):
@@ -773,11 +774,12 @@ def _seam(setup: BakeSetup, writer: BakeWriter) -> dict | None:
 
 
 CONTACT_KEYS = ("contact_depth", "contact_hit", "contact_impulse", "inside_static", "inside_final", "skin_kept_out",
-                "skin_pulled_m", "hard_stops", "fem_min_det", "fem_inverted")
+                "skin_pulled_m", "hard_stops", "fem_min_det", "fem_inverted", "fem_part_min_det")
 """Arrays a chunk's marker keeps for bake.json: with collisions, per frame and muscle the deepest contact (m),
 what it hit, the summed impulse (N s); the skin vertices inside another part's capsule; the final skin's
 vertices pulled back out of one and the longest pull-back (m); and with a simulation, the chunk's hard stops
-per muscle (M,); in the FEM hero mode, per frame the smallest det F over its tets and how many are inverted."""
+per muscle (M,); in the FEM hero mode, per frame the smallest det F over its tets, how many are inverted, and each
+part's smallest det F (F, P)."""
 
 
 def _tissue_json(setup: BakeSetup, parts: dict) -> dict:
@@ -809,6 +811,11 @@ def _fem_json(setup: BakeSetup, baker: Baker, parts: dict) -> dict:
     det = np.concatenate(det) if det else np.zeros(0)
     inv = np.concatenate(inv) if inv else np.zeros(0, np.int64)
     out = baker.fem.to_json(setup.real_scale)
+    per = [parts[c]["fem_part_min_det"] for c in order if "fem_part_min_det" in parts[c]]
+    if per:                                     # each part's smallest det F at the output frames
+        per = np.concatenate(per).min(axis=0)
+        for p, d in zip(baker.fem.parts, per):
+            out["parts"][p.name]["min_det"] = round(float(d), 6)
     out.update({"min_det": round(float(det.min()), 6) if len(det) else None,
                 "inverted_max": int(inv.max()) if len(inv) else 0,
                 "frames_with_inverted": int((inv > 0).sum()),

@@ -204,3 +204,28 @@ def stiffen(tets, poses, base, stiffening, cap, q, materials, device) -> None:
         return
     wp.launch(stiffen_kernel, dim=tets.shape[0], inputs=[tets, poses, base, float(stiffening), float(cap), q],
               outputs=[materials], device=device)
+
+
+@wp.kernel
+def tet_determinants_kernel(
+    # model
+    tets: wp.array2d[wp.int32],
+    poses: wp.array[wp.mat33],
+    # state
+    q: wp.array[wp.vec3],
+    # out
+    det_out: wp.array[float],
+):
+    """det_out[t] = det F of tet t at q against its rest shape (F = Ds Dm^-1, Dm^-1 = poses[t]): its volume over
+    the rest shape's (< 0: inside out)."""
+    t = wp.tid()
+    x0 = q[tets[t, 0]]
+    Ds = wp.matrix_from_cols(q[tets[t, 1]] - x0, q[tets[t, 2]] - x0, q[tets[t, 3]] - x0)
+    det_out[t] = wp.determinant(Ds * poses[t])
+
+
+def tet_determinants(tets, poses, q, det, device) -> None:
+    """Launch tet_determinants_kernel over all tets (skipped when there are none)."""
+    if tets.shape[0] == 0:
+        return
+    wp.launch(tet_determinants_kernel, dim=tets.shape[0], inputs=[tets, poses, q], outputs=[det], device=device)

@@ -46,6 +46,7 @@ import numpy as np
 
 from jiggle.rig.base.frozen import frozen_array
 from jiggle.rig.muscle.material import Material
+from jiggle.sim.fem.step import DET_FLOOR, MAX_SPLITS, GoalSolid
 from jiggle.sim.fem.tet_mesh import TetMesh
 
 DT = 1.0 / 1000.0
@@ -74,7 +75,9 @@ class FemRun:
     vertex's goal (what the jiggle is measured against). min_det : (F,) the smallest det F (against the goal
     shape, rest "goal"; the bind shape, rest "bind") over all tets (> 0: none inverted). energy : (F,) joules,
     kinetic (relative to the goal's velocity) + elastic (see the module). steps : the solver's steps.
-    ms_per_step : wall milliseconds per solver step (the loop alone).
+    ms_per_step : wall milliseconds per solver step (the loop alone). redone : steps redone in halves below the
+    det F floor (sim.fem.step); searched : shortest steps ended by its line search. step_min_det : the smallest det F
+    at any kept step's end (not only the output frames).
     """
 
     times: np.ndarray
@@ -84,6 +87,9 @@ class FemRun:
     energy: np.ndarray
     steps: int
     ms_per_step: float = 0.0
+    redone: int = 0
+    step_min_det: float = float("inf")
+    searched: int = 0
 
     def __post_init__(self):
         for k in ("times", "positions", "goals", "min_det", "energy"):
@@ -223,7 +229,8 @@ def _goal_vbd():
 def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: np.ndarray, out_times: np.ndarray, *,
                   frequency_hz: float | None = None, k_damp: float | None = None, dt: float = DT,
                   iterations: int = ITERATIONS, rest: str = "goal", gravity: bool = False,
-                  stiffening: float = STIFFENING, alpha: float = 0.0, device: str = "cpu") -> FemRun:
+                  stiffening: float = STIFFENING, alpha: float = 0.0, floor: float | None = DET_FLOOR,
+                  max_splits: int = MAX_SPLITS, device: str = "cpu") -> FemRun:
     """Simulate the part `mesh` of `material` driven by its vertices' goals (K, N, 3) metres at knot times knots (K,)
     seconds (mesh.goals(static_cvs) for a part's static CVs (K, 40, 3); carried_goals for a rigid drive) and sample
     it at out_times (F,) seconds (ascending).
@@ -232,15 +239,14 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     taken off) when frequency_hz is given, else none. rest : "goal" (the tets' rest shape follows the goal) or "bind" (the mesh's points).
     gravity : along -Z, 9.81 m/s^2. stiffening : b of the tissue's strain stiffening (STIFFENING; 0: a plain
     Neo-Hookean solid). alpha : 1/s, the Rayleigh damping's mass-proportional part, on each free vertex's velocity
-    relative to its goal's (sim/fem/modes.py; 0: none). The body starts on its goal at out_times[0], moving with the
-    goal's velocity.
+    relative to its goal's (sim/fem/modes.py; 0: none). floor : a step ending with a tet's det F below it is redone
+    in halves, at most max_splits times, then line-searched toward the goal (sim.fem.step; None: no check). The body starts on its goal at out_times[0], moving with the goal's
+    velocity.
     """
     import time
 
     import newton
     import warp as wp
-
-    from jiggle.sim.fem import fem_kernels
 
     if rest not in ("goal", "bind"):
         raise ValueError(f"rest must be 'goal' or 'bind', got {rest!r}")
@@ -262,23 +268,13 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     for i in np.flatnonzero(mesh.attached):         # kinematic: VBD leaves mass-0 vertices where the state has them
         builder.particle_mass[int(i)] = 0.0
     builder.color()
-    model = builder.finalize(device=device)
-    solver = _goal_vbd()(model=model, iterations=iterations, particle_enable_self_contact=False,
-                         particle_enable_tile_solve=False)
-    s0, s1 = model.state(), model.state()
-    control = model.control()
-    s0.particle_q.assign(x0.astype(np.float32))
-    s0.particle_qd.assign(v0.astype(np.float32))
-    solver.attached_idx = wp.array(np.flatnonzero(mesh.attached).astype(np.int32), dtype=wp.int32, device=device)
-    solver.goal_end = wp.zeros(len(mesh.points), dtype=wp.vec3, device=device)
-    tets = wp.array(mesh.tets, dtype=wp.int32, device=device)
+    solid = GoalSolid(builder.finalize(device=device), mesh.attached, mesh.tets,
+                      np.full(len(mesh.points), float(alpha)), iterations=iterations, stiffening=stiffening,
+                      cap=STIFFENING_CAP, rest_goal=rest == "goal", floor=floor, max_splits=max_splits,
+                      device=device)
+    solid.set_state(x0, v0)
     if rest == "goal":
-        solver.goal_end.assign(x0.astype(np.float32))
-        fem_kernels.rest_poses(tets, solver.goal_end, model.tet_poses, device)
-    base = wp.clone(model.tet_materials)
-    free_idx = wp.array(np.flatnonzero(~mesh.attached).astype(np.int32), dtype=wp.int32, device=device)
-    rate = wp.array(np.full(len(mesh.points), float(alpha), np.float32), dtype=float, device=device)
-    goal_vel = wp.zeros(len(mesh.points), dtype=wp.vec3, device=device)
+        solid.rest_on(x0)
 
     step_times = t0 + dt * np.arange(n_steps + 1)
     frames = np.empty((len(out_times), len(mesh.points), 3))
@@ -291,19 +287,8 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     clock = time.perf_counter()
     for n in range(1, n_steps + 1):
         t = step_times[n]
-        g, gv = curve(t)
-        solver.goal_end.assign(g.astype(np.float32))
-        if rest == "goal":
-            fem_kernels.rest_poses(tets, solver.goal_end, model.tet_poses, device)
-        fem_kernels.stiffen(tets, model.tet_poses, base, stiffening, STIFFENING_CAP, s0.particle_q,
-                            model.tet_materials, device)
-        s0.clear_forces()
-        solver.step(s0, s1, control, None, dt)
-        s0, s1 = s1, s0
-        if alpha > 0.0:
-            goal_vel.assign(gv.astype(np.float32))
-            fem_kernels.goal_drag(free_idx, rate, dt, goal_vel, s0.particle_qd, device)
-        x, v = s0.particle_q.numpy().astype(np.float64), s0.particle_qd.numpy().astype(np.float64)
+        solid.advance(curve, t, dt)
+        x, v = solid.s0.particle_q.numpy().astype(np.float64), solid.s0.particle_qd.numpy().astype(np.float64)
         while k < len(out_times) and out_times[k] <= t + 1e-12:
             s = min(1.0, 1.0 - (t - out_times[k]) / dt)                    # linear between the two steps
             frames[k], vels[k] = prev_x + s * (x - prev_x), prev_v + s * (v - prev_v)
@@ -318,8 +303,9 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     ref = gx if rest == "goal" else None
     energy = kinetic + elastic_energy(mesh, frames, material, ref)
     min_det = determinants(mesh, frames, ref).min(axis=-1)
-    return FemRun(times=out_times, positions=frames, goals=gx, min_det=min_det, energy=energy, steps=n_steps,
-                  ms_per_step=ms)
+    return FemRun(times=out_times, positions=frames, goals=gx, min_det=min_det, energy=energy, steps=solid.steps,
+                  ms_per_step=ms, redone=solid.redone, searched=solid.searched,
+                  step_min_det=solid.min_det if np.isfinite(solid.min_det) else float(min_det.min()))
 
 
 __all__ = ["FemRun", "GoalCurve", "simulate_part", "STIFFENING", "STIFFENING_CAP", "carried_goals",

@@ -43,6 +43,7 @@ rest and moves it with that tet's affine map.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,12 +158,13 @@ def tetrahedralize(points: np.ndarray, faces: np.ndarray, *, mindihedral: float 
                    minratio: float = MINRATIO, maxvolume: float = -1.0) -> tuple[np.ndarray, np.ndarray]:
     """TetGen of a watertight surface (points (P, 3), faces (F, 3)): nodes (N, 3) float64 (the first P are the
     surface points, TetGen keeps them in order) and tets (T, 4) int32, positively oriented. maxvolume in
-    m^3 (-1: none) bounds the tet size. ValueError when the surface is not watertight."""
+    m^3 (-1: none) bounds the tet size. ValueError when the surface is not watertight. The points go in snapped
+    (`snapped`): TetGen's mesh is then the same on any CPU."""
     import tetgen
     if not is_watertight(points, faces):
         raise ValueError("the part's surface is not watertight (pyvista is_manifold is False)")
     import os
-    tg = tetgen.TetGen(np.asarray(points, dtype=np.float64), np.asarray(faces, dtype=np.int32))
+    tg = tetgen.TetGen(snapped(points), np.asarray(faces, dtype=np.int32))
     leftovers = [f for f in ("_skipped.face", "_skipped.node") if not os.path.exists(f)]
     try:
         nodes, tets, *_ = tg.tetrahedralize(order=1, mindihedral=mindihedral, minratio=minratio, maxvolume=maxvolume)
@@ -174,6 +176,27 @@ def tetrahedralize(points: np.ndarray, faces: np.ndarray, *, mindihedral: float 
     neg = tet_volumes(nodes, tets) < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]          # TetGen's orientation convention, made ours
     return nodes, tets
+
+
+SNAP_BITS = 20
+"""The points TetGen is given are snapped to a grid 2^-SNAP_BITS of their extent (a power of two: ~0.2 um on a 20 cm
+part, far below any tet). Why: TetGen's mesh (its Steiner points and every tet) changes completely when an input
+coordinate changes in its last bit, and the same part's surface differs in its last bits from one CPU to another
+(NumPy's vectorised loops sum in a different order on AVX-512 than on AVX2; FMA): the reference solid's sway then
+spread 5.0-8.5 Hz over meshes of inputs 1e-12 apart (benchmarks/results/fem_mesh_spread.md), and a test of it failed
+on one machine only. Snapped, inputs that differ by less than the grid give the one mesh (unless a coordinate sits
+within their difference of a grid line: ~1e-6 per coordinate for last-bit differences)."""
+
+
+def snapped(points: np.ndarray) -> np.ndarray:
+    """(P, 3) float64: points (P, 3) rounded to multiples of q = 2^(floor(log2(extent)) - SNAP_BITS), extent the
+    largest side of their bounding box (q a power of two: the rounding is exact arithmetic)."""
+    p = np.asarray(points, dtype=np.float64)
+    extent = float(np.ptp(p, axis=0).max()) if len(p) else 0.0
+    if not extent > 0.0 or not np.isfinite(extent):
+        return p.copy()
+    q = math.ldexp(1.0, math.floor(math.log2(extent)) - SNAP_BITS)
+    return np.round(p / q) * q
 
 
 def barycentric(points: np.ndarray, tets: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -416,5 +439,5 @@ def structured_part_mesh(cvs: np.ndarray, *, rows: int = ROWS, cols: int = COLS,
                    mesher="structured")
 
 
-__all__ = ["TetMesh", "part_mesh", "structured_part_mesh", "structured_mesh", "boundary_faces", "LAYERS", "part_surface", "grid_faces", "is_watertight", "tetrahedralize", "tet_volumes",
+__all__ = ["TetMesh", "snapped", "SNAP_BITS", "part_mesh", "structured_part_mesh", "structured_mesh", "boundary_faces", "LAYERS", "part_surface", "grid_faces", "is_watertight", "tetrahedralize", "tet_volumes",
            "barycentric", "attached_vertices", "loft_map", "loft_coordinates", "ROWS", "COLS", "CORE", "END"]

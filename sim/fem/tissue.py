@@ -35,7 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from jiggle.rig.muscle.material import Material
-from jiggle.sim.fem.solve import ITERATIONS, STIFFENING, STIFFENING_CAP, GoalCurve, _goal_vbd
+from jiggle.sim.fem.solve import ITERATIONS, STIFFENING, STIFFENING_CAP, GoalCurve
+from jiggle.sim.fem.step import DET_FLOOR, GoalSolid
 from jiggle.sim.fem.tet_mesh import TetMesh, structured_part_mesh
 
 DT_MAX = 1.0 / 2000.0
@@ -87,7 +88,7 @@ class FemTissue:
 
     def __init__(self, parts: list, cv_offsets: np.ndarray, *, pairs=None, capsule_radius=None, floor=None,
                  device: str = "cpu", dt_max: float = DT_MAX, iterations: int = ITERATIONS,
-                 stiffening: float = STIFFENING):
+                 stiffening: float = STIFFENING, floor_det: float | None = DET_FLOOR):
         import newton
         import scipy.sparse as sp
         import warp as wp
@@ -133,23 +134,8 @@ class FemTissue:
             builder.particle_mass[int(i)] = 0.0
         builder.color()
         self.model = builder.finalize(device=device)
-        self.solver = _goal_vbd()(model=self.model, iterations=self.iterations, particle_enable_self_contact=False,
-                                  particle_enable_tile_solve=False)
         self.stiffening = float(stiffening)
-        self.base_materials = wp.clone(self.model.tet_materials)
-        self.s0, self.s1 = self.model.state(), self.model.state()
-        self.control = self.model.control()
-        self.solver.attached_idx = wp.array(np.flatnonzero(self.attached).astype(np.int32), dtype=wp.int32,
-                                            device=device)
-        self.solver.goal_end = wp.zeros(N, dtype=wp.vec3, device=device)
-        self.wp_tets = wp.array(self.tets, dtype=wp.int32, device=device)
         # contacts: the free vertices against their part's capsules and the floor
-        self.free_idx = wp.array(np.flatnonzero(~self.attached).astype(np.int32), dtype=wp.int32, device=device)
-        # the Rayleigh damping's mass-proportional part: each vertex's part's alpha, on its velocity from its goal's
-        self.drag = any(p.alpha > 0.0 for p in self.parts)
-        self.wp_alpha = wp.array(np.concatenate([np.full(len(p.mesh.points), p.alpha, np.float32) for p in self.parts])
-                                 if self.parts else np.zeros(1, np.float32), dtype=float, device=device)
-        self.goal_velocity = wp.zeros(max(N, 1), dtype=wp.vec3, device=device)
         self.wp_vertex_part = wp.array(self.vertex_part, dtype=wp.int32, device=device)
         self.contacts = pairs is not None or floor is not None
         offs, caps = pairs if pairs is not None else (np.zeros(int(self.vertex_part.max(initial=0)) + 2, np.int32),
@@ -162,7 +148,16 @@ class FemTissue:
                                   dtype=wp.float32, device=device)
         self.wp_ends = wp.zeros(max(2 * self.num_capsules, 2), dtype=wp.vec3, device=device)
         self.floor = floor
-        self.steps = 0
+        self._ends = None                    # (knots, (K, 2C, 3)) of the run under way: the capsules' ends
+        # the Rayleigh damping's mass-proportional part: each vertex's part's alpha, on its velocity from its goal's
+        alpha = np.concatenate([np.full(len(p.mesh.points), p.alpha) for p in self.parts]) if self.parts \
+            else np.zeros(0)
+        self.solid = GoalSolid(self.model, self.attached, self.tets, alpha, iterations=self.iterations,
+                               stiffening=self.stiffening, cap=STIFFENING_CAP,
+                               after=self._keep_out if self.contacts else None, floor=floor_det, device=device)
+        self.free_idx = self.solid.free_idx
+        self.tet_part = np.concatenate([np.full(len(p.mesh.tets), k, np.int32) for k, p in enumerate(self.parts)]) \
+            if self.parts else np.zeros(0, np.int32)
         self.seconds = 0.0
 
     def _add_parts(self, builder) -> None:
@@ -192,7 +187,8 @@ class FemTissue:
         start : (x, v) (N, 3) float32 the state at times[0] (None: on the goal, moving with it). cuts : (K - 1,) bool,
         the goal track's cuts. capsule_ends : (K, 2C, 3) metres the capsules' ends at the knots (None: no capsules).
         Returns the parts' embedded CVs (T, P x 40, 3) float64 (rows cv_index of the rig's), the state at times[-1]
-        ((x, v) float32) and per frame {"min_det" (T,), "inverted" (T,) int}."""
+        ((x, v) float32) and per frame {"min_det" (T,), "inverted" (T,) int, "part_min_det" (T, P) each part's}.
+        A step that would leave a tet below the det F floor is redone in halves (sim.fem.step)."""
         import warp as wp
         knots = np.asarray(knots, np.float64)
         times = np.asarray(times, np.float64)
@@ -206,52 +202,48 @@ class FemTissue:
             x, v = (np.asarray(a, np.float32).reshape(N, 3) for a in start)
         frames = np.empty((T, N, 3), np.float32)
         frames[0] = x
-        self.s0.particle_q.assign(x)
-        self.s0.particle_qd.assign(v)
+        solid = self.solid
+        solid.set_state(x, v)
         k_cut = np.flatnonzero(np.asarray(cuts, bool)) if cuts is not None else np.zeros(0, np.int64)
         cut_at = knots[k_cut + 1] if len(k_cut) else np.zeros(0)
         ends = None if capsule_ends is None or not self.num_capsules else np.asarray(capsule_ends, np.float64)
+        self._ends = None if ends is None else (knots, ends)
         clock = time.perf_counter()
-        solver, model = self.solver, self.model
         for i in range(T - 1):
             t0, t1 = times[i], times[i + 1]
             n = max(1, int(math.ceil((t1 - t0) / self.dt_max - 1e-9)))
             h = (t1 - t0) / n
             for j in range(1, n + 1):
-                t = t0 + (t1 - t0) * j / n
-                g, gv = curve(t)
-                solver.goal_end.assign(g.astype(np.float32))
-                self._kernels.rest_poses(self.wp_tets, solver.goal_end, model.tet_poses, self.device)
-                self._kernels.stiffen(self.wp_tets, model.tet_poses, self.base_materials, self.stiffening,
-                                      STIFFENING_CAP, self.s0.particle_q, model.tet_materials, self.device)
-                self.s0.clear_forces()
-                solver.step(self.s0, self.s1, self.control, None, h)
-                self.s0, self.s1 = self.s1, self.s0
-                if self.drag:
-                    self.goal_velocity.assign(gv.astype(np.float32))
-                    self._kernels.goal_drag(self.free_idx, self.wp_alpha, h, self.goal_velocity,
-                                            self.s0.particle_qd, self.device)
-                if self.contacts:
-                    if ends is not None:
-                        self.wp_ends.assign(_at(knots, ends, t).astype(np.float32))
-                    self._kernels.keep_out(self.free_idx, self.wp_vertex_part, self.wp_pair_offsets,
-                                           self.wp_pair_capsule, self.wp_ends, self.wp_radius,
-                                           self.num_capsules if ends is not None else 0, self.floor,
-                                           solver.goal_end, self.s0.particle_q, self.s0.particle_qd, self.device)
-                self.steps += 1
+                solid.advance(curve, t0 + (t1 - t0) * j / n, h)
             if len(cut_at) and ((cut_at > t0) & (cut_at <= t1 + 1e-12)).any():   # a teleport: back on the goal
                 g1, gv1 = curve(t1)
-                self.s0.particle_q.assign(g1.astype(np.float32))
-                self.s0.particle_qd.assign(gv1.astype(np.float32))
-            frames[i + 1] = self.s0.particle_q.numpy()
+                solid.set_state(g1, gv1)
+            frames[i + 1] = solid.s0.particle_q.numpy()
         wp.synchronize_device(self.device)
         self.seconds += time.perf_counter() - clock
-        end = (self.s0.particle_q.numpy().astype(np.float32), self.s0.particle_qd.numpy().astype(np.float32))
+        end = solid.state()
         cvs = np.asarray(self.embed @ np.ascontiguousarray(frames.transpose(1, 0, 2)).reshape(N, T * 3),
                          np.float64).reshape(-1, T, 3).transpose(1, 0, 2)
         goal = np.stack([curve(t)[0] for t in times])
         det = self.determinants(frames, goal)
-        return cvs, end, {"min_det": det.min(axis=1, initial=np.inf), "inverted": (det <= 0.0).sum(axis=1)}
+        part_min = np.stack([det[:, self.tet_part == k].min(axis=1) for k in range(len(self.parts))], axis=1) \
+            if self.parts else np.zeros((T, 0))
+        return cvs, end, {"min_det": det.min(axis=1, initial=np.inf), "inverted": (det <= 0.0).sum(axis=1),
+                          "part_min_det": part_min}
+
+    @property
+    def steps(self) -> int:
+        """The solver's steps kept so far (sim.fem.step.GoalSolid)."""
+        return self.solid.steps
+
+    def _keep_out(self, t: float, goal, q, qd) -> None:
+        """The contacts after a step ending at t seconds: the free vertices out of their part's capsules (their ends
+        at t, linear between the run's knots) and above the floor, as far as their goal is (fem_kernels.keep_out)."""
+        if self._ends is not None:
+            self.wp_ends.assign(_at(*self._ends, t).astype(np.float32))
+        self._kernels.keep_out(self.free_idx, self.wp_vertex_part, self.wp_pair_offsets, self.wp_pair_capsule,
+                               self.wp_ends, self.wp_radius, self.num_capsules if self._ends is not None else 0,
+                               self.floor, goal, q, qd, self.device)
 
     def determinants(self, x: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """(T, tets) det F of every tet for vertex positions x (T, N, 3) against the goal shapes goal (T, N, 3)."""
@@ -266,6 +258,9 @@ class FemTissue:
                 "stiffening": {"b": self.stiffening, "cap": STIFFENING_CAP,
                                "law": "moduli x exp(b (I1bar - 3)) per tet at its distortion from the goal shape"},
                 "iterations": self.iterations, "dt_max_s": self.dt_max, "steps": self.steps,
+                "step_check": {**self.solid.to_json(),
+                               "rule": "a step ending with a tet's det F below det_floor is put back and taken again "
+                                       "as two half steps, down to 2^-max_splits of it (sim/fem/step.py)"},
                 "seconds": round(self.seconds, 3), "ms_per_step": round(1e3 * self.seconds / max(self.steps, 1), 3),
                 "vertices": self.num_vertices, "tets": self.num_tets, "attached": int(self.attached.sum()),
                 "real_scale": real_scale,

@@ -109,6 +109,13 @@ def test_hero_bake_runs_the_solid_with_no_inverted_tet(hero):
     assert fem["contacts"] and fem["stiffening"]["b"] > 0
     belly = fem["parts"]["belly_fat"]
     assert belly["material"]["name"] in ("fat", "custom") and belly["frequency_hz"] > 0
+    # each part's smallest det F over the output frames, the whole bake's the smallest of them; every kept step at
+    # the check's floor or above (sim.fem.step)
+    per = [p["min_det"] for p in fem["parts"].values()]
+    assert min(per) == pytest.approx(fem["min_det"], abs=1e-6) and all(0 < d <= 1.0 + 1e-6 for d in per)
+    check = fem["step_check"]
+    assert check["steps"] == fem["steps"] > 0 and check["steps_redone"] >= 0
+    assert check["step_min_det"] >= check["det_floor"] - 1e-6
     d = read_npz(hero / "bake.npz")
     assert np.isfinite(d.skin_final).all()
     # the embedded CVs move off the static ones (the solid jiggles), the first frame starts on them

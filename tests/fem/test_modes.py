@@ -77,7 +77,10 @@ def test_the_solid_rings_down_with_the_material_ratio(mesh):
     found = modes(mesh, mat)
     f1, f2 = band(found)
     alpha, k_damp = rayleigh(mat.damping_ratio, f1, f2, mat.shear_pa, DT, NUMERICAL_DAMPING)
-    kw = dict(duration=0.6, fps=1000.0, direction=(0.0, 0.0, 1.0), window=3.0 / found.sway_hz)
+    # the drive along the sway (the mode with the most mass, the band's top): a coarse mesh's modes along the part's
+    # axes need not be it (this one's along z is a lighter mode at 0.56 of the sway, where the band's ratio dips)
+    sway = np.asarray(found.means[found.sway], np.float64)
+    kw = dict(duration=0.6, fps=1000.0, direction=tuple(sway / np.linalg.norm(sway)), window=3.0 / found.sway_hz)
 
     def zeta(run_rd):
         run, rd = run_rd
