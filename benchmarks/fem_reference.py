@@ -333,24 +333,30 @@ CASES = {
 }
 
 
-def case_drive(name: str, log):
+def case_drive(name: str, log, spec: dict | None = None):
     """(rig, m, knots (K,), static CVs (K, N, 3), times (T,), t_hold, the bake's jiggles, real_scale) of a case: the
-    bake's own drive, then HOLD s; real_scale its real metres per simulated metre (BakeSetup.real_scale)."""
+    bake's own drive, then HOLD s; real_scale its real metres per simulated metre (BakeSetup.real_scale). spec (None:
+    CASES[name]): clip, character (None: the generated body), animation, part (None: the largest of `kind`, "fat"
+    by default, else any), seconds of motion from `start` (seconds of the clip, default 0)."""
     from jiggle.sim.bake.setup import BakeRequest, prepare
-    spec = CASES[name]
+    spec = CASES[name] if spec is None else spec
     clip = ASSETS / spec["clip"]
     if not clip.exists():
         raise FileNotFoundError(clip)
     req = BakeRequest(clip=str(clip), character=str(ASSETS / spec["character"]) if spec["character"] else None,
-                      animation=spec.get("animation"), formats=("npz",))
+                      animation=spec.get("animation"), formats=("npz",), start=spec.get("start"))
     with warnings.catch_warnings():
         quiet()
         setup = prepare(req, log=lambda s: None)
     rig = setup.rig
     if spec["part"]:
         m = rig.names.index(spec["part"])
-    else:                                             # the biggest fat part
-        fat = [i for i in range(rig.M) if rig.kinds[i] == "fat"] or list(range(rig.M))
+    else:                                             # the biggest part of the kind (fat unless said)
+        kind = spec.get("kind", "fat")
+        fat = [i for i in range(rig.M) if rig.kinds[i] == kind]
+        if not fat and "kind" in spec:
+            raise LookupError(f"the character has no {kind} part")
+        fat = fat or list(range(rig.M))
         m = max(fat, key=lambda i: rig.rest_volume[i])
     t0 = float(setup.times[0])
     if setup.loop is not None and getattr(setup.loop, "on", False):
@@ -391,9 +397,10 @@ def metrics(off: np.ndarray, times: np.ndarray, t_hold: float, window: float | N
             "ring_amp_mm": 1e3 * rd.amplitude, "magnitude": measure.offset_magnitude(off)}
 
 
-def case(name: str, cal: dict, log) -> dict:
+def case(name: str, cal: dict, log, spec: dict | None = None, plots: Path | None = None) -> dict:
+    """A case's record (spec: case_drive's; plots: the folder of its plot, None: OUT)."""
     from jiggle.sim.jiggle.params import default_jiggles
-    rig, m, knots, static, times, t_hold, baked, k = case_drive(name, log)
+    rig, m, knots, static, times, t_hold, baked, k = case_drive(name, log, spec)
     sl = slice(rig.cv_offsets[m], rig.cv_offsets[m + 1])
     mat = material_for(rig.kinds[m])
     # both solvers at the character's real size (a game file's own unit is arbitrary: rig.character.real_size): the
@@ -418,7 +425,9 @@ def case(name: str, cal: dict, log) -> dict:
            "real_scale": k,
            "f_rule_hz": f_rule, "k_damp": k_damp, "alpha": alpha, "f_lowest_hz": found.lowest_hz,
            "f_sway_hz": found.sway_hz, "band_hz": [f1, f2], "tets": int(len(mesh.tets)),
-           "min_det": float(run.min_det.min()), "ms_per_step": run.ms_per_step, "fem_seconds": fem_t,
+           "min_det": float(run.min_det.min()), "step_min_det": float(run.step_min_det),
+           "steps_redone": int(run.redone), "steps_line_searched": int(run.searched),
+           "ms_per_step": run.ms_per_step, "fem_seconds": fem_t,
            "t_hold": t_hold - float(times[0]), "max_energy_J": float(run.energy.max()),
            "goal_cv_err_mm": float(1e3 * np.abs(goal_cvs - goal).max())}
     res = {"fem": metrics(mesh.cvs(run.positions) - goal_cvs, times, t_hold, 3.0 / f_rule)}
@@ -442,11 +451,11 @@ def case(name: str, cal: dict, log) -> dict:
         f"{res['particles']['peak_mm']:.2f} mm {res['particles']['ring_f_hz']:.2f} Hz zeta {res['particles']['zeta']:.2f}"
         f" | particles from material {res['particles_material']['peak_mm']:.2f} mm "
         f"{res['particles_material']['ring_f_hz']:.2f} Hz zeta {res['particles_material']['zeta']:.2f}")
-    plot(name, out, times - times[0], t_hold - times[0], res)
+    plot(name, out, times - times[0], t_hold - times[0], res, plots)
     return out
 
 
-def plot(name, out, t, t_hold, res) -> None:
+def plot(name, out, t, t_hold, res, folder: Path | None = None) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -465,7 +474,7 @@ def plot(name, out, t, t_hold, res) -> None:
     ax.set_title(f"{name}: {out['part']} - FEM vs particles, both driven by the static shape")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(OUT / f"fem_reference_{name}.png")
+    fig.savefig((OUT if folder is None else folder) / f"fem_reference_{name}.png")
     plt.close(fig)
 
 

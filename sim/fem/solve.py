@@ -208,24 +208,6 @@ def carried_goals(mesh: TetMesh, carry: np.ndarray) -> np.ndarray:
     return np.einsum("kij,nj->kni", carry[:, :3, :3], mesh.points) + carry[:, None, :3, 3]
 
 
-def _goal_vbd():
-    """SolverVBD whose particle initialisation ends by placing the attached vertices at their goal (see the module)."""
-    import newton
-
-    from jiggle.sim.fem import fem_kernels
-
-    class _GoalVBD(newton.solvers.SolverVBD):
-        goal_end = None          # wp.array (N,) vec3: every vertex's goal at the step's end
-        attached_idx = None      # wp.array (A,) int32
-
-        def _initialize_particles(self, state_in, state_out, contacts, dt):
-            super()._initialize_particles(state_in, state_out, contacts, dt)
-            fem_kernels.place(self.attached_idx, self.goal_end, state_in.particle_q,
-                              self.pos_prev_collision_detection, self.device)
-
-    return _GoalVBD
-
-
 def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: np.ndarray, out_times: np.ndarray, *,
                   frequency_hz: float | None = None, k_damp: float | None = None, dt: float = DT,
                   iterations: int = ITERATIONS, rest: str = "goal", gravity: bool = False,

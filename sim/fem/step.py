@@ -3,7 +3,8 @@
 near inside out redone in halves.
 
 A step ending at time t, h seconds long (the order both solvers have always used):
-1. every vertex's goal at t (the attached vertices are put there inside VBD's forward step: solve._goal_vbd);
+1. every vertex's goal at t (the attached vertices are put there inside VBD's forward step, after it has recorded
+   their start: _goal_vbd; sim/fem/solve.py says why);
 2. with rest "goal", every tet's rest shape set to its goal shape at t (fem_kernels.rest_poses);
 3. every tet's moduli stiffened for its distortion at the step's start (fem_kernels.stiffen, lagged a step);
 4. VBD's step (its own iterations, damping, backward Euler);
@@ -65,7 +66,6 @@ class GoalSolid:
         import warp as wp
 
         from jiggle.sim.fem import fem_kernels
-        from jiggle.sim.fem.solve import _goal_vbd
         self.k, self.device, self.model = fem_kernels, device, model
         N, T = len(attached), len(tets)
         self.solver = _goal_vbd()(model=model, iterations=int(iterations), particle_enable_self_contact=False,
@@ -196,6 +196,25 @@ class GoalSolid:
                 "steps_redone": self.redone, "steps_line_searched": self.searched,
                 "line_searched_vertices": self.searched_vertices,
                 "step_min_det": None if not np.isfinite(self.min_det) else round(float(self.min_det), 6)}
+
+
+def _goal_vbd():
+    """SolverVBD whose particle initialisation ends by placing the attached vertices at their goal (sim/fem/solve.py
+    says why after VBD has recorded their start)."""
+    import newton
+
+    from jiggle.sim.fem import fem_kernels
+
+    class _GoalVBD(newton.solvers.SolverVBD):
+        goal_end = None          # wp.array (N,) vec3: every vertex's goal at the step's end
+        attached_idx = None      # wp.array (A,) int32
+
+        def _initialize_particles(self, state_in, state_out, contacts, dt):
+            super()._initialize_particles(state_in, state_out, contacts, dt)
+            fem_kernels.place(self.attached_idx, self.goal_end, state_in.particle_q,
+                              self.pos_prev_collision_detection, self.device)
+
+    return _GoalVBD
 
 
 def _components(n: int, tets: np.ndarray) -> np.ndarray:

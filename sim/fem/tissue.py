@@ -22,8 +22,9 @@ Contacts: after every step the free vertices are kept out of the bone capsules t
 particles' pairs, sim.jiggle.colliders) and above the floor, as far as their goal is (a goal already inside a
 capsule allows that depth), their velocity into the surface removed (fem_kernels.keep_out).
 
-Checks per output frame: the smallest det F over all tets against the goal shape (> 0: none inverted) and how many
-tets are inverted (sim.fem.solve.determinants).
+Checks: every step's end against a det F floor, a step below it redone in halves and, where the shortest still is,
+ended by a line search toward the goal (sim.fem.step, shared with the reference); per output frame the smallest det F
+over all tets against the goal shape (> 0: none inverted), each part's, and how many tets are inverted.
 """
 from __future__ import annotations
 
