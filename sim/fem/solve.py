@@ -222,8 +222,8 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     gravity : along -Z, 9.81 m/s^2. stiffening : b of the tissue's strain stiffening (STIFFENING; 0: a plain
     Neo-Hookean solid). alpha : 1/s, the Rayleigh damping's mass-proportional part, on each free vertex's velocity
     relative to its goal's (sim/fem/modes.py; 0: none). floor : a step ending with a tet's det F below it is redone
-    in halves, at most max_splits times, then line-searched toward the goal (sim.fem.step; None: no check). The body starts on its goal at out_times[0], moving with the goal's
-    velocity.
+    in halves, at most max_splits times, then line-searched toward the goal (sim.fem.step; None: no check). The body
+    starts on its goal at out_times[0], moving with the goal's velocity.
     """
     import time
 

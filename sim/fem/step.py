@@ -13,10 +13,10 @@ A step ending at time t, h seconds long (the order both solvers have always used
 
 Then the step is checked: the smallest det F over the tets against their rest shape (the goal's, rest "goal") at its
 end. Below DET_FLOOR the state is put back as it was before the step and the step is taken again as two half
-steps, each checked the same way, down to a step 2^-MAX_SPLITS of the original. Why this is (nearly always) enough: VBD runs a fixed
-count of local (per-vertex) Newton iterations on backward Euler's incremental potential, and the lagged strain
-stiffening and the stable Neo-Hookean's volume term only resist a collapse they see coming within the step; on a hard
-landing the goal (the bone-attached core) moves several millimetres in a 0.5 ms step, and the free flesh beside it,
+steps, each checked the same way, down to a step 2^-MAX_SPLITS of the original. Why this is (nearly always) enough:
+VBD runs a fixed count of local (per-vertex) Newton iterations on backward Euler's incremental potential, and the
+lagged strain stiffening and the stable Neo-Hookean's volume term only resist a collapse they see coming within the
+step; on a hard landing the goal (the bone-attached core) moves several millimetres in a 0.5 ms step, and the free flesh beside it,
 held back by its inertia, is squeezed past J = 0 before an iteration can push back. A shorter step moves the goal
 less per solve and lets the stiffening (updated every step) catch up, so the solve stays on the barrier's side of
 the potential.
