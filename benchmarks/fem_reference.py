@@ -427,6 +427,7 @@ def case(name: str, cal: dict, log, spec: dict | None = None, plots: Path | None
            "f_sway_hz": found.sway_hz, "band_hz": [f1, f2], "tets": int(len(mesh.tets)),
            "min_det": float(run.min_det.min()), "step_min_det": float(run.step_min_det),
            "steps_redone": int(run.redone), "steps_line_searched": int(run.searched),
+           "whole_parts_drawn_back": int(run.whole),
            "ms_per_step": run.ms_per_step, "fem_seconds": fem_t,
            "t_hold": t_hold - float(times[0]), "max_energy_J": float(run.energy.max()),
            "goal_cv_err_mm": float(1e3 * np.abs(goal_cvs - goal).max())}

@@ -76,7 +76,8 @@ class FemRun:
     shape, rest "goal"; the bind shape, rest "bind") over all tets (> 0: none inverted). energy : (F,) joules,
     kinetic (relative to the goal's velocity) + elastic (see the module). steps : the solver's steps.
     ms_per_step : wall milliseconds per solver step (the loop alone). redone : steps redone in halves below the
-    det F floor (sim.fem.step); searched : shortest steps ended by its line search. step_min_det : the smallest det F
+    det F floor (sim.fem.step); searched : shortest steps ended by its line search (whole: of those, how many drew a
+    whole part back). step_min_det : the smallest det F
     at any kept step's end (not only the output frames).
     """
 
@@ -90,6 +91,7 @@ class FemRun:
     redone: int = 0
     step_min_det: float = float("inf")
     searched: int = 0
+    whole: int = 0
 
     def __post_init__(self):
         for k in ("times", "positions", "goals", "min_det", "energy"):
@@ -286,7 +288,7 @@ def simulate_part(mesh: TetMesh, material: Material, goals: np.ndarray, knots: n
     energy = kinetic + elastic_energy(mesh, frames, material, ref)
     min_det = determinants(mesh, frames, ref).min(axis=-1)
     return FemRun(times=out_times, positions=frames, goals=gx, min_det=min_det, energy=energy, steps=solid.steps,
-                  ms_per_step=ms, redone=solid.redone, searched=solid.searched,
+                  ms_per_step=ms, redone=solid.redone, searched=solid.searched, whole=solid.whole,
                   step_min_det=solid.min_det if np.isfinite(solid.min_det) else float(min_det.min()))
 
 

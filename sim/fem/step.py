@@ -24,7 +24,7 @@ the potential.
 Where even the shortest step ends below the floor (a sliver of a folded part's mesh, a 0.5 mm edge against 10 mm
 ones, whose free corner the flesh around it pushes through: CesiumMan's right pectoral on CMU 05_02's leaps), the
 step ends with a line search toward the goal: the free vertices of the tets below the floor are drawn back along
-their offset from their goal, by halves, until every tet they touch is at the floor or above (on the goal a tet is
+their offset from their goal, as little as does it (DRAW_BACK), until every tet they touch is at the floor or above (on the goal a tet is
 its own rest shape, det F 1), the set growing to the next ring of tets while one stays below, and after LOCAL_RINGS
 rings to the whole mesh of the part (det F is continuous in the draw-back, and 1 on the goal). So no kept step ends
 below the floor (rest "goal"). bake.json and the reference's tables report the smallest det F, the steps redone and the
@@ -43,8 +43,11 @@ quarter of its volume. Well above 0, so a step heading toward inversion is caugh
 turn it; well below what the tissue reaches in motion (the shared clips' smallest, with redone steps: ~0.5)."""
 MAX_SPLITS = 5
 """How many times a step is halved at most (a 0.5 ms hero step down to ~16 us)."""
-LOCAL_RINGS = 3
+LOCAL_RINGS = 6
 """How many rings of tets the line search grows its set of vertices by before it takes the whole mesh."""
+DRAW_BACK = (0.9, 0.75, 0.5, 0.25, 0.1, 0.0)
+"""The line search's tries: the share s of the vertices' offset from their goal kept, the largest first (the least
+change that restores the floor)."""
 
 
 class GoalSolid:
@@ -91,7 +94,7 @@ class GoalSolid:
         self._free = ~np.asarray(attached, bool)
         self._component = _components(len(attached), np.asarray(tets).reshape(-1, 4))
         self.steps, self.redone, self.min_det = 0, 0, float("inf")
-        self.searched, self.searched_vertices = 0, 0
+        self.searched, self.searched_vertices, self.whole, self.smallest_draw = 0, 0, 0, 1.0
 
     # ------------------------------------------------------------------------------------------------ state
     def set_state(self, x: np.ndarray, v: np.ndarray) -> None:
@@ -156,7 +159,7 @@ class GoalSolid:
 
     def _line_search(self, goal_velocity: np.ndarray, det: np.ndarray) -> np.ndarray:
         """Every tet back at the floor or above by drawing vertices back along their offset from the goal (x = g +
-        s (x - g), v = gv + s (v - gv), s halved from 1/2 to 0: on the goal). First the free vertices of the tets
+        s (x - g), v = gv + s (v - gv), s from DRAW_BACK, the largest that does, 0: on the goal). First the free vertices of the tets
         below the floor, their set growing by a ring of tets while one stays below (LOCAL_RINGS times); then, where
         that is not enough, every free vertex of the meshes those tets belong to. Returns every tet's det F after.
         Why it ends: on the goal a tet is its own rest shape (det F 1, rest "goal"), and det F is continuous in s."""
@@ -168,19 +171,23 @@ class GoalSolid:
         verts = np.zeros(len(x), bool)
         bad = det < self.floor
         for ring in range(LOCAL_RINGS + 1):
-            if ring == LOCAL_RINGS:                      # the meshes (connected parts) of the tets still below
+            whole = ring == LOCAL_RINGS
+            if whole:                                    # the meshes (connected parts) of the tets still below
                 verts |= np.isin(self._component, np.unique(self._component[tets[bad, 0]]))
+                self.whole += 1
             else:
                 verts[tets[bad].reshape(-1)] = True
             verts &= self._free
             near = verts[tets].any(axis=1)               # the tets the moved vertices touch
             x0, v0 = x[verts].copy(), v[verts].copy()
-            for s in (0.5, 0.25, 0.125, 0.0625, 0.0):
+            for s in DRAW_BACK:
                 x[verts] = g[verts] + s * (x0 - g[verts])
                 v[verts] = gv[verts] + s * (v0 - gv[verts])
                 det[near] = _determinants(x, tets[near], poses[near])
                 if (det[near] >= self.floor).all():
                     break
+            if whole:
+                self.smallest_draw = min(self.smallest_draw, s)
             bad = near & (det < self.floor)
             if not bad.any():
                 break
@@ -194,7 +201,8 @@ class GoalSolid:
         """The check's record: floor, the most splits, the steps kept and redone, the smallest det F."""
         return {"det_floor": self.floor, "max_splits": self.max_splits, "steps": self.steps,
                 "steps_redone": self.redone, "steps_line_searched": self.searched,
-                "line_searched_vertices": self.searched_vertices,
+                "line_searched_vertices": self.searched_vertices, "whole_meshes_drawn_back": self.whole,
+                "smallest_draw_back": self.smallest_draw,
                 "step_min_det": None if not np.isfinite(self.min_det) else round(float(self.min_det), 6)}
 
 
@@ -235,4 +243,4 @@ def _determinants(x: np.ndarray, tets: np.ndarray, poses: np.ndarray) -> np.ndar
     return np.linalg.det(Ds @ np.asarray(poses, np.float64))
 
 
-__all__ = ["GoalSolid", "DET_FLOOR", "MAX_SPLITS", "LOCAL_RINGS"]
+__all__ = ["GoalSolid", "DET_FLOOR", "MAX_SPLITS", "LOCAL_RINGS", "DRAW_BACK"]
