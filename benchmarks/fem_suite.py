@@ -18,8 +18,9 @@ redid. The summary gives, for the default and for the material springs, how many
 (ring-down frequency) and 30% (decrement), the median and the worst ratio, with plots (one per case, and the
 ratios of all cases: benchmarks/results/fem_suite/).
 
-Writes benchmarks/results/fem_suite.{md,json}. The whole suite takes ~35 min on this machine with 2 workers;
-`--subset` (the CMU clips on CesiumMan and 4 zoo characters) ~15 min.
+Writes benchmarks/results/fem_suite.{md,json}. The whole suite took 35 min on this machine with one worker (beside
+other bakes); two workers take about half; `--subset` (the CMU clips on CesiumMan and 4 zoo characters) about a
+third of the cases.
 """
 from __future__ import annotations
 
