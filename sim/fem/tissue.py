@@ -261,7 +261,9 @@ class FemTissue:
                 "iterations": self.iterations, "dt_max_s": self.dt_max, "steps": self.steps,
                 "step_check": {**self.solid.to_json(),
                                "rule": "a step ending with a tet's det F below det_floor is put back and taken again "
-                                       "as two half steps, down to 2^-max_splits of it (sim/fem/step.py)"},
+                                       "as two half steps, down to 2^-max_splits of it; where the shortest still ends "
+                                       "below, the vertices of the tets below are drawn back toward their goal until "
+                                       "none is (sim/fem/step.py)"},
                 "seconds": round(self.seconds, 3), "ms_per_step": round(1e3 * self.seconds / max(self.steps, 1), 3),
                 "vertices": self.num_vertices, "tets": self.num_tets, "attached": int(self.attached.sum()),
                 "real_scale": real_scale,
