@@ -59,7 +59,8 @@ class GoalSolid:
     rest_goal : the tets' rest shape follows the goal (else the model's bind shape). after : callable(t, goal_end,
     q, qd) run after each step (contacts), None: none. floor : DET_FLOOR (None: no check, no redo).
     Counters: steps (steps kept), redone (steps put back and taken again in halves), searched (shortest steps
-    ended by the line search) and searched_vertices (the vertices it moved, summed), min_det (the smallest det F of
+    ended by the line search), searched_vertices (the vertices it moved, summed), whole (searches that drew a whole
+    part back) and smallest_draw (the smallest share of its offset such a part kept), min_det (the smallest det F of
     any kept step's end, inf before the first), and per tet the smallest det F of a kept step (tet_min_det (T,)).
     """
 
@@ -159,10 +160,11 @@ class GoalSolid:
 
     def _line_search(self, goal_velocity: np.ndarray, det: np.ndarray) -> np.ndarray:
         """Every tet back at the floor or above by drawing vertices back along their offset from the goal (x = g +
-        s (x - g), v = gv + s (v - gv), s from DRAW_BACK, the largest that does, 0: on the goal). First the free vertices of the tets
-        below the floor, their set growing by a ring of tets while one stays below (LOCAL_RINGS times); then, where
-        that is not enough, every free vertex of the meshes those tets belong to. Returns every tet's det F after.
-        Why it ends: on the goal a tet is its own rest shape (det F 1, rest "goal"), and det F is continuous in s."""
+        s (x - g), v = gv + s (v - gv), s from DRAW_BACK, the largest that does, 0: on the goal). First the free
+        vertices of the tets below the floor, their set growing by a ring of tets while one stays below (LOCAL_RINGS
+        times); then, where that is not enough, every free vertex of the meshes those tets belong to. Returns every
+        tet's det F after (goal_velocity (N, 3) m/s; det (T,) before). Why it ends: on the goal a tet is its own rest
+        shape (det F 1, rest "goal"), and det F is continuous in s."""
         tets = self.tets.numpy()
         poses = self.model.tet_poses.numpy()
         x, v = self.s0.particle_q.numpy().copy(), self.s0.particle_qd.numpy().copy()
