@@ -12,27 +12,26 @@ A step ending at time t, h seconds long (the order both solvers have always used
 6. contacts, when given (the hero mode's capsules and floor: fem_kernels.keep_out).
 
 Then the step is checked: the smallest det F over the tets against their rest shape (the goal's, rest "goal") at its
-end. Below DET_FLOOR the state is put back as it was before the step and the step is taken again as two half
-steps, each checked the same way, down to a step 2^-MAX_SPLITS of the original. Why this is (nearly always) enough:
-VBD runs a fixed count of local (per-vertex) Newton iterations on backward Euler's incremental potential, and the
-lagged strain stiffening and the stable Neo-Hookean's volume term only resist a collapse they see coming within the
-step; on a hard landing the goal (the bone-attached core) moves several millimetres in a 0.5 ms step, and the free flesh beside it,
-held back by its inertia, is squeezed past J = 0 before an iteration can push back. A shorter step moves the goal
-less per solve and lets the stiffening (updated every step) catch up, so the solve stays on the barrier's side of
-the potential.
+end. Below DET_FLOOR the state is put back as it was before the step and the step is taken again as two half steps,
+each checked the same way, down to a step 2^-MAX_SPLITS of the original. Why this is (nearly always) enough: VBD runs
+a fixed count of local (per-vertex) Newton iterations on backward Euler's incremental potential, and the lagged strain
+stiffening and the stable Neo-Hookean's volume term only resist a collapse they see coming within the step; on a hard
+landing the goal (the bone-attached core) moves several millimetres in a 0.5 ms step, and the free flesh beside it,
+held back by its inertia, is squeezed past J = 0 before an iteration can push back. A shorter step moves the goal less
+per solve and lets the stiffening (updated every step) catch up, so the solve stays on the barrier's side of the
+potential.
 
-Where even the shortest step ends below the floor (a sliver of a folded part's mesh, a 0.5 mm edge against 10 mm
-ones, whose free corner the flesh around it pushes through: CesiumMan's right pectoral on CMU 05_02's leaps), the
-step ends with a line search toward the goal: the free vertices of the tets below the floor are drawn back along
-their offset from their goal, as little as does it (DRAW_BACK), until every tet they touch is at the floor or above (on the goal a tet is
-its own rest shape, det F 1), the set growing to the next ring of tets while one stays below, and after LOCAL_RINGS
-rings to the whole mesh of the part (det F is continuous in the draw-back, and 1 on the goal). So no kept step ends
-below the floor (rest "goal"). bake.json and the reference's tables report the smallest det F, the steps redone and the
-steps line-searched with the vertices moved; an output frame with an inverted tet is never written silently
-(sim.bake.baker._warn_inverted).
+Where even the shortest step ends below the floor (a sliver of a folded part's mesh, a 0.5 mm edge against 10 mm ones,
+whose free corner the flesh around it pushes through: CesiumMan's right pectoral on CMU 05_02's leaps), the step ends
+with a line search toward the goal: the free vertices of the tets below the floor are drawn back along their offset
+from their goal, as little as does it (DRAW_BACK), until every tet they touch is at the floor or above (on the goal a
+tet is its own rest shape, det F 1), the set growing to the next ring of tets while one stays below, and after
+LOCAL_RINGS rings to the whole mesh of the part (det F is continuous in the draw-back, and 1 on the goal). So no kept
+step ends below the floor (rest "goal"). bake.json and the reference's tables report the smallest det F, the steps
+redone and the steps line-searched with the vertices moved; an output frame with an inverted tet is never written
+silently (sim.bake.baker._warn_inverted).
 
-A run with no redone step is exactly the run without the check (the check only reads the state).
-"""
+A run with no redone step is exactly the run without the check (the check only reads the state)."""
 from __future__ import annotations
 
 import numpy as np
