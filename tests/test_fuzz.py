@@ -400,9 +400,9 @@ def test_fuzz_reader(fmt, tmp_path):
     traceback, a hang or a jump in memory (failing inputs are kept under tmp_path/failing)."""
     if not (ASSETS / "mocap").exists():
         pytest.skip(f"shared assets not found under {ASSETS}")
-    t0 = time.perf_counter()
+    # a hang is caught per input (TIME_LIMIT); the whole run's time is no assert (it doubles on a loaded machine:
+    # the glb share took 39 s beside two bakes), benchmarks/bench_fuzz.py reports it
     res = fuzz(SEED + len(fmt), {fmt: COUNTS[fmt]}, tmp_path, keep=tmp_path / "failing")
-    took = time.perf_counter() - t0
     if fmt not in res:
         pytest.skip(f"no seed input for {fmt} (asset absent)")
     t = res[fmt]
@@ -410,7 +410,6 @@ def test_fuzz_reader(fmt, tmp_path):
     assert not t.failures, f"{len(t.failures)} of {t.inputs} {fmt} inputs broke the rules:\n\n" + "\n\n".join(report)
     assert t.inputs == COUNTS[fmt]
     assert t.user_error > 0 and t.ok + t.user_error == t.inputs
-    assert took < 30, f"{fmt}: {took:.1f} s"
 
 
 def _replace_line(src: Path, dst: Path, old: str, new: str) -> int:
