@@ -69,10 +69,11 @@ def bake(out: Path, clip: Path, character: Path | None, start: float, end: float
 
 
 def row(out: Path, wall: float) -> dict:
-    fem = json.loads((out / "bake.json").read_text())["fem"]
+    bake = json.loads((out / "bake.json").read_text())
+    fem = bake["fem"]
     check = fem.get("step_check") or {}
     worst = min(fem["parts"].items(), key=lambda kv: kv[1].get("min_det", np.inf))
-    return {"frames": json.loads((out / "bake.json").read_text())["frames"], "wall_s": round(wall, 1),
+    return {"frames": bake["frames"], "wall_s": round(wall, 1),
             "ms_per_step": fem["ms_per_step"], "min_det": fem["min_det"], "step_min_det": check.get("step_min_det"),
             "inverted_max": fem["inverted_max"], "frames_with_inverted": fem["frames_with_inverted"],
             "steps": fem["steps"], "redone": check.get("steps_redone"), "searched": check.get("steps_line_searched"),
