@@ -49,7 +49,8 @@ from timing import best  # noqa: E402  (benchmarks/timing.py)
 
 from jiggle.rig.muscle.simple_arm import arm_world, simple_arm  # noqa: E402
 from jiggle.sim.jiggle.goal_track import build_track  # noqa: E402
-from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
+from jiggle.sim.jiggle.params import JiggleSettings  # noqa: E402
+from jiggle.sim.jiggle.materials import default_jiggles  # noqa: E402
 from jiggle.sim.jiggle.particles import ParticleBuilder  # noqa: E402
 from jiggle.sim.jiggle.secondary import jiggle_rig  # noqa: E402
 from jiggle.sim.jiggle.simulate import run, step_times  # noqa: E402

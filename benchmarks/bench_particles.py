@@ -68,7 +68,8 @@ from timing import best, chunk_spans  # noqa: E402  (benchmarks/timing.py)
 
 from jiggle.rig.muscle.simple_arm import simple_arm  # noqa: E402
 from jiggle.sim.jiggle.goal_track import build_track  # noqa: E402
-from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles  # noqa: E402
+from jiggle.sim.jiggle.params import JiggleSettings  # noqa: E402
+from jiggle.sim.jiggle.materials import default_jiggles  # noqa: E402
 from jiggle.sim.jiggle.secondary import DEFAULT_GOAL_RATE, knot_times  # noqa: E402
 from jiggle.sim.jiggle.simulate import simulate, step_times  # noqa: E402
 from jiggle.sim.jiggle.solver import ParticleSolver  # noqa: E402

@@ -221,7 +221,7 @@ def particle_ringdown(rig, m, jiggles, direction, duration: float, frequency_hz:
 
 
 def calibration(log, quick: bool) -> dict:
-    from jiggle.sim.jiggle.params import default_jiggles
+    from jiggle.sim.jiggle.materials import default_jiggles
     parts = calibration_parts(log, quick)
     rows = []
     for name, rig, m in parts:
@@ -287,7 +287,7 @@ def particle_damping(log, quick: bool) -> dict:
     inverts MODAL_GAIN x sway_mode's ratio."""
     from jiggle.sim.fem.solve import GoalCurve
     from jiggle.sim.jiggle import materials
-    from jiggle.sim.jiggle.params import default_jiggles
+    from jiggle.sim.jiggle.materials import default_jiggles
     parts = calibration_parts(log, quick)
     rows = []
     for name, rig, m in parts:
@@ -399,7 +399,7 @@ def metrics(off: np.ndarray, times: np.ndarray, t_hold: float, window: float | N
 
 def case(name: str, cal: dict, log, spec: dict | None = None, plots: Path | None = None) -> dict:
     """A case's record (spec: case_drive's; plots: the folder of its plot, None: OUT)."""
-    from jiggle.sim.jiggle.params import default_jiggles
+    from jiggle.sim.jiggle.materials import default_jiggles
     rig, m, knots, static, times, t_hold, baked, k = case_drive(name, log, spec)
     sl = slice(rig.cv_offsets[m], rig.cv_offsets[m + 1])
     mat = material_for(rig.kinds[m])

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from jiggle.rig.muscle.template import (BoneMusclePair, MuscleTemplate, Template, default_jiggle)
+from jiggle.rig.muscle.template import TUNED_SPRINGS, BoneMusclePair, MuscleTemplate, Template, default_jiggle
 
 GENERIC = "generic"
 """The template name that asks for this template (--template generic)."""
@@ -235,7 +235,10 @@ def generic_template(parts: list[Part]) -> tuple[Template, dict[str, int]]:
         if p.kind is None:
             continue
         base = default_jiggle(p.kind)
-        jiggle = replace(base, frequency_hz=_frequency(p.kind, p.radius, radii[p.kind]))
+        # the springs as given (then tuned to the character's motion, sim.bake.setup), not from the material: a
+        # creature's one soft mass at its inferred real size would be a giant's fat (benchmarks/results/
+        # zoo_materials.md); its material is recorded beside them
+        jiggle = replace(base, **{**TUNED_SPRINGS[p.kind], "frequency_hz": _frequency(p.kind, p.radius, radii[p.kind])})
         name = _muscle_name(p.label, p.kind, taken)
         m = MuscleTemplate(name=name, kind=p.kind, type="single",
                            depth=FAT_DEPTH_RADII * p.radius if p.kind == "fat" else 0.0,

@@ -31,7 +31,7 @@ XML, the paper's layout (``.xml``)::
           <span t0="0.25" t1="1.0"/>  <sector a0="-60" a1="60"/>
           <sections rim="1" bulge="1" main="1" bulgePosition="0.25"/>
           <shape tone="1" nu="3" thicknessMin="0.004" depth="0.03" count="1"/>
-          <jiggle frequency="7" damping="0.5" goalTendon="0.9" goalBelly="0.4" density="1060"
+          <jiggle material="muscle" goalTendon="0.9" goalBelly="0.4"
                   strength="1" springFrequency="7" springDamping="0.3" friction="0"/>
           <shell sticky="1" hard="0.5" dropOff="1" weight="1" slippage="1" mode="stretch"/>
         </muscle>
@@ -55,7 +55,7 @@ TOML (``.toml``)::
     insertion = { parent_joint = "left_lower_arm", position = { type = "relative", x = 1.12, y = 0.08, z = 0.0 } }
     span = [0.25, 1.0]
     tone = 1.0
-    jiggle = { frequency = 7.0, damping = 0.5, goal_tendon = 0.9, goal_belly = 0.4, density = 1060.0 }
+    jiggle = { material = "muscle", goal_tendon = 0.9, goal_belly = 0.4 }
     shell = { sticky = 1.0, hard = 0.5, drop_off = 1.0, weight = 1.0, slippage = 1.0, mode = "stretch" }
 
 Everything but the bone and a muscle's name is optional; a missing value takes its default (the
@@ -93,9 +93,13 @@ e_front; angles about the bone go from e_front toward e_side, degrees):
   this thick; default FAT_DEPTH for fat, 0 for muscles, which use thickness_min).
 - kind : ``muscle``, ``fat`` (soft tissue that jiggles, no tendons to speak of) or ``multi_belly``
   (``count`` bellies in a row along the span, like the rectus abdominis).
-- jiggle : default particle parameters for the simulation (:class:`Jiggle`: frequency Hz and damping
-  ratio of the goal springs, goal weights at the tendons and the belly, density kg/m^3, jiggle
-  strength 0..1, neighbour springs' frequency Hz and damping ratio, friction 1/s).
+- jiggle : default particle parameters for the simulation (:class:`Jiggle`: the part's material, frequency Hz
+  and damping ratio of the goal springs, goal weights at the tendons and the belly, density kg/m^3, jiggle
+  strength 0..1, neighbour springs' frequency Hz and damping ratio, friction 1/s). The material (``fat``,
+  ``muscle`` or ``E=...,nu=...,rho=...,zeta=...``; default the kind's: rig/muscle/material.py, with its
+  sources) sets the goal springs' frequency and damping and the density at the character's real size
+  (sim/jiggle/materials.py); a ``frequency``, ``damping`` or ``density`` the template gives is used as
+  given instead (the template's own tuning; bake.json says which set them).
 - shell : the muscle's skin deformer (:class:`rig.muscle.shell_params.ShellParams`: sticky s, hard h, drop_off d
   in local units of the muscle's radius, weight w, slippage l, mode basic/stretch/trajectory);
   default :func:`rig.muscle.shell_params.default_shell` of the kind. The per-vertex painted weights are not part
@@ -172,11 +176,14 @@ class Attachment:
 class Jiggle:
     """Default simulation parameters of one muscle (sim/jiggle/params.py explains the model).
 
+    material : what the part is made of: "fat", "muscle" or "E=...,nu=...,rho=...,zeta=..."
+        (rig.muscle.material.parse_material); it sets the three values below that are None.
     frequency_hz : natural frequency of the goal springs, Hz, for a particle of goal weight 1/2 at
-        strength 1.
-    damping_ratio : of the goal springs (1 = critical).
+        strength 1; None: the material's at the part's real size (sim.jiggle.materials.with_material).
+    damping_ratio : of the goal springs (1 = critical); None: the one that makes the part ring down with
+        the material's ratio.
     goal_tendon, goal_belly : goal weights (0..1) at the tendon ends and in the belly.
-    density : kg/m^3, for the particle masses.
+    density : kg/m^3, for the particle masses; None: the material's.
     strength : jiggle strength in [0, 1]: the goal springs' compliance scale (0 glues the particles to
         their goals; an offset under a given acceleration grows in proportion to it).
     spring_frequency_hz : neighbour springs, as the frequency of one spring on the mean particle
@@ -185,22 +192,37 @@ class Jiggle:
     friction : drag on the particles' world velocity, 1/s.
     """
 
-    frequency_hz: float
-    damping_ratio: float
+    frequency_hz: float | None
+    damping_ratio: float | None
     goal_tendon: float
     goal_belly: float
-    density: float
+    density: float | None
     strength: float = 1.0
     spring_frequency_hz: float = 7.0
     spring_damping_ratio: float = 0.3
     friction: float = 0.0
+    material: str = "muscle"
 
     def __post_init__(self):
         for f in fields(self):
-            object.__setattr__(self, f.name, float(getattr(self, f.name)))
+            v = getattr(self, f.name)
+            if f.name == "material":
+                object.__setattr__(self, f.name, str(v).strip())
+            elif v is not None or f.name not in MATERIAL_SET:
+                object.__setattr__(self, f.name, float(v))
+
+    @property
+    def from_material(self) -> tuple[str, ...]:
+        """The fields the material sets (those left None)."""
+        return tuple(k for k in MATERIAL_SET if getattr(self, k) is None)
 
 
-# Where the defaults come from (sim/jiggle/tissue_law.py says what the reach and the stiffening are):
+MATERIAL_SET = ("frequency_hz", "damping_ratio", "density")
+"""The Jiggle fields a part's material sets where the template leaves them out."""
+
+
+# Where the defaults come from (sim/jiggle/tissue_law.py says what the reach and the stiffening are); the
+# frequencies, damping and densities below are TUNED_SPRINGS, the templates' defaults before the materials set them:
 # - Muscle frequency 10-12 Hz (11 by default; 10 for the big leg and hip muscles, 12 for the small forearm and
 #   calf muscles, in the templates): measured free vibrations of relaxed human muscle lie at 7-18 Hz -- the
 #   relaxed forearm (brachioradialis) 7-13 Hz (Gallasch & Kenner, "Characterisation of arm microvibration
@@ -220,10 +242,15 @@ class Jiggle:
 # - Reach (sim/jiggle/params.py MAX_OFFSET_RADII): 1.5 mean radii for a muscle, 2.5 for fat, times the
 #   strength; the tissue law is linear to half of it, so walks, runs, jumps and dances stay in the linear
 #   range in 99% of the frames on the shared clips (benchmarks/bench_tissue.py).
-MUSCLE_JIGGLE = Jiggle(frequency_hz=11.0, damping_ratio=0.5, goal_tendon=0.9, goal_belly=0.4, density=1060.0,
-                       spring_frequency_hz=7.0, spring_damping_ratio=0.3)
-FAT_JIGGLE = Jiggle(frequency_hz=4.0, damping_ratio=0.3, goal_tendon=0.9, goal_belly=0.3, density=900.0,
-                    spring_frequency_hz=4.0, spring_damping_ratio=0.2)
+MUSCLE_JIGGLE = Jiggle(frequency_hz=None, damping_ratio=None, goal_tendon=0.9, goal_belly=0.4, density=None,
+                       spring_frequency_hz=7.0, spring_damping_ratio=0.3, material="muscle")
+FAT_JIGGLE = Jiggle(frequency_hz=None, damping_ratio=None, goal_tendon=0.9, goal_belly=0.3, density=None,
+                    spring_frequency_hz=4.0, spring_damping_ratio=0.2, material="fat")
+"""The kinds' defaults: their springs, damping and density from their material (rig.muscle.material) at the
+part's real size. TUNED_SPRINGS are the values the templates had before (the comment above gives their sources),
+which the generic template's tuning (sim.bake.setup) and a template that writes them out still use."""
+TUNED_SPRINGS = {"muscle": {"frequency_hz": 11.0, "damping_ratio": 0.5, "density": 1060.0},
+                 "fat": {"frequency_hz": 4.0, "damping_ratio": 0.3, "density": 900.0}}
 
 
 def default_jiggle(kind: str) -> Jiggle:
@@ -402,6 +429,14 @@ class _Checker:
         except InputError as e:
             self.fail(e.message, e.field or fld)
 
+    def material(self, value, fld: str) -> None:
+        """Fail unless `value` names a material (rig.muscle.material.parse_material)."""
+        from jiggle.rig.muscle.material import parse_material
+        try:
+            parse_material(value, where="material")
+        except InputError as e:
+            self.fail(e.message, fld)
+
     def label(self, value, fld: str) -> None:
         if value not in LABELS:
             self.fail(f"unknown joint label {value!r}; template labels are roles: human {', '.join(ROLES)}; "
@@ -489,11 +524,15 @@ def validate_template(t: Template, path: str | None = None, lines: dict[str, int
             c.number(m.thickness_min, f"{mf}.thickness_min", 0, 0.5, unit=" metres")
             c.number(m.depth, f"{mf}.depth", 0, 0.5, unit=" metres")
             jg = m.jiggle
-            c.number(jg.frequency_hz, f"{mf}.jiggle.frequency", 0, 100, lo_open=True, unit=" Hz")
-            c.number(jg.damping_ratio, f"{mf}.jiggle.damping", 0, 10)
+            c.material(jg.material, f"{mf}.jiggle.material")
+            if jg.frequency_hz is not None:
+                c.number(jg.frequency_hz, f"{mf}.jiggle.frequency", 0, 100, lo_open=True, unit=" Hz")
+            if jg.damping_ratio is not None:
+                c.number(jg.damping_ratio, f"{mf}.jiggle.damping", 0, 10)
             c.number(jg.goal_tendon, f"{mf}.jiggle.goal_tendon", 0, 1)
             c.number(jg.goal_belly, f"{mf}.jiggle.goal_belly", 0, 1)
-            c.number(jg.density, f"{mf}.jiggle.density", 100, 5000, unit=" kg/m^3")
+            if jg.density is not None:
+                c.number(jg.density, f"{mf}.jiggle.density", 100, 5000, unit=" kg/m^3")
             c.number(jg.strength, f"{mf}.jiggle.strength", 0, 1)
             c.number(jg.spring_frequency_hz, f"{mf}.jiggle.spring_frequency", 0, 100, unit=" Hz")
             c.number(jg.spring_damping_ratio, f"{mf}.jiggle.spring_damping", 0, 10)
@@ -539,7 +578,7 @@ _SECTIONS = (("rim_scale", "rim"), ("bulge_scale", "bulge"), ("main_scale", "mai
              ("bulge_position", "bulgePosition"))
 _SHAPE = (("tone", "tone"), ("nu", "nu"), ("thickness_min", "thicknessMin"), ("depth", "depth"),
           ("count", "count"))
-_JIGGLE = (("frequency", "frequency", "frequency_hz"), ("damping", "damping", "damping_ratio"),
+_JIGGLE = (("material", "material", "material"), ("frequency", "frequency", "frequency_hz"), ("damping", "damping", "damping_ratio"),
            ("goal_tendon", "goalTendon", "goal_tendon"), ("goal_belly", "goalBelly", "goal_belly"),
            ("density", "density", "density"), ("strength", "strength", "strength"),
            ("spring_frequency", "springFrequency", "spring_frequency_hz"),
@@ -685,7 +724,8 @@ class _TomlReader:
         if "jiggle" in mt:
             jf = f"{mf}.jiggle"
             self.keys(mt["jiggle"], jf, tuple(k for k, _, _ in _JIGGLE))
-            jiggle = {k: self.num(v, f"{jf}.{k}") for k, v in mt["jiggle"].items()}
+            jiggle = {k: self.string(v, f"{jf}.{k}") if k == "material" else self.num(v, f"{jf}.{k}")
+                      for k, v in mt["jiggle"].items()}
         if "shell" in mt:
             sf = f"{mf}.shell"
             self.keys(mt["shell"], sf, tuple(k for k, _ in _SHELL))
@@ -751,7 +791,8 @@ def template_to_toml(t: Template) -> str:
             for k in ("rim_scale", "bulge_scale", "main_scale", "bulge_position", "tone", "nu", "thickness_min"):
                 lines.append(f"{k} = {_num_str(getattr(m, k))}")
             lines.append(f"depth = {_num_str(m.depth)}")
-            jg = ", ".join(f"{k} = {_num_str(getattr(m.jiggle, attr))}" for k, _, attr in _JIGGLE)
+            jg = ", ".join(f"{k} = {_toml_str(m.jiggle.material) if k == 'material' else _num_str(getattr(m.jiggle, attr))}"
+                           for k, _, attr in _JIGGLE if getattr(m.jiggle, attr) is not None)
             lines.append(f"jiggle = {{ {jg} }}")
             sh = ", ".join(f"{k} = {_toml_str(m.shell.mode) if k == 'mode' else _num_str(getattr(m.shell, k))}"
                            for k, _ in _SHELL)
@@ -995,7 +1036,8 @@ class _XmlReader:
         e = kids["jiggle"][0]
         jf = f"{mf}.jiggle"
         given = self.leaf(e, jf, tuple(x for _, x, _ in _JIGGLE))
-        return {key: self.num(given[x], self.at(e, f"{jf}.{key}")) for key, x, _ in _JIGGLE if x in given}
+        return {key: given[x].strip() if key == "material" else self.num(given[x], self.at(e, f"{jf}.{key}"))
+                for key, x, _ in _JIGGLE if x in given}
 
     def shell(self, kids, mf) -> dict | None:
         """{TOML key: value} of the muscle's <shell> element (None when it has none)."""
@@ -1053,7 +1095,8 @@ def template_to_xml(t: Template) -> str:
                 sub(me, "sector", a0=_num_str(m.sector[0]), a1=_num_str(m.sector[1]))
             sub(me, "sections", {x: _num_str(getattr(m, k)) for k, x in _SECTIONS})
             sub(me, "shape", {x: _num_str(getattr(m, k)) for k, x in _SHAPE})
-            sub(me, "jiggle", {x: _num_str(getattr(m.jiggle, attr)) for _, x, attr in _JIGGLE})
+            sub(me, "jiggle", {x: m.jiggle.material if attr == "material" else _num_str(getattr(m.jiggle, attr))
+                               for _, x, attr in _JIGGLE if getattr(m.jiggle, attr) is not None})
             sub(me, "shell", {x: m.shell.mode if k == "mode" else _num_str(getattr(m.shell, k)) for k, x in _SHELL})
     ET.indent(root, "  ")
     return ('<?xml version="1.0" encoding="utf-8"?>\n'

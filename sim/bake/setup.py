@@ -480,7 +480,8 @@ def _character(req: BakeRequest, inputs: Inputs, rigs: MutableMapping | None, gi
 class Fit:
     """The character as simulated (maybe at its template's size), its fitted musculature (rig.muscle.fit), the bound
     skin (rig.skin.muscle_skin.MuscleSkin, with this bake's pose shapes), the clip on the character, the template's
-    name, the template's default jiggles, idle ((M,) bool: muscles that drive nothing); record: its bake.json part."""
+    name, the template's default jiggles (their materials at the character's real size `size`,
+    rig.character.real_size.RealSize), idle ((M,) bool: muscles that drive nothing); record: its bake.json part."""
 
     character: object
     mus: object
@@ -490,11 +491,12 @@ class Fit:
     jiggles: list
     idle: np.ndarray
     record: Mapping
+    size: object = None
 
 
 def _fit(req: BakeRequest, inputs: Inputs, body: Body, rigs: MutableMapping | None, given: tuple | None, log) -> Fit:
     """Step 3, the fit: the template's muscles fitted to the character, the clip onto it, the skin bound."""
-    from jiggle.sim.jiggle.params import default_jiggles
+    from jiggle.sim.jiggle.materials import default_jiggles
     t = time.perf_counter()
     character, mus = _musculature(req, inputs.pick, body, given, log)
     clip = body.retarget.onto(character, mus)
@@ -503,7 +505,8 @@ def _fit(req: BakeRequest, inputs: Inputs, body: Body, rigs: MutableMapping | No
     for p in mus.parts:             # the generic template: what each body part got, and why
         if p.segments or p.kind is None:
             log(f"  {p.label}: {p.kind or 'no tissue'} ({p.reason})")
-    jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
+    size = _real_size(character, body.file, mus, body.retarget.onto, req.height, log)
+    jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles], scale=size.scale)
     skin, skin_record = _skin(req, inputs, body, character, mus, rigs, log)
     idle = idle_of(skin, mus.rig.M)
     if idle.any():
@@ -522,7 +525,7 @@ def _fit(req: BakeRequest, inputs: Inputs, body: Body, rigs: MutableMapping | No
               # it is (Blender: a glTF unit a Blender unit) divides the caches' positions by it to land on its mesh
               "file_unit_m": character.meta.get("unit_scale", 1.0) / character.meta.get("template_scale", 1.0),
               "vertices": character.num_vertices, **skin_record}
-    return Fit(character, mus, skin, clip, template, jiggles, idle, MappingProxyType(record))
+    return Fit(character, mus, skin, clip, template, jiggles, idle, MappingProxyType(record), size)
 
 
 def _musculature(req: BakeRequest, pick: Callable, body: Body, given: tuple | None, log) -> tuple:
@@ -631,21 +634,36 @@ def _tissue(req: BakeRequest, inputs: Inputs, body: Body, fit: Fit, timing: Timi
         jiggles, tissue_from = _timed(timings, "tune_s", _character_tissue, jiggles, mus, fit.skin,
                                       timing.solver_settings, fit.character, body.file, body.retarget.onto, fit.clip,
                                       inputs.drive, world_at, timing.knots, log)
-    size = _real_size(fit.character, body.file, mus, body.retarget.onto, req.height, log)
+    size = fit.size
+    springs = {n: ("material" if "frequency_hz" in m.spec.jiggle.from_material else
+                   "tuned" if tissue_from["tuned_on"] else "template") for n, m in zip(mus.rig.names, mus.muscles)}
     materials_used = {}
     if req.materials:
         jiggles, materials_used = apply_materials(jiggles, mus.rig, req.materials, log, scale=size.scale)
+        springs.update({n: "--material" for n in materials_used})
+    before = jiggles
     settings, jiggles = _settings(req, inputs.scene, jiggles)
+    for m, (a, b) in enumerate(zip(before, jiggles)):
+        changed = [k for k in ("frequency_hz", "damping_ratio", "density") if getattr(a, k) is not getattr(b, k)
+                   and not np.array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k)))]
+        if changed:
+            springs[mus.rig.names[m]] = "overridden: " + ", ".join(changed)
     record = {"tissue": {"solver": inputs.solver, **tissue_from, "materials": materials_used or None,
                          "real_size": size.to_json(), "material_rule": MATERIAL_RULE},
-              "settings": jsonable(settings), "muscles": _muscle_params(mus.rig, jiggles, fit.idle, scale=size.scale)}
+              "settings": jsonable(settings),
+              "muscles": _muscle_params(mus.rig, jiggles, fit.idle, scale=size.scale, springs=springs)}
     return Tissue(jiggles, settings, size, MappingProxyType(record))
 
 
-MATERIAL_RULE = ("each part's goal springs stand for a material (muscles.NAME.material): E from frequency_hz by "
-                 "sim.jiggle.materials (f_fem = FEM_C_SLENDER (r / L)^FEM_A sqrt(mu / rho) / r at the part's mean radius "
-                 "r and rest length L at real size, radius_m and length_m x real_size.scale), nu of its kind, its "
-                 "density and damping ratio")
+MATERIAL_RULE = ("each part's goal springs, their damping and its density come from its material (muscles.NAME."
+                 "springs_from 'material': the template's, rig.muscle.material, at the character's real size) by "
+                 "sim.jiggle.materials: f_fem = FEM_C_SLENDER (r / L)^FEM_A sqrt(mu / rho) / r at the part's mean "
+                 "radius r and rest length L (radius_m and length_m x real_size.scale), frequency_hz = f_fem / "
+                 "sqrt(w / (1 - w)) of its belly's goal weight w, damping_ratio so the part rings down with the "
+                 "material's ratio. Springs set otherwise (springs_from 'template': the template's own values; "
+                 "'tuned': the generic template's tuning to the character's motion; '--material'; 'overridden': "
+                 "a scene table or the command line) still stand for a material, muscles.NAME.material (E from "
+                 "frequency_hz by the same rule inverted)")
 """bake.json's tissue.material_rule: how a part's springs and its material relate."""
 
 
@@ -1024,7 +1042,7 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
                              f"drop --{name.replace('_', '-')}", field=f"--{name.replace('_', '-')}")
     from jiggle.rig.muscle.simple_arm import FLEX_DURATION, simple_arm
     from jiggle.rig.skin.muscle_skin import MuscleSkin
-    from jiggle.sim.jiggle.params import default_jiggles
+    from jiggle.sim.jiggle.materials import default_jiggles
     arm = simple_arm()
     pick = _picker(req, scene.character)
     skinning, method, mush = pick("skinning", "shell"), pick("method", "lbs"), pick("mush", 0)
@@ -1183,12 +1201,13 @@ MUSCLE_KEYS = {"strength": "strength", "frequency": "frequency_hz", "damping": "
 """bake.json's per-muscle parameter names (the scene's [jiggle.muscles.NAME] keys) -> MuscleJiggle attributes."""
 
 
-def _muscle_params(rig, jiggles, idle=None, scale: float = 1.0) -> dict:
+def _muscle_params(rig, jiggles, idle=None, scale: float = 1.0, springs: Mapping | None = None) -> dict:
     """Per muscle: kind, rest volume, mass and every jiggle parameter under its scene key (MUSCLE_KEYS; a
     keyed one as {"times", "values", "interpolation"}), max_offset in metres at strength 1 (None: no
     limit) and reach_m, the reach at the largest strength (JSON-ready). A muscle flagged in `idle` ((M,)
     bool, rig.skin.muscle_skin.MuscleSkin.idle) drives no skin and is not simulated: "simulated" false and
-    reach_m None, so compare leaves it out of the near-reach counts."""
+    reach_m None, so compare leaves it out of the near-reach counts. springs : {name: what set its springs}
+    (springs_from; see MATERIAL_RULE), left out when None."""
     from jiggle.sim.jiggle.materials import material_of
     volumes = rig.volumes(rig.rest_cvs)
     radii = rig.mean_radii(rig.rest_cvs)
@@ -1203,6 +1222,7 @@ def _muscle_params(rig, jiggles, idle=None, scale: float = 1.0) -> dict:
                              "radius_m": float(radii[m]), "length_m": float(rig.rest_length[m]),
                              "material": material_of(j, rig.kinds[m], radii[m] * scale, rig.rest_length[m] * scale,
                                                      rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]]).to_json(),
+                             **({"springs_from": springs[rig.names[m]]} if springs else {}),
                              **({"simulated": False} if still else {})}
     return out
 

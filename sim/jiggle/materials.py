@@ -156,13 +156,20 @@ def fem_frequency(material: Material, radius_m: float, length_m: float | None = 
 
 
 def with_material(jiggle, material: Material, radius_m: float, length_m: float | None = None,
-                  rest_cvs: np.ndarray | None = None):
+                  rest_cvs: np.ndarray | None = None, only: tuple = ("frequency_hz", "damping_ratio", "density")):
     """`jiggle` (sim.jiggle.params.MuscleJiggle) with its goal springs, damping ratio and density from `material`
     for a part of mean radius `radius_m` and rest length `length_m` (metres, real size) and rest CVs (40, 3) (its
-    shape: how much its particles damp on their own, particle_damping; None: the material's ratio as it is)."""
-    f = fem_frequency(material, radius_m, length_m) / ring_factor(jiggle)
-    out = replace(jiggle, frequency_hz=float(f), density=float(material.density))
-    return replace(out, damping_ratio=particle_damping(material.damping_ratio, out, rest_cvs))
+    shape: how much its particles damp on their own, particle_damping; None: the material's ratio as it is).
+    only : the fields the material sets (the others stay as `jiggle` has them; a damping ratio is found for the
+    frequency and density the part then has)."""
+    out = jiggle
+    if "frequency_hz" in only:
+        out = replace(out, frequency_hz=float(fem_frequency(material, radius_m, length_m) / ring_factor(jiggle)))
+    if "density" in only:
+        out = replace(out, density=float(material.density))
+    if "damping_ratio" in only:
+        out = replace(out, damping_ratio=particle_damping(material.damping_ratio, out, rest_cvs))
+    return out
 
 
 def material_of(jiggle, kind: str, radius_m: float, length_m: float | None = None,
@@ -189,5 +196,34 @@ def _same(jiggle, base: Material, zeta: float, radius_m: float, length_m: float 
             max(base.damping_ratio, 1e-3) and abs(float(jiggle.density) - base.density) < 1e-9)
 
 
+def default_jiggles(rig, templates=None, scale: float = 1.0) -> list[MuscleJiggle]:
+    """One MuscleJiggle per muscle of `rig` (rig.muscle.model.MuscleRig): from `templates` (a sequence
+    of Jiggle, one per muscle, e.g. the fitted muscles' template entries). What a template leaves to its material
+    (Jiggle.from_material: the goal springs, their damping, the density) comes from the material at the part's real
+    size: its mean rest radius and rest length times `scale` (metres; rig.character.real_size.RealSize.scale), by
+    sim.jiggle.materials.with_material. Without templates (a rig built in code, as the thesis's simple arm): the
+    kind's default with its tuned springs (rig.muscle.template.TUNED_SPRINGS), as the thesis's demo has them."""
+    from jiggle.rig.base.errors import InputError
+    from jiggle.rig.muscle.material import parse_material
+    from jiggle.rig.muscle.template import TUNED_SPRINGS, default_jiggle
+    from jiggle.sim.jiggle.params import MAX_OFFSET_RADII, from_template
+    if templates is None:
+        templates = [replace(default_jiggle(k), **TUNED_SPRINGS.get(k, TUNED_SPRINGS["muscle"])) for k in rig.kinds]
+    if len(templates) != rig.M:
+        raise InputError(f"expected {rig.M} jiggle entries (one per muscle), got {len(templates)}", field="jiggle")
+    radius = rig.mean_radii(rig.rest_cvs)
+    out = []
+    for m, (n, j, k) in enumerate(zip(rig.names, templates, rig.kinds)):
+        need = j.from_material
+        held = replace(j, **{f: TUNED_SPRINGS.get(k, TUNED_SPRINGS["muscle"])[f] for f in need})
+        mj = replace(from_template(n, held), max_offset=MAX_OFFSET_RADII.get(k, MAX_OFFSET_RADII["muscle"]) * radius[m])
+        if need:
+            mj = with_material(mj, parse_material(j.material, where=f"{n}: jiggle.material"),
+                               float(radius[m]) * scale, float(rig.rest_length[m]) * scale,
+                               rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]], only=need)
+        out.append(mj)
+    return out
+
+
 __all__ = ["FEM_C", "FEM_C_SLENDER", "FEM_A", "MODAL_GAIN", "sway_mode", "particle_damping", "ring_damping", "shape_constant", "belly_goal", "ring_factor", "fem_frequency",
-           "with_material", "material_of"]
+           "with_material", "material_of", "default_jiggles"]

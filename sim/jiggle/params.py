@@ -215,20 +215,6 @@ def from_template(name: str, jiggle) -> MuscleJiggle:
                         spring_damping_ratio=jiggle.spring_damping_ratio, friction=jiggle.friction)
 
 
-def default_jiggles(rig, templates=None) -> list[MuscleJiggle]:
-    """One MuscleJiggle per muscle of `rig` (rig.muscle.model.MuscleRig): from `templates` (a sequence
-    of Jiggle, one per muscle, e.g. the fitted muscles' template entries) or the kind's default."""
-    from jiggle.rig.muscle.template import default_jiggle
-    if templates is None:
-        templates = [default_jiggle(k) for k in rig.kinds]
-    if len(templates) != rig.M:
-        raise InputError(f"expected {rig.M} jiggle entries (one per muscle), got {len(templates)}", field="jiggle")
-    radius = rig.mean_radii(rig.rest_cvs)
-    return [replace(from_template(n, j), max_offset=MAX_OFFSET_RADII.get(k, MAX_OFFSET_RADII["muscle"]) * r)
-            for n, j, k, r in zip(rig.names, templates, rig.kinds, radius)]
-
-
-
 def glued(jiggles, idle) -> list[MuscleJiggle]:
     """`jiggles` with every muscle flagged in `idle` ((M,) bool: it drives no skin, rig.skin.muscle_skin.MuscleSkin.idle)
     at strength 0: its particles glued to their goals (goal_stiffness inf), so the solver moves them with the static

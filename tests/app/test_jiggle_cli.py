@@ -26,7 +26,8 @@ def test_arm_biceps_overshoots_at_the_stop_and_rings_down():
     about exp(-pi z / sqrt(1 - z^2)) = 16% of the peak per half cycle before the neighbour springs), and
     decays as exp(-z w t): < 2% of the peak within half a second of the stop."""
     from jiggle.rig.muscle.simple_arm import FLEX_HOLD, FLEX_RISE, FLEX_START, simple_arm
-    from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles
+    from jiggle.sim.jiggle.params import JiggleSettings
+    from jiggle.sim.jiggle.materials import default_jiggles
     from jiggle.sim.jiggle.secondary import jiggle_rig
     arm = simple_arm(rings=24, around=16)
     stop = FLEX_START + FLEX_RISE

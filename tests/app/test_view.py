@@ -266,12 +266,12 @@ def test_slider_resimulates_and_the_saved_scene_bakes_the_same(viewer, browser, 
     baked = read_npz(bake_dir / "bake.npz")
     name = viewer.g_t_muscle.value
     box = _until(lambda: el if (el := _number_input(browser, "strength")).is_enabled() else None)
-    _type(box, "1")                                            # the bake's strength is the scene's 0.5
+    _type(box, "0.5")                                          # the bake's strength is 1 (the demo scene's)
     # the slider's callback has run once the tuning asked for holds the value (the handle's value is set first)
-    assert _until(lambda: viewer.tuning.muscles.get(name, {}).get("strength") == 1.0), "the slider did not reach " \
+    assert _until(lambda: viewer.tuning.muscles.get(name, {}).get("strength") == 0.5), "the slider did not reach " \
         "the server"
     assert viewer.wait_tuned() and viewer.motion_version > 0, "the slider did not re-simulate"
-    assert viewer.tuning.muscles[name]["strength"] == 1.0
+    assert viewer.tuning.muscles[name]["strength"] == 0.5
     assert np.abs(viewer.pb.skin_final - baked.skin_final).max() > 1e-5      # the motion changed
     for label, value, asked in (("damping ratio", 0.2, lambda: viewer.tuning.muscles[name].get("damping")),
                                 ("goal weight scale", 0.8, lambda: viewer.tuning.muscles[name].get("goal_scale")),

@@ -106,7 +106,8 @@ def test_the_jiggle_on_the_device_is_independent_of_the_frame_rate(device):
     spec.loader.exec_module(clips)
     CLIP_S, RATE_TOL, flex_angle, frames = clips.CLIP_S, clips.RATE_TOL, clips.flex_angle, clips.frames
     from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
-    from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles
+    from jiggle.sim.jiggle.params import JiggleSettings
+    from jiggle.sim.jiggle.materials import default_jiggles
     from jiggle.sim.jiggle.secondary import jiggle_rig
     device = device_or_skip(device)
     arm = simple_arm()

@@ -151,7 +151,7 @@ goal = [0.9, 0.5, 0.3, 0.5, 0.9]
 
 def test_apply_jiggle_checks_muscle_names_against_the_rig(tmp_path):
     from jiggle.rig.muscle.simple_arm import simple_arm
-    from jiggle.sim.jiggle.params import default_jiggles
+    from jiggle.sim.jiggle.materials import default_jiggles
     arm = simple_arm(rings=8, around=8)
     jiggles = default_jiggles(arm.rig)
     p = _jiggle_scene(tmp_path, "[jiggle.muscles.biceps]\ndamping = 0.9\nblend = [[0.0, 0.0], [1.0, 1.0]]\n")

@@ -179,8 +179,8 @@ def test_bad_fbx_files_are_one_line_and_exit_2(tmp_path, capsys, command):
 @pytest.mark.slow
 def test_an_fbx_character_bakes_its_own_take_with_no_flags(tmp_path):
     """`jiggle bake --character CesiumMan_blender5.fbx`: its take baked with the human template; against the bake
-    of CesiumMan.glb frame for frame the jiggle (final - static skin) agrees within 1 mm, and the skins within the
-    5 mm the FBX's own curves are from the glTF's."""
+    of CesiumMan.glb frame for frame the jiggle (final - static skin) agrees within a quarter of its largest (and 1 mm),
+    and the skins within the 5 mm the FBX's own curves are from the glTF's."""
     from jiggle.sim.bake.caches import read_npz
     for name, path in (("fbx", asset("characters/fbx/CesiumMan_blender5.fbx")), ("glb", asset("characters/CesiumMan.glb"))):
         with warnings.catch_warnings():
@@ -190,8 +190,9 @@ def test_an_fbx_character_bakes_its_own_take_with_no_flags(tmp_path):
     T = min(len(a.times), len(b.times))
     assert T >= 50
     jig = lambda d: d.skin_final[:T] - d.skin_static[:T]        # noqa: E731
-    assert np.abs(jig(a)).max() > 1e-3                             # it does jiggle
-    assert np.linalg.norm(jig(a) - jig(b), axis=2).max() < 1e-3
+    top = float(np.abs(jig(a)).max())
+    assert top > 5e-4                                              # it does jiggle (relaxed tissue on a walk: ~0.8 mm)
+    assert np.linalg.norm(jig(a) - jig(b), axis=2).max() < min(1e-3, 0.25 * top)
     assert np.linalg.norm(a.skin_final[:T] - b.skin_final[:T], axis=2).max() < 5e-3
 
 

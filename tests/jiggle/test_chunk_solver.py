@@ -11,7 +11,8 @@ import pytest
 from jiggle.rig.base.errors import InputError
 from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
 from jiggle.sim.jiggle.goal_track import build_track
-from jiggle.sim.jiggle.params import MuscleJiggle, default_jiggles
+from jiggle.sim.jiggle.params import MuscleJiggle
+from jiggle.sim.jiggle.materials import default_jiggles
 from jiggle.sim.jiggle.particles import ParticleBuilder, muscle_model
 from jiggle.sim.jiggle.simulate import run, step_times
 from jiggle.sim.jiggle.solver import ParticleSolver, thread_groups

@@ -10,7 +10,8 @@ from jiggle.rig.base.errors import InputError
 from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
 from jiggle.rig.skin.muscle_skin import MuscleSkin
 from jiggle.sim.jiggle.goal_track import build_track, find_cuts
-from jiggle.sim.jiggle.params import BlendCurve, JiggleSettings, default_jiggles, override
+from jiggle.sim.jiggle.params import BlendCurve, JiggleSettings, override
+from jiggle.sim.jiggle.materials import default_jiggles
 from jiggle.sim.jiggle.particles import muscle_model
 from jiggle.sim.jiggle.secondary import jiggle_rig, knot_times
 from jiggle.sim.jiggle.simulate import equilibrium, step_times

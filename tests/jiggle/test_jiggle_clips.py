@@ -21,7 +21,8 @@ import pytest
 from conftest import CMU_BVH, asset
 
 from jiggle.rig.muscle.simple_arm import arm_world, simple_arm
-from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles, override
+from jiggle.sim.jiggle.params import JiggleSettings, override
+from jiggle.sim.jiggle.materials import default_jiggles
 from jiggle.sim.jiggle.secondary import jiggle_rig, knot_times
 
 # ---------------------------------------------------------------------------------- frame rate

@@ -22,7 +22,8 @@ from jiggle.sim.jiggle.keyed import (
     resolve_tables,
 )
 from jiggle.sim.jiggle.keyed_solver import KeyedSolver, integrate_keyed_numpy
-from jiggle.sim.jiggle.params import MuscleJiggle, default_jiggles
+from jiggle.sim.jiggle.params import MuscleJiggle
+from jiggle.sim.jiggle.materials import default_jiggles
 from jiggle.sim.jiggle.particles import ParticleBuilder
 from jiggle.sim.jiggle.secondary import knot_times
 from jiggle.sim.jiggle.simulate import goals, run, step_times

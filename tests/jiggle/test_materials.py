@@ -186,3 +186,32 @@ def test_one_tissue_for_every_clip_of_a_character(tmp_path):
         peaks[clip] = float(np.linalg.norm(b.skin_final - b.skin_static, axis=2).max())
     assert freqs["Idle"] == freqs["Walk"] == freqs["Dance"]
     assert peaks["Idle"] < peaks["Walk"] < peaks["Dance"], peaks
+
+
+@pytest.mark.slow
+def test_the_materials_set_a_default_bake(tmp_path):
+    """A default bake on the human template: every part's springs come from its kind's material at the character's
+    real size (bake.json: springs_from "material", the material named); --frequency overrides one and says so."""
+    from jiggle.rig.muscle.material import material_for
+    from jiggle.sim.app.cli import main
+    clip = _asset("mocap", "cmu_bvh", "09_11.bvh")
+    out = tmp_path / "d"
+    assert main(["bake", "--clip", clip, "--frames", "4", "--formats", "npz", "-q", "--out", str(out),
+                 "--frequency", "right_biceps=9"]) == 0
+    p = json.loads((out / "bake.json").read_text())
+    params = p.get("params", p)
+    scale = params["tissue"]["real_size"]["scale"]
+    muscles = params["muscles"]
+    assert muscles["right_biceps"]["springs_from"] == "overridden: frequency_hz"
+    assert muscles["right_biceps"]["frequency"] == 9.0 and muscles["right_biceps"]["material"]["name"] == "custom"
+    rest = {n: m for n, m in muscles.items() if n != "right_biceps"}
+    assert {m["kind"] for m in rest.values()} == {"fat", "muscle"}
+    for name, m in rest.items():
+        mat = material_for(m["kind"])
+        assert m["springs_from"] == "material" and m["material"]["name"] == mat.name, name
+        j = MuscleJiggle(name=name, frequency_hz=m["frequency"], damping_ratio=m["damping"], goal=m["goal"],
+                         density=m["density"])
+        f_fem = fem_frequency(mat, m["radius_m"] * scale, m["length_m"] * scale)
+        assert m["frequency"] * ring_factor(j) == pytest.approx(f_fem, rel=1e-9) and m["density"] == mat.density
+        assert m["material"]["damping_ratio"] == pytest.approx(mat.damping_ratio, rel=1e-3)
+    assert "come from its material" in params["tissue"]["material_rule"]

@@ -333,7 +333,8 @@ def test_a_fitted_arm_flexing():
     from arm_muscles import ARM_BIND, arm_world, biceps, brachio
 
     from jiggle.rig.muscle.model import build_muscle_rig
-    from jiggle.sim.jiggle.params import JiggleSettings, default_jiggles
+    from jiggle.sim.jiggle.params import JiggleSettings
+    from jiggle.sim.jiggle.materials import default_jiggles
     from jiggle.sim.jiggle.particles import muscle_model
     from jiggle.sim.jiggle.secondary import jiggle_rig
     from jiggle.sim.jiggle.tissue_contacts import RADIUS_MAX, tissue_contact_model

@@ -468,3 +468,40 @@ def test_programmatic_shell_checked():
     t = Template("x", (BoneMusclePair("hips", "spine", 0, (MuscleTemplate("m", shell={"sticky": 1.0}),)),))
     with pytest.raises(InputError, match=r"pair\[0\]\.muscle\[0\]\.shell: expected rig\.muscle\.shell_params\.ShellParams, got dict"):
         template_to_toml(t)
+
+
+# ------------------------------------------------------------------------------- materials
+def test_a_part_carries_its_material():
+    """A part's jiggle names its material (default its kind's); the springs, damping and density it leaves out are
+    the material's to set (Jiggle.from_material), the ones it gives stay; both forms write the material and only the
+    values given, and read back equal."""
+    t = small()
+    q, h, belly = muscle_of(t, "quads"), muscle_of(t, "hams"), muscle_of(t, "belly")
+    assert (h.jiggle.material, belly.jiggle.material) == ("muscle", "fat")
+    assert h.jiggle.from_material == ("frequency_hz", "damping_ratio", "density")
+    assert q.jiggle.frequency_hz == 6.0 and q.jiggle.from_material == ("damping_ratio", "density")
+    toml = template_to_toml(t)
+    assert 'jiggle = { material = "fat",' in toml and "frequency = 6.0" in toml
+    assert toml.count("frequency = ") == 1 + toml.count("spring_frequency = ")
+    soft = template_from_toml(toml.replace('jiggle = { material = "muscle", frequency = 6.0',
+                                           'jiggle = { material = "E=40kPa,zeta=0.3", frequency = 6.0'), "t.toml")
+    assert muscle_of(soft, "quads").jiggle.material == "E=40kPa,zeta=0.3"
+    assert template_from_toml(template_to_toml(soft)) == soft
+    assert template_from_xml(template_to_xml(soft)) == soft
+    with pytest.raises(InputError, match=r"t\.toml: pair\[0\]\.muscle\[0\]\.jiggle\.material: material: expected fat, "
+                                         r"muscle or E=\.\.\.,nu=\.\.\.,rho=\.\.\.,zeta=\.\.\., got 'wood'"):
+        template_from_toml(toml.replace('material = "muscle", frequency = 6.0', 'material = "wood", frequency = 6.0'),
+                           "t.toml")
+    with pytest.raises(InputError, match=r"jiggle\.material: material: unknown material key 'G'"):
+        template_from_xml(SMALL_XML.replace('<jiggle frequency="6"/>', '<jiggle material="G=3"/>'), "s.xml")
+
+
+def test_built_in_templates_say_what_sets_their_springs():
+    """The human template leaves every part's springs to its material; the quadruped writes its tuned values out
+    (rig.muscle.template.TUNED_SPRINGS where it gave none)."""
+    from jiggle.rig.muscle.template import TUNED_SPRINGS
+    human, quad = load_template("human"), load_template("quadruped")
+    assert all(m.jiggle.from_material == ("frequency_hz", "damping_ratio", "density") for _, m in human.muscles())
+    assert all(m.jiggle.material == ("fat" if m.kind == "fat" else "muscle") for _, m in human.muscles())
+    assert all(not m.jiggle.from_material for _, m in quad.muscles())
+    assert {m.jiggle.density for _, m in quad.muscles()} == {v["density"] for v in TUNED_SPRINGS.values()}

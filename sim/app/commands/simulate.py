@@ -31,7 +31,8 @@ class SimulateJob:
     """What `jiggle simulate` runs. rig : rig.muscle.model.MuscleRig. jiggles : one MuscleJiggle per
     muscle (the scene's tables applied). world_at : times (K,) -> (K, J, 4, 4). duration : seconds of
     the motion. fps : the scene's output rate or None. skin : builds the MuscleSkin (only when rendering,
-    binding costs a few tenths of a second). source : JSON-ready description."""
+    binding costs a few tenths of a second). source : JSON-ready description. scale : the character's real size
+    over its size as simulated (rig.character.real_size), for the materials' rule."""
 
     name: str
     rig: object
@@ -44,6 +45,7 @@ class SimulateJob:
     source: dict
     character: object = None
     clip: object = None
+    scale: float = 1.0
 
 
 def simulate_job(args) -> SimulateJob:
@@ -51,7 +53,7 @@ def simulate_job(args) -> SimulateJob:
     on --character, with the template's muscles fitted."""
     from jiggle.rig.motion.clip import transforms
     from jiggle.rig.skin.muscle_skin import MuscleSkin
-    from jiggle.sim.jiggle.params import default_jiggles
+    from jiggle.sim.jiggle.materials import default_jiggles
     scene = None
     if args.scene is not None:
         if args.clip is not None:
@@ -84,7 +86,10 @@ def simulate_job(args) -> SimulateJob:
     else:
         character = generated_character(clip, args)
     mus = fit_musculature(character, args.template or "auto", FitOptions(joint_map=args.character_map))
-    jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles])
+    from jiggle.rig.character.real_size import real_size
+    # the materials' rule at the character's real size: its file's unit (the bake also reads a glTF's own walk)
+    scale = real_size(character).scale
+    jiggles = default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles], scale=scale)
     if scene is not None:
         jiggles = scene.apply_jiggle(jiggles)
     rig = scene.apply_pose_shapes(mus.rig, character) if scene is not None else mus.rig
@@ -101,7 +106,7 @@ def simulate_job(args) -> SimulateJob:
         skin=skin, clip=clip,
         source={"scene": scene.path if scene is not None else None, "clip": clip.source or args.clip,
                 "character": args.character or "generated body", "template": mus.template.name},
-        character=character)
+        character=character, scale=scale)
 
 
 def simulate_times(args, duration: float, fps: float):
@@ -136,7 +141,7 @@ def run(args) -> int:
         jiggles = [replace(j, strength=settings.strength) for j in jiggles]
     if keyed["materials"]:            # then --material (goal springs from the tissue's material and size)
         from jiggle.sim.bake.setup import apply_materials
-        jiggles, _ = apply_materials(jiggles, job.rig, keyed["materials"])
+        jiggles, _ = apply_materials(jiggles, job.rig, keyed["materials"], scale=job.scale)
     if keyed["muscles"]:              # then NAME=VALUE entries, names and globs
         from jiggle.sim.bake.scene import apply_entries
         jiggles = apply_entries(jiggles, keyed["muscles"])

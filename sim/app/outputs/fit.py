@@ -109,7 +109,9 @@ def musculature_toml(mus: Musculature) -> str:
     for i, m in enumerate(mus.muscles):
         cvs = rig.rest_cvs[rig.cv_offsets[i]:rig.cv_offsets[i + 1]]
         e = m.ellipsoid
-        jig = dataclasses.asdict(m.spec.jiggle) if dataclasses.is_dataclass(m.spec.jiggle) else {}
+        # what the template leaves to the part's material (None) is left out: the material sets it at the bake's size
+        jig = {k: v for k, v in (dataclasses.asdict(m.spec.jiggle) if dataclasses.is_dataclass(m.spec.jiggle)
+                                 else {}).items() if v is not None}
         lines += ["[[muscle]]", f"name = {_toml_value(m.name)}", f"kind = {_toml_value(m.kind)}",
                   f"group = {_toml_value(m.group)}", f"side = {_toml_value(m.side)}",
                   f"bone = {_toml_value(m.bone_label)}",
