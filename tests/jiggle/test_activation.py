@@ -1,0 +1,104 @@
+"""Muscle activation from the motion's loads (sim/jiggle/activation.py): moment arms are the path length's
+derivative, the least-effort sharing, activation dynamics, and on a real jump the quadriceps work at the landing and
+rest in the air."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jiggle.sim.jiggle.activation import (FALL_S, RISE_S, activation_dynamics, below, moment_arms, path_points,
+                                          static_optimization)
+
+
+def _rotate_below(world, parents, j, axis, angle):
+    """world (J, 4, 4) with joint j's subtree rotated by `angle` about world `axis` through joint j."""
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_rotvec(np.asarray(axis) * angle).as_matrix()
+    p = world[j, :3, 3]
+    out = world.copy()
+    for i in np.flatnonzero(below(parents)[j]):
+        out[i, :3, :3] = R @ world[i, :3, :3]
+        out[i, :3, 3] = R @ (world[i, :3, 3] - p) + p
+    return out
+
+
+def test_moment_arms_are_the_path_lengths_derivative(arm_rig):
+    """R_mj . a = -dL/dtheta for every joint and axis, against central differences of the path's length."""
+    rig, world, parents = arm_rig
+    arms = moment_arms(rig, world[None], parents)[0]                    # (M, J, 3)
+
+    def length(w):
+        P = path_points(rig, w[None])[0]
+        return np.linalg.norm(np.diff(P, axis=1), axis=2).sum(axis=1)
+    h = 1e-6
+    checked = 0
+    for j in range(len(parents)):
+        for a in np.eye(3):
+            d = (length(_rotate_below(world, parents, j, a, h)) - length(_rotate_below(world, parents, j, a, -h))) / (2 * h)
+            np.testing.assert_allclose(arms[:, j] @ a, -d, atol=1e-7)
+            checked += np.abs(d).max() > 1e-4
+    assert checked >= 1                    # the elbow moves the biceps' path
+
+
+@pytest.fixture
+def arm_rig():
+    from jiggle.rig.muscle.simple_arm import simple_arm
+    arm = simple_arm(rings=8, around=8)
+    world = np.asarray(arm.world(70.0), np.float64)
+    parents = np.asarray(arm.character.parents)
+    return arm.rig, world, parents
+
+
+def test_least_effort_takes_the_muscle_that_pulls_the_right_way():
+    """Two muscles at one joint, a flexor and an extensor (moment arms +-3 cm, 1000 N): a flexing torque of 12 N m
+    is the flexor's alone at 12 / 30 = 0.4; twice the flexor's reach saturates it at 1 with the rest unmet."""
+    arms = np.zeros((2, 2, 1, 3))
+    arms[:, 0, 0] = [0.03, 0.0, 0.0]
+    arms[:, 1, 0] = [-0.03, 0.0, 0.0]
+    force = np.array([1000.0, 1000.0])
+    torques = np.array([[[12.0, 0.0, 0.0]], [[60.0, 0.0, 0.0]]])
+    exc, unmet = static_optimization(arms, torques, force)
+    np.testing.assert_allclose(exc[0], [0.4, 0.0], atol=2e-3)
+    np.testing.assert_allclose(exc[1], [1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(unmet[1, 0], [30.0, 0.0, 0.0], atol=0.1)
+
+
+def test_activation_rises_fast_and_falls_slower():
+    """A step of excitation 0 -> 1 -> 0: activation reaches 1 - 1/e after RISE_S and falls to 1/e of its value
+    FALL_S after the excitation stops."""
+    dt = 0.001
+    t = np.arange(400) * dt
+    on, off = 100, 200                                                  # the samples the excitation steps at
+    u = ((np.arange(400) >= on) & (np.arange(400) < off)).astype(float)[:, None]
+    a = activation_dynamics(u, t)[:, 0]
+    # n steps after a step the gap to the excitation is exp(-n dt / tau) of what it was
+    assert a[on - 1 + round(RISE_S / dt)] == pytest.approx(1 - np.exp(-1), abs=1e-9)
+    assert a[off - 1 + round(FALL_S / dt)] == pytest.approx(a[off - 1] * np.exp(-1), abs=1e-9)
+    assert FALL_S > RISE_S
+
+
+@pytest.mark.slow
+def test_the_quadriceps_work_at_the_landing_and_rest_in_the_air(tmp_path):
+    """The generated body on CMU 02_04 (a jump; landing at 1.45 s): both quadriceps' mean activation in the 0.2 s
+    after the landing is at least 3 times their mean in the air (1.1-1.4 s); fat is never activated."""
+    from conftest import asset
+
+    from jiggle.sim.bake.setup import BakeRequest, _character, _drive, _fit, _inputs, _scene
+    from jiggle.sim.drive.inverse import joint_torques
+    from jiggle.sim.jiggle.activation import activations
+    req = BakeRequest(clip=str(asset("mocap/cmu_bvh/02_04.bvh")))
+    log = lambda s: None  # noqa: E731
+    scene = _scene(req, None)
+    inputs = _inputs(req, scene, None, "particles")
+    fit = _fit(req, inputs, _character(req, inputs, None, None, log), None, None, log)
+    times = np.arange(0.0, 2.0, 1.0 / 60.0)
+    loads = joint_torques(fit.clip, times, 60.0, roles=fit.mus.roles)
+    act = activations(fit.mus.rig, _drive(fit.clip, "kinematic", times, log), loads, fit.clip.parents,
+                      fit.character.bind_world, times)
+    names = list(fit.mus.rig.names)
+    air, land = (times > 1.1) & (times < 1.4), (times > 1.45) & (times < 1.65)
+    for side in ("left", "right"):
+        q = act.activation[:, names.index(f"{side}_quadriceps")]
+        assert q[land].mean() >= 3.0 * q[air].mean() and q[land].mean() > 0.02, (side, q[land].mean(), q[air].mean())
+    fat = [i for i, k in enumerate(fit.mus.rig.kinds) if k == "fat"]
+    assert fat and np.abs(act.activation[:, fat]).max() == 0.0
