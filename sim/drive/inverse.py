@@ -14,7 +14,7 @@ grows as f^2 through two derivatives; Winter 2009, Biomechanics and Motor Contro
 gait at ~6 Hz and impacts want more), qacc its derivative, then `mj_inverse`: the generalized forces (qfrc_inverse)
 that make the model move so, gravity included. On a free-floating skeleton the root's 6 of them are a force and a
 torque from nowhere; where the feet touch the floor, the ground gives them: the contact forces at the touching foot
-bodies' lowest points (within CONTACT_GAP of the floor) that best produce the root's six (least squares, pushing
+bodies' lowest points (within CONTACT_GAP of the floor, moving slower than CONTACT_SPEED) that best produce the root's six (least squares, pushing
 only, friction kept small by a light penalty) are taken off every joint's load through the contact Jacobians, so a
 landing's load runs up through the ankles, knees and hips. What the ground cannot give stays on the root
 (`residual`: the clip's own inconsistency, or a push in flight).
@@ -43,8 +43,13 @@ RATE = 240.0
 """Hz: the samples inverse dynamics runs on."""
 CUTOFF_HZ = 12.0
 """Hz: the low-pass of the joint velocities (see the module)."""
-CONTACT_GAP = 0.03
-"""Of the body's height: a foot body whose lowest point is this near the floor may be pushed by it."""
+CONTACT_GAP = 0.05
+"""Of the body's height: a foot body whose lowest point is this near the floor (and slow: CONTACT_SPEED) may be
+pushed by it. Mocap feet do not come back to one height (a run's CMU 02_03 touches down 2-6 cm above its lowest
+step), so the gap is generous and the speed tells a planted foot from a swinging one."""
+CONTACT_SPEED = 1.0
+"""m/s: the largest vertical speed of a foot body's lowest point the floor may push (a swinging foot passes low
+and fast; a landing foot slows within a few samples)."""
 FRICTION_PENALTY = 0.05
 """Weight of the contact forces' tangential parts against their vertical ones in the least squares."""
 
@@ -180,6 +185,7 @@ def joint_torques(clip: Clip, times: np.ndarray, mass_kg: float, roles: dict | N
                 low = _geom_lowest(m, d, g)
                 lowest.setdefault(j, []).append(low[np.argmin(low[:, 2])])
     low_pts = {j: np.array(v) for j, v in lowest.items()}
+    slow = {j: np.abs(np.gradient(v[:, 2], dt)) <= CONTACT_SPEED for j, v in low_pts.items()}
     if floor_z is None and low_pts:
         floor_z = float(min(v[:, 2].min() for v in low_pts.values()))
     height = float(np.ptp(clip.rest_world()[1][:, 2])) or 1.0
@@ -197,7 +203,7 @@ def joint_torques(clip: Clip, times: np.ndarray, mass_kg: float, roles: dict | N
         d.qpos[:], d.qvel[:], d.qacc[:] = qpos[i], qvel[i], qacc[i]
         mujoco.mj_inverse(m, d)
         f_gen = np.array(d.qfrc_inverse)
-        touching = [j for j in low_pts if floor_z is not None and low_pts[j][i, 2] - floor_z <= gap]
+        touching = [j for j in low_pts if floor_z is not None and low_pts[j][i, 2] - floor_z <= gap and slow[j][i]]
         if touching and len(root):
             cols = []
             for j in touching:
@@ -230,5 +236,5 @@ def _ground_forces(Jr: np.ndarray, wrench: np.ndarray) -> np.ndarray:
     return lsq_linear(A, b, bounds=(lo, np.full(3 * c, np.inf)), method="bvls").x
 
 
-__all__ = ["Loads", "DE_LEVA_MALE", "BODY_DENSITY", "RATE", "CUTOFF_HZ", "CONTACT_GAP", "segment_bodies",
+__all__ = ["Loads", "DE_LEVA_MALE", "BODY_DENSITY", "RATE", "CUTOFF_HZ", "CONTACT_GAP", "CONTACT_SPEED", "segment_bodies",
            "segment_masses", "joint_torques", "subtree"]

@@ -1,0 +1,165 @@
+"""Muscle activation from the motion's own loads on the shared jump and run: the quadriceps, hamstrings, glutes and
+calves over time beside the ground's push, and each group's activation after the landings against in the air.
+
+    python benchmarks/activation_landings.py [--out benchmarks/results]
+
+For CMU 02_04 (a jump) and 02_03 (a run), on the generated body and on CesiumMan (the clip retargeted): the joint
+torques (sim.drive.inverse.joint_torques, the body's mass from its skin's volume at BODY_DENSITY and real size) and
+the activations (sim.jiggle.activation.activations) at 120 Hz. A landing is a sample where the floor's push rises
+through the body's weight after at least AIR_S with none; "after" is the LANDED_S that follow, "in the air" the
+stretch before it with no push. Writes activation_landings.md / .json and activation_landings/*.png.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ASSETS = HERE.parent.parent / "shared" / "assets"
+CLIPS = {"02_04": "jump", "02_03": "run"}
+CHARACTERS = {"generated": None, "CesiumMan": "characters/CesiumMan.glb"}
+GROUPS = {"quadriceps": "quadriceps", "hamstrings": "hamstrings", "glute": "glute", "calf": "calf"}
+RATE = 120.0
+AIR_S = 0.08
+LANDED_S = 0.2
+
+
+def fit_for(clip_path: str, character: str | None):
+    """(fit, world_at, mass kg) of a bake's setup steps for the clip on the character."""
+    from jiggle.sim.bake.setup import BakeRequest, _character, _drive, _fit, _inputs, _scene
+    from jiggle.sim.drive.inverse import BODY_DENSITY
+    req = BakeRequest(clip=clip_path, character=character)
+    log = lambda s: None  # noqa: E731
+    scene = _scene(req, None)
+    inputs = _inputs(req, scene, None, "particles")
+    fit = _fit(req, inputs, _character(req, inputs, None, None, log), None, None, log)
+    v = np.asarray(fit.character.vertices, np.float64)
+    f = np.asarray(fit.character.faces)
+    volume = abs(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum()) / 6.0
+    mass = BODY_DENSITY * volume * fit.size.scale ** 3
+    times = np.arange(0.0, fit.clip.duration, 1.0 / RATE)
+    return fit, _drive(fit.clip, "kinematic", times, log), mass, times
+
+
+def landings(push: np.ndarray, weight: float, times: np.ndarray) -> list[tuple[int, int]]:
+    """[(first sample in the air, landing sample)]: the push rises through the weight after AIR_S of none."""
+    air = push <= 1e-6
+    out, start = [], None
+    for k in range(len(push)):
+        if air[k]:
+            start = k if start is None else start
+        elif start is not None:
+            if times[k] - times[start] >= AIR_S:
+                out.append((start, k))
+            start = None
+    return out
+
+
+def case(clip: str, character: str, out: Path) -> dict:
+    from jiggle.sim.drive.inverse import joint_torques
+    from jiggle.sim.jiggle.activation import activations
+    path = str(ASSETS / "mocap" / "cmu_bvh" / f"{clip}.bvh")
+    fit, world_at, mass, times = fit_for(path, str(ASSETS / CHARACTERS[character]) if CHARACTERS[character] else None)
+    joint_torques(fit.clip, times[:3], mass, roles=fit.mus.roles)        # imports (scipy.signal) off the clock
+    t0 = time.perf_counter()
+    loads = joint_torques(fit.clip, times, mass, roles=fit.mus.roles)
+    t1 = time.perf_counter()
+    act = activations(fit.mus.rig, world_at, loads, fit.clip.parents, fit.character.bind_world, times,
+                      scale=fit.size.scale)
+    t2 = time.perf_counter()
+    names = list(fit.mus.rig.names)
+    weight = 9.81 * mass
+    push = np.interp(times, loads.times, loads.ground[:, 2])
+    group = {g: [i for i, n in enumerate(names) if key in n and fit.mus.rig.kinds[i] != "fat"]
+             for g, key in GROUPS.items()}
+    events = landings(push, weight, times)
+    rows = []
+    for g, idx in group.items():
+        a = act.activation[:, idx].mean(axis=1)
+        after = [a[(times >= times[k]) & (times < times[k] + LANDED_S)].mean() for _, k in events]
+        air = [a[s:k].mean() for s, k in events]
+        rows.append({"group": g, "after_landing": float(np.mean(after)) if after else None,
+                     "in_air": float(np.mean(air)) if air else None, "peak": float(a.max()), "mean": float(a.mean())})
+    plot(out / f"{clip}_{character}.png", times, push / weight, act.activation, group,
+         f"CMU {clip} ({CLIPS[clip]}) on the {character} body: {len(events)} landings")
+    return {"clip": clip, "character": character, "mass_kg": mass, "landings": [float(times[k]) for _, k in events],
+            "groups": rows, "saturated_share": float(act.saturated.any(axis=1).mean()), "duration_s": float(times[-1]),
+            "inverse_s": t1 - t0, "activation_s": t2 - t1}
+
+
+def plot(path: Path, times, push, activation, group, title) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True, height_ratios=(1, 2))
+    ax.plot(times, push, color="0.3")
+    ax.axhline(1.0, color="0.7", lw=0.8, ls="--")
+    ax.set_ylabel("floor's push\n(body weights)")
+    ax.set_title(title)
+    for g, idx in group.items():
+        if idx:
+            bx.plot(times, activation[:, idx].mean(axis=1), label=g)
+    bx.set_ylabel("activation (mean of the\ngroup's muscles)")
+    bx.set_xlabel("time (s)")
+    bx.set_ylim(0, 1.02)
+    bx.legend(loc="upper right", fontsize=8)
+    for a in (ax, bx):
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write(results: list[dict], out: Path, seconds: float) -> None:
+    lines = ["# Muscle activation at landings (benchmarks/activation_landings.py)", "",
+             f"`python benchmarks/activation_landings.py`: {len(results)} cases in {seconds:.0f} s. Joint torques by "
+             "inverse dynamics with the ground (sim/drive/inverse.py), activations by least-effort static "
+             "optimization (sim/jiggle/activation.py), at 120 Hz. Per muscle group (both sides' mean): its mean "
+             f"activation in the {LANDED_S:g} s after each landing and in the air before it, and the ratio.", "",
+             "| clip | body | mass kg | landings | group | after landing | in the air | ratio | peak |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        for g in r["groups"]:
+            a, b = g["after_landing"], g["in_air"]
+            ratio = f"{a / b:.1f}" if a is not None and b else ("-" if a is None else "inf")
+            lines.append(f"| {r['clip']} | {r['character']} | {r['mass_kg']:.0f} | {len(r['landings'])} | {g['group']} | "
+                         f"{'-' if a is None else f'{a:.3f}'} | {'-' if b is None else f'{b:.3f}'} | {ratio} | "
+                         f"{g['peak']:.2f} |")
+    lines += ["", "Cost per case (one run, this machine, beside other work; the clip's duration in brackets): " + ", ".join(
+        f"{r['clip']} {r['character']} ({r['duration_s']:.1f} s): inverse dynamics {r['inverse_s']:.1f} s, "
+        f"activations {r['activation_s']:.1f} s"
+        for r in results) + ".", ""]
+    lines += [f"![{r['clip']} {r['character']}](activation_landings/{r['clip']}_{r['character']}.png)" for r in results]
+    (out / "activation_landings.md").write_text("\n".join(lines) + "\n")
+    (out / "activation_landings.json").write_text(json.dumps(results, indent=1))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(HERE / "results"))
+    args = ap.parse_args(argv)
+    if not (ASSETS / "mocap" / "cmu_bvh").is_dir():
+        print(f"skipped: no shared CMU clips at {ASSETS / 'mocap' / 'cmu_bvh'}")
+        return 0
+    out = Path(args.out)
+    t = time.perf_counter()
+    results = []
+    for clip in CLIPS:
+        for character in CHARACTERS:
+            if CHARACTERS[character] and not (ASSETS / CHARACTERS[character]).is_file():
+                continue
+            r = case(clip, character, out / "activation_landings")
+            results.append(r)
+            print(clip, character, [(g["group"], g["after_landing"], g["in_air"]) for g in r["groups"]], flush=True)
+    write(results, out, time.perf_counter() - t)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
