@@ -26,7 +26,10 @@ with a weight w large enough that the torques are met wherever the muscles can, 
   order, rising with RISE_S (10 ms) and falling with FALL_S (40 ms) (Zajac 1989, Crit Rev Biomed Eng 17:359;
   Thelen 2003).
 
-Where a joint's torque is beyond what its muscles can give, their activations saturate at 1 (`saturated`).
+Where a joint's torque is beyond what its muscles can give, their activations saturate at 1 (`saturated`). A joint
+the clip never turns (a BVH's hip bone from the pelvis centre to the hip, CMU's LHipJoint: its local rotation stays
+within RIGID_DEG) is the skeleton's, not a joint: its torque is the bone's to carry, and the muscles spanning it are
+asked for none there (:func:`moving_joints`).
 """
 from __future__ import annotations
 
@@ -44,8 +47,10 @@ MUSCLE_DENSITY = 1060.0
 """kg/m^3 (Mendez & Keys 1960)."""
 RISE_S, FALL_S = 0.010, 0.040
 """seconds: activation's time constants, rising and falling (see the module)."""
-TORQUE_WEIGHT = 30.0
+TORQUE_WEIGHT = 1000.0
 """w of the optimization, per N m over the muscles' largest torque at the joint: torques met first, effort least."""
+RIGID_DEG = 1.0
+"""degrees: a joint whose local rotation stays this near its mean over the clip is rigid (see the module)."""
 PATH_SLOTS = (0, 2, 3, 1)
 """rig.muscle.model.MuscleRig.joints / local slots of a muscle's path: origin, o_hinge, i_hinge, insertion."""
 
@@ -157,6 +162,23 @@ def static_optimization(arms: np.ndarray, torques: np.ndarray, force: np.ndarray
     return exc, unmet
 
 
+def moving_joints(world: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """(J,) bool: the joints whose local rotation (child in parent, from world transforms (K, J, 4, 4)) turns by
+    more than RIGID_DEG from its first over the frames; roots count as moving."""
+    world = np.asarray(world, np.float64)
+    parents = np.asarray(parents)
+    R = world[:, :, :3, :3]
+    out = np.ones(len(parents), bool)
+    for j, p in enumerate(parents):
+        if p < 0:
+            continue
+        local = np.einsum("kba,kbc->kac", R[:, p], R[:, j])           # parent^T child
+        rel = np.einsum("ba,kbc->kac", local[0], local)                 # from the first frame's
+        cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+        out[j] = np.degrees(np.arccos(cos)).max() > RIGID_DEG
+    return out
+
+
 def activation_dynamics(excitation: np.ndarray, times: np.ndarray, rise: float = RISE_S,
                         fall: float = FALL_S) -> np.ndarray:
     """(K, M): activations following `excitation` (K, M) at `times` (K,) seconds first order, with time constant
@@ -182,9 +204,10 @@ def activations(rig, world_at, loads, parents: np.ndarray, bind_world: np.ndarra
     times = np.asarray(times, np.float64)
     world = np.asarray(world_at(times), np.float64)
     bind = np.asarray(bind_world, np.float64)
-    arms = posed_arms(moment_arms(rig, bind[None], parents)[0] * scale, bind, world)
+    moving = moving_joints(world, parents)
+    arms = posed_arms(moment_arms(rig, bind[None], parents)[0] * scale, bind, world) * moving[None, None, :, None]
     force = max_forces(rig, scale, loads.mass_kg)
-    torques = loads.at(times)
+    torques = loads.at(times) * moving[None, :, None]
     exc, unmet = static_optimization(arms, torques, force)
     act = activation_dynamics(exc, times)
     top = exc >= 1.0 - 1e-6
@@ -195,5 +218,5 @@ def activations(rig, world_at, loads, parents: np.ndarray, bind_world: np.ndarra
 
 
 __all__ = ["Activation", "SPECIFIC_TENSION", "MUSCLE_SHARE", "RISE_S", "FALL_S", "path_points", "below", "moment_arms",
-           "posed_arms", "max_forces",
+           "posed_arms", "max_forces", "moving_joints", "RIGID_DEG",
            "static_optimization", "activation_dynamics", "activations"]
