@@ -340,6 +340,8 @@ class Baker:
             out["chain_world"] = cw
             out["chain_tips_static"] = (self.chain_tips["static"][f0:f1] * s.scale).astype(np.float32)
             out["chain_tips_final"] = (self.chain_tips["final"][f0:f1] * s.scale).astype(np.float32)
+        if getattr(s, "activation", None) is not None:
+            out["activation"] = np.asarray(s.activation[f0:f1], np.float32)
         if new_state is not None:
             out["state_x"], out["state_v"] = new_state
         out.update(contacts)

@@ -48,6 +48,9 @@ chain_weight           (Vc,) float32               their skin weight on chain jo
 chain_delta            (T, Vc, 3) float32          what the swing adds to them (skin_final holds
                                                    it: skin_static + chain_delta is the skin that
                                                    follows the swung chains without tissue jiggle)
+activation             (T, M) float32              each muscle's activation in [0, 1], from the
+                                                   clip's joint torques (--activation on; fat 0);
+                                                   optional
 =====================  ==========================  ============================================
 """
 from __future__ import annotations
@@ -102,6 +105,8 @@ class BakeData:
         metres their tips animated and swung; chain_vertices (Vc,) int64 the skin vertices they move, chain_weight
         (Vc,) their skin weight on chain joints and chain_delta (T, Vc, 3) float32 metres what the swing adds to
         them (in skin_final); all None without chains.
+    activation : (T, M) float32 in [0, 1], each muscle's activation from the clip's own joint torques
+        (sim.jiggle.activation, `--activation on`), or None.
     """
 
     skin_static: np.ndarray
@@ -129,6 +134,7 @@ class BakeData:
     chain_vertices: np.ndarray | None = None
     chain_delta: np.ndarray | None = None
     chain_weight: np.ndarray | None = None
+    activation: np.ndarray | None = None
 
     def __post_init__(self):
         def put(name, value):
@@ -218,10 +224,15 @@ class BakeData:
             if self.chain_vertices is None:
                 raise InputError("comes with chain_vertices", field="chain_weight")
             self._shape("chain_weight", array("chain_weight", np.float32, 1), (len(self.chain_vertices),))
+        if self.activation is not None:
+            a = array("activation", np.float32, 2)
+            self._shape("activation", a, (T, len(self.muscle_names)))
+            if a.size and np.isfinite(a).all() and (a.min() < 0.0 or a.max() > 1.0):
+                raise InputError(f"activations must lie in [0, 1], got {a.min():g} to {a.max():g}", field="activation")
         for name, item in (("skin_static", "vertex"), ("skin_final", "vertex"), ("skin_lbs", "vertex"),
                            ("times", None), ("joint_world", "joint"), ("chain_world", "joint"),
                            ("chain_tips_static", "chain"), ("chain_tips_final", "chain"), ("chain_delta", "vertex"),
-                           ("muscle_cvs_static", "CV"), ("muscle_cvs_dynamic", "CV")):
+                           ("muscle_cvs_static", "CV"), ("muscle_cvs_dynamic", "CV"), ("activation", "muscle")):
             require_finite(name, getattr(self, name), item)
 
     def skin_swung(self) -> np.ndarray:
@@ -276,10 +287,10 @@ def require_finite(name: str, a: np.ndarray | None, item: str | None, first: int
 # ---------------------------------------------------------------------------------------- npz
 NPZ_KEYS = tuple(f.name for f in fields(BakeData))
 _OPTIONAL_KEYS = ("skin_lbs", "skin_rest", "part_names", "part_offsets", "chain_names", "chain_world", "chain_tip_names",
-                  "chain_tips_static", "chain_tips_final", "chain_vertices", "chain_delta", "chain_weight")
+                  "chain_tips_static", "chain_tips_final", "chain_vertices", "chain_delta", "chain_weight", "activation")
 FRAME_KEYS = {"skin_static": "vertex", "skin_final": "vertex", "skin_lbs": "vertex", "joint_world": "joint",
               "muscle_cvs_static": "CV", "muscle_cvs_dynamic": "CV", "times": None, "chain_world": "joint",
-              "chain_tips_static": "chain", "chain_tips_final": "chain", "chain_delta": "vertex"}
+              "chain_tips_static": "chain", "chain_tips_final": "chain", "chain_delta": "vertex", "activation": "muscle"}
 """The npz keys with one row per frame (a bake writes them chunk by chunk), and what their axis 1 counts."""
 
 

@@ -56,6 +56,9 @@ class BakeRequest:
     height : the character's real height, metres (None: inferred, rig.character.real_size), for the materials' rule.
     tissue : "particles" (None too: the goal-spring particles) or "fem" (the hero mode: every simulated part a
         Neo-Hookean solid of its material, sim/fem/tissue.py).
+    activation : "on" or "off" (None too): each muscle's activation from the clip's own joint torques
+        (sim.drive.inverse, sim.jiggle.activation), written to the caches (bake.npz's activation) and bake.json;
+        it does not yet change the tissue.
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
@@ -85,6 +88,7 @@ class BakeRequest:
     materials: tuple = ()
     height: float | None = None
     tissue: str | None = None
+    activation: str | None = None
     gravity: bool | None = None
     preroll: float | None = None
     collisions: bool | None = None
@@ -135,6 +139,8 @@ class BakeSetup:
     chains : sim.chain.build.ChainSetup, the chains that swing (their model and parameters), or None.
     tissue_solver : "particles" or "fem" (BakeRequest.tissue). real_scale : real metres per simulated metre
         (rig.character.real_size.RealSize.scale): the FEM's materials are in real units.
+    activation : (T, M) float32 in [0, 1] at the output times, each muscle's activation (BakeRequest.activation
+        "on"), or None.
     """
 
     name: str
@@ -160,6 +166,7 @@ class BakeSetup:
     chains: object = None
     tissue_solver: str = "particles"
     real_scale: float = 1.0
+    activation: np.ndarray | None = None
     """sim.bake.loop.Loop: whether the bake loops, its period and how it was judged; None: a plain bake."""
 
     @property
@@ -307,8 +314,9 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     chains = _timed(timings, "chains_s", _chains, req, inputs.scene, fit.character, fit.mus, motion.knots,
                     motion.world_at, log)
     contacts = _collisions(tissue.settings, inputs.drive, fit, motion, log)
+    activation, act_record = _timed(timings, "activation_s", _activation, req, fit, motion, log)
     params = _record(inputs.record, body.record, fit.record, tissue.record, motion.record, chains.record,
-                     contacts.record)
+                     contacts.record, act_record)
     return BakeSetup(name=scene.name if scene is not None else inputs.source.name, skin=fit.skin,
                      jiggles=tuple(tissue.jiggles), settings=tissue.settings, times=motion.times, fps=motion.fps,
                      knots=motion.knots, world_at=motion.world_at, joints_at=motion.joints_at,
@@ -317,12 +325,12 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      capsules=contacts.capsules, glb=_glb(req),
                      scale=1.0 / fit.character.meta.get("template_scale", 1.0),
                      loop=motion.loop if motion.loop.on else None, chains=chains.chains, tissue_solver=solver,
-                     real_scale=tissue.size.scale)
+                     real_scale=tissue.size.scale, activation=activation)
 
 
 RECORD_ORDER = ("jiggle_bake", "scene", "clip", "character", "template", "body_plan", "template_why", "tissue",
                 "rigid", "parts", "size_scale", "file_unit_m", "vertices", "drive", "fps", "frames", "start_s", "end_s",
-                "skinning", "settings", "muscles", "chunk", "loop", "pose_shapes", "chains", "collisions")
+                "skinning", "settings", "muscles", "chunk", "loop", "pose_shapes", "chains", "collisions", "activation")
 """The order of bake.json's setup entries (`params`); a step's entry not named here comes after them all."""
 
 
@@ -740,6 +748,64 @@ def _collisions(settings: JiggleSettings, drive: str, fit: Fit, motion: Motion, 
     return Collisions(floor, capsules, MappingProxyType({"collisions": record}))
 
 
+ACTIVATION = ("on", "off")
+
+
+def body_mass(character, scale: float) -> tuple[float, str]:
+    """(kg, how): the character's mass at real size (lengths x `scale`): its skin's volume at the body's density
+    (sim.drive.inverse.BODY_DENSITY) when the skin is closed (every edge shared by two triangles), else its height
+    at a reference adult's body mass index of 22.5 kg/m^2."""
+    from jiggle.sim.drive.inverse import BODY_DENSITY
+    v = np.asarray(character.vertices, np.float64) * scale
+    f = np.asarray(character.faces, np.int64)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    if len(f) and (counts == 2).all():
+        volume = abs(float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum()) / 6.0)
+        return BODY_DENSITY * volume, f"its closed skin's {volume:.4g} m^3 at {BODY_DENSITY:g} kg/m^3"
+    h = float(np.ptp(v[:, 2])) if len(v) else 0.0
+    return 22.5 * h * h, f"its height {h:.3g} m at a body mass index of 22.5 (the skin is not closed)"
+
+
+def _activation(req: BakeRequest, fit: Fit, motion: Motion, log) -> tuple[np.ndarray | None, Mapping]:
+    """Step 9, the muscles' activation (BakeRequest.activation "on"): the clip's joint torques by inverse dynamics
+    with the ground (sim.drive.inverse), shared among the muscles by least effort (sim.jiggle.activation), at the
+    output times ((T, M) float32, None when off); its bake.json part."""
+    mode = req.activation or "off"
+    if mode not in ACTIVATION:
+        raise InputError(f"expected one of {', '.join(ACTIVATION)}, got {mode!r}", field="--activation")
+    if mode == "off":
+        return None, MappingProxyType({})
+    from jiggle.sim.drive.inverse import joint_torques
+    from jiggle.sim.jiggle.activation import activations
+    clip, rig = fit.clip, fit.mus.rig
+    mass, how = body_mass(fit.character, fit.size.scale)
+    times = np.asarray(motion.times, np.float64)
+    period = float(clip.duration)
+    # a looped bake's times run past the clip: its loads are the cycle's own, at the same phase
+    at = np.mod(times, period) if motion.loop.on and period > 0 else np.clip(times, 0.0, period)
+    loads = joint_torques(clip, np.array([0.0, max(period, 1e-6)]), mass, roles=fit.mus.roles)
+    act = activations(rig, motion.world_at, loads, clip.parents, fit.character.bind_world, times,
+                      scale=fit.size.scale, load_times=at)
+    a = np.asarray(act.activation, np.float32)
+    muscles = {n: {"peak": round(float(a[:, m].max()), 4), "mean": round(float(a[:, m].mean()), 4)}
+               for m, n in enumerate(rig.names) if rig.kinds[m] != "fat"}
+    saturated = float(np.asarray(act.saturated).any(axis=1).mean()) if len(a) else 0.0
+    roles = bool(fit.mus.roles) and all(r in fit.mus.roles for r in ("left_upper_leg", "right_upper_leg"))
+    log(f"activation: {len(muscles)} muscles from the clip's joint torques (body {mass:.1f} kg from {how}); "
+        f"saturated in {100 * saturated:.0f}% of the frames")
+    record = {"activation": {
+        "on": True, "body_mass_kg": round(mass, 3), "body_mass_from": how,
+        "segments": "de Leva 1996 (the skeleton's human roles)" if roles else "the skeleton's capsules",
+        "torques": "inverse dynamics of the clip on the drive's skeleton in MuJoCo (mj_inverse), the ground pushing "
+                   "touching feet (sim/drive/inverse.py)",
+        "rule": "least-effort static optimization over the muscles' moment arms and strengths, then 10/40 ms "
+                "activation dynamics (sim/jiggle/activation.py); fat never activated; the tissue is not yet changed "
+                "by it",
+        "saturated_frames": round(saturated, 4), "muscles": muscles}}
+    return a, MappingProxyType(record)
+
+
 def tissue_joints(rig) -> set:
     """The joints a muscle rides (its origin's and the one its middle rides): they stay with the body, no chain
     swings them."""
@@ -1040,6 +1106,9 @@ def _prepare_builtin(req: BakeRequest, scene, log) -> BakeSetup:
         if getattr(req, name) is not None:
             raise InputError(f"the built-in scene {scene.builtin!r} makes its own character and motion; "
                              f"drop --{name.replace('_', '-')}", field=f"--{name.replace('_', '-')}")
+    if (req.activation or "off") == "on":
+        raise InputError(f"the built-in scene {scene.builtin!r} has no clip skeleton to take joint torques from; "
+                         "drop --activation", field="--activation")
     from jiggle.rig.muscle.simple_arm import FLEX_DURATION, simple_arm
     from jiggle.rig.skin.muscle_skin import MuscleSkin
     from jiggle.sim.jiggle.materials import default_jiggles

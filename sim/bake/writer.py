@@ -41,7 +41,7 @@ USD_TMP = {"usdc": ".bake.tmp.usdc", "usda": ".bake.tmp.usda"}
 CHUNK_KEYS = {"skin_static": "skin_static", "skin_final": "skin_final", "skin_lbs": "skin_lbs",
               "joint_world": "joint_world", "muscle_cvs_static": "cvs_static", "muscle_cvs_dynamic": "cvs_dynamic",
               "chain_world": "chain_world", "chain_tips_static": "chain_tips_static",
-              "chain_tips_final": "chain_tips_final", "chain_delta": "chain_delta"}
+              "chain_tips_final": "chain_tips_final", "chain_delta": "chain_delta", "activation": "activation"}
 """The npz's frame members (besides times) and the name of each in a chunk's arrays (sim/bake/baker.py)."""
 
 
@@ -87,6 +87,9 @@ class BakeWriter:
                       "chain_tip_names": tuple(ch.chains.names), "chain_tips_static": np.zeros((1, C, 3), np.float32),
                       "chain_tips_final": np.zeros((1, C, 3), np.float32), "chain_vertices": verts,
                       "chain_weight": cs.weight, "chain_delta": np.zeros((1, len(verts), 3), np.float32)}
+        if getattr(setup, "activation", None) is not None:   # each muscle's activation (--activation on)
+            shapes["activation"] = (T, rig.M)
+            chains["activation"] = np.zeros((1, rig.M), np.float32)
         self.head = BakeData(skin_static=np.zeros((1, V, 3), np.float32), skin_final=np.zeros((1, V, 3), np.float32),
                              skin_rest=np.asarray(character.vertices) * setup.scale, faces=character.faces, fps=setup.fps, times=setup.times[:1],
                              joint_names=setup.joint_names, joint_world=np.tile(np.eye(4, dtype=np.float32), (1, J, 1, 1)),

@@ -49,6 +49,9 @@ RISE_S, FALL_S = 0.010, 0.040
 """seconds: activation's time constants, rising and falling (see the module)."""
 TORQUE_WEIGHT = 1000.0
 """w of the optimization, per N m over the muscles' largest torque at the joint: torques met first, effort least."""
+SPAN_KEEP = 0.2
+"""A joint's torque is matched along the axes whose singular value of its muscles' torque matrix is at least this
+share of the largest (see static_optimization)."""
 RIGID_DEG = 1.0
 """degrees: a joint whose local rotation stays this near its mean over the clip is rigid (see the module)."""
 PATH_SLOTS = (0, 2, 3, 1)
@@ -151,14 +154,23 @@ def static_optimization(arms: np.ndarray, torques: np.ndarray, force: np.ndarray
     cols = np.flatnonzero(active)
     cap = np.abs(arms[:, cols][:, :, spanned] * force[cols, None, None]).sum(axis=1).max(axis=(0, 2))   # (S,) N m
     w = TORQUE_WEIGHT / np.maximum(cap, 1e-6)                            # per joint
+    A_all = (arms[:, cols][:, :, spanned] * force[None, cols, None, None]).transpose(0, 2, 3, 1)  # (K, S, 3, C)
+    # each joint's torque is asked of its muscles only along the axes they can turn it about (SPAN_KEEP): an axis
+    # no muscle pulls well about (a forearm's twist for a biceps and triceps alone) is the ligaments' and the
+    # unmodelled muscles', and matching it anyway buys a sliver of torque with a large co-contraction
+    U, sv, _ = np.linalg.svd(A_all, full_matrices=False)                 # (K, S, 3, r), (K, S, r)
+    keep = sv >= SPAN_KEEP * sv[..., :1]
     for k in range(K):
-        A = (arms[k][np.ix_(cols, spanned)] * force[cols, None, None]).transpose(1, 2, 0)    # (S, 3, C)
-        Aw = (A * w[:, None, None]).reshape(-1, len(cols))
-        bw = (torques[k, spanned] * w[:, None]).reshape(-1)
+        rows, rhs = [], []
+        for i in range(len(spanned)):
+            basis = U[k, i][:, keep[k, i]]                               # (3, q)
+            rows.append(w[i] * basis.T @ A_all[k, i])
+            rhs.append(w[i] * basis.T @ torques[k, spanned[i]])
+        Aw, bw = np.concatenate(rows), np.concatenate(rhs)
         res = lsq_linear(np.concatenate([Aw, np.eye(len(cols))]), np.concatenate([bw, np.zeros(len(cols))]),
                          bounds=(0.0, 1.0), method="bvls")
         exc[k, cols] = res.x
-        unmet[k, spanned] = torques[k, spanned] - (A @ res.x)
+        unmet[k, spanned] = torques[k, spanned] - (A_all[k] @ res.x)
     return exc, unmet
 
 
@@ -196,18 +208,19 @@ def activation_dynamics(excitation: np.ndarray, times: np.ndarray, rise: float =
 
 
 def activations(rig, world_at, loads, parents: np.ndarray, bind_world: np.ndarray, times: np.ndarray,
-                scale: float = 1.0) -> Activation:
+                scale: float = 1.0, load_times: np.ndarray | None = None) -> Activation:
     """The Activation of `rig`'s muscles at `times` (K,) seconds: the skeleton posed by `world_at` (times -> (K, J, 4,
     4), the bake's drive; its bind pose `bind_world` (J, 4, 4)), the joint torques of `loads`
     (sim.drive.inverse.Loads, whose mass_kg is the body's), the body at real size `scale` (lengths x scale; the
-    loads are at real size already)."""
+    loads are at real size already). load_times : (K,) the clip's seconds the loads are read at (None: `times`; a
+    looped bake's times past the clip wrap to the cycle's own)."""
     times = np.asarray(times, np.float64)
     world = np.asarray(world_at(times), np.float64)
     bind = np.asarray(bind_world, np.float64)
     moving = moving_joints(world, parents)
     arms = posed_arms(moment_arms(rig, bind[None], parents)[0] * scale, bind, world) * moving[None, None, :, None]
     force = max_forces(rig, scale, loads.mass_kg)
-    torques = loads.at(times) * moving[None, :, None]
+    torques = loads.at(times if load_times is None else load_times) * moving[None, :, None]
     exc, unmet = static_optimization(arms, torques, force)
     act = activation_dynamics(exc, times)
     top = exc >= 1.0 - 1e-6

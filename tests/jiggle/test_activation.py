@@ -102,3 +102,46 @@ def test_the_quadriceps_work_at_the_landing_and_rest_in_the_air(tmp_path):
         assert q[land].mean() >= 3.0 * q[air].mean() and q[land].mean() > 0.02, (side, q[land].mean(), q[air].mean())
     fat = [i for i, k in enumerate(fit.mus.rig.kinds) if k == "fat"]
     assert fat and np.abs(act.activation[:, fat]).max() == 0.0
+
+
+@pytest.mark.slow
+def test_a_bake_with_activation_on_writes_it_and_off_writes_none(tmp_path):
+    """jiggle bake --activation on: bake.npz's activation (frames x muscles, in [0, 1], fat 0) and bake.json's
+    record (the body's mass, each muscle's peak and mean); the legs work hardest on the jump; the default bake has
+    neither, and the built-in simple arm (no clip skeleton) refuses it (exit 2)."""
+    import json
+
+    from conftest import asset
+
+    from jiggle.sim.app.cli import main
+    from jiggle.sim.bake.caches import read_npz
+    clip = str(asset("mocap/cmu_bvh/02_04.bvh"))
+    on, off = tmp_path / "on", tmp_path / "off"
+    args = ["-q", "bake", "--clip", clip, "--end", "2.0", "--formats", "npz"]
+    assert main([*args, "--out", str(on), "--activation", "on"]) == 0
+    assert main([*args, "--out", str(off)]) == 0
+    a, b = read_npz(on / "bake.npz"), read_npz(off / "bake.npz")
+    assert b.activation is None and a.activation.shape == (len(a.times), len(a.muscle_names))
+    assert a.activation.min() >= 0.0 and a.activation.max() <= 1.0
+    rec = json.loads((on / "bake.json").read_text())["params"]["activation"]
+    assert "activation" not in json.loads((off / "bake.json").read_text())["params"]
+    kinds = {n: m["kind"] for n, m in json.loads((on / "bake.json").read_text())["params"]["muscles"].items()}
+    fat = [i for i, n in enumerate(a.muscle_names) if kinds[n] == "fat"]
+    assert fat and np.abs(a.activation[:, fat]).max() == 0.0 and set(rec["muscles"]) == {
+        n for n, k in kinds.items() if k != "fat"}
+    assert 40.0 < rec["body_mass_kg"] < 90.0 and "closed skin" in rec["body_mass_from"]
+    legs = max(rec["muscles"][n]["mean"] for n in rec["muscles"] if "quadriceps" in n or "calf" in n or "glute" in n)
+    arms = max(rec["muscles"][n]["mean"] for n in rec["muscles"] if "biceps" in n or "triceps" in n)
+    assert legs > 3.0 * arms, (legs, arms)
+    from dataclasses import replace
+
+    from jiggle.rig.base.errors import InputError
+    with pytest.raises(InputError, match="activations must lie in"):
+        replace(a, activation=a.activation + 1.5)
+    with pytest.raises(InputError, match="expected shape"):
+        replace(a, activation=a.activation[:, :3])
+    # the skins are the same: activation does not yet change the tissue
+    np.testing.assert_array_equal(a.skin_final, b.skin_final)
+    from pathlib import Path
+    arm = Path(__file__).resolve().parents[2] / "scenes" / "simple_arm.toml"
+    assert main(["-q", "bake", str(arm), "--out", str(tmp_path / "arm"), "--activation", "on"]) == 2

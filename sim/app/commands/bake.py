@@ -34,7 +34,7 @@ def bake_request(args):
         character_map=getattr(args, "character_map", None),
         skin=getattr(args, "skin", None), unit=getattr(args, "unit", None), mush=getattr(args, "mush", None),
         loop=getattr(args, "loop", None), rigid=getattr(args, "rigid", None), height=getattr(args, "height", None),
-        tissue=getattr(args, "tissue", None), **chain_request(args))
+        tissue=getattr(args, "tissue", None), activation=getattr(args, "activation", None), **chain_request(args))
 
 
 def emit(event: str, **fields) -> None:
@@ -175,5 +175,9 @@ def add_parser(sub) -> None:
     g.add_argument("--tissue", choices=("particles", "fem"), help="the tissue solver: particles (goal springs on "
                    "each muscle's control points, the default) or fem (the hero mode: every simulated muscle a "
                    "Neo-Hookean solid of its material, its control points embedded in its tets; minutes, not seconds)")
+    g.add_argument("--activation", choices=("on", "off"), help="on: each muscle's activation (0 to 1) from the "
+                   "clip's own joint torques (inverse dynamics with the ground, shared among the muscles by least "
+                   "effort), written to bake.npz (activation, frames x muscles) and bake.json (each muscle's peak and "
+                   "mean); it does not yet change the tissue (default: off)")
     clip_options(p)
     p.set_defaults(func=run)
