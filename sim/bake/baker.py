@@ -431,7 +431,8 @@ def cache_paths(out_dir: str, formats) -> dict:
 
 
 COMPARE_NAMES = ("metrics.json", "displacement.npz", "amplitude.png", "limits.png", "energy.png", "spectrum.png",
-                 "displacement.png", "quality.png", "chains.png", "contacts.png", "peak.png", "quality_closeups.png",
+                 "displacement.png", "quality.png", "chains.png", "contacts.png", "activation.png", "peak.png",
+                 "quality_closeups.png",
                  "glb_closeup.png", "clip.mp4", "clip.gif", "report.html")
 """The names `jiggle compare` writes beside a bake (sim/app/report/compare.py) when they are free."""
 COMPARE_RECORD = "compare.json"

@@ -110,6 +110,7 @@ def test_a_bake_with_activation_on_writes_it_and_off_writes_none(tmp_path):
     record (the body's mass, each muscle's peak and mean); the legs work hardest on the jump; the default bake has
     neither, and the built-in simple arm (no clip skeleton) refuses it (exit 2)."""
     import json
+    import os
 
     from conftest import asset
 
@@ -140,6 +141,13 @@ def test_a_bake_with_activation_on_writes_it_and_off_writes_none(tmp_path):
         replace(a, activation=a.activation + 1.5)
     with pytest.raises(InputError, match="expected shape"):
         replace(a, activation=a.activation[:, :3])
+    # compare plots it beside the jiggle and reports the hardest-working muscles
+    from jiggle.sim.app.commands.compare import compare_bake
+    res = compare_bake(str(on), render=False, video=False)
+    assert os.path.getsize(res["files"]["activation_plot"]) > 0 and "activation_plot" not in compare_bake(
+        str(off), render=False, video=False)["files"]
+    top = next(iter(res["metrics"]["activation"]["muscles"]))
+    assert kinds[top] == "muscle" and "Activation" in open(res["files"]["report"], encoding="utf-8").read()
     # the skins are the same: activation does not yet change the tissue
     np.testing.assert_array_equal(a.skin_final, b.skin_final)
     from pathlib import Path

@@ -21,6 +21,8 @@ quality.png       skin quality per frame: folded edges of the LBS, static and fi
 contacts.png      for a bake with collisions (its bake.json has "contacts"): the deepest particle
                   penetration per frame and the skin vertices inside another part's capsule per frame,
                   static and final skin (see :func:`collision_metrics`)
+activation.png    for a bake with activation (--activation on): the hardest-working muscles' activation over
+                  time above their jiggle amplitude (metrics.json "activation")
 peak.png          static | dynamic skin at the peak frame (sim.app.report.compare_render), unless render=False
 quality_closeups.png  the worst frames for skin quality, close up, static | final, unless render=False
 glb_closeup.png   for a bake with a glb (--formats glb): its worst frame close up, skin_final | played from the
@@ -609,7 +611,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         update), 1 + len(sim.app.report.compare_render.video_frames(T)) calls in all with render and video.
     Returns {"files": {key: path}, "metrics": the metrics.json dict}; keys of files: metrics,
     displacement, amplitude, energy, spectrum, displacement_plot, quality_plot, chains_plot (a bake with
-    chains), contacts_plot (a bake with collisions), peak, video, report.
+    chains), contacts_plot (a bake with collisions), activation_plot (a bake with activation), peak, video, report.
     InputError for a missing, unfinished or unreadable bake.
     """
     out_dir = os.fspath(out_dir)
@@ -630,6 +632,7 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
         run.files["quality_plot"] = skin_quality.plot_quality(run.path("quality.png"), data.times, quality)
     chains = _chains(run, data, an, quality_m)
     collisions = _collisions(run, data.times)
+    activation = _activation(run, data, an)
     pictures = bool(render and data.skin_static.shape[1])
     video_info = _render(run, data, an, quality_m, quality, video, progress) if pictures else None
     glb = _glb(run, data, pictures)
@@ -638,6 +641,8 @@ def compare(out_dir: str, *, render: bool = True, video: bool = True,
     run.files["report"] = run.path("report.html")
     metrics = clean(_metrics(data, an, tissue, run, quality=quality, chains=chains, collisions=collisions, glb=glb,
                              video=video_info))
+    if activation is not None:
+        metrics["activation"] = activation
     _write_json(run.files["metrics"], metrics)
     from jiggle.sim.app.report.page import write_report
     with _timed(timings, "report_s"):
@@ -680,6 +685,23 @@ def _chains(run: _Run, data: BakeData, an: dict, quality_m: dict) -> dict | None
         run.files["chains_plot"] = plot_chains(run.path("chains.png"), data.times, list(data.chain_tip_names),
                                                chains, chain_arrays)
     return chains
+
+
+def _activation(run: _Run, data: BakeData, an: dict) -> dict | None:
+    """metrics.json's "activation" (per muscle its peak and mean, and when it peaked; the rule) and activation.png
+    (sim.app.report.plots.plot_activation); None, and no plot, for a bake without activation."""
+    if data.activation is None:
+        return None
+    from jiggle.sim.app.report.plots import plot_activation
+    a = np.asarray(data.activation, np.float64)
+    names = list(data.muscle_names)
+    order = [int(i) for i in np.argsort(-a.mean(axis=0), kind="stable")]
+    run.files["activation_plot"] = plot_activation(run.path("activation.png"), data.times, a, an["amplitude"], names,
+                                                   order)
+    return {"rule": "bake.npz's activation: each muscle's, from the clip's joint torques (bake.json params.activation)",
+            "muscles": {names[m]: {"peak": float(a[:, m].max()), "mean": float(a[:, m].mean()),
+                                   "peak_time_s": float(data.times[int(np.argmax(a[:, m]))])}
+                        for m in order if a[:, m].max() > 0}}
 
 
 def _collisions(run: _Run, times: np.ndarray) -> dict | None:

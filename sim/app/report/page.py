@@ -242,6 +242,22 @@ def _short(value):
     return f"{value:.3g}" if isinstance(value, float) else value
 
 
+def _activation_section(a: dict, files: dict) -> list[str]:
+    """Activation (metrics.json's "activation", a bake with `--activation on`): the hardest-working muscles' peak
+    and mean and when they peaked, and activation.png."""
+    if not a:
+        return []
+    head = ("muscle", "peak", "mean", "peak at (s)")
+    body = "".join(f"<tr><td>{_e(n)}</td><td class=\"n\">{_num(v.get('peak'), '.2f')}</td>"
+                   f"<td class=\"n\">{_num(v.get('mean'), '.2f')}</td><td class=\"n\">{_num(v.get('peak_time_s'), '.3f')}"
+                   "</td></tr>" for n, v in list((a.get("muscles") or {}).items())[:12])
+    parts = ["<h2>Activation</h2>", f'<p class="note">{_e(a.get("rule"))}</p>',
+             "<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>" + body + "</table>"]
+    if "activation_plot" in files:
+        parts.append(f'<img alt="activation over time" src="{data_uri(files["activation_plot"])}">')
+    return parts
+
+
 def render_report(metrics: dict, files: dict) -> str:
     """The page as a string. metrics : the metrics.json dict. files : key -> path of the outputs
     (amplitude, energy, spectrum, displacement_plot, peak, video; absent keys are left out)."""
@@ -272,6 +288,7 @@ def render_report(metrics: dict, files: dict) -> str:
     parts += _quality_section(m.get("skin_quality") or {}, files)
     parts += _chain_section(m.get("chains") or {}, files)
     parts += _collision_section(m.get("collisions") or {}, files)
+    parts += _activation_section(m.get("activation") or {}, files)
     if m.get("glb"):
         parts += _glb_section(m["glb"], files)
     unit = m.get("energy_unit", "J")

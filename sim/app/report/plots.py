@@ -49,6 +49,32 @@ def plot_joint_trajectories(times: np.ndarray, positions: np.ndarray, names: lis
     return path
 
 
+def plot_activation(path: str, times: np.ndarray, activation: np.ndarray, amplitude: np.ndarray, names: list,
+                    order: list) -> str:
+    """activation.png of `jiggle compare` for a bake with activation (`--activation on`): above, the activation
+    (0 to 1) of the muscles that work hardest (the 8 of largest mean); below, the same muscles' jiggle amplitude (mm),
+    so a loaded muscle's stiffening shows beside its load. times (T,) s; activation (T, M); amplitude (T, M) metres;
+    order : muscle indices, hardest working first."""
+    plt = pyplot()
+    top = order[:8]
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    for m in top:
+        line, = ax.plot(times, activation[:, m], lw=1.3, label=names[m])
+        bx.plot(times, 1e3 * amplitude[:, m], lw=1.0, color=line.get_color())
+    ax.set_ylabel("activation (0 to 1)")
+    ax.set_ylim(0.0, 1.02)
+    ax.set_title("muscle activation from the clip's joint torques (the 8 hardest-working muscles)")
+    ax.legend(loc="upper right", fontsize=8, ncol=2)
+    bx.set_ylabel("jiggle amplitude (mm)")
+    bx.set_xlabel("time (s)")
+    for a in (ax, bx):
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_contacts(path: str, times: np.ndarray, collisions: dict) -> str:
     """contacts.png of `jiggle compare` for a bake with collisions: left, the deepest penetration per frame
     (mm, before the projection corrected it; the summed contact impulse, N s, on the right axis); right,
