@@ -57,8 +57,8 @@ class BakeRequest:
     tissue : "particles" (None too: the goal-spring particles) or "fem" (the hero mode: every simulated part a
         Neo-Hookean solid of its material, sim/fem/tissue.py).
     activation : "on" or "off" (None too): each muscle's activation from the clip's own joint torques
-        (sim.drive.inverse, sim.jiggle.activation), written to the caches (bake.npz's activation) and bake.json;
-        it does not yet change the tissue.
+        (sim.drive.inverse, sim.jiggle.activation), stiffening each working muscle's springs, written to the caches
+        (bake.npz's activation) and bake.json.
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
     body : BodyOptions keywords of a generated body. influences, skinning ("shell"/"influence"),
@@ -314,11 +314,11 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
     chains = _timed(timings, "chains_s", _chains, req, inputs.scene, fit.character, fit.mus, motion.knots,
                     motion.world_at, log)
     contacts = _collisions(tissue.settings, inputs.drive, fit, motion, log)
-    activation, act_record = _timed(timings, "activation_s", _activation, req, fit, motion, log)
+    activation, jiggles, act_record = _timed(timings, "activation_s", _activation, req, fit, motion, tissue, log)
     params = _record(inputs.record, body.record, fit.record, tissue.record, motion.record, chains.record,
                      contacts.record, act_record)
     return BakeSetup(name=scene.name if scene is not None else inputs.source.name, skin=fit.skin,
-                     jiggles=tuple(tissue.jiggles), settings=tissue.settings, times=motion.times, fps=motion.fps,
+                     jiggles=tuple(jiggles), settings=tissue.settings, times=motion.times, fps=motion.fps,
                      knots=motion.knots, world_at=motion.world_at, joints_at=motion.joints_at,
                      joint_names=motion.joint_names, formats=_formats(req, scene), chunk=params["chunk"],
                      params=params, key=params_key(params), timings=timings, floor=contacts.floor,
@@ -767,17 +767,22 @@ def body_mass(character, scale: float) -> tuple[float, str]:
     return 22.5 * h * h, f"its height {h:.3g} m at a body mass index of 22.5 (the skin is not closed)"
 
 
-def _activation(req: BakeRequest, fit: Fit, motion: Motion, log) -> tuple[np.ndarray | None, Mapping]:
+def _activation(req: BakeRequest, fit: Fit, motion: Motion, tissue: Tissue, log
+                ) -> tuple[np.ndarray | None, list, Mapping]:
     """Step 9, the muscles' activation (BakeRequest.activation "on"): the clip's joint torques by inverse dynamics
     with the ground (sim.drive.inverse), shared among the muscles by least effort (sim.jiggle.activation), at the
-    output times ((T, M) float32, None when off); its bake.json part."""
+    output times ((T, M) float32, None when off); the tissue's jiggles with each working muscle's springs stiffened
+    by its fibres' tension (sim.jiggle.activation.stiffened; as they are when off); its bake.json part."""
     mode = req.activation or "off"
     if mode not in ACTIVATION:
         raise InputError(f"expected one of {', '.join(ACTIVATION)}, got {mode!r}", field="--activation")
     if mode == "off":
-        return None, MappingProxyType({})
+        return None, list(tissue.jiggles), MappingProxyType({})
+    if tissue_solver(req) == "fem":
+        raise InputError("--activation on stiffens the particles' springs; the FEM hero mode (--tissue fem) does not "
+                         "take it yet: drop one of them", field="--activation")
     from jiggle.sim.drive.inverse import joint_torques
-    from jiggle.sim.jiggle.activation import activations
+    from jiggle.sim.jiggle.activation import activations, stiffened
     clip, rig = fit.clip, fit.mus.rig
     mass, how = body_mass(fit.character, fit.size.scale)
     times = np.asarray(motion.times, np.float64)
@@ -788,7 +793,9 @@ def _activation(req: BakeRequest, fit: Fit, motion: Motion, log) -> tuple[np.nda
     act = activations(rig, motion.world_at, loads, clip.parents, fit.character.bind_world, times,
                       scale=fit.size.scale, load_times=at)
     a = np.asarray(act.activation, np.float32)
-    muscles = {n: {"peak": round(float(a[:, m].max()), 4), "mean": round(float(a[:, m].mean()), 4)}
+    jiggles, factor = stiffened(tissue.jiggles, rig, a, times, scale=fit.size.scale)
+    muscles = {n: {"peak": round(float(a[:, m].max()), 4), "mean": round(float(a[:, m].mean()), 4),
+                   "stiffening_peak": round(float(factor[:, m].max()), 4)}
                for m, n in enumerate(rig.names) if rig.kinds[m] != "fat"}
     saturated = float(np.asarray(act.saturated).any(axis=1).mean()) if len(a) else 0.0
     roles = bool(fit.mus.roles) and all(r in fit.mus.roles for r in ("left_upper_leg", "right_upper_leg"))
@@ -800,10 +807,12 @@ def _activation(req: BakeRequest, fit: Fit, motion: Motion, log) -> tuple[np.nda
         "torques": "inverse dynamics of the clip on the drive's skeleton in MuJoCo (mj_inverse), the ground pushing "
                    "touching feet (sim/drive/inverse.py)",
         "rule": "least-effort static optimization over the muscles' moment arms and strengths, then 10/40 ms "
-                "activation dynamics (sim/jiggle/activation.py); fat never activated; the tissue is not yet changed "
-                "by it",
+                "activation dynamics (sim/jiggle/activation.py); fat never activated",
+        "stiffening": "a working muscle's goal springs keyed by sqrt(1 + (f_t / f_0)^2): f_t = sqrt(a 0.6 MPa / rho) "
+                      "/ (2 L) the sway of its belly under its fibres' tension, f_0 its relaxed material's "
+                      "(sim.jiggle.activation.stiffened); params.muscles gives the springs before it",
         "saturated_frames": round(saturated, 4), "muscles": muscles}}
-    return a, MappingProxyType(record)
+    return a, jiggles, MappingProxyType(record)
 
 
 def tissue_joints(rig) -> set:

@@ -26,6 +26,16 @@ with a weight w large enough that the torques are met wherever the muscles can, 
   order, rising with RISE_S (10 ms) and falling with FALL_S (40 ms) (Zajac 1989, Crit Rev Biomed Eng 17:359;
   Thelen 2003).
 
+What activation does to the tissue (:func:`stiffened`): a working muscle's fibres are under tension, and a belly
+under tension sways as a string does: its transverse wave speed is sqrt(sigma / rho), sigma = a SPECIFIC_TENSION
+the fibres' stress (Martin et al. 2018, Nat Commun 9:1592, read a tendon's load from the same law), so its
+fundamental sway is f_t = sqrt(sigma / rho) / (2 L) over its rest belly length L, added to its relaxed sway f_0 (its
+material's, sim.jiggle.materials) as f = sqrt(f_0^2 + f_t^2): the goal springs' frequency is scaled by
+sqrt(1 + (f_t / f_0)^2) at every frame (a keyed frequency; sim.jiggle.keyed). Muscle stiffness rising about
+linearly with its force is what elastography measures (Bouillard, Nordez & Hug 2011; Ates et al. 2015, J
+Electromyogr Kinesiol 25:703, over the whole range of contraction): sigma, and so f^2, is linear in the force.
+Fat is never activated and keeps its springs.
+
 Where a joint's torque is beyond what its muscles can give, their activations saturate at 1 (`saturated`). A joint
 the clip never turns (a BVH's hip bone from the pelvis centre to the hip, CMU's LHipJoint: its local rotation stays
 within RIGID_DEG) is the skeleton's, not a joint: its torque is the bone's to carry, and the muscles spanning it are
@@ -230,6 +240,41 @@ def activations(rig, world_at, loads, parents: np.ndarray, bind_world: np.ndarra
     return Activation(times, act, exc, sat, unmet, force)
 
 
-__all__ = ["Activation", "SPECIFIC_TENSION", "MUSCLE_SHARE", "RISE_S", "FALL_S", "path_points", "below", "moment_arms",
+def tension_frequency(activation: np.ndarray, length_m: float, density: float) -> np.ndarray:
+    """Hz: the sway of a belly of rest length `length_m` (metres) and `density` (kg/m^3) under its fibres' stress at
+    `activation` (any shape, 0 to 1): sqrt(a SPECIFIC_TENSION / rho) / (2 L) (see the module)."""
+    a = np.clip(np.asarray(activation, np.float64), 0.0, 1.0)
+    return np.sqrt(a * SPECIFIC_TENSION / max(float(density), 1e-9)) / (2.0 * max(float(length_m), 1e-9))
+
+
+def stiffened(jiggles, rig, activation: np.ndarray, times: np.ndarray, scale: float = 1.0) -> tuple[list, np.ndarray]:
+    """(jiggles, factor): each muscle's goal springs keyed over `times` (T,) seconds by its activation (T, M): its
+    frequency times sqrt(1 + (f_t / f_0)^2), f_t the tension's sway (tension_frequency at its rest belly length x
+    `scale`, metres) and f_0 its relaxed sway (the material its springs stand for: sim.jiggle.materials); a keyed
+    frequency keeps its keys' shape, scaled. factor : (T, M) the scale (1 for fat and for a muscle never active)."""
+    from dataclasses import replace
+
+    from jiggle.sim.jiggle.keyed import Curve
+    from jiggle.sim.jiggle.materials import fem_frequency, material_of
+    times = np.asarray(times, np.float64)
+    a = np.asarray(activation, np.float64)
+    radii = rig.mean_radii(rig.rest_cvs)
+    factor = np.ones_like(a)
+    out = list(jiggles)
+    for m, j in enumerate(jiggles):
+        if rig.kinds[m] == "fat" or not a[:, m].max() > 0:
+            continue
+        r, L = float(radii[m]) * scale, float(rig.rest_length[m]) * scale
+        cvs = rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]]
+        mat = material_of(j, rig.kinds[m], r, L, cvs)
+        f0 = fem_frequency(mat, r, L)
+        factor[:, m] = np.sqrt(1.0 + (tension_frequency(a[:, m], L, mat.density) / max(f0, 1e-9)) ** 2)
+        base = j.frequency_hz
+        f = (base(times) if isinstance(base, Curve) else np.full(len(times), float(base))) * factor[:, m]
+        out[m] = replace(j, frequency_hz=Curve(times, f))
+    return out, factor
+
+
+__all__ = ["Activation", "tension_frequency", "stiffened", "SPECIFIC_TENSION", "MUSCLE_SHARE", "RISE_S", "FALL_S", "path_points", "below", "moment_arms",
            "posed_arms", "max_forces", "moving_joints", "RIGID_DEG",
            "static_optimization", "activation_dynamics", "activations"]

@@ -177,7 +177,7 @@ def add_parser(sub) -> None:
                    "Neo-Hookean solid of its material, its control points embedded in its tets; minutes, not seconds)")
     g.add_argument("--activation", choices=("on", "off"), help="on: each muscle's activation (0 to 1) from the "
                    "clip's own joint torques (inverse dynamics with the ground, shared among the muscles by least "
-                   "effort), written to bake.npz (activation, frames x muscles) and bake.json (each muscle's peak and "
-                   "mean); it does not yet change the tissue (default: off)")
+                   "effort): a working muscle's springs stiffen with its fibres' tension (fat never); written to bake.npz "
+                   "(activation, frames x muscles) and bake.json (each muscle's peak and mean) (default: off)")
     clip_options(p)
     p.set_defaults(func=run)
