@@ -433,6 +433,13 @@ class Schedule:
         k, c, reach = self.at(mid)                                   # (S, P)
         P = len(self.particles)
         hh = np.repeat(pairs[:, 1], P)
-        coeffs = tissue_law.rows(k[inv_seg].reshape(-1), c[inv_seg].reshape(-1), hh).reshape(len(pairs), P, -1)
+        kk, cc = k[inv_seg].reshape(-1), c[inv_seg].reshape(-1)
+        # a row is a function of its (k, c, h) alone: each distinct triple once (a stiffness keyed on every interval
+        # repeats across particles of one section and across intervals whose keys step, sim.jiggle.activation)
+        codes = [np.unique(x, return_inverse=True) for x in (kk, cc, hh)]
+        key = (codes[0][1].reshape(-1) * len(codes[1][0]) + codes[1][1].reshape(-1)) * len(codes[2][0]) + \
+            codes[2][1].reshape(-1)
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        coeffs = tissue_law.rows(kk[first], cc[first], hh[first])[inverse.reshape(-1)].reshape(len(pairs), P, -1)
         return coeffs, reach[inv_seg], block.reshape(-1)
 
