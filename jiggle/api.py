@@ -290,12 +290,14 @@ class Bake:
         jiggle blended in (the result), and the plain smooth skin. skin_rest : (V, 3). faces : (F, 3) int32.
     times : (T,) seconds of the clip. fps : frames per second. joint_names : (J,). joint_world : (T, J, 4, 4) the
         clip's joints' world transforms. muscle_names : (M,). muscle_cvs_static, muscle_cvs_dynamic : (T, N, 3) the
-        muscles' control points, muscle m's rows muscle_cv_offsets[m]:muscle_cv_offsets[m + 1].
+        muscles' control points, muscle m's rows muscle_cv_offsets[m]:muscle_cv_offsets[m + 1]. activation : (T, M)
+        each muscle's activation, 0 to 1 (a bake with activation="on" only).
     params : the bake's full parameter set (bake.json "params"); summary : the whole bake.json.
     """
 
     ARRAYS = ("skin_static", "skin_final", "skin_lbs", "skin_rest", "faces", "times", "joint_names", "joint_world",
-              "muscle_names", "muscle_cvs_static", "muscle_cvs_dynamic", "muscle_cv_offsets", "muscle_faces")
+              "muscle_names", "muscle_cvs_static", "muscle_cvs_dynamic", "muscle_cv_offsets", "muscle_faces",
+              "activation")
 
     def __init__(self, folder: Path, summary: dict, arrays: dict):
         self.folder, self.summary, self._arrays = folder, summary, arrays

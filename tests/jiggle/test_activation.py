@@ -123,6 +123,8 @@ def test_a_bake_with_activation_on_writes_it_and_off_writes_none(tmp_path):
     assert main([*args, "--out", str(on), "--activation", "on"]) == 0
     assert main([*args, "--out", str(off)]) == 0
     a, b = read_npz(on / "bake.npz"), read_npz(off / "bake.npz")
+    import jiggle
+    np.testing.assert_array_equal(jiggle.Bake.open(on).activation, a.activation)     # the API reads it too
     assert b.activation is None and a.activation.shape == (len(a.times), len(a.muscle_names))
     assert a.activation.min() >= 0.0 and a.activation.max() <= 1.0
     rec = json.loads((on / "bake.json").read_text())["params"]["activation"]
