@@ -43,7 +43,12 @@ pick_python() {
   return 1
 }
 
-apt_install() {
+apt_# MyoSuite's musculoskeletal models, the reference benchmarks/activation_reference.py checks muscle activation
+# against (tests/jiggle/test_activation_reference.py). Without its dependencies: it declares mujoco < 4, jiggle runs
+# mujoco 4, and its XML models load and compile there as they are (it needs nothing else but numpy).
+MYO_SIM="myo-sim==0.2.4"
+
+install() {
   local runner=()
   if [ "$(id -u)" != 0 ]; then
     if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
@@ -100,11 +105,12 @@ install() {
     "$py" -m venv .venv
   fi
   local stamp=.venv/.jiggle-install hash
-  hash=$(cat pyproject.toml setup.py | sha256sum | cut -d' ' -f1)
+  hash=$( (cat pyproject.toml setup.py; echo "$MYO_SIM") | sha256sum | cut -d' ' -f1)
   if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$hash" ] || ! installed_here; then
     say "installing jiggle and its dependencies into .venv (a few minutes the first time)"
     .venv/bin/python -m pip install -q --upgrade pip
     .venv/bin/python -m pip install -q -e '.[test]'
+    .venv/bin/python -m pip install -q --no-deps "$MYO_SIM"
     echo "$hash" > "$stamp"
   fi
   want_blender && blender_env || true
