@@ -70,7 +70,7 @@ def case(clip: str, character: str, out: Path) -> dict:
     loads = joint_torques(fit.clip, times, mass, roles=fit.mus.roles)
     t1 = time.perf_counter()
     act = activations(fit.mus.rig, world_at, loads, fit.clip.parents, fit.character.bind_world, times,
-                      scale=fit.size.scale)
+                      scale=fit.size.scale, roles=fit.mus.roles)
     t2 = time.perf_counter()
     names = list(fit.mus.rig.names)
     weight = 9.81 * mass

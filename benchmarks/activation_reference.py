@@ -324,7 +324,7 @@ def case(clip: str, character: str, ref: Reference, out: Path) -> dict:
     roles = fit.mus.roles
     loads = joint_torques(fit.clip, times, mass, roles=roles)
     ours = activations(fit.mus.rig, world_at, loads, fit.clip.parents, fit.character.bind_world, times,
-                       scale=fit.size.scale)
+                       scale=fit.size.scale, roles=fit.mus.roles)
     world = np.asarray(world_at(times), np.float64)
     rest = np.asarray(fit.character.bind_world, np.float64)
     t0 = time.perf_counter()

@@ -791,7 +791,7 @@ def _activation(req: BakeRequest, fit: Fit, motion: Motion, tissue: Tissue, log
     at = np.mod(times, period) if motion.loop.on and period > 0 else np.clip(times, 0.0, period)
     loads = joint_torques(clip, np.array([0.0, max(period, 1e-6)]), mass, roles=fit.mus.roles)
     act = activations(rig, motion.world_at, loads, clip.parents, fit.character.bind_world, times,
-                      scale=fit.size.scale, load_times=at)
+                      scale=fit.size.scale, load_times=at, roles=fit.mus.roles)
     a = np.asarray(act.activation, np.float32)
     jiggles, factor = stiffened(tissue.jiggles, rig, a, times, scale=fit.size.scale)
     muscles = {n: {"peak": round(float(a[:, m].max()), 4), "mean": round(float(a[:, m].mean()), 4),
@@ -807,11 +807,16 @@ def _activation(req: BakeRequest, fit: Fit, motion: Motion, tissue: Tissue, log
         "torques": "inverse dynamics of the clip on the drive's skeleton in MuJoCo (mj_inverse), the ground pushing "
                    "touching feet (sim/drive/inverse.py)",
         "rule": "least-effort static optimization over the muscles' moment arms and strengths, then 10/40 ms "
-                "activation dynamics (sim/jiggle/activation.py); fat never activated",
+                "activation dynamics (sim/jiggle/activation.py); fat never activated; on a human skeleton the leg's "
+                "deep muscles (iliopsoas, adductors, abductors, tibialis anterior: Rajagopal et al. 2016's paths and "
+                "forces, sim/jiggle/deep_muscles.py) share the torques and are listed in deep_muscles",
         "stiffening": "a working muscle's goal springs keyed by sqrt(1 + (f_t / f_0)^2): f_t = sqrt(a 0.6 MPa / rho) "
                       "/ (2 L) the sway of its belly under its fibres' tension, f_0 its relaxed material's "
                       "(sim.jiggle.activation.stiffened); params.muscles gives the springs before it",
-        "saturated_frames": round(saturated, 4), "muscles": muscles}}
+        "saturated_frames": round(saturated, 4), "muscles": muscles,
+        "deep_muscles": {n: {"peak": round(float(act.deep_activation[:, d].max()), 4),
+                             "mean": round(float(act.deep_activation[:, d].mean()), 4)}
+                         for d, n in enumerate(act.deep_names)}}}
     return a, jiggles, MappingProxyType(record)
 
 

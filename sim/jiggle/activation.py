@@ -22,6 +22,10 @@ with a weight w large enough that the torques are met wherever the muscles can, 
   al. 2016's full-body model, IEEE TBME 63:2068, within the 25-100 N/cm^2 measured). The fitted muscles are the
   visible shells of their regions, not the whole of their muscle: their volumes are scaled alike so that together
   they hold the body's skeletal muscle, MUSCLE_SHARE of its mass (ICRP 89: 29 of 73 kg).
+- The leg's deep muscles (sim.jiggle.deep_muscles: iliopsoas, adductors, gluteus medius and minimus, tibialis
+  anterior): on a human skeleton they share the hip's and ankle's torques with the fitted muscles (their paths
+  and strengths are a musculoskeletal model's, scaled to the body), so that the glute is not asked to hold the
+  pelvis level alone, nor the quadriceps to swing the leg forward; they are solved for, never simulated.
 - Activation dynamics (:func:`activation_dynamics`): the excitation the optimization asks for is followed first
   order, rising with RISE_S (10 ms) and falling with FALL_S (40 ms) (Zajac 1989, Crit Rev Biomed Eng 17:359;
   Thelen 2003).
@@ -77,7 +81,8 @@ class Activation:
     """Muscle activations over a clip (arrays read-only). times : (K,) seconds. activation : (K, M) in [0, 1],
     after activation dynamics. excitation : (K, M), the static optimization's. saturated : (K, J) bool, joints whose
     torque the muscles could not give (a muscle at 1 and torque left over). unmet : (K, J, 3) N m, the torque left
-    over at the joints the muscles span. max_force : (M,) N."""
+    over at the joints the muscles span. max_force : (M,) N. deep_names : the leg's deep muscles that shared the
+    torques (sim.jiggle.deep_muscles; none without a human skeleton's legs), deep_activation (K, D) theirs."""
 
     times: np.ndarray
     activation: np.ndarray
@@ -85,10 +90,14 @@ class Activation:
     saturated: np.ndarray
     unmet: np.ndarray
     max_force: np.ndarray
+    deep_names: tuple = ()
+    deep_activation: np.ndarray | None = None
 
     def __post_init__(self):
         for k in ("times", "activation", "excitation", "saturated", "unmet", "max_force"):
             object.__setattr__(self, k, frozen_array(getattr(self, k)))
+        if self.deep_activation is not None:
+            object.__setattr__(self, "deep_activation", frozen_array(self.deep_activation))
 
 
 def path_points(rig, world: np.ndarray) -> np.ndarray:
@@ -116,13 +125,18 @@ def below(parents: np.ndarray) -> np.ndarray:
 def moment_arms(rig, world: np.ndarray, parents: np.ndarray) -> np.ndarray:
     """(K, M, J, 3) metres: R_mj, the torque about joint j (world axes) per newton of muscle m's tension, for joint
     world transforms (K, J, 4, 4) and the skeleton's parents (J,) (see the module)."""
-    P = path_points(rig, world)                                          # (K, M, 4, 3)
+    return path_arms(path_points(rig, world), np.asarray(rig.joints)[:, PATH_SLOTS], parents, world)
+
+
+def path_arms(P: np.ndarray, joints: np.ndarray, parents: np.ndarray, world: np.ndarray) -> np.ndarray:
+    """(K, M, J, 3) metres: the moment arms (moment_arms) of paths of points P (K, M, n, 3) metres, point k of path
+    m riding joint joints[m, k] ((M, n) int; a repeated last point adds nothing), for joint world transforms (K, J,
+    4, 4) and the skeleton's parents (J,)."""
     seg = np.diff(P, axis=2)
-    u = seg / np.maximum(np.linalg.norm(seg, axis=-1, keepdims=True), 1e-12)       # (K, M, 3, 3)
+    u = seg / np.maximum(np.linalg.norm(seg, axis=-1, keepdims=True), 1e-12)       # (K, M, n - 1, 3)
     zero = np.zeros_like(u[:, :, :1])
-    du = np.concatenate([zero, u], axis=2) - np.concatenate([u, zero], axis=2)      # (K, M, 4, 3): u_(k-1) - u_k
-    joints = np.asarray(rig.joints)[:, PATH_SLOTS]                       # (M, 4)
-    under = below(parents)[:, joints]                                    # (J, M, 4)
+    du = np.concatenate([zero, u], axis=2) - np.concatenate([u, zero], axis=2)      # (K, M, n, 3): u_(k-1) - u_k
+    under = below(parents)[:, np.asarray(joints)]                        # (J, M, n)
     p = np.asarray(world, np.float64)[:, :, :3, 3]                       # (K, J, 3)
     # G_mj = sum_k under[j, m, k] (P_k - p_j) x du_k = sum_k under (P_k x du_k) - p_j x sum_k under du_k
     a = np.einsum("jmp,tmpi->tmji", under, np.cross(P, du))
@@ -222,18 +236,27 @@ def activation_dynamics(excitation: np.ndarray, times: np.ndarray, rise: float =
 
 
 def activations(rig, world_at, loads, parents: np.ndarray, bind_world: np.ndarray, times: np.ndarray,
-                scale: float = 1.0, load_times: np.ndarray | None = None) -> Activation:
+                scale: float = 1.0, load_times: np.ndarray | None = None, roles: dict | None = None) -> Activation:
     """The Activation of `rig`'s muscles at `times` (K,) seconds: the skeleton posed by `world_at` (times -> (K, J, 4,
     4), the bake's drive; its bind pose `bind_world` (J, 4, 4)), the joint torques of `loads`
     (sim.drive.inverse.Loads, whose mass_kg is the body's), the body at real size `scale` (lengths x scale; the
     loads are at real size already). load_times : (K,) the clip's seconds the loads are read at (None: `times`; a
-    looped bake's times past the clip wrap to the cycle's own)."""
+    looped bake's times past the clip wrap to the cycle's own). roles : the skeleton's human roles (role -> joint):
+    with both legs', the leg's deep muscles (sim.jiggle.deep_muscles) share the torques too."""
+    from jiggle.sim.jiggle.deep_muscles import REFERENCE_MASS_KG, deep_paths
     times = np.asarray(times, np.float64)
     world = np.asarray(world_at(times), np.float64)
     bind = np.asarray(bind_world, np.float64)
     moving = moving_joints(world, parents)
-    arms = posed_arms(moment_arms(rig, bind[None], parents)[0] * scale, bind, world) * moving[None, None, :, None]
+    bind_arms = moment_arms(rig, bind[None], parents)[0] * scale
     force = max_forces(rig, scale, loads.mass_kg)
+    deep = deep_paths(bind, roles or {})
+    M = len(force)
+    if deep is not None:
+        names, points, joints, deep_force = deep
+        bind_arms = np.concatenate([bind_arms, path_arms(points[None], joints, parents, bind[None])[0] * scale])
+        force = np.concatenate([force, deep_force * loads.mass_kg / REFERENCE_MASS_KG])
+    arms = posed_arms(bind_arms, bind, world) * moving[None, None, :, None]
     torques = loads.at(times if load_times is None else load_times) * moving[None, :, None]
     exc, unmet = static_optimization(arms, torques, force)
     act = activation_dynamics(exc, times)
@@ -241,7 +264,9 @@ def activations(rig, world_at, loads, parents: np.ndarray, bind_world: np.ndarra
     spans = np.abs(arms).max(axis=3) > 1e-4                              # (K, M, J)
     sat = np.einsum("km,kmj->kj", top.astype(float), spans.astype(float)) > 0
     sat &= np.linalg.norm(unmet, axis=2) > 0.05 * np.maximum(np.linalg.norm(torques, axis=2), 1e-9)
-    return Activation(times, act, exc, sat, unmet, force)
+    if deep is None:
+        return Activation(times, act, exc, sat, unmet, force)
+    return Activation(times, act[:, :M], exc[:, :M], sat, unmet, force[:M], tuple(names), act[:, M:])
 
 
 def tension_frequency(activation: np.ndarray, length_m: float, density: float) -> np.ndarray:
@@ -283,5 +308,5 @@ def stiffened(jiggles, rig, activation: np.ndarray, times: np.ndarray, scale: fl
 
 
 __all__ = ["Activation", "tension_frequency", "stiffened", "SPECIFIC_TENSION", "MUSCLE_SHARE", "RISE_S", "FALL_S", "path_points", "below", "moment_arms",
-           "posed_arms", "max_forces", "moving_joints", "RIGID_DEG",
+           "posed_arms", "path_arms", "max_forces", "moving_joints", "RIGID_DEG",
            "static_optimization", "activation_dynamics", "activations"]

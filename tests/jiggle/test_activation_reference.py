@@ -101,3 +101,35 @@ def test_the_timing_score_is_the_share_in_the_window_over_its_time():
     assert ar.timing_score(np.where(ph >= 1.5, 1.0, 0.0), ph, (("swing", 0.5, 1.0),)) == pytest.approx(6.0)
     assert ar.timing_score(np.ones(len(ph)), ph, (("stance", 0.0, 1.0),)) == pytest.approx(1.0)
     assert ar.timing_score(1.0 - on_stance, ph, (("stance", 0.0, 1.0),)) == pytest.approx(0.0)
+
+
+def test_the_deep_muscles_on_the_reference_skeleton_have_its_arms(ref):
+    """sim.jiggle.deep_muscles placed on a skeleton with myolegs26's own joint centres (standing) turn the hip and
+    ankle as its muscles do: the frontal-plane ones exactly, the iliopsoas within 5% (its via point that slides
+    with the hip is fixed), the tibialis anterior's flexion arm exactly (the reference's ankle is a hinge)."""
+    import mujoco
+
+    from jiggle.sim.jiggle.activation import path_arms
+    from jiggle.sim.jiggle.deep_muscles import deep_paths
+    ref.pose(np.eye(3), {"l": np.zeros(5), "r": np.zeros(5)})
+    arms, _, axes = ref.arms_and_strength("r")
+    bodies = ["pelvis", "femur_l", "tibia_l", "talus_l", "toes_l", "femur_r", "tibia_r", "talus_r", "toes_r"]
+    parents = np.array([-1, 0, 1, 2, 3, 0, 5, 6, 7])
+    world = np.tile(np.eye(4), (len(bodies), 1, 1))
+    for i, b in enumerate(bodies):
+        world[i, :3, 3] = ref.data.xpos[mujoco.mj_name2id(ref.model, mujoco.mjtObj.mjOBJ_BODY, b)]
+    roles = {"hips": 0}
+    for s, o in (("left", 1), ("right", 5)):
+        roles.update({f"{s}_upper_leg": o, f"{s}_lower_leg": o + 1, f"{s}_foot": o + 2, f"{s}_toe": o + 3})
+    names, points, joints, _ = deep_paths(world, roles)
+    ours = path_arms(points[None], joints, parents, world[None])[0]
+    for mine, theirs, j, k, tol in (("right_hip_adductors", "add_r", 5, 0, 1e-3), ("right_hip_abductors", "abd_r", 5, 0, 1e-3),
+                                    ("right_iliopsoas", "iliopsoas_r", 5, 0, 0.05)):
+        a, b = ours[names.index(mine), j], arms[ref.names.index(theirs), k]
+        assert np.linalg.norm(a - b) <= tol * np.linalg.norm(b) + 1e-5, (mine, a, b)
+    ta = ours[names.index("right_tibialis_anterior"), 7] @ axes[4]
+    assert ta == pytest.approx(arms[ref.names.index("tibant_r"), 2] @ axes[4], rel=1e-2)   # the table's 0.1 mm
+    assert ta > 0.02                                           # a dorsiflexor, 2.5 cm
+    # the left side is the right one mirrored (x -> -x: a torque, an axial vector, keeps x and turns y and z)
+    assert np.allclose(ours[names.index("left_hip_abductors"), 1],
+                       ours[names.index("right_hip_abductors"), 5] * [1, -1, -1], atol=2e-3)
