@@ -19,7 +19,9 @@ a 29.9k-vertex generated body on the demo's jumping jacks), both at 30 fps in ch
    wp.Launch.launch), and the share of the main thread's time spent in Python code itself (cProfile's
    own time of Python functions over the total, one extra profiled bake; cProfile's overhead makes it
    an upper bound).
-4. Memory: a bake of --memory-frames frames of the 30k body (the jumping jacks looped) against one of
+4. Activation: a whole bake of CesiumMan on 02_03 and 02_04 (setup and caches) with --activation on against off,
+   alternating, and their frame loops. Target: at most 1.15x.
+5. Memory: a bake of --memory-frames frames of the 30k body (the jumping jacks looped) against one of
    100 frames, each in a fresh process, peak RSS (resource.getrusage) and frames per second. Target:
    peak RSS within 1.5x and time per frame within 10%.
 
@@ -261,15 +263,57 @@ def memory(frames: int) -> None:
           f"{pb / pa:.2f}x (target within 10%: {'met' if abs(pb / pa - 1) <= 0.1 else 'NOT met'})")
 
 
+def activation(repeats: int) -> dict | None:
+    """A whole bake (setup and caches: `jiggle bake` as a user runs it) of CesiumMan on the shared run (02_03) and
+    jump (02_04) with --activation on against off, the two alternating, best of `repeats`; and the frame loop of
+    each (the keyed springs' cost)."""
+    from jiggle.sim.bake.baker import Baker, bake
+    from jiggle.sim.bake.setup import BakeRequest, prepare
+    cesium = ASSETS / "characters" / "CesiumMan.glb"
+    out = {}
+    for name in ("02_03", "02_04"):
+        clip = ASSETS / "mocap" / "cmu_bvh" / f"{name}.bvh"
+        if not (cesium.exists() and clip.exists()):
+            print(f"CesiumMan or {clip.name} not found under {ASSETS}: skipped")
+            continue
+        req = {a: BakeRequest(clip=str(clip), character=str(cesium), fps=30, formats=("npz", "usdc", "pc2"),
+                              activation=a) for a in ("off", "on")}
+        with tempfile.TemporaryDirectory() as tmp:
+            for a in req:                                                         # compiles, imports
+                bake(prepare(req[a]), os.path.join(tmp, f"warm_{a}"))
+            wall = {a: [] for a in req}
+            for _ in range(repeats):
+                for a in req:
+                    t = time.perf_counter()
+                    bake(prepare(req[a]), os.path.join(tmp, a))
+                    wall[a].append(time.perf_counter() - t)
+            loops = {}
+            for a in req:
+                baker = Baker(prepare(req[a]), defer=False)
+                loops[a] = best(lambda: bake_loop(baker), repeats)
+        w = {a: min(v) for a, v in wall.items()}
+        out[name] = {"wall_off_s": w["off"], "wall_on_s": w["on"], "wall_ratio": w["on"] / w["off"],
+                     "loop_ratio": loops["on"] / loops["off"]}
+        print(f"\n## --activation on against off, CesiumMan on {name}.bvh at 30 fps: a whole bake {w['on']:.2f} s "
+              f"against {w['off']:.2f} s: {w['on'] / w['off']:.2f}x (target <= 1.15x: "
+              f"{'met' if w['on'] <= 1.15 * w['off'] else 'NOT met'}); the frame loop "
+              f"{loops['on'] / loops['off']:.2f}x")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one repeat, CesiumMan only, no memory run")
     ap.add_argument("--memory-frames", type=int, default=10000, help="frames of the long bake (default 10000)")
     ap.add_argument("--no-memory", action="store_true", help="skip the memory run")
     ap.add_argument("--memory-child", nargs=2, metavar=("FRAMES", "DIR"), help=argparse.SUPPRESS)
+    ap.add_argument("--activation", action="store_true", help="only --activation on against off")
     args = ap.parse_args()
     if args.memory_child:
         memory_child(int(args.memory_child[0]), args.memory_child[1])
+        return
+    if args.activation:
+        activation(1 if args.quick else 3)
         return
     from types import MappingProxyType
 
@@ -284,6 +328,7 @@ def main() -> None:
         print(f"CesiumMan or 02_03.bvh not found under {ASSETS}: skipped")
     if args.quick:
         return
+    activation(repeats)
     measure("30k-vertex generated body, jumping jacks at 30 fps",
             BakeRequest(scene=str(ROOT / "scenes" / "default.toml"), fps=30, formats=formats,
                         body=MappingProxyType({"resolution": 30000})), repeats, (2.0, 1.5))

@@ -284,26 +284,27 @@ def stiffened(jiggles, rig, activation: np.ndarray, times: np.ndarray, scale: fl
     from dataclasses import replace
 
     from jiggle.sim.jiggle.keyed import Curve
-    from jiggle.sim.jiggle.materials import fem_frequency, material_of
+    from jiggle.sim.jiggle.materials import ring_factor
     times = np.asarray(times, np.float64)
     a = np.asarray(activation, np.float64)
-    radii = rig.mean_radii(rig.rest_cvs)
     factor = np.ones_like(a)
     out = list(jiggles)
     for m, j in enumerate(jiggles):
         if rig.kinds[m] == "fat" or not a[:, m].max() > 0:
             continue
-        r, L = float(radii[m]) * scale, float(rig.rest_length[m]) * scale
-        cvs = rig.rest_cvs[rig.cv_offsets[m]:rig.cv_offsets[m + 1]]
-        mat = material_of(j, rig.kinds[m], r, L, cvs)
-        f0 = fem_frequency(mat, r, L)
-        exact = np.sqrt(1.0 + (tension_frequency(a[:, m], L, mat.density) / max(f0, 1e-9)) ** 2)
+        L = float(rig.rest_length[m]) * scale
+        ref = j.reference() if j.keyed else j
+        # the relaxed sway its springs stand for (sim.jiggle.materials: the rule's f_fem, material_of's inverse)
+        f0 = float(ref.frequency_hz) * ring_factor(ref)
+        exact = np.sqrt(1.0 + (tension_frequency(a[:, m], L, float(ref.density)) / max(f0, 1e-9)) ** 2)
         # in STIFFEN_STEP steps: the keyed solver computes a goal flow once per distinct stiffness (sim.jiggle.goal_flow),
         # and a stiffness that differs on every knot interval made the frame loop 3.7x slower
         factor[:, m] = np.exp(np.round(np.log(exact) / STIFFEN_STEP) * STIFFEN_STEP)
         base = j.frequency_hz
         f = (base(times) if isinstance(base, Curve) else np.full(len(times), float(base))) * factor[:, m]
-        out[m] = replace(j, frequency_hz=Curve(times, f))
+        # held between keys: the keyed solver reads a spring per knot interval at its middle, and a linear curve
+        # there lands between two steps (a new stiffness on nearly every interval)
+        out[m] = replace(j, frequency_hz=Curve(times, f, "step"))
     return out, factor
 
 

@@ -54,7 +54,7 @@ from jiggle.rig.base.errors import InputError
 from jiggle.rig.base.frozen import frozen_array
 from jiggle.sim.jiggle import tissue_law
 
-INTERPOLATIONS = ("linear", "smooth")
+INTERPOLATIONS = ("linear", "smooth", "step")
 
 
 @dataclass(frozen=True)
@@ -102,8 +102,9 @@ PARAMETERS = {p.name: p for p in (
 # ---------------------------------------------------------------------------------------------- curves
 @dataclass(frozen=True, eq=False)
 class Curve:
-    """A parameter over time: keys `times` (K,) seconds increasing, `values` (K,), linear or smooth
-    (monotone cubic) between keys, held outside them. Build with :func:`parse_curve`."""
+    """A parameter over time: keys `times` (K,) seconds increasing, `values` (K,), linear, smooth (monotone
+    cubic) or step (each key's value held until the next key) between keys, held outside them. Build with
+    :func:`parse_curve`."""
 
     times: np.ndarray
     values: np.ndarray
@@ -123,12 +124,14 @@ class Curve:
             return np.full(t.shape, self.values[0])
         if self.interpolation == "linear":
             return np.interp(t, self.times, self.values)
+        if self.interpolation == "step":
+            return self.values[np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 1)]
         from scipy.interpolate import PchipInterpolator
         return PchipInterpolator(self.times, self.values)(np.clip(t, self.times[0], self.times[-1]))
 
     @property
     def lo(self) -> float:
-        """The smallest value the curve takes (a key's: both interpolations stay within their keys)."""
+        """The smallest value the curve takes (a key's: every interpolation stays within its keys)."""
         return float(self.values.min())
 
     @property
@@ -157,7 +160,7 @@ def _number(v) -> bool:
 
 def parse_curve(value, name: str, where: str | None = None, table: Mapping | None = None) -> "float | Curve":
     """A parameter's value: a number, keys [[t, v], ...] (linear), or a table {keys = [[t, v], ...],
-    interpolation = "linear" | "smooth"}; a Curve or float passes through checked. Returns a float when the
+    interpolation = "linear" | "smooth" | "step"}; a Curve or float passes through checked. Returns a float when the
     value is a number or every key holds the same value, else a Curve. InputError naming `where` (default
     the parameter's name) for a value outside the parameter's range, key times that do not increase, or a
     malformed value.
@@ -216,8 +219,8 @@ def parse_curve(value, name: str, where: str | None = None, table: Mapping | Non
 
 
 def parse_text(text: str, name: str, where: str, table: Mapping | None = None) -> "float | Curve":
-    """A command-line value: a number, keys ``[[0,1],[2,0.2]]`` (linear) or ``smooth:[[0,1],[2,0.2]]`` (JSON
-    or TOML lists). InputError naming `where` (the flag) otherwise."""
+    """A command-line value: a number, keys ``[[0,1],[2,0.2]]`` (linear) or ``smooth:[[0,1],[2,0.2]]`` or
+    ``step:[[0,1],[2,0.2]]`` (JSON or TOML lists). InputError naming `where` (the flag) otherwise."""
     s = text.strip()
     interpolation = None
     for mode in INTERPOLATIONS:
@@ -226,7 +229,8 @@ def parse_text(text: str, name: str, where: str, table: Mapping | None = None) -
     try:
         value = float(s) if not s.startswith("[") else json.loads(s)
     except ValueError:
-        raise InputError(f"expected a number or keys [[time_s, value], ...] (smooth:[[...]] for smooth), got {text!r}",
+        raise InputError(f"expected a number or keys [[time_s, value], ...] (smooth:[[...]] or step:[[...]] for "
+                         f"smooth or held keys), got {text!r}",
                          field=where) from None
     if interpolation is not None:
         if not isinstance(value, list):
@@ -420,10 +424,13 @@ class Schedule:
         return replace(m, goal_k=frozen_array(gk), goal_c=frozen_array(gc), reach=frozen_array(rr),
                        glued=frozen_array(~np.isfinite(gk), bool))
 
-    def flows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def flows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The keyed rows of a run of steps: step k in knot interval seg[k] (of the track's `times`) of length
-        dts[k] seconds. Returns (coeffs (B, P, tissue_law.ROW) float64 tissue flow rows, reach (B, P) float64, block (K,) int64): one block
-        per distinct (interval, step length) (lengths equal to 1e-12 s share one), and each step's block."""
+        dts[k] seconds. Returns (coeffs (U, tissue_law.ROW) float64, one tissue flow row per distinct (stiffness,
+        damping, step length); index (B, P) int64, the row of each keyed particle in each block; reach (B, P)
+        float64; block (K,) int64, each step's block): one block per distinct (interval, step length) (lengths
+        equal to 1e-12 s share one)."""
         times = np.asarray(times, dtype=np.float64)
         hkey = np.round(np.asarray(dts, dtype=np.float64), 12)
         pairs, block = np.unique(np.stack([np.asarray(seg, dtype=np.float64), hkey], axis=1), axis=0,
@@ -436,10 +443,12 @@ class Schedule:
         kk, cc = k[inv_seg].reshape(-1), c[inv_seg].reshape(-1)
         # a row is a function of its (k, c, h) alone: each distinct triple once (a stiffness keyed on every interval
         # repeats across particles of one section and across intervals whose keys step, sim.jiggle.activation)
-        codes = [np.unique(x, return_inverse=True) for x in (kk, cc, hh)]
-        key = (codes[0][1].reshape(-1) * len(codes[1][0]) + codes[1][1].reshape(-1)) * len(codes[2][0]) + \
-            codes[2][1].reshape(-1)
+        if len(np.unique(pairs[:, 1])) == 1:                        # one step length: (k, c) as one sort key
+            key = kk + 1j * cc
+        else:
+            codes = [np.unique(x, return_inverse=True) for x in (kk, cc, hh)]
+            key = (codes[0][1].reshape(-1) * len(codes[1][0]) + codes[1][1].reshape(-1)) * len(codes[2][0]) + \
+                codes[2][1].reshape(-1)
         _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-        coeffs = tissue_law.rows(kk[first], cc[first], hh[first])[inverse.reshape(-1)].reshape(len(pairs), P, -1)
-        return coeffs, reach[inv_seg], block.reshape(-1)
-
+        coeffs = tissue_law.rows(kk[first], cc[first], hh[first])
+        return coeffs, inverse.reshape(len(pairs), P), reach[inv_seg], block.reshape(-1)

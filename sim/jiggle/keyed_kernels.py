@@ -4,9 +4,11 @@ rows chosen per (step, thread group) instead of one table row per step and the m
 never launch it (they stay on integrate_run, bit for bit and as fast as before). integrate_run_contact_keyed is
 the same for contact_kernels.integrate_run_contact (collisions).
 
-Row of particle i at step k: ``rows[step_base[k, g] + i]`` (g its thread group), with its reach
-``row_reach[step_base[k, g] + i]``: an unkeyed group points at the plain table (one block of N rows per
-step length), a keyed one at its block for the step's (knot interval, step length). The NumPy reference is
+Row of particle i at step k: ``rows[row_index[step_base[k, g] + i]]`` (g its thread group), with its reach
+``row_reach[step_base[k, g] + i]``: an unkeyed group points at the plain table (one block of N entries per
+step length), a keyed one at its block for the step's (knot interval, step length); the index leads each entry to
+its row, one row per distinct (stiffness, damping, step length) (a stiffness keyed by activation repeats across a
+section's particles and across intervals). The NumPy reference is
 sim.jiggle.keyed_solver.integrate_keyed_numpy.
 """
 from __future__ import annotations
@@ -37,7 +39,7 @@ def run_step_keyed(
     lo: int, hi: int,
     # model: per particle (1 / mass, drag, reach: unused, the rows carry it)
     params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
-    row_reach: wp.array(dtype=float), base: int,
+    row_reach: wp.array(dtype=float), row_index: wp.array(dtype=wp.int32), base: int,
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     # goals: the cubics of the step's knot interval
     cubics: wp.array(dtype=cubic), s0: float, h: float, h_kick: float,
@@ -48,8 +50,8 @@ def run_step_keyed(
     frames_out: wp.array2d(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3),
     y_out: wp.array(dtype=wp.vec3), u_out: wp.array(dtype=wp.vec3), stops_out: wp.array(dtype=wp.int32),
 ):
-    """particle_kernels.run_step with the flow row, tissue levels and reach of particle i at rows[base + i],
-    levels[0, :, base + i], row_reach[base + i]."""
+    """particle_kernels.run_step with the flow row and tissue levels of particle i at rows[r], levels[0, :, r] (r =
+    row_index[base + i]) and its reach at row_reach[base + i]."""
     for i in range(lo, hi):
         cu = cubics[i]
         pa = wp.vec3(cu[0], cu[1], cu[2])
@@ -66,13 +68,14 @@ def run_step_keyed(
         b0 = gravity - g_acc - mu * g_vel
         b1 = -g_jerk - mu * g_acc
         b2 = (-0.5 * mu) * g_jerk
-        fl = rows[base + i]
+        r = int(row_index[base + i])
+        fl = rows[r]
         y1 = fl[0] * y0 + fl[1] * u0 + fl[4] * b0 + fl[5] * b1 + fl[6] * b2
         u1 = fl[2] * y0 + fl[3] * u0 + fl[7] * b0 + fl[8] * b1 + fl[9] * b2
         stops = int(0)
         reach = row_reach[base + i]
         if tissue_near(y0, u0, y1, u1, h, reach):
-            y1, u1, stops = tissue_substeps(y0, u0, y1, u1, fl, levels, 0, base + i, b0, b1, b2, h, reach)
+            y1, u1, stops = tissue_substeps(y0, u0, y1, u1, fl, levels, 0, r, b0, b1, b2, h, reach)
         if stops > 0:
             stops_out[i] = stops_out[i] + stops
         if frame >= 0 or last:
@@ -90,7 +93,7 @@ def run_step_keyed(
 def integrate_run_keyed(
     # model
     params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
-    row_reach: wp.array(dtype=float),
+    row_reach: wp.array(dtype=float), row_index: wp.array(dtype=wp.int32),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32), stops_out: wp.array(dtype=wp.int32),
     # goals
@@ -126,10 +129,10 @@ def integrate_run_keyed(
         last = k == K - 1
         base = int(step_base[k, g])
         if k % 2 == 0:
-            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, row_index, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_a, u_a, int(step_frame[k]), last, frames_out, x_out, y_b, u_b, stops_out)
         else:
-            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, row_index, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_b, u_b, int(step_frame[k]), last, frames_out, x_out, y_a, u_a, stops_out)
     for i in range(lo, hi):
         close_velocity(i, K, params, adj_offsets, edges, pos, vel_start, vel_end, int(step_seg[K - 1]), step_H[K - 1],
@@ -140,7 +143,7 @@ def integrate_run_keyed(
 def integrate_run_contact_keyed(
     # model
     params: wp.array(dtype=wp.vec3), rows: wp.array(dtype=flow_row), levels: wp.array3d(dtype=flow_row),
-    row_reach: wp.array(dtype=float),
+    row_reach: wp.array(dtype=float), row_index: wp.array(dtype=wp.int32),
     adj_offsets: wp.array(dtype=wp.int32), edges: wp.array(dtype=Edge), gravity: wp.vec3,
     group_offsets: wp.array(dtype=wp.int32), group_muscles: wp.array(dtype=wp.int32),
     stops_out: wp.array(dtype=wp.int32),
@@ -190,14 +193,14 @@ def integrate_run_contact_keyed(
         frame = int(step_frame[k])
         base = int(step_base[k, g])
         if k % 2 == 0:
-            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, row_index, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_a, u_a, frame, last, frames_out, x_out, y_b, u_b, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,
                          ends_b, ends_va, ends_vb, record, dirty, y_b, u_b, frame, last, frames_out, x_out,
                          contacts_out)
         else:
-            run_step_keyed(lo, hi, params, rows, levels, row_reach, base, adj_offsets, edges, gravity, cubics, step_s0[k],
+            run_step_keyed(lo, hi, params, rows, levels, row_reach, row_index, base, adj_offsets, edges, gravity, cubics, step_s0[k],
                            step_h[k], step_kick[k], y_b, u_b, frame, last, frames_out, x_out, y_a, u_a, stops_out)
             contact_pass(m0, m1, params, muscle_offsets, cap_radius, floor, friction, num_capsules, num_muscles,
                          active_offsets, active_id, cubics, cap_pos, cap_vs, cap_ve, seg, step_H[k], s1, ends_a,

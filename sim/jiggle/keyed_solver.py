@@ -2,9 +2,9 @@
 each step's goal flow and reach for its knot interval (sim/jiggle/keyed_kernels.py). A model with no keyed
 muscle runs ParticleSolver's own integrate, so an unkeyed bake is unchanged bit for bit and in speed.
 
-Cost: one 5x5 matrix exponential per distinct (stiffness, damping, step length) of the keyed particles on
-each knot interval of a run (sim.jiggle.goal_flow.goal_flow_batch, vectorised), and the keyed rows uploaded
-once per run. With colliders the run is keyed_kernels.integrate_run_contact_keyed (the contacts of
+Cost: one 5x5 matrix exponential per distinct (stiffness, damping, step length) of the keyed particles over a
+run (sim.jiggle.goal_flow.goal_flow_batch, vectorised), those rows uploaded once per run with an index from each
+(knot interval, particle) to its row. With colliders the run is keyed_kernels.integrate_run_contact_keyed (the contacts of
 sim/jiggle/contact_kernels.py after each step; the broad phase uses the model's reach, that of the largest
 strength key, so it never misses a keyed muscle's reach).
 """
@@ -47,18 +47,18 @@ class KeyedSolver(ParticleSolver):
         if isinstance(run, np.ndarray) or run is None:
             return run
         ks, seg, s0, H, dts, h_kick, frame, frames, dev_array = run
-        rows, levels, reach, base = self._rows(control.track.times, seg, dts)
+        rows, levels, reach, base, index = self._rows(control.track.times, seg, dts)
         if colliders is not None:
             out = self._integrate_contact(state_in, state_out, control, colliders, seg, s0, H, dts, h_kick,
                                           [dev_array(rows, kernels.flow_row), dev_array(levels, kernels.flow_row),
-                                           dev_array(reach, float)],
+                                           dev_array(reach, float), dev_array(index, wp.int32)],
                                           dev_array(base, wp.int32), frame, frames, ks, dev_array,
                                           kernel=keyed_kernels.integrate_run_contact_keyed)
             return None if record is None else out
         Y, U = self._y, self._u
         self._run(keyed_kernels.integrate_run_keyed, self.num_groups, [
             self._params, dev_array(rows, kernels.flow_row), dev_array(levels, kernels.flow_row),
-            dev_array(reach, float), m.wp_adj_offsets, self._edges,
+            dev_array(reach, float), dev_array(index, wp.int32), m.wp_adj_offsets, self._edges,
             self._gravity, self._groups, self.stops, control.pos, control.vel_start, control.vel_end,
             dev_array(seg.astype(np.int32), wp.int32), dev_array(H.astype(np.float32), float),
             dev_array(s0.astype(np.float32), float), dev_array(dts.astype(np.float32), float),
@@ -71,35 +71,39 @@ class KeyedSolver(ParticleSolver):
         """ParticleSolver._contact_flows with each step's goal springs those of its knot interval."""
         if self.schedule.empty:
             return super()._contact_flows(control, seg, dts, dev_array)
-        rows, levels, reach, base = self._rows(control.track.times, seg, dts)
-        return ([dev_array(rows, kernels.flow_row), dev_array(levels, kernels.flow_row), dev_array(reach, float)],
+        rows, levels, reach, base, index = self._rows(control.track.times, seg, dts)
+        return ([dev_array(rows, kernels.flow_row), dev_array(levels, kernels.flow_row), dev_array(reach, float),
+                 dev_array(index, wp.int32)],
                 dev_array(base, wp.int32),
                 keyed_kernels.integrate_run_contact_keyed)
 
     def _rows(self, times: np.ndarray, seg: np.ndarray, dts: np.ndarray):
-        """(rows (R, 10) float32, levels (1, tissue_law.LEVELS + 1, R, 10) float32, reach (R,) float32, base (K, G)
-        int32) of a run (rows and levels: sim.jiggle.tissue_law.split of the tissue rows): the plain flow table (one
-        block of N rows per distinct step length, as ParticleSolver.integrate's) then the keyed blocks (one of
-        P rows per distinct (knot interval, step length), sim.jiggle.keyed.Schedule.flows); the rows of thread
-        group g at step k start at base[k, g] (minus the group's first particle)."""
+        """(rows (R, 10) float32, levels (1, tissue_law.LEVELS + 1, R, 10) float32, reach (E,) float32, base (K, G)
+        int32, index (E,) int32) of a run (rows and levels: sim.jiggle.tissue_law.split of the tissue rows): the
+        entries are the plain flow table's (one block of N per distinct step length, as ParticleSolver.integrate's)
+        then the keyed blocks (one of P per distinct (knot interval, step length), sim.jiggle.keyed.Schedule.flows);
+        entry e's row is rows[index[e]] (the plain table's N rows a step length, then one per distinct keyed
+        triple) and its reach reach[e]; the entries of thread group g at step k start at base[k, g] (minus the
+        group's first particle)."""
         m, sc = self.model, self.schedule
         N, G = m.num_particles, self.num_groups
         uniq, inverse = np.unique(np.round(dts, 12), return_inverse=True)
         plain = np.stack([self.flow(float(h))[0] for h in uniq])                           # (F, N, 10)
-        coeffs, kreach, block = sc.flows(times, seg, dts)                                    # (B, P, 10)
-        F, B, P = len(uniq), len(coeffs), len(sc.particles)
-        rows, levels = tissue_law.split(np.concatenate([plain.reshape(F * N, -1), coeffs.reshape(B * P, -1)]))
+        coeffs, rows_of, kreach, block = sc.flows(times, seg, dts)                          # (U, ROW), (B, P)
+        F, B, P = len(uniq), len(rows_of), len(sc.particles)
+        rows, levels = tissue_law.split(np.concatenate([plain.reshape(F * N, -1), coeffs]))
         levels = levels[None]                                                             # (1, L + 1, R, 10)
         reach = np.concatenate([np.tile(self._plain_reach, F),
                                 np.minimum(kreach, np.finfo(np.float32).max).reshape(-1)]).astype(np.float32)
+        index = np.concatenate([np.arange(F * N), F * N + rows_of.reshape(-1)])
         base = np.repeat((inverse.reshape(-1) * N)[:, None], G, axis=1).astype(np.int64)   # (K, G)
         to = sc.thread_offsets
         for tg, start in zip(sc.keyed_threads, sc.thread_start):
             base[:, tg] = F * N + block * P + start - to[tg]
-        if rows.shape[0] >= 2 ** 31:
+        if len(index) >= 2 ** 31:
             raise InputError("a keyed run needs more flow rows than a launch can index; use a smaller --chunk",
                              field="chunk")
-        return rows, levels, reach, base.astype(np.int32)
+        return rows, levels, reach, base.astype(np.int32), index.astype(np.int32)
 
 
 def make_solver(model, jiggles) -> ParticleSolver:
@@ -117,7 +121,7 @@ def integrate_keyed_numpy(model, schedule: Schedule, track, x: np.ndarray, v: np
     grid = np.asarray(grid, dtype=np.float64)
     dts = np.diff(grid)
     seg, s0s, _ = _check_steps(track, grid)
-    coeffs, reaches, block = schedule.flows(track.times, seg, dts)
+    coeffs, rows_of, reaches, block = schedule.flows(track.times, seg, dts)
     mu = model.drag[:, None]
     p = schedule.particles
 
@@ -133,7 +137,7 @@ def integrate_keyed_numpy(model, schedule: Schedule, track, x: np.ndarray, v: np
         _, gv, gacc, gjerk = goal(j, s0)
         u = kick_numpy(model, y, u, h_kick)
         fl = tissue_law.rows(model.goal_k, model.goal_c + model.drag, round(h, 12))
-        fl[p] = coeffs[block[k]]
+        fl[p] = coeffs[rows_of[block[k]]]
         reach = np.array(model.reach, dtype=np.float64)
         reach[p] = reaches[block[k]]
         b0 = model.gravity_vector - gacc - mu * gv

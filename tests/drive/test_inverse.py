@@ -66,3 +66,17 @@ def test_the_flight_has_no_ground_and_the_landing_loads_the_knees(jump):
     for side in ("left", "right"):
         knee = np.linalg.norm(loads.torques[:, roles[f"{side}_lower_leg"]], axis=1)
         assert knee[land].mean() > 5.0 * knee[air].mean(), (side, knee[land].mean(), knee[air].mean())
+
+
+def test_the_velocity_filter_is_scipys_zero_phase_butterworth():
+    """sim.drive.inverse filters in NumPy (scipy.signal's import cost more than the inverse dynamics): the same
+    coefficients as scipy.signal.butter and the same result as its filtfilt, ends included."""
+    from scipy.signal import butter, filtfilt
+
+    from jiggle.sim.drive.inverse import _filtered, butterworth2
+    for cutoff, rate in ((12.0, 240.0), (6.0, 120.0), (30.0, 100.0)):
+        b, a = butter(2, cutoff / (0.5 * rate))
+        b2, a2 = butterworth2(cutoff, rate)
+        assert np.allclose(b, b2, rtol=1e-12, atol=1e-15) and np.allclose(a, a2, rtol=1e-12, atol=1e-15)
+        x = np.random.default_rng(1).normal(size=(97, 5)).cumsum(axis=0)
+        assert np.allclose(_filtered(x, rate, cutoff), filtfilt(b, a, x, axis=0), rtol=1e-10, atol=1e-10)
