@@ -49,6 +49,14 @@ def test_smooth_curves_stay_within_their_keys():
         parse_curve({"keys": [[0, 1], [2, 0.2]], "interpolation": "smooth"}, "strength")
 
 
+def test_step_curves_hold_each_key_until_the_next():
+    c = parse_text("step:[[0,1],[1,0.5],[2,0.2]]", "strength", "--strength")
+    assert isinstance(c, Curve) and c.interpolation == "step"
+    np.testing.assert_array_equal(c([-1, 0, 0.5, 0.999, 1, 1.5, 2, 3]), [1, 1, 1, 1, 0.5, 0.5, 0.2, 0.2])
+    assert c.lo == 0.2 and c.hi == 1.0
+    assert parse_curve(c.to_json(), "strength") == c                       # bake.json's record reads back
+
+
 @pytest.mark.parametrize("value, name, expect", [
     ([[0, 1], [0, 0.5]], "strength", "key times must increase"),
     ([[0, 1], [1, 1.5]], "strength", "strength must be in [0, 1], got 1.5 at t = 1 s (key 2)"),
