@@ -260,7 +260,7 @@ def short_paths(text: str) -> str:
     return text
 
 
-def run_job(job: Job, out_root: Path, cmd: list[str], frames: int | None) -> Row:
+def run_job(job: Job, out_root: Path, cmd: list[str], frames: int | None, activation: str | None = None) -> Row:
     out = out_root / job.slug
     if out.exists():
         shutil.rmtree(out)
@@ -272,6 +272,8 @@ def run_job(job: Job, out_root: Path, cmd: list[str], frames: int | None) -> Row
         args += ["--clip", job.clip_file]
     if frames:
         args += ["--frames", str(frames)]
+    if activation:
+        args += ["--activation", activation]
     t = time.perf_counter()
     try:
         p = subprocess.run(args, capture_output=True, text=True, timeout=BAKE_TIMEOUT_S)
@@ -657,6 +659,8 @@ def main(argv=None) -> int:
     ap.add_argument("--characters", default=None, help="comma-separated file stems (Horse,Frog,CesiumMan)")
     ap.add_argument("--jobs", type=int, default=1, help="bakes in parallel processes (default: 1)")
     ap.add_argument("--frames", type=int, default=None, help="only the first N frames of each bake")
+    ap.add_argument("--activation", choices=("on", "off"), default=None,
+                    help="every bake's --activation (default: the bake's own default)")
     ap.add_argument("--results", default=None,
                     help="write RESULTS.md and .json (default: benchmarks/results/zoo; with --quick OUT/zoo)")
     ap.add_argument("--regallery", action="store_true",
@@ -685,7 +689,7 @@ def main(argv=None) -> int:
     print(f"zoo: {len(jobs)} bakes of {len({j.character for j in jobs})} characters, jobs {a.jobs}", flush=True)
 
     def one(job):
-        r = run_job(job, out, cmd, frames)
+        r = run_job(job, out, cmd, frames, a.activation)
         tail = r.message if r.status != "baked" else ("pass" if r.passed else "fail: " + "; ".join(r.fails))
         print(f"  {r.character:16s} {r.clip:18s} {r.status:8s} {fmt(r.peak_pct, 2):>6s}%  {fmt(r.seconds):>6s} s"
               f"  {tail}", flush=True)

@@ -247,7 +247,7 @@ class Baker:
             world_k = np.asarray(s.world_at(span.knots), dtype=np.float64)
             joints = np.asarray(s.joints_at(s.times[f0:f1]), dtype=np.float32)
         with self._timed("static_s"):
-            static = rig.static(world_k, device=s.settings.device)
+            static = s.static_at(span.knots, world_k)
             st, curve, world = static.cvs[span.at], static.curve[span.at], world_k[span.at]
         with self._timed("simulate_s"):
             dyn, new_state, contacts = self._simulate(c, state, span, world_k, static, st)

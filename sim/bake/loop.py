@@ -263,7 +263,7 @@ def warm_up(setup, model, solver, colliders=None, tissue=None, margin: int = 3,
     lp, s, rig = setup.loop, setup, setup.rig
     times = lp.cycle_times
     kt, world_k = cycle_knots(setup, margin)
-    static = rig.static(world_k, device=s.settings.device)
+    static = s.static_at(kt, world_k)
     track = goals(rig, kt, static.cvs, s.settings)
     coll = None if colliders is None else colliders.at(kt, world_k, track.cut)
 

@@ -163,15 +163,35 @@ class BakeSetup:
     glb: Mapping = field(default_factory=lambda: MappingProxyType({}))
     scale: float = 1.0
     loop: object = None
+    """sim.bake.loop.Loop: whether the bake loops, its period and how it was judged; None: a plain bake."""
     chains: object = None
     tissue_solver: str = "particles"
     real_scale: float = 1.0
     activation: np.ndarray | None = None
-    """sim.bake.loop.Loop: whether the bake loops, its period and how it was judged; None: a plain bake."""
 
     @property
     def rig(self):
         return self.skin.rig
+
+    def activation_at(self, t: np.ndarray) -> np.ndarray | None:
+        """(K, M) the muscles' activation at times t (K,) seconds, linear between the output frames (None when
+        activation is off)."""
+        if self.activation is None:
+            return None
+        a = np.asarray(self.activation, np.float64)
+        t = np.asarray(t, np.float64)
+        return np.stack([np.interp(t, self.times, a[:, m]) for m in range(a.shape[1])], axis=1)
+
+    def static_at(self, t: np.ndarray, world: np.ndarray):
+        """The static muscle shapes (rig.muscle.model.StaticShape, (K, ...)) at times t (K,) seconds posed by joint
+        world transforms (K, J, 4, 4): rig.static, each working muscle's belly bulged by its activation
+        (rig.muscle.bulge) when activation is on."""
+        static = self.rig.static(world, device=self.settings.device)
+        if self.activation is None:
+            return static
+        from jiggle.rig.muscle.bulge import bulged
+        from jiggle.rig.muscle.model import StaticShape
+        return StaticShape(*bulged(static.cvs, static.curve, self.activation_at(t)))
 
     @property
     def character(self):

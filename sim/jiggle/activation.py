@@ -259,7 +259,8 @@ def activations(rig, world_at, loads, parents: np.ndarray, bind_world: np.ndarra
     arms = posed_arms(bind_arms, bind, world) * moving[None, None, :, None]
     torques = loads.at(times if load_times is None else load_times) * moving[None, :, None]
     exc, unmet = static_optimization(arms, torques, force)
-    act = activation_dynamics(exc, times)
+    exc = np.clip(exc, 0.0, 1.0)                                         # the bounded solver's round-off (-1e-22)
+    act = np.clip(activation_dynamics(exc, times), 0.0, 1.0)
     top = exc >= 1.0 - 1e-6
     spans = np.abs(arms).max(axis=3) > 1e-4                              # (K, M, J)
     sat = np.einsum("km,kmj->kj", top.astype(float), spans.astype(float)) > 0

@@ -164,6 +164,21 @@ def test_a_bake_with_activation_on_writes_it_and_off_writes_none(tmp_path):
             assert rec["muscles"][n]["stiffening_peak"] > 1.5
         if kinds[n] == "fat":
             assert abs(peak(a, m) / peak(b, m) - 1.0) <= 0.2, (n, peak(a, m), peak(b, m))
+    # and it bulges: the static belly of a working muscle is thicker at the landing, its volume kept; fat never
+    from jiggle.rig.muscle import loft
+
+    def belly(d, m):
+        c = d.muscle_cvs_static[:, off_[m]:off_[m + 1]].astype(np.float64).reshape(-1, 5, 8, 3)
+        return np.linalg.norm(c[:, 2] - c[:, 2].mean(axis=1, keepdims=True), axis=2).mean(axis=1), loft.volume(c)
+    for m, n in enumerate(a.muscle_names):
+        (ra, va), (rb, vb) = belly(a, m), belly(b, m)
+        if kinds[n] == "fat":
+            np.testing.assert_array_equal(a.muscle_cvs_static[:, off_[m]:off_[m + 1]],
+                                          b.muscle_cvs_static[:, off_[m]:off_[m + 1]])
+        elif "quadriceps" in n:
+            k = int(np.argmax(a.activation[:, m]))
+            assert ra[k] / rb[k] > 1.0 + 0.05 * a.activation[k, m], (n, ra[k] / rb[k], a.activation[k, m])
+            np.testing.assert_allclose(va, vb, rtol=1e-4)                     # float32 caches
     from pathlib import Path
     arm = Path(__file__).resolve().parents[2] / "scenes" / "simple_arm.toml"
     assert main(["-q", "bake", str(arm), "--out", str(tmp_path / "arm"), "--activation", "on"]) == 2

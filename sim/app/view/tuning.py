@@ -420,7 +420,7 @@ class Tuner:
         kt = s.knots[ka:kb]
         at = np.searchsorted(kt, times[f0:f1] - TIME_EPS)
         world_k = np.asarray(s.world_at(kt), dtype=np.float64)
-        static = rig.static(world_k, device=s.settings.device)
+        static = s.static_at(kt, world_k)
         track = goals(rig, kt, static.cvs, s.settings)
         return _Chunk(f0, f1, a, static.cvs[at], static.curve[at], world_k[at], track)
 
