@@ -76,6 +76,8 @@ def bake_arguments(context, s, glb: str, out: str) -> list[str]:
         args += ["--blend", f"{s.blend:g}"]
     if s.collisions:
         args += ["--collisions"]
+    if s.activation != "DEFAULT":
+        args += ["--activation", s.activation.lower()]
     if s.chains.strip() and s.chains.strip() != "auto":
         args += [f"--chains={s.chains.strip()}"]
     for flag, text in (("--chain-stiffness", s.chain_stiffness), ("--chain-damping", s.chain_damping),
@@ -598,6 +600,11 @@ class JiggleSettings(bpy.types.PropertyGroup):
                             "comma-separated (the CLI's --strength NAME=VALUE)")
     blend: FloatProperty(name="Blend", default=1.0, min=0.0, max=1.0, description="0: static muscles, 1: jiggle")
     collisions: BoolProperty(name="Collisions", default=False)
+    activation: EnumProperty(name="Activation", items=[
+        ("DEFAULT", "Default", "jiggle's default (the CLI's --activation left out)"),
+        ("ON", "On", "Each muscle works as the motion's own forces ask: a loaded muscle stiffens and bulges "
+                     "(--activation on)"),
+        ("OFF", "Off", "Every muscle as soft as at rest (--activation off)")], default="DEFAULT")
     chains: StringProperty(name="Chains", default="auto", description="Tails, ears, hair and wing fingers that swing: "
                            "auto, none, or joints (globs) that start one, comma-separated (the CLI's --chains)")
     chain_stiffness: StringProperty(name="Chain stiffness", default="", description="Per chain (its root joint, or a "
@@ -650,6 +657,7 @@ class JIGGLE_PT_panel(bpy.types.Panel):
         col.prop(s, "muscles")
         col.prop(s, "blend")
         col.prop(s, "collisions")
+        col.prop(s, "activation")
         col.prop(s, "chains")
         for name in ("chain_stiffness", "chain_damping", "chain_gravity", "chain_drag"):
             col.prop(s, name)

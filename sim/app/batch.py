@@ -39,7 +39,8 @@ RECORD = "batch.json"
 """Each job's record, in its own folder: status, error, figures, the request's fingerprint."""
 CLIP_SUFFIXES = (".bvh", ".amc", ".glb", ".gltf", ".fbx")
 JOB_KEYS = {"clip": str, "name": str, "animation": (str, int), "skeleton": str, "character": str, "template": str,
-            "fps": float, "start": float, "end": float, "frames": int, "jiggle": float, "blend": float}
+            "fps": float, "start": float, "end": float, "frames": int, "jiggle": float, "blend": float,
+            "activation": str}
 """Keys a manifest's [[job]] may hold, and their types; paths are relative to the manifest's folder."""
 RIG_CACHE_SIZE = 4
 """Fitted characters kept per worker (a 30k-vertex body's rig is a few hundred MB at most)."""
@@ -194,6 +195,10 @@ def manifest_jobs(path: str, base: BakeRequest, log: Callable[[str], None] = lam
             over["frames"] = int(t["frames"])
         if "animation" in t:
             over["animation"] = t["animation"]
+        if "activation" in t:
+            if t["activation"] not in ("on", "off"):
+                raise bad(f"must be \"on\" or \"off\", got {t['activation']!r}", "activation")
+            over["activation"] = t["activation"]
         req = replace(base, **over)
         stem = t.get("name") or os.path.splitext(os.path.basename(t["clip"]))[0]
         if "name" in t and safe_name(t["name"]) in names:

@@ -168,6 +168,9 @@ class BakeSetup:
     tissue_solver: str = "particles"
     real_scale: float = 1.0
     activation: np.ndarray | None = None
+    relaxed_jiggles: tuple | None = None
+    """With activation on: the jiggles before the working muscles' stiffening (what the scene and the command line
+    set, and the viewer's sliders tune; `jiggles` is them stiffened by sim.jiggle.activation.stiffened)."""
 
     @property
     def rig(self):
@@ -345,7 +348,8 @@ def prepare(req: BakeRequest, log: Callable[[str], None] = lambda s: None,
                      capsules=contacts.capsules, glb=_glb(req),
                      scale=1.0 / fit.character.meta.get("template_scale", 1.0),
                      loop=motion.loop if motion.loop.on else None, chains=chains.chains, tissue_solver=solver,
-                     real_scale=tissue.size.scale, activation=activation)
+                     real_scale=tissue.size.scale, activation=activation,
+                     relaxed_jiggles=tuple(tissue.jiggles) if activation is not None else None)
 
 
 RECORD_ORDER = ("jiggle_bake", "scene", "clip", "character", "template", "body_plan", "template_why", "tissue",
@@ -813,7 +817,7 @@ def _activation(req: BakeRequest, fit: Fit, motion: Motion, tissue: Tissue, log
     act = activations(rig, motion.world_at, loads, clip.parents, fit.character.bind_world, times,
                       scale=fit.size.scale, load_times=at, roles=fit.mus.roles)
     a = np.asarray(act.activation, np.float32)
-    jiggles, factor = stiffened(tissue.jiggles, rig, a, times, scale=fit.size.scale)
+    jiggles, factor = stiffened(tissue.jiggles, rig, a, times, scale=tissue.size.scale)
     muscles = {n: {"peak": round(float(a[:, m].max()), 4), "mean": round(float(a[:, m].mean()), 4),
                    "stiffening_peak": round(float(factor[:, m].max()), 4)}
                for m, n in enumerate(rig.names) if rig.kinds[m] != "fat"}

@@ -102,9 +102,11 @@ def test_folder_jobs_one_per_clip_and_per_gltf_animation(tmp_path, cesium):
 def test_manifest_jobs_override_the_command_line(tmp_path):
     (tmp_path / "c.bvh").write_text("x")
     (tmp_path / "m.toml").write_text('[[job]]\nclip = "c.bvh"\n\n[[job]]\nclip = "c.bvh"\nname = "soft"\n'
-                                     'jiggle = 0.3\nend = 2\ntemplate = "human"\n')
-    jobs = batch.manifest_jobs(str(tmp_path / "m.toml"), BakeRequest(jiggle=0.9, end=1.0, fps=24.0))
+                                     'jiggle = 0.3\nend = 2\ntemplate = "human"\nactivation = "off"\n')
+    jobs = batch.manifest_jobs(str(tmp_path / "m.toml"), BakeRequest(jiggle=0.9, end=1.0, fps=24.0,
+                                                                     activation="on"))
     assert [j.name for j in jobs] == ["c", "soft"]
+    assert (jobs[0].request.activation, jobs[1].request.activation) == ("on", "off")   # --activation, the job's
     assert (jobs[0].request.jiggle, jobs[0].request.end) == (0.9, 1.0)
     assert (jobs[1].request.jiggle, jobs[1].request.end, jobs[1].request.fps) == (0.3, 2.0, 24.0)
     assert jobs[1].request.template == "human" and jobs[1].request.clip == str(tmp_path / "c.bvh")
@@ -117,6 +119,7 @@ def test_manifest_jobs_override_the_command_line(tmp_path):
     ('[[job]]\nname = "x"\n', "m.toml:1: job 1: no clip"),
     ('[[job]]\nclip = "c.bvh\n', "m.toml:2: not valid TOML"),
     ('[[job]]\nclip = "c.bvh"\njiggle = "lots"\n', "m.toml:3: job 1: jiggle: expected a number"),
+    ('[[job]]\nclip = "c.bvh"\nactivation = "yes"\n', 'm.toml:3: job 1: activation: must be "on" or "off"'),
 ])
 def test_bad_manifest_is_one_line_with_its_line_and_exit_2(capsys, tmp_path, text, where):
     (tmp_path / "c.bvh").write_text("x")

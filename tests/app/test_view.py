@@ -138,6 +138,7 @@ def test_rebuilt_setup_replays_the_bake(viewer, bake_dir):
     motion = viewer.tuner.run(Tuning())
     assert np.array_equal(motion.cvs_dynamic, d.muscle_cvs_dynamic)        # bit for bit
     assert np.array_equal(motion.skin_final, d.skin_final)
+    assert (d.activation is None) == viewer.g_activation.disabled          # colour by activation: only with it
 
 
 @pytest.mark.slow
@@ -405,5 +406,58 @@ def test_the_painted_jiggle_map_is_shown_on_the_skin(tmp_path):
         page.g_map.value = False
         page.draw(3)
         assert page.h_dynamic.visible and all(h is None or not h.visible for h in page._map_handles)
+    finally:
+        page.stop()
+
+
+@pytest.mark.slow
+def test_an_activation_bake_colours_its_muscles_and_tunes_as_jiggle_bake_does(tmp_path):
+    """--activation on: the page colours the muscles by activation (a working quadriceps red at the landing, the fat
+    its own colour; a bake without activation offers no such colouring), the viewer replays the bake bit for bit,
+    and a tuned frequency is the bake of its saved scene (the stiffening applied again over the tuned springs)."""
+    import json
+
+    from conftest import asset
+
+    from jiggle.sim.app.view.page import MUSCLE_COLOUR, RELAXED_COLOUR, ViewerPage
+    from jiggle.sim.app.view.playback import Playback, open_bake
+    from jiggle.sim.app.view.scene_file import save_tuned_scene
+    from jiggle.sim.app.view.tuning import Tuner
+    out = tmp_path / "bake"
+    args = ["--clip", str(asset("mocap/cmu_bvh/02_04.bvh")), "--start", "1.2", "--end", "1.8", "--formats", "npz",
+            "--resolution", "3000", "--activation", "on"]
+    assert main(["-q", "bake", *args, "--out", str(out)]) == 0
+    baked = read_npz(out / "bake.npz")
+    t = Tuner(json.loads((out / "bake.json").read_text()), baked.muscle_cvs_static)
+    motion = t.run(Tuning())
+    assert np.array_equal(motion.skin_final, baked.skin_final) and np.array_equal(motion.cvs_dynamic,
+                                                                                 baked.muscle_cvs_dynamic)
+    names = list(baked.muscle_names)
+    q = names.index("left_quadriceps")
+    assert isinstance(t.jiggles[q].frequency_hz, float)          # the sliders' springs: before the stiffening
+    tuning = Tuning().with_muscle("left_quadriceps", frequency=9.0)
+    tuned = t.run(tuning)
+    scene = tmp_path / "tuned.toml"
+    extra = save_tuned_scene(t, tuning, str(scene), ("npz",))
+    assert "--activation" in extra and tomllib.loads(scene.read_text())["jiggle"]["muscles"]["left_quadriceps"][
+        "frequency"] == 9.0
+    again = tmp_path / "rebake"
+    assert main(["-q", "bake", str(scene), *extra, "--out", str(again), "--formats", "npz"]) == 0
+    assert np.array_equal(read_npz(again / "bake.npz").skin_final, tuned.skin_final)
+    page = ViewerPage(Playback(*open_bake(str(out))), str(out), port=0, paused=True, tuner_factory=lambda: t,
+                      formats=("npz",))
+    try:
+        assert not page.g_activation.disabled
+        page.g_muscles.value = True
+        page.g_activation.value = True
+        k = int(np.argmax(baked.activation[:, q]))
+        page.draw(k)
+        colours = page.muscle_colours(k)
+        assert colours[q][0] > 150 and colours[q][2] < RELAXED_COLOUR[2] and page._muscle_colour[q] == colours[q]
+        fat = [m for m, info in enumerate(page.pb.muscles) if info.kind == "fat"]
+        assert fat and all(colours[m] == MUSCLE_COLOUR["fat"] for m in fat)
+        page.g_activation.value = False
+        page.draw(k)
+        assert page._muscle_colour[q] == MUSCLE_COLOUR["muscle"]
     finally:
         page.stop()

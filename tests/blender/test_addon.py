@@ -367,6 +367,28 @@ def test_frame_range_and_output_rate_from_the_panel(addon, tmp_path):
         assert cKDTree(d.skin_final[2 * (f - 10)]).query(skins[k])[0].max() < 1e-4, f
 
 
+ACTIVATION = r'''
+s = sc.jiggle
+s.out_dir, s.use_range, s.frame_start, s.frame_end = out, True, 1, 12
+report["default_args"] = sys.modules[name].bake_arguments(bpy.context, s, glb, out)
+s.activation = "ON"
+report["on_args"] = sys.modules[name].bake_arguments(bpy.context, s, glb, out)
+report["result"] = sorted(bpy.ops.jiggle.bake())
+with np.load(os.path.join(out, "bake.npz")) as d:
+    report["activation"] = d["activation"].shape if "activation" in d.files else None
+json.dump(report, open(result + ".json", "w"))
+'''
+
+
+def test_the_panels_activation_reaches_the_bake(addon, tmp_path):
+    """The panel's Activation: Default leaves --activation out (jiggle's own default), On bakes with the muscles'
+    activation (bake.npz's activation, frames x muscles)."""
+    out = tmp_path / "bake"
+    rep, _ = in_blender(addon, ACTIVATION, out, tmp_path)
+    assert "--activation" not in rep["default_args"] and rep["on_args"][-2:] == ["--activation", "on"]
+    assert rep["result"] == ["FINISHED"] and rep["activation"] is not None and rep["activation"][1] > 10
+
+
 CHAINS = r'''
 from bpy_extras.anim_utils import action_get_channelbag_for_slot
 addon = sys.modules["bl_ext.user_default.jiggle_blender"]

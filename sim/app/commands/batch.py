@@ -108,5 +108,8 @@ def add_parser(sub) -> None:
                    "guessed from height)")
     g.add_argument("--tpose", choices=["auto", "skip", "keep"], default="auto", help="BVH first frame: auto drops a "
                    "T-pose added by converters (CMU), skip always drops it, keep never (default: auto)")
+    g = p.add_argument_group("tissue")
+    g.add_argument("--activation", choices=("on", "off"), help="every job's muscle activation from its clip's own "
+                   "joint torques (jiggle bake --activation; a manifest's job may say its own)")
     bake_settings(p)
     p.set_defaults(func=run)

@@ -50,6 +50,10 @@ from jiggle.sim.app.view.tuning import NotTunable, Tuning
 SKIN_COLOUR = (222, 184, 160)
 STATIC_COLOUR = (150, 170, 200)
 MUSCLE_COLOUR = {"muscle": (190, 70, 60), "fat": (235, 195, 90)}
+RELAXED_COLOUR, WORKING_COLOUR = (70, 90, 150), (255, 60, 30)
+"""Muscles coloured by activation (--activation on bakes): relaxed blue-grey to working red, in ACTIVATION_LEVELS
+steps (a colour is sent to the browser only when a muscle's step changes)."""
+ACTIVATION_LEVELS = 10
 SELECTED_COLOUR = (40, 200, 255)
 BONE_COLOUR = (235, 235, 245)
 SKIN_MODES = ("dynamic", "static", "side by side", "overlaid")
@@ -240,6 +244,8 @@ class ViewerPage:
         surf = pb.muscle_surfaces(0)
         mfaces = np.asarray(pb.data.muscle_faces, np.uint32)
         self.h_muscles = []
+        self._muscle_colour = [MUSCLE_COLOUR.get(i.kind, MUSCLE_COLOUR["muscle"]) for i in pb.muscles]
+        """The colour last sent for each muscle's mesh (the selection's aside)."""
         for m, info in enumerate(pb.muscles):
             h = sc.add_mesh_simple(f"/muscles/{info.name}", surf[m], mfaces,
                                    color=MUSCLE_COLOUR.get(info.kind, MUSCLE_COLOUR["muscle"]), visible=False)
@@ -279,11 +285,17 @@ class ViewerPage:
             self.g_map = gui.add_checkbox("painted jiggle map", initial_value=False, disabled=True)
             self.g_map_note = gui.add_markdown("*the character's painted maps are known once the setup is rebuilt*")
             self.g_muscles = gui.add_checkbox("muscles", initial_value=False)
+            has = pb.data.activation is not None
+            self.g_activation = gui.add_checkbox(
+                "colour muscles by activation", initial_value=False, disabled=not has,
+                hint="blue: relaxed; red: working hard (a bake made with --activation on)" if has else
+                "this bake has no activation: bake it with --activation on")
             self.g_skeleton = gui.add_checkbox("skeleton", initial_value=False)
             self.g_opacity = gui.add_slider("skin opacity", min=0.1, max=1.0, step=0.05, initial_value=1.0)
         for h in (self.g_mode, self.g_heat, self.g_map, self.g_skeleton, self.g_opacity):
             h.on_update(lambda _: self.redraw())
         self.g_muscles.on_update(self._muscles_toggled)
+        self.g_activation.on_update(self._activation_toggled)
 
         with gui.add_folder("Skin quality"):
             self.g_quality = gui.add_markdown("")
@@ -433,10 +445,34 @@ class ViewerPage:
     def _draw_muscles(self, k: int, which: str) -> None:
         on = bool(self.g_muscles.value)
         surf = self.pb.muscle_surfaces(k, which) if on else None
+        colours = self.muscle_colours(k) if on else None
         for m, h in enumerate(self.h_muscles):
             h.visible = on
             if on:
                 h.vertices = surf[m]
+                if m != self.selected and self._muscle_colour[m] != colours[m]:
+                    h.color = colours[m]
+                    self._muscle_colour[m] = colours[m]
+
+    def muscle_colours(self, k: int) -> list[tuple]:
+        """Each muscle's colour at frame k: its kind's, or with "colour muscles by activation" its activation's
+        (RELAXED_COLOUR to WORKING_COLOUR in ACTIVATION_LEVELS steps; fat, never activated, keeps its own)."""
+        pb = self.pb
+        act = pb.data.activation if bool(self.g_activation.value) else None
+        out = []
+        for m, info in enumerate(pb.muscles):
+            if act is None or info.kind == "fat":
+                out.append(MUSCLE_COLOUR.get(info.kind, MUSCLE_COLOUR["muscle"]))
+                continue
+            t = round(float(np.clip(act[k, m], 0.0, 1.0)) * ACTIVATION_LEVELS) / ACTIVATION_LEVELS
+            out.append(tuple(int(round(a + t * (b - a))) for a, b in zip(RELAXED_COLOUR, WORKING_COLOUR)))
+        return out
+
+    def _activation_toggled(self, _) -> None:
+        if self.g_activation.value and not self.g_muscles.value:
+            self.g_muscles.value = True                      # _muscles_toggled redraws
+        else:
+            self.redraw()
 
     def _draw_skeleton(self, k: int) -> None:
         """The joints (and the bones, once known) made anew each frame: the browser lost other nodes made in the
@@ -509,7 +545,8 @@ class ViewerPage:
         with self._draw_lock:
             if self.selected is not None:
                 info = pb.muscles[self.selected]
-                self.h_muscles[self.selected].color = MUSCLE_COLOUR.get(info.kind, MUSCLE_COLOUR["muscle"])
+                self.h_muscles[self.selected].color = self._muscle_colour[self.selected] = \
+                    self.muscle_colours(getattr(self, "frame_shown", 0) or 0)[self.selected]
             if self._region_handle is not None:
                 self._region_handle.remove()
                 self._region_handle = None

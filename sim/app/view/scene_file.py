@@ -143,7 +143,7 @@ def check_scene(path: str, tuner, setup) -> None:
     jiggles = scene.apply_jiggle(tuner.default_jiggles())
     if settings.strength is not None:
         jiggles = [replace(j, strength=settings.strength) for j in jiggles]
-    for a, b in zip(jiggles, setup.jiggles):
+    for a, b in zip(jiggles, setup.relaxed_jiggles or setup.jiggles):     # before activation's stiffening
         got, want = jsonable(a), jsonable(b)
         if got != want:
             keys = [k for k in want if got.get(k) != want[k]]
@@ -213,6 +213,8 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
                 extra += [flag, str(skinning[key])]
     if req.loop is not None:                # a scene holds no --loop
         extra += ["--loop", req.loop]
+    if req.activation is not None:          # nor --activation
+        extra += ["--activation", req.activation]
     # the rate asked for (a looping bake's is nudged to fit its period: asked again, it is nudged again alike)
     output = {"fps": float(req.fps if req.fps is not None else params["fps"]), "chunk": int(params["chunk"]),
               "formats": list(formats)}
@@ -233,10 +235,12 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
     if st.muscle_collisions or "muscle_collisions" in jiggle:
         jiggle["muscle_collisions"] = bool(st.muscle_collisions)
     tables = {n: dict(t) for n, t in (orig_jiggle.get("muscles") or {}).items() if isinstance(t, dict)}
-    by_name = {j.name: j for j in setup.jiggles}
+    # the values the sliders set: with activation on, the springs before the working muscles' stiffening
+    jiggles = setup.relaxed_jiggles or setup.jiggles
+    by_name = {j.name: j for j in jiggles}
     if st.strength is not None:             # the bake's global strength (scene or --jiggle): over every muscle's
         if any("strength" in knobs for knobs in tuning.muscles.values()):
-            for j in setup.jiggles:         # one tuned: each muscle's own, since a global one would override it
+            for j in jiggles:               # one tuned: each muscle's own, since a global one would override it
                 tables.setdefault(j.name, {})["strength"] = float(j.strength)
         else:
             jiggle["strength"] = float(st.strength)
@@ -250,7 +254,7 @@ def tuned_scene(tuner, tuning, formats=("npz", "usdc")) -> tuple[dict, list[str]
             for k in ("goal_tendon", "goal_belly"):
                 t.pop(k, None)
             t["goal"] = _goal_value(j.goal)
-    for j in setup.jiggles:
+    for j in jiggles:
         if j.blend is None and "blend" in tables.get(j.name, {}):
             del tables[j.name]["blend"]     # the bake's --blend (or the tuned one) replaced the muscle's own
     tables = {n: t for n, t in tables.items() if t}

@@ -257,7 +257,8 @@ def _request(params: dict, cut: bool = True) -> BakeRequest:
                       muscle_collisions=bool(settings.get("muscle_collisions", False)),
                       jiggle=None if settings.get("strength") is None else float(settings["strength"]),
                       skinning=params["skinning"]["deformer"], method=params["skinning"]["method"],
-                      mush=params["skinning"]["mush"], chunk=int(params["chunk"]), formats=("npz",))
+                      mush=params["skinning"]["mush"], chunk=int(params["chunk"]), formats=("npz",),
+                      activation="on" if (params.get("activation") or {}).get("on") else "off")
         curve = settings["blend"]
         if len(curve["times"]) == 1 and all(m.get("blend") is None for m in params["muscles"].values()):
             common["blend"] = float(curve["values"][0])     # --blend (or a constant with no muscle's own)
@@ -392,7 +393,9 @@ class Tuner:
 
     @property
     def jiggles(self) -> tuple:
-        return self.setup.jiggles
+        """The bake's jiggles as the sliders set them (with activation on: before the working muscles' stiffening,
+        which every run applies again over the tuned values, as `jiggle bake` does)."""
+        return self.setup.relaxed_jiggles or self.setup.jiggles
 
     def default_jiggles(self) -> list[MuscleJiggle]:
         """Each muscle's jiggle before the scene's tables and the global strength: the template's (or the
@@ -404,7 +407,7 @@ class Tuner:
         if self.fitted is not None:
             mus = self.fitted.musculature
             if getattr(mus.template, "name", None) == GENERIC:
-                return list(self.setup.jiggles)
+                return list(self.jiggles)
             return default_jiggles(mus.rig, [m.spec.jiggle for m in mus.muscles],
                                    scale=getattr(self.setup, "real_scale", 1.0) or 1.0)
         return default_jiggles(self.setup.rig)
@@ -427,8 +430,14 @@ class Tuner:
     def tuned_setup(self, tuning: Tuning) -> BakeSetup:
         """The setup with `tuning` applied to its jiggles, settings and chains (its params and key stay the bake's)."""
         s = self.setup
-        jiggles, settings = apply_tuning(s.jiggles, s.settings, tuning)
-        return replace(s, jiggles=tuple(jiggles), settings=settings, chains=self.tuned_chains(tuning))
+        jiggles, settings = apply_tuning(self.jiggles, s.settings, tuning)
+        relaxed = None
+        if s.activation is not None:
+            from jiggle.sim.jiggle.activation import stiffened
+            relaxed = tuple(jiggles)
+            jiggles, _ = stiffened(jiggles, s.rig, s.activation, s.times, scale=s.real_scale)
+        return replace(s, jiggles=tuple(jiggles), relaxed_jiggles=relaxed, settings=settings,
+                       chains=self.tuned_chains(tuning))
 
     # ------------------------------------------------------------------------------------ chains
     @staticmethod
