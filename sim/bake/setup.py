@@ -56,8 +56,9 @@ class BakeRequest:
     height : the character's real height, metres (None: inferred, rig.character.real_size), for the materials' rule.
     tissue : "particles" (None too: the goal-spring particles) or "fem" (the hero mode: every simulated part a
         Neo-Hookean solid of its material, sim/fem/tissue.py).
-    activation : "on" or "off" (None too): each muscle's activation from the clip's own joint torques
-        (sim.drive.inverse, sim.jiggle.activation), stiffening each working muscle's springs, written to the caches
+    activation : "on", "off" or None (the default: on wherever the character has muscles, fat alone not, with the
+        particles; off with the FEM hero mode): each muscle's activation from the clip's own joint torques
+        (sim.drive.inverse, sim.jiggle.activation), stiffening and bulging each working muscle, written to the caches
         (bake.npz's activation) and bake.json.
     start, end : seconds of the clip. frames : only the first N output frames.
     drive : "kinematic" or "physics". formats : cache formats (sim.bake.scene.FORMATS). chunk : frames per chunk.
@@ -793,11 +794,16 @@ def body_mass(character, scale: float) -> tuple[float, str]:
 
 def _activation(req: BakeRequest, fit: Fit, motion: Motion, tissue: Tissue, log
                 ) -> tuple[np.ndarray | None, list, Mapping]:
-    """Step 9, the muscles' activation (BakeRequest.activation "on"): the clip's joint torques by inverse dynamics
+    """Step 9, the muscles' activation (BakeRequest.activation "on", or its default): the clip's joint torques by inverse dynamics
     with the ground (sim.drive.inverse), shared among the muscles by least effort (sim.jiggle.activation), at the
     output times ((T, M) float32, None when off); the tissue's jiggles with each working muscle's springs stiffened
     by its fibres' tension (sim.jiggle.activation.stiffened; as they are when off); its bake.json part."""
-    mode = req.activation or "off"
+    mode = req.activation
+    if mode is None:            # the default: on wherever muscles work, with the particles (the FEM does not take it)
+        works = any(k != "fat" for k in fit.mus.rig.kinds)
+        mode = "on" if works and tissue_solver(req) != "fem" else "off"
+        if works and mode == "off":
+            log("activation: off (the FEM hero mode does not take it yet)")
     if mode not in ACTIVATION:
         raise InputError(f"expected one of {', '.join(ACTIVATION)}, got {mode!r}", field="--activation")
     if mode == "off":

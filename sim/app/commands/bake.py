@@ -177,7 +177,9 @@ def add_parser(sub) -> None:
                    "Neo-Hookean solid of its material, its control points embedded in its tets; minutes, not seconds)")
     g.add_argument("--activation", choices=("on", "off"), help="on: each muscle's activation (0 to 1) from the "
                    "clip's own joint torques (inverse dynamics with the ground, shared among the muscles by least "
-                   "effort): a working muscle's springs stiffen with its fibres' tension (fat never); written to bake.npz "
-                   "(activation, frames x muscles) and bake.json (each muscle's peak and mean) (default: off)")
+                   "effort): a working muscle's springs stiffen with its fibres' tension and its belly bulges (fat never); "
+                   "written to bake.npz "
+                   "(activation, frames x muscles) and bake.json (each muscle's peak and mean) (default: on wherever the "
+                   "character has muscles (fat alone has none to work), off with --tissue fem)")
     clip_options(p)
     p.set_defaults(func=run)
