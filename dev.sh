@@ -43,12 +43,7 @@ pick_python() {
   return 1
 }
 
-apt_# MyoSuite's musculoskeletal models, the reference benchmarks/activation_reference.py checks muscle activation
-# against (tests/jiggle/test_activation_reference.py). Without its dependencies: it declares mujoco < 4, jiggle runs
-# mujoco 4, and its XML models load and compile there as they are (it needs nothing else but numpy).
-MYO_SIM="myo-sim==0.2.4"
-
-install() {
+apt_install() {
   local runner=()
   if [ "$(id -u)" != 0 ]; then
     if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
@@ -95,6 +90,11 @@ installed_here() {
   at=$(cd / && "$py" -c 'import jiggle, os; print(os.path.realpath(jiggle.__file__))' 2>/dev/null) || return 1
   [ "$at" = "$(realpath jiggle/__init__.py)" ]
 }
+
+# MyoSuite's musculoskeletal models, the reference benchmarks/activation_reference.py checks muscle activation
+# against (tests/jiggle/test_activation_reference.py). Without its dependencies: it declares mujoco < 4, jiggle runs
+# mujoco 4, and its XML models load and compile there as they are (it needs nothing else but numpy).
+MYO_SIM="myo-sim==0.2.4"
 
 install() {
   check_links
