@@ -1,13 +1,16 @@
 """Muscle activation from the motion's own loads on the shared jump and run: the quadriceps, hamstrings, glutes and
-calves over time beside the ground's push, and each group's activation after the landings against in the air.
+calves over time beside the ground's push, each group's activation after the landings against mid-flight, and the
+jiggle at the landings with activation on against off.
 
     python benchmarks/activation_landings.py [--out benchmarks/results]
 
 For CMU 02_04 (a jump) and 02_03 (a run), on the generated body and on CesiumMan (the clip retargeted): the joint
 torques (sim.drive.inverse.joint_torques, the body's mass from its skin's volume at BODY_DENSITY and real size) and
 the activations (sim.jiggle.activation.activations) at 120 Hz. A landing is a sample where the floor's push rises
-through the body's weight after at least AIR_S with none; "after" is the LANDED_S that follow, "in the air" the
-stretch before it with no push. Writes activation_landings.md / .json and activation_landings/*.png.
+through the body's weight after at least AIR_S with none; "after" is the LANDED_S that follow, "mid-flight" the
+middle third of the stretch before it with no push. Then the clip baked with --activation on and off: the
+quadriceps' and every fat part's peak jiggle in the LANDED_JIGGLE_S after each landing. Writes
+activation_landings.md / .json and activation_landings/*.png.
 """
 from __future__ import annotations
 
@@ -27,6 +30,8 @@ GROUPS = {"quadriceps": "quadriceps", "hamstrings": "hamstrings", "glute": "glut
 RATE = 120.0
 AIR_S = 0.08
 LANDED_S = 0.2
+LANDED_JIGGLE_S = 0.3
+"""seconds after a landing whose jiggle the bakes with activation on and off are compared over."""
 
 
 def fit_for(clip_path: str, character: str | None):
@@ -82,14 +87,67 @@ def case(clip: str, character: str, out: Path) -> dict:
     for g, idx in group.items():
         a = act.activation[:, idx].mean(axis=1)
         after = [a[(times >= times[k]) & (times < times[k] + LANDED_S)].mean() for _, k in events]
-        air = [a[s:k].mean() for s, k in events]
+        air = [a[s + (k - s) // 3:k - (k - s) // 3].mean() for s, k in events]      # mid-flight: its middle third
         rows.append({"group": g, "after_landing": float(np.mean(after)) if after else None,
                      "in_air": float(np.mean(air)) if air else None, "peak": float(a.max()), "mean": float(a.mean())})
     plot(out / f"{clip}_{character}.png", times, push / weight, act.activation, group,
          f"CMU {clip} ({CLIPS[clip]}) on the {character} body: {len(events)} landings")
     return {"clip": clip, "character": character, "mass_kg": mass, "landings": [float(times[k]) for _, k in events],
             "groups": rows, "saturated_share": float(act.saturated.any(axis=1).mean()), "duration_s": float(times[-1]),
-            "inverse_s": t1 - t0, "activation_s": t2 - t1}
+            "inverse_s": t1 - t0, "activation_s": t2 - t1,
+            "jiggle": landing_jiggle(path, CHARACTERS[character], [float(times[k]) for _, k in events],
+                                     landing_sides(loads, fit.mus.roles, [float(times[k]) for _, k in events]))}
+
+
+def landing_sides(loads, roles: dict, landed: list[float]) -> list[set]:
+    """Per landing (seconds `landed`), the sides ("left", "right") whose foot or toe the floor pushes then or within
+    LANDED_S after (a run lands on one foot, a jump on both)."""
+    out = []
+    for t in landed:
+        near = (loads.times >= t - 1e-9) & (loads.times <= t + LANDED_S)
+        out.append({side for side in ("left", "right")
+                    if loads.contact[near][:, [roles[f"{side}_foot"], roles[f"{side}_toe"]]].any()})
+    return out
+
+
+def landing_jiggle(clip_path: str, character: str | None, landed: list[float], sides: list[set]) -> dict:
+    """The clip baked with --activation on and off (`jiggle bake`, npz): each muscle's peak jiggle (its CVs' largest
+    move from their static place) over the LANDED_JIGGLE_S after each landing (seconds `landed`), on over off, for
+    the quadriceps of the leg that lands (`sides`: landing_sides; a run's swinging leg is not loaded) and every fat
+    part (over every landing)."""
+    import tempfile
+
+    from jiggle.sim.app.cli import main
+    from jiggle.sim.bake.caches import read_npz
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        bakes = {}
+        for mode in ("on", "off"):
+            args = ["-q", "bake", "--clip", clip_path, "--out", f"{tmp}/{mode}", "--formats", "npz",
+                    "--activation", mode]
+            if character:
+                args += ["--character", str(ASSETS / character)]
+            assert main(args) == 0, mode
+            bakes[mode] = read_npz(f"{tmp}/{mode}/bake.npz")
+        kinds = json.loads(open(f"{tmp}/on/bake.json").read())["params"]["muscles"]
+        on, off = bakes["on"], bakes["off"]
+        o = on.muscle_cv_offsets
+
+        def peak(d, m, side=None):
+            window = np.zeros(len(d.times), bool)
+            for t, landing in zip(landed, sides):
+                if side is None or side in landing:
+                    window |= (d.times >= t) & (d.times < t + LANDED_JIGGLE_S)
+            sl = slice(o[m], o[m + 1])
+            return float(np.linalg.norm(d.muscle_cvs_dynamic[window, sl] - d.muscle_cvs_static[window, sl],
+                                        axis=2).max()) if window.any() else float("nan")
+        for m, n in enumerate(on.muscle_names):
+            side = "left" if n.startswith("left") else "right" if n.startswith("right") else None
+            if "quadriceps" in n:
+                out[n] = {"kind": kinds[n]["kind"], "on_mm": 1e3 * peak(on, m, side), "off_mm": 1e3 * peak(off, m, side)}
+            elif kinds[n]["kind"] == "fat":
+                out[n] = {"kind": "fat", "on_mm": 1e3 * peak(on, m), "off_mm": 1e3 * peak(off, m)}
+    return out
 
 
 def plot(path: Path, times, push, activation, group, title) -> None:
@@ -121,8 +179,9 @@ def write(results: list[dict], out: Path, seconds: float) -> None:
              f"`python benchmarks/activation_landings.py`: {len(results)} cases in {seconds:.0f} s. Joint torques by "
              "inverse dynamics with the ground (sim/drive/inverse.py), activations by least-effort static "
              "optimization (sim/jiggle/activation.py), at 120 Hz. Per muscle group (both sides' mean): its mean "
-             f"activation in the {LANDED_S:g} s after each landing and in the air before it, and the ratio.", "",
-             "| clip | body | mass kg | landings | group | after landing | in the air | ratio | peak |",
+             f"activation in the {LANDED_S:g} s after each landing and mid-flight before it (the middle third of the "
+             "stretch with no push: the push-off's fall and the landing's pre-activation left out), and the ratio.", "",
+             "| clip | body | mass kg | landings | group | after landing | mid-flight | ratio | peak |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         for g in r["groups"]:
@@ -131,6 +190,17 @@ def write(results: list[dict], out: Path, seconds: float) -> None:
             lines.append(f"| {r['clip']} | {r['character']} | {r['mass_kg']:.0f} | {len(r['landings'])} | {g['group']} | "
                          f"{'-' if a is None else f'{a:.3f}'} | {'-' if b is None else f'{b:.3f}'} | {ratio} | "
                          f"{g['peak']:.2f} |")
+    lines += ["", f"Peak jiggle in the {LANDED_JIGGLE_S:g} s after each landing, `jiggle bake` with `--activation on` "
+              "over `off` (each muscle's control points' largest move from their static place): the quadriceps of "
+              "the leg that lands stiffened (at most 0.8; a run's swinging leg is not loaded), every fat part as "
+              "before (within 20%).", "",
+              "| clip | body | part | kind | on mm | off mm | on / off |", "|---|---|---|---|---|---|---|"]
+    for r in results:
+        for n, j in r["jiggle"].items():
+            ratio = j["on_mm"] / j["off_mm"] if j["off_mm"] > 0 else float("nan")
+            ok = ratio <= 0.8 if j["kind"] != "fat" else abs(ratio - 1.0) <= 0.2
+            lines.append(f"| {r['clip']} | {r['character']} | {n} | {j['kind']} | {j['on_mm']:.2f} | {j['off_mm']:.2f} "
+                         f"| {ratio:.2f}{'' if ok else ' **(no)**'} |")
     lines += ["", "Cost per case (one run, this machine, beside other work; the clip's duration in brackets): " + ", ".join(
         f"{r['clip']} {r['character']} ({r['duration_s']:.1f} s): inverse dynamics {r['inverse_s']:.1f} s, "
         f"activations {r['activation_s']:.1f} s"
