@@ -235,6 +235,8 @@ def _period_end(data, world: np.ndarray, setup):
             a = getattr(data, k)
             more[k] = np.concatenate([a, (a[:1] + shift).astype(a.dtype)])
         more["chain_delta"] = np.concatenate([data.chain_delta, data.chain_delta[:1]])
+    if getattr(data, "activation", None) is not None:       # frame 0's, as its jiggle
+        more["activation"] = np.concatenate([data.activation, data.activation[:1]])
     more["times"] = np.r_[np.asarray(data.times, np.float64), P]
     return dataclasses.replace(data, **more), np.concatenate([world, setup.world_at(np.array([P]))])
 

@@ -18,7 +18,7 @@ joint = "l_shin"
 angles = [0, 60]
 scales = [1.0, [1.0, 1.3, 1.5, 1.3, 1.0]]
 """
-ARGS = ["--frames", "24", "--formats", "npz", "--resolution", "4000", "--chunk", "8"]
+ARGS = ["--frames", "24", "--formats", "npz", "--resolution", "4000", "--chunk", "8", "--activation", "off"]
 
 
 def scene_with(tmp_path, extra: str) -> Path:
