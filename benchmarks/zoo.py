@@ -28,7 +28,8 @@ time. `pass` checks issue 43's targets: baked, 0 torn edges, gradient p99.9 <= 0
 else Walk), peak >= 0.3% of the size and every chain swinging >= 5% of its length.
 
 Writes RESULTS.md and RESULTS.json (default benchmarks/results/zoo; with --quick OUT/zoo) and, unless --quick,
-the Gallery page of the docs: docs/gallery.md and one downsized peak.png per character in docs/images/gallery/.
+the Gallery page of the docs: docs/gallery.md and per character its most vigorous cycle as a video in
+docs/images/gallery/ (motion_video: NAME.webm and NAME.mp4, 1056 x 400 at the cycle's rate, and the poster NAME.png).
 """
 from __future__ import annotations
 
@@ -532,57 +533,82 @@ def clean(d: dict) -> dict:
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
-GIF_FRAMES, GIF_PANEL = 24, (260, 200)
-"""A gallery animation: at most this many frames of the cycle (every k-th frame, k whole, so the timing stays even),
-two panels of this size in pixels (static | final)."""
+VIDEO_PANEL, VIDEO_RATE, VIDEO_FRAMES = (528, 400), (24.0, 30.0), 150
+"""A gallery animation: two panels of this size in pixels (swung | final: 1056 x 400, twice the GIFs it replaced in
+both directions), played at the cycle's own rate (every frame of a bake at 24-30 fps; every k-th of a faster one so
+the rate lands in that band), at most this many frames (a longer clip is cut to its first)."""
+VIDEO_CODECS = (("webm", "libvpx-vp9", ["-crf", "36", "-b:v", "0", "-row-mt", "1", "-deadline", "good"]),
+                ("mp4", "libx264", ["-crf", "27", "-preset", "slow", "-movflags", "+faststart"]))
+"""The files each animation is written as: VP9 in WebM (what Chromium and Firefox play first, a third of the size)
+and H.264 in MP4 (Safari's), both silent and looping in the page."""
+HEAT = ["#c9b79c", "#e0894a", "#c0262b", "#5c0a3a"]
+"""The final skin's colours, from the skin's own (not moved) to dark red (the most the tissue moved)."""
 
 
-def motion_gif(bake_dir: Path, path: Path) -> dict | None:
-    """The gallery's animation of a bake (bake.npz, bake.json): static skin (left) and final skin (right, coloured
-    by how far it moved from the static one, tissue and chains), one frame every k of the cycle at its own speed,
-    looping as the cycle loops (a closed cycle's last frame, the first again, is left out so the wrap is one ordinary
-    step). Seen across the body's long horizontal axis, following the body. Returns {"frames", "ms", "peak_mm"} or
-    None when the bake has no frames."""
+def motion_video(bake_dir: Path, stem: Path) -> dict | None:
+    """The gallery's animation of a bake (bake.npz, bake.json): the skin with its chains swung (left: the static
+    muscles, the chains as they swing) beside the final skin (right), the final one coloured by how far the tissue
+    moved it (its distance from the left one, so the chains, swung on both, are not counted), at the cycle's own
+    rate, looping as the cycle loops (a closed cycle's last frame, the first again, is left out so the wrap is one
+    ordinary step). Seen across the body's long horizontal axis, following the body. Writes stem.webm, stem.mp4 and
+    stem.png (the poster: the frame the tissue moved most). Returns {"frames", "fps", "peak_mm", "size", "poster"}
+    or None when the bake has no frames."""
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")     # headless, as compare renders
+    import imageio.v2 as iio
     import pyvista as pv
-    from PIL import Image
-    with np.load(bake_dir / "bake.npz") as z:
-        static, final, faces, fps = z["skin_static"], z["skin_final"], z["faces"], float(z["fps"])
+    from matplotlib.colors import LinearSegmentedColormap
+
+    from jiggle.sim.bake.caches import read_npz
+    data = read_npz(str(bake_dir / "bake.npz"))
+    swung, final, faces, fps = data.skin_swung(), data.skin_final, data.faces, float(data.fps)
     summary = json.loads((bake_dir / "bake.json").read_text()) if (bake_dir / "bake.json").is_file() else {}
     loop = summary.get("loop") or {}
-    T = len(static) - (1 if loop.get("on") and loop.get("repeats_first") and len(static) > 2 else 0)
+    T = len(swung) - (1 if loop.get("on") and loop.get("repeats_first") and len(swung) > 2 else 0)
     if T < 1:
         return None
-    step = max(1, math.ceil(T / GIF_FRAMES))
-    picks = list(range(0, T, step))
+    step = max(1, math.ceil(fps / VIDEO_RATE[1] - 1e-9))
+    picks = list(range(0, T, step))[:VIDEO_FRAMES]
+    rate = fps / step
     cells = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
-    size = float(np.ptp(static[0], axis=0).max())
-    flat = static[0][:, :2] - static[0][:, :2].mean(0)
+    size = float(np.ptp(swung[0], axis=0).max())
+    flat = swung[0][:, :2] - swung[0][:, :2].mean(0)
     long_axis = np.linalg.eigh(flat.T @ flat)[1][:, -1]
     side = np.array([-long_axis[1], long_axis[0], 0.0])
-    moved = np.linalg.norm(final - static, axis=2)
-    top = max(float(np.percentile(moved, 99.5)), 1e-6)
-    from matplotlib.colors import LinearSegmentedColormap
-    heat = LinearSegmentedColormap.from_list("moved", ["#c9b79c", "#e0894a", "#c0262b", "#5c0a3a"])   # skin -> red
+    moved = np.linalg.norm(final - swung, axis=2)
+    top = max(float(np.percentile(moved[picks], 99.5)), 1e-6)
+    heat = LinearSegmentedColormap.from_list("moved", HEAT)
+    W, H = VIDEO_PANEL
     frames = []
     for k in picks:
-        pl = pv.Plotter(off_screen=True, shape=(1, 2), window_size=(2 * GIF_PANEL[0], GIF_PANEL[1]), border=False)
-        c = static[k].mean(0)
+        pl = pv.Plotter(off_screen=True, shape=(1, 2), window_size=(2 * W, H), border=False)
+        c = swung[k].mean(0)
         # far enough that a tail or wing swung past the rest skin's extent stays in the panel (30 degree view)
         cam = [tuple(c - 2.1 * size * side + [0, 0, 0.15 * size]), tuple(c), (0, 0, 1)]
         pl.subplot(0, 0)
-        pl.add_mesh(pv.PolyData(static[k], cells), color="#c9b79c", smooth_shading=True)
+        pl.add_mesh(pv.PolyData(swung[k], cells), color=HEAT[0], smooth_shading=True)
+        pl.add_text("static muscles, chains swung", font_size=9, color="#444444", position="upper_left")
         pl.camera_position = cam
         pl.subplot(0, 1)
         mesh = pv.PolyData(final[k], cells)
         mesh.point_data["moved"] = moved[k]
         pl.add_mesh(mesh, scalars="moved", cmap=heat, clim=(0.0, top), show_scalar_bar=False, smooth_shading=True)
+        pl.add_text(f"final: red = the tissue moved, up to {1e3 * top:.0f} mm", font_size=9, color="#444444",
+                    position="upper_left")
         pl.camera_position = cam
-        frames.append(Image.fromarray(pl.screenshot(return_img=True)).quantize(colors=48))
+        frames.append(np.asarray(pl.screenshot(return_img=True))[..., :3])
         pl.close()
-    ms = round(1000.0 * step / fps / 10) * 10 or 10      # GIF timing is in hundredths of a second
-    frames[0].save(path, save_all=True, append_images=frames[1:], duration=ms, loop=0, optimize=True)
-    return {"frames": len(frames), "ms": ms, "peak_mm": round(1e3 * top, 1)}
+    for ext, codec, params in VIDEO_CODECS:
+        path = stem.with_suffix("." + ext)
+        tmp = path.with_name(path.stem + ".partial." + ext)             # never a half-written video looking whole
+        with iio.get_writer(str(tmp), fps=rate, codec=codec, pixelformat="yuv420p", macro_block_size=8,
+                            ffmpeg_params=params, ffmpeg_log_level="error") as w:
+            for f in frames:
+                w.append_data(f)
+        os.replace(tmp, path)
+    peak = int(np.argmax(moved[picks].max(axis=1)))
+    iio.imwrite(str(stem.with_suffix(".png")), frames[peak])
+    return {"frames": len(frames), "fps": round(rate, 3), "peak_mm": round(1e3 * top, 1), "size": [2 * W, H],
+            "poster": picks[peak]}
 
 
 GALLERY_COLUMNS = (("character", "clip", "peak (% size)", "torn edges", "gradient p99.9", "folds / LBS", "chains",
@@ -606,36 +632,42 @@ def narrow_tables(rows: list[Row]) -> list[str]:
 
 
 def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
-    """docs/gallery.md and docs/images/gallery/<character>.gif: a grid in which each character plays its most
-    vigorous cycle (motion_gif), static | final, then the numbers in two tables that fit the page."""
+    """docs/gallery.md and docs/images/gallery/<character>.webm, .mp4 and .png: a column in which each character
+    plays its most vigorous cycle (motion_video: swung | final, at the cycle's rate, its poster the frame the tissue
+    moved most), then the numbers in two tables that fit the page."""
     img_dir = docs / "images" / "gallery"
     img_dir.mkdir(parents=True, exist_ok=True)
-    for old in list(img_dir.glob("*.png")) + list(img_dir.glob("*_chains.gif")):
-        old.unlink()                            # the stills and chain GIFs of earlier runs
+    for old in list(img_dir.glob("*.gif")) + list(img_dir.glob("*.png")) + list(img_dir.glob("*.webm")) + \
+            list(img_dir.glob("*.mp4")):
+        old.unlink()                            # the animations and stills of earlier runs
     shown = {}
     for name in dict.fromkeys(r.character for r in rows):
         mine = [r for r in rows if r.character == name and r.out and (Path(r.out) / "bake.npz").is_file()]
         mine.sort(key=lambda r: (not r.vigorous, r.clip.startswith("CMU")))
         if not mine:
             continue
-        info = motion_gif(Path(mine[0].out), img_dir / f"{name}.gif")
+        info = motion_video(Path(mine[0].out), img_dir / name)
         if info is not None:
             shown[name] = (mine[0], info)
     lines = ["# Gallery", "",
              "Every character of the shared test assets (`../shared/assets/characters/`: the zoo of CC0 game "
              "characters, CesiumMan, RiggedFigure, RobotExpressive and the FBX files) baked with the defaults by "
-             "`benchmarks/zoo.py`, each playing its most vigorous cycle at its own speed, looping as the cycle loops: "
-             "the static skin (left) and the final skin (right), coloured by how far it moved, muscles, fat and "
-             "[chains](tutorials/chains.md) (tails, ears, wing fingers) alike.", "",
-             '<div markdown style="display:grid;grid-template-columns:repeat(auto-fill,minmax(300px,1fr));'
-             'gap:0.6rem">', ""]
+             "`benchmarks/zoo.py`, each playing its most vigorous cycle at its own rate, looping as the cycle loops. "
+             "Left: the skin over the static muscles, its [chains](tutorials/chains.md) (tails, ears, wing fingers) "
+             "swung; right: the final skin, coloured by how far the tissue (muscles and fat) moved it from the left "
+             "one. The still before it plays is the frame the tissue moved most.", ""]
     for name, (r, info) in shown.items():
         chains = f", {r.chains} chain{'s' * (r.chains != 1)}" if r.chains else ""
-        lines += ['<figure markdown style="margin:0">', "",
-                  f"![{name} on {r.clip}](images/gallery/{name}.gif){{ loading=lazy }}", "",
-                  f"<figcaption>{name}, {r.clip}{chains}: peak {fmt(r.peak_pct, 2)}% of its size</figcaption>", "",
-                  "</figure>", ""]
-    lines += ["</div>", ""]
+        w, h = info["size"]
+        # raw HTML: its paths are the page's own (gallery/index.html), one folder below the site's root
+        lines += ['<figure markdown style="margin:0 0 1rem 0">', "",
+                  f'<video autoplay loop muted playsinline preload="metadata" width="{w}" height="{h}" '
+                  f'style="width:100%;height:auto" poster="../images/gallery/{name}.png" '
+                  f'title="{name} on {r.clip}">'
+                  f'<source src="../images/gallery/{name}.webm" type="video/webm">'
+                  f'<source src="../images/gallery/{name}.mp4" type="video/mp4"></video>', "",
+                  f"<figcaption>{name}, {r.clip}{chains}: peak {fmt(r.peak_pct, 2)}% of its size; {info['frames']} "
+                  f"frames at {info['fps']:g} fps</figcaption>", "", "</figure>", ""]
     missing = sorted({r.character for r in rows} - set(shown))
     if missing:
         lines += ["No animation (no bake): " + ", ".join(missing) + ".", ""]

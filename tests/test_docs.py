@@ -100,28 +100,34 @@ def test_chromium_shows_the_pages(site, browser, page, must, tmp_path):
 
 
 def test_the_gallery_leads_with_animations_that_play(site, browser, tmp_path):
-    """The Gallery's grid comes before its numbers, and its first character's animation advances in a real
-    browser: two screenshots of it 0.4 s apart differ."""
+    """The Gallery's videos come before its numbers, at twice the old GIFs' size, and its first character's video
+    plays in a real browser: it loads, its time runs, and two screenshots of it 0.4 s apart differ."""
     import io
     import time
 
     import imageio.v3 as iio
     from selenium.webdriver.common.by import By
     text = (ROOT / "docs" / "gallery.md").read_text()
-    gifs = sorted((ROOT / "docs" / "images" / "gallery").glob("*.gif"))
-    if not gifs:
+    folder = ROOT / "docs" / "images" / "gallery"
+    videos = sorted(folder.glob("*.webm"))
+    if not videos:
         pytest.skip("docs/images/gallery has no animation (benchmarks/zoo.py writes them)")
-    assert text.index(".gif") < text.index("## The numbers")
-    assert sum(g.stat().st_size for g in gifs) < 8_000_000          # a few MB for the whole page
+    assert text.index("<video") < text.index("## The numbers")
+    assert sum(f.stat().st_size for f in folder.iterdir()) < 12_000_000       # a few MB for the whole page
+    for v in videos:                                                          # each with its MP4 and its poster
+        assert v.with_suffix(".mp4").is_file() and v.with_suffix(".png").is_file(), v
     browser.get((site / "gallery" / "index.html").as_uri())
-    img = browser.find_element(By.CSS_SELECTOR, "figure img")
-    browser.execute_script("arguments[0].scrollIntoView()", img)
-    for _ in range(50):
-        if browser.execute_script("return arguments[0].complete && arguments[0].naturalWidth > 0", img):
+    video = browser.find_element(By.CSS_SELECTOR, "figure video")
+    browser.execute_script("arguments[0].scrollIntoView()", video)
+    for _ in range(100):
+        if browser.execute_script("return arguments[0].readyState >= 3 && arguments[0].currentTime > 0.05", video):
             break
         time.sleep(0.1)
-    a = iio.imread(io.BytesIO(img.screenshot_as_png))[..., :3].astype(float)
+    assert browser.execute_script("return arguments[0].videoWidth", video) >= 1040
+    t0 = browser.execute_script("return arguments[0].currentTime", video)
+    a = iio.imread(io.BytesIO(video.screenshot_as_png))[..., :3].astype(float)
     time.sleep(0.4)
-    b = iio.imread(io.BytesIO(img.screenshot_as_png))[..., :3].astype(float)
+    b = iio.imread(io.BytesIO(video.screenshot_as_png))[..., :3].astype(float)
+    assert browser.execute_script("return arguments[0].currentTime", video) != t0, "the video does not play"
     assert a.shape == b.shape and a.std() > 5
     assert np.abs(a - b).mean() > 0.5, "the gallery's animation does not advance"

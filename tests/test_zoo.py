@@ -138,10 +138,19 @@ def test_quick_zoo_writes_one_table(zoo, tmp_path):
     assert rows[0]["chains"] == 3 and rows[0]["chain_penetrations"] == 0 and rows[0]["chain_swing_min_pct"] > 0
     assert rows[1]["chains"] == 0
     page = (docs / "gallery.md").read_text()
-    for name in ("Horse", "CesiumMan"):        # each plays its cycle: an animation of several frames, not a still
-        pic = docs / "images" / "gallery" / f"{name}.gif"
-        assert pic.is_file() and pic.stat().st_size < 600_000
-        assert f"images/gallery/{name}.gif" in page
-        from PIL import Image
-        assert getattr(Image.open(pic), "n_frames", 1) >= 6
-    assert page.index(".gif") < page.index("## The numbers")
+    import imageio.v2 as iio
+    for name in ("Horse", "CesiumMan"):        # each plays its cycle: a video of its frames at its rate, not a still
+        for ext in ("webm", "mp4"):
+            video = docs / "images" / "gallery" / f"{name}.{ext}"
+            assert video.is_file() and video.stat().st_size < 600_000, video
+            assert f"../images/gallery/{name}.{ext}" in page
+            with iio.get_reader(str(video)) as reader:            # read back by ffmpeg
+                fps = float(reader.get_meta_data()["fps"])
+                frames = np.stack([f for f in reader])        # list() would ask its length: inf
+            assert frames.shape[0] >= 6 and frames.shape[1:3] == (400, 1056), frames.shape   # twice 520 x 200
+            assert 24.0 <= fps <= 30.0, fps
+            assert np.abs(frames[1:].astype(float) - frames[:-1]).mean() > 0.1        # it moves
+        poster = docs / "images" / "gallery" / f"{name}.png"
+        assert poster.is_file() and f'poster="../images/gallery/{name}.png"' in page
+        assert not (docs / "images" / "gallery" / f"{name}.gif").exists()
+    assert page.index("<video") < page.index("## The numbers")
