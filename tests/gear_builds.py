@@ -206,3 +206,86 @@ def abrupt(character, joints) -> object:
     W[hit] = 0.0
     J[hit, 0], W[hit, 0] = top[hit], 1.0
     return replace(character, joints=J, weights=W, maps=None)
+
+
+def bird_blob(height: float = 0.5, frames: int = 30, fps: float = 30.0, joints=(0.0, 0.25, 0.45, 0.65, 0.85)):
+    """(character, walk): a round bird-like blob as game artists make one (issue 61): an armature root, then Body,
+    Head, Head2 and Head3 up its middle; its body one closed sphere of 256 vertices, 88% or so of the skin's volume,
+    skinned smoothly over Head, Head2 and Head3 (each vertex's largest weight at least 0.47); two eyes, a beak and
+    three feathers, each a closed piece of its own bound with weight 1 to Head3. `walk`: a waddle of `frames` frames
+    at `fps`, the body rocking side to side and the head joints nodding after it, one cycle. joints : the five
+    joints' heights over the body's."""
+    from jiggle.rig.motion import quat
+    from jiggle.rig.character.character import Character, bind_clip
+    from jiggle.rig.character.normals import vertex_normals
+    from jiggle.rig.motion.clip import Clip
+    r = 0.5 * height
+    names = ("Root", "Body", "Head", "Head2", "Head3")
+    parents = np.array([-1, 0, 1, 2, 3], np.int32)
+    z = np.asarray(joints, float) * height
+    bind = np.tile(np.eye(4), (5, 1, 1))
+    bind[:, 2, 3] = z
+    # the body: a UV sphere of 16 rings x 15 around plus its poles (242), centred at half the height
+    rings, around = 16, 15
+    th = np.linspace(0.0, np.pi, rings + 2)[1:-1]
+    ph = 2.0 * np.pi * np.arange(around) / around
+    v = np.concatenate([[[0.0, 0.0, -r]], np.stack([np.outer(np.sin(th), np.cos(ph)).ravel() * r,
+                                                     np.outer(np.sin(th), np.sin(ph)).ravel() * r,
+                                                     -np.repeat(np.cos(th), around) * r], 1), [[0.0, 0.0, r]]])
+    v[:, 2] += r
+    f = [[0, 1 + (j + 1) % around, 1 + j] for j in range(around)]
+    for i in range(rings - 1):
+        for j in range(around):
+            a, b = 1 + i * around + j, 1 + i * around + (j + 1) % around
+            c, d = a + around, b + around
+            f += [[a, b, d], [a, d, c]]
+    top = len(v) - 1
+    f += [[top, 1 + (rings - 1) * around + j, 1 + (rings - 1) * around + (j + 1) % around] for j in range(around)]
+    body_v, body_f = v, np.array(f)
+    # smooth weights over Head, Head2, Head3 by height (linear between their heights, Head below, Head3 above)
+    h = np.clip(np.interp(body_v[:, 2], z[2:], [0.0, 1.0, 2.0]), 0.0, 2.0)
+    wts = np.zeros((len(body_v), 3))
+    lo = np.floor(np.minimum(h, 1.999)).astype(int)
+    t = h - lo
+    wts[np.arange(len(h)), lo] = 1.0 - t
+    wts[np.arange(len(h)), lo + 1] = t
+    wts = np.maximum(wts, 0.0)
+    keep = np.argsort(-wts, axis=1)
+    body_j = (keep + 2).astype(np.int32)
+    body_w = np.take_along_axis(wts, keep, axis=1)
+    pieces_ = [(body_v, body_f, body_j, body_w)]
+
+    def rigid(pv, pf):
+        pieces_.append((pv, pf, np.full((len(pv), 1), 4, np.int32), np.ones((len(pv), 1))))
+    for side in (-1.0, 1.0):                                   # eyes: small cubes half in the face
+        rigid(*slab([side * 0.35 * r, -0.9 * r, 1.35 * r], np.eye(3), [0.12 * r] * 3))
+    rigid(*cone([0.0, -0.95 * r, 1.1 * r], [0.0, -1.35 * r, 1.05 * r], 0.12 * r))          # the beak
+    for k in (-1, 0, 1):                                       # feathers: thin plates on the crown
+        rigid(*slab([0.2 * k * r, 0.1 * k * r, 2.0 * r], [[1, 0, 0], [0, 0.2, 0.98], [0, -0.98, 0.2]],
+                    [0.06 * r, 0.22 * r, 0.01 * r]))
+    V = np.concatenate([p[0] for p in pieces_])
+    offs = np.cumsum([0] + [len(p[0]) for p in pieces_])
+    F = np.concatenate([p[1] + o for p, o in zip(pieces_, offs)]).astype(np.int32)
+    k = max(p[2].shape[1] for p in pieces_)
+    J = np.zeros((len(V), k), np.int32)
+    W = np.zeros((len(V), k))
+    for p, o in zip(pieces_, offs):
+        J[o:o + len(p[0]), :p[2].shape[1]] = p[2]
+        W[o:o + len(p[0]), :p[3].shape[1]] = p[3]
+    character = Character(vertices=V, faces=F, normals=vertex_normals(V, F), uvs=None, joint_names=names,
+                          parents=parents, bind_world=bind, bind_matrices=bind, joints=J, weights=W,
+                          skeleton=bind_clip(names, parents, bind, name="bird"), name="bird")
+    rest = character.skeleton
+    t = np.arange(frames) / fps
+    w = 2.0 * np.pi * fps / frames * t                         # one cycle over the clip
+    rot = np.repeat(rest.rest_rotations[None], frames, axis=0).copy()
+    tra = np.repeat(rest.offsets[None], frames, axis=0).copy()
+    rock = quat.from_axis_angle(np.array([[0.0, 1.0, 0.0]]), 0.35 * np.sin(w))        # side to side
+    rot[:, 1] = quat.mul(rest.rest_rotations[1][None], rock)
+    for j, lag in ((2, 0.6), (3, 1.2), (4, 1.8)):              # the head joints nod after the body
+        nod = quat.from_axis_angle(np.array([[1.0, 0.0, 0.0]]), 0.25 * np.sin(w - lag))
+        rot[:, j] = quat.mul(rest.rest_rotations[j][None], nod)
+    tra[:, 0, 2] += 0.08 * height * np.abs(np.sin(w))          # a hop each step
+    walk = Clip(joint_names=names, parents=parents, offsets=rest.offsets, rest_rotations=rest.rest_rotations,
+                rotations=rot, translations=tra, fps=fps, name="Walk")
+    return character, walk
