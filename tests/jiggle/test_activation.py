@@ -109,7 +109,8 @@ def test_a_bake_with_activation_on_writes_it_and_off_writes_none(tmp_path):
     """jiggle bake --activation on: bake.npz's activation (frames x muscles, in [0, 1], fat 0) and bake.json's
     record (the body's mass, each muscle's peak and mean); the legs work hardest on the jump, and stiffened the
     quadriceps jiggle at most 0.8 of their jiggle without it at the landing while every fat part stays within 20%;
-    the default bake has neither, and the built-in simple arm (no clip skeleton) refuses it (exit 2)."""
+    a bake with --activation off has neither, the default is the bake with it on, and the built-in simple arm (no
+    clip skeleton) refuses it (exit 2)."""
     import json
     import os
 
@@ -121,8 +122,10 @@ def test_a_bake_with_activation_on_writes_it_and_off_writes_none(tmp_path):
     on, off = tmp_path / "on", tmp_path / "off"
     args = ["-q", "bake", "--clip", clip, "--end", "2.0", "--formats", "npz"]
     assert main([*args, "--out", str(on), "--activation", "on"]) == 0
-    assert main([*args, "--out", str(off)]) == 0
+    assert main([*args, "--out", str(off), "--activation", "off"]) == 0
+    assert main([*args, "--out", str(tmp_path / "default")]) == 0
     a, b = read_npz(on / "bake.npz"), read_npz(off / "bake.npz")
+    assert np.array_equal(read_npz(tmp_path / "default" / "bake.npz").skin_final, a.skin_final)   # on by default
     import jiggle
     np.testing.assert_array_equal(jiggle.Bake.open(on).activation, a.activation)     # the API reads it too
     assert b.activation is None and a.activation.shape == (len(a.times), len(a.muscle_names))
