@@ -30,13 +30,67 @@ BULGE_STRAIN = 0.2
 (see the module): a lofted belly ~7% wider at the middle."""
 GROWTH_STEPS = 3
 """Secant steps on the belly's growth: the lofted volume kept within ~1e-6 of the muscle's."""
+TABLE_LEVELS = 11
+"""growth_table's strains: every 10% of BULGE_STRAIN (the growth is smooth in the strain: read linearly between
+them, a posed muscle's volume holds within 0.2%)."""
 SECTIONS, RING = 5, 8
 
 
-def bulged(cvs: np.ndarray, curve: np.ndarray, activation: np.ndarray,
-           strain: float = BULGE_STRAIN) -> tuple[np.ndarray, np.ndarray]:
+def growths(rings: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """(n,) the growth of sections 1-3 that keeps the lofted volume of each muscle's rings (n, 5, 8, 3) metres when
+    its belly shortens by eps (n,) (see the module: secant steps from a cylinder's 1 / sqrt(1 - eps))."""
+    centres = rings.mean(axis=2)
+    target = loft.volume(rings)
+    shift = _shift(centres, eps)
+
+    def volume(grow):
+        return loft.volume(_shaped(rings, centres, shift, grow)) - target
+    g0, g1 = np.ones_like(eps), 1.0 / np.sqrt(1.0 - eps)
+    v0, v1 = volume(g0), volume(g1)
+    for _ in range(GROWTH_STEPS):
+        slope = np.where(np.abs(v1 - v0) > 1e-300, (v1 - v0) / np.where(g1 != g0, g1 - g0, 1.0), 1.0)
+        g2 = np.where(np.abs(v1) > 0.0, g1 - v1 / slope, g1)
+        g0, v0, g1 = g1, v1, np.clip(g2, 1.0, 2.0)
+        v1 = volume(g1)
+    return g1
+
+
+def growth_table(rest_cvs: np.ndarray, strain: float = BULGE_STRAIN, levels: int = TABLE_LEVELS,
+                 working: np.ndarray | None = None) -> np.ndarray:
+    """(M, levels) each muscle's growth (growths) on its rest shape (rest CVs (M * 40, 3) metres) at belly strains
+    strain x linspace(0, 1, levels): what bulged reads for a posed shape instead of solving it again, frame after
+    frame (a posed muscle keeps its volume: its growth for a strain is its rest shape's within ~1e-3). working :
+    (M,) bool, the muscles to solve for (None: all); the others' rows are 1."""
+    rings = np.asarray(rest_cvs, np.float64).reshape(-1, SECTIONS, RING, 3)
+    M = len(rings)
+    out = np.ones((M, levels))
+    use = np.arange(M) if working is None else np.flatnonzero(working)
+    if len(use):
+        eps = strain * np.linspace(0.0, 1.0, levels)
+        out[use] = growths(np.repeat(rings[use], levels, axis=0), np.tile(eps, len(use))).reshape(len(use), levels)
+    return out
+
+
+def _shift(centres: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """(n, 5, 3): sections 1-3 moved toward the belly's middle by eps (n,) of their distance to it; the ends stay."""
+    shift = -eps[:, None, None] * (centres - centres[:, 2:3])
+    shift[:, [0, 4]] = 0.0
+    return shift
+
+
+def _shaped(rings: np.ndarray, centres: np.ndarray, shift: np.ndarray, grow: np.ndarray) -> np.ndarray:
+    out = rings.copy()
+    for k in (1, 2, 3):
+        out[:, k] = (centres[:, k] + shift[:, k])[:, None] + grow[:, None, None] * (rings[:, k] - centres[:, k][:, None])
+    return out
+
+
+def bulged(cvs: np.ndarray, curve: np.ndarray, activation: np.ndarray, strain: float = BULGE_STRAIN,
+           table: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(cvs, curve) of static shapes with each muscle bulged by its activation (see the module): cvs (T, M * 40, 3)
-    and curve (T, M, 5, 3) metres, activation (T, M) in [0, 1]. New arrays; frames and muscles at 0 unchanged."""
+    and curve (T, M, 5, 3) metres, activation (T, M) in [0, 1]. table : growth_table of the rig's rest shapes (the
+    growth read from it, linear between its levels), or None (solved for each frame's shape). New arrays; frames and
+    muscles at 0 unchanged."""
     cvs = np.array(cvs, dtype=np.float64, copy=True)
     curve = np.array(curve, dtype=np.float64, copy=True)
     a = np.clip(np.asarray(activation, np.float64), 0.0, 1.0)
@@ -47,28 +101,18 @@ def bulged(cvs: np.ndarray, curve: np.ndarray, activation: np.ndarray,
         return cvs, curve
     eps = strain * a[t, m]                                               # (n,)
     rings = c[t, m]                                                      # (n, 5, 8, 3)
-    centres = rings.mean(axis=2)                                         # (n, 5, 3)
-    shift = -eps[:, None, None] * (centres - centres[:, 2:3])            # toward the belly's middle
-    shift[:, [0, 4]] = 0.0
-    target = loft.volume(rings)
-
-    def shaped(grow):
-        out = rings.copy()
-        for k in (1, 2, 3):
-            out[:, k] = (centres[:, k] + shift[:, k])[:, None] + grow[:, None, None] * (rings[:, k] - centres[:, k][:, None])
-        return out
-    # the volume is a smooth (cubic) function of the growth: secant steps from the cylinder's factor
-    g0, g1 = np.ones_like(eps), 1.0 / np.sqrt(1.0 - eps)
-    v0, v1 = loft.volume(shaped(g0)) - target, loft.volume(shaped(g1)) - target
-    for _ in range(GROWTH_STEPS):
-        slope = np.where(np.abs(v1 - v0) > 1e-300, (v1 - v0) / np.where(g1 != g0, g1 - g0, 1.0), 1.0)
-        g2 = np.where(np.abs(v1) > 0.0, g1 - v1 / slope, g1)
-        g0, v0, g1 = g1, v1, np.clip(g2, 1.0, 2.0)
-        v1 = loft.volume(shaped(g1)) - target
-    c[t, m] = shaped(g1)
+    if table is None:
+        grow = growths(rings, eps)
+    else:
+        x = a[t, m] * (table.shape[1] - 1)
+        i = np.minimum(x.astype(np.int64), table.shape[1] - 2)
+        grow = table[m, i] + (x - i) * (table[m, i + 1] - table[m, i])
+    centres = rings.mean(axis=2)
+    shift = _shift(centres, eps)
+    c[t, m] = _shaped(rings, centres, shift, grow)
     curve[t, m, 1] += shift[:, 1]
     curve[t, m, 3] += shift[:, 3]
     return c.reshape(cvs.shape), curve
 
 
-__all__ = ["BULGE_STRAIN", "bulged"]
+__all__ = ["BULGE_STRAIN", "bulged", "growths", "growth_table"]

@@ -10,6 +10,7 @@ caches frame chunk by frame chunk.
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import json
 import math
@@ -195,7 +196,13 @@ class BakeSetup:
             return static
         from jiggle.rig.muscle.bulge import bulged
         from jiggle.rig.muscle.model import StaticShape
-        return StaticShape(*bulged(static.cvs, static.curve, self.activation_at(t)))
+        return StaticShape(*bulged(static.cvs, static.curve, self.activation_at(t), table=self.bulge_table))
+
+    @functools.cached_property
+    def bulge_table(self) -> np.ndarray:
+        """rig.muscle.bulge.growth_table of the rig's rest shapes, once a setup (static_at reads it)."""
+        from jiggle.rig.muscle.bulge import growth_table
+        return growth_table(self.rig.rest_cvs, working=np.asarray(self.activation).max(axis=0) > 0)
 
     @property
     def character(self):

@@ -51,3 +51,24 @@ def test_the_belly_thickens_and_shortens_with_its_volume_kept(arm):
     # half the activation, half the strain
     half, _ = bulged(cvs, curve, 0.5 * act)
     assert belly(ring(half[0, :40])) / belly(before) == pytest.approx(1.0 - 0.5 * BULGE_STRAIN, rel=1e-9)
+
+
+def test_the_rest_shapes_table_keeps_a_posed_muscles_volume(arm):
+    """The bake reads each muscle's growth from a table made once on its rest shape (growth_table) instead of
+    solving it frame after frame: on the arm flexed through its motion the volume still holds within 0.2%, and the
+    growth is the exact one's within 0.5%."""
+    from jiggle.rig.muscle.bulge import growth_table, growths
+    from jiggle.rig.muscle.simple_arm import arm_world
+    T = 6
+    s = arm.rig.static(np.stack([arm_world(d) for d in np.linspace(0.0, 130.0, T)]))
+    cvs, curve = np.asarray(s.cvs), np.asarray(s.curve)
+    act = np.linspace(0.1, 1.0, T)[:, None] * np.ones((1, arm.rig.M))
+    table = growth_table(arm.rig.rest_cvs)
+    fast, _ = bulged(cvs, curve, act, table=table)
+    exact, _ = bulged(cvs, curve, act)
+    v0, v1 = arm.rig.volumes(cvs), arm.rig.volumes(fast)
+    np.testing.assert_allclose(v1, v0, rtol=2e-3)
+    np.testing.assert_allclose(fast, exact, atol=5e-3 * float(np.ptp(cvs, axis=(0, 1)).max()))
+    assert table.shape == (arm.rig.M, 11) and table[:, 0] == pytest.approx(1.0) and (np.diff(table, axis=1) > 0).all()
+    rings = np.asarray(arm.rig.rest_cvs).reshape(-1, 5, 8, 3)
+    assert growths(rings, np.array([BULGE_STRAIN]))[0] == pytest.approx(table[0, -1], rel=1e-12)
