@@ -546,7 +546,7 @@ class ViewerPage:
             if self.selected is not None:
                 info = pb.muscles[self.selected]
                 self.h_muscles[self.selected].color = self._muscle_colour[self.selected] = \
-                    self.muscle_colours(getattr(self, "frame_shown", 0) or 0)[self.selected]
+                    self.muscle_colours(self.frame_shown)[self.selected]
             if self._region_handle is not None:
                 self._region_handle.remove()
                 self._region_handle = None
