@@ -535,8 +535,9 @@ def clean(d: dict) -> dict:
 
 VIDEO_PANEL, VIDEO_RATE, VIDEO_FRAMES = (528, 400), (24.0, 30.0), 150
 """A gallery animation: two panels of this size in pixels (swung | final: 1056 x 400, twice the GIFs it replaced in
-both directions), played at the cycle's own rate (every frame of a bake at 24-30 fps; every k-th of a faster one so
-the rate lands in that band), at most this many frames (a longer clip is cut to its first)."""
+both directions), played at the cycle's own rate (every frame of a bake at 24-30 fps; every k-th of a faster one,
+and a slower one's frames with linear in-betweens, so the rate lands in that band), at most this many frames (a
+longer clip is cut to its first)."""
 VIDEO_CODECS = (("webm", "libvpx-vp9", ["-crf", "36", "-b:v", "0", "-row-mt", "1", "-deadline", "good"]),
                 ("mp4", "libx264", ["-crf", "27", "-preset", "slow", "-movflags", "+faststart"]))
 """The files each animation is written as: VP9 in WebM (what Chromium and Firefox play first, a third of the size)
@@ -567,8 +568,17 @@ def motion_video(bake_dir: Path, stem: Path) -> dict | None:
     if T < 1:
         return None
     step = max(1, math.ceil(fps / VIDEO_RATE[1] - 1e-9))
+    up = max(1, math.ceil(VIDEO_RATE[0] * step / fps - 1e-9))   # a slower clip (a 15 fps game cycle): in-betweens
     picks = list(range(0, T, step))[:VIDEO_FRAMES]
-    rate = fps / step
+    rate = fps * up / step
+    if up > 1:      # each frame and its next (the first after the last: the cycle loops) blended linearly
+        nxt = picks[1:] + picks[:1]
+        u = np.arange(up) / up
+        swung = np.concatenate([(1 - w) * swung[a] + w * swung[b] for a, b in zip(picks, nxt) for w in u]
+                               ).reshape(-1, *swung.shape[1:])
+        final = np.concatenate([(1 - w) * final[a] + w * final[b] for a, b in zip(picks, nxt) for w in u]
+                               ).reshape(-1, *final.shape[1:])
+        picks = list(range(len(swung)))
     cells = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
     size = float(np.ptp(swung[0], axis=0).max())
     flat = swung[0][:, :2] - swung[0][:, :2].mean(0)
@@ -581,7 +591,7 @@ def motion_video(bake_dir: Path, stem: Path) -> dict | None:
     frames = []
     for k in picks:
         pl = pv.Plotter(off_screen=True, shape=(1, 2), window_size=(2 * W, H), border=False)
-        c = swung[k].mean(0)
+        c = 0.5 * (swung[k].min(0) + swung[k].max(0))           # the box's centre: a dense head does not lift it
         # far enough that a tail or wing swung past the rest skin's extent stays in the panel (30 degree view)
         cam = [tuple(c - 2.1 * size * side + [0, 0, 0.15 * size]), tuple(c), (0, 0, 1)]
         pl.subplot(0, 0)
@@ -643,7 +653,8 @@ def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
     shown = {}
     for name in dict.fromkeys(r.character for r in rows):
         mine = [r for r in rows if r.character == name and r.out and (Path(r.out) / "bake.npz").is_file()]
-        mine.sort(key=lambda r: (not r.vigorous, r.clip.startswith("CMU")))
+        # its most vigorous cycle, else the clip it jiggles most on (a game character's own, on ties)
+        mine.sort(key=lambda r: (not r.vigorous, -(r.peak_pct or 0.0), r.clip.startswith("CMU")))
         if not mine:
             continue
         info = motion_video(Path(mine[0].out), img_dir / name)
