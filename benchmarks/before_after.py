@@ -2,6 +2,7 @@
 hardest frames: one row per frame, static | before | after, zoomed on where the skin moved most, on one colour scale.
 
     python benchmarks/before_after.py BEFORE_DIR AFTER_DIR --out docs/images/NAME.png [--title TEXT] [--frames N]
+                                      [--parts MUSCLE,...]
 
 BEFORE_DIR and AFTER_DIR are `jiggle bake --out` folders with bake.npz (a bake of an earlier revision: check it out
 with `git archive REV | tar -x -C DIR` and run its `jiggle bake` there). The frames are the N (default 2) with the
@@ -38,6 +39,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True)
     ap.add_argument("--title", default="")
     ap.add_argument("--frames", type=int, default=2)
+    ap.add_argument("--parts", default=None, help="comma-separated muscles: only the skin nearest them (its nearest "
+                    "control point theirs, at the first frame) picks the frames and the box")
     args = ap.parse_args(argv)
     from jiggle.rig.character.normals import VertexNormals
     from jiggle.sim.app.report.compare_render import SideBySide, write_png
@@ -49,6 +52,14 @@ def main(argv=None) -> int:
     # the tissue's jiggle: against the skin that follows the swung chains (tails, ears) without it
     refs = [d.skin_swung() for d in (before, after)]
     disp = [np.linalg.norm(d.skin_final - r, axis=2) for d, r in zip((before, after), refs)]
+    if args.parts:
+        from scipy.spatial import cKDTree
+        names = list(after.muscle_names)
+        want = [names.index(n.strip()) for n in args.parts.split(",")]
+        owner = np.repeat(np.arange(len(names)), np.diff(after.muscle_cv_offsets))
+        _, near = cKDTree(after.muscle_cvs_static[0]).query(refs[1][0])
+        keep = np.isin(owner[near], want)
+        disp = [np.where(keep[None], d, 0.0) for d in disp]
     top = 1e3 * max(float(d.max()) for d in disp)
     static = refs[1]
     extent = float(np.ptp(static[0], axis=0).max())
