@@ -168,9 +168,15 @@ def plot(path: Path, times, push, activation, group, title) -> None:
     bx.legend(loc="upper right", fontsize=8)
     for a in (ax, bx):
         a.grid(alpha=0.3)
+    save_figure(fig, path, 90)
+
+
+def save_figure(fig, path: Path, dpi: int) -> None:
+    """A matplotlib figure laid out tight and saved to `path` (its folder made), then closed."""
+    import matplotlib.pyplot as plt
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 

@@ -40,7 +40,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from activation_landings import ASSETS, CHARACTERS, CLIPS, RATE, fit_for  # noqa: E402
+from activation_landings import ASSETS, CHARACTERS, CLIPS, RATE, fit_for, save_figure  # noqa: E402
 
 GROUPS = {"quadriceps": ("vasti", "rectfem"), "hamstrings": ("hamstrings", "bifemsh"), "glute": ("glutmax",),
           "calf": ("gastroc", "soleus")}
@@ -128,7 +128,7 @@ class Reference:
         x = self.data.xpos
         return unit(x[b[1]] - x[b[0]]), unit(x[b[2]] - x[b[1]]), unit(x[b[3]] - x[b[2]])
 
-    def arms_and_strength(self, s: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def arms_at(self, s: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """At the current pose: (arms (nu, 3, 3): per muscle the torque vector about the hip, knee and ankle (world)
         per newton of tension; lengths (nu,) m; the hinge axes (5, 3)). The hip's three hinges' generalized forces
         g = -dL/dq are turned into the torque vector t with t . n_i = g_i; the knee's and ankle's lie on their
@@ -252,8 +252,8 @@ def _worst_miss(ref: Reference, s: str, target: dict, k: int) -> float:
 
 # ---------------------------------------------------------------------------------------------- the comparison
 def reference_activations(ref: Reference, roots: np.ndarray, q: dict, torques: np.ndarray, times: np.ndarray,
-                          joints: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(activation (K, nu), excitation (K, nu)) of the reference's muscles for the clip's torques (K, J, 3) N m
+                          joints: dict) -> np.ndarray:
+    """(K, nu) the activations of the reference's muscles for the clip's torques (K, J, 3) N m
     (world; at the reference's size) at the clip's joints `joints` {side: (hip, knee, ankle) indices}: the posed
     model's arms and strengths, sim.jiggle.activation's static optimization and activation dynamics."""
     from jiggle.sim.jiggle.activation import activation_dynamics, static_optimization
@@ -263,7 +263,7 @@ def reference_activations(ref: Reference, roots: np.ndarray, q: dict, torques: n
     for k in range(K):
         ref.pose(roots[k], {s: q[s][k] for s in ref.legs})
         for i, s in enumerate(("l", "r")):
-            a, lengths[k], _ = ref.arms_and_strength(s)
+            a, lengths[k], _ = ref.arms_at(s)
             side = np.array([n.endswith(f"_{s}") for n in ref.names])
             arms[k, side, 3 * i:3 * i + 3] = a[side]
     speeds = np.gradient(lengths, times, axis=0)
@@ -272,7 +272,7 @@ def reference_activations(ref: Reference, roots: np.ndarray, q: dict, torques: n
     # static_optimization takes one strength per muscle: its arms carry the sample's F / F0 instead
     f0 = np.maximum(strength.max(axis=0), 1e-9)
     exc, _ = static_optimization(arms * (strength / f0)[:, :, None, None], tq, f0)
-    return activation_dynamics(exc, times), exc
+    return activation_dynamics(exc, times)
 
 
 def group_series(names, activation: np.ndarray, weights: np.ndarray | None, keys, side: str) -> np.ndarray:
@@ -334,7 +334,7 @@ def case(clip: str, character: str, ref: Reference, out: Path) -> dict:
     gain = (REFERENCE_MASS_KG / mass) * (REFERENCE_HEIGHT_M / max(height, 1e-6))
     joints = {s: tuple(roles[f"{side}_{r}"] for r in ("upper_leg", "lower_leg", "foot"))
               for s, side in (("l", "left"), ("r", "right"))}
-    act_ref, exc_ref = reference_activations(ref, roots, q, gain * loads.at(times), times, joints)
+    act_ref = reference_activations(ref, roots, q, gain * loads.at(times), times, joints)
     t_ref = time.perf_counter() - t0
     f0 = np.array(ref.model.actuator_gainprm[:, 2])
     foot = {s: loads.contact[:, list({roles[f"{side}_foot"], roles[f"{side}_toe"]})].any(axis=1)
@@ -385,10 +385,7 @@ def plot(path: Path, times, series, foot, title) -> None:
                 ax.set_xlabel("time (s); grey: that foot on the floor")
     axes[0, 0].legend(loc="upper right", fontsize=8)
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, 80)
 
 
 def write(results: list[dict], out: Path, seconds: float) -> None:

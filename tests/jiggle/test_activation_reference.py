@@ -50,7 +50,7 @@ def _one_joint(ref, side, joint, torque):
     standing (K = 1)."""
     from jiggle.sim.jiggle.activation import static_optimization
     ref.pose(np.eye(3), {"l": np.zeros(5), "r": np.zeros(5)})
-    arms, _, axes = ref.arms_and_strength(side)
+    arms, _, axes = ref.arms_at(side)
     f0 = np.array(ref.model.actuator_gainprm[:, 2])
     tq = np.zeros((1, 3, 3))
     tq[0, joint] = torque
@@ -80,11 +80,11 @@ def test_the_knee_arms_include_the_moving_via_points(ref):
     length's whole derivative, which a finite difference of the posed length confirms."""
     q = {"l": np.zeros(5), "r": np.array([0.3, 0.0, 0.0, -1.0, 0.0])}
     ref.pose(np.eye(3), q)
-    arms, L0, axes = ref.arms_and_strength("r")
+    arms, L0, axes = ref.arms_at("r")
     h = 1e-5
     q2 = {"l": q["l"], "r": q["r"] + np.array([0, 0, 0, h, 0])}
     ref.pose(np.eye(3), q2)
-    _, L1, _ = ref.arms_and_strength("r")
+    _, L1, _ = ref.arms_at("r")
     dLdq = (L1 - L0) / h
     i = ref.names.index("rectfem_r")
     assert np.isclose(arms[i, 1] @ axes[3], -dLdq[i], rtol=1e-3, atol=1e-6)
@@ -112,7 +112,7 @@ def test_the_deep_muscles_on_the_reference_skeleton_have_its_arms(ref):
     from jiggle.sim.jiggle.activation import path_arms
     from jiggle.sim.jiggle.deep_muscles import deep_paths
     ref.pose(np.eye(3), {"l": np.zeros(5), "r": np.zeros(5)})
-    arms, _, axes = ref.arms_and_strength("r")
+    arms, _, axes = ref.arms_at("r")
     bodies = ["pelvis", "femur_l", "tibia_l", "talus_l", "toes_l", "femur_r", "tibia_r", "talus_r", "toes_r"]
     parents = np.array([-1, 0, 1, 2, 3, 0, 5, 6, 7])
     world = np.tile(np.eye(4), (len(bodies), 1, 1))
