@@ -70,9 +70,9 @@ def case(clip: str, character: str, out: Path) -> dict:
     from jiggle.sim.jiggle.activation import activations
     path = str(ASSETS / "mocap" / "cmu_bvh" / f"{clip}.bvh")
     fit, world_at, mass, times = fit_for(path, str(ASSETS / CHARACTERS[character]) if CHARACTERS[character] else None)
-    joint_torques(fit.clip, times[:3], mass, roles=fit.mus.roles)        # imports (scipy.signal) off the clock
+    joint_torques(fit.clip.scaled(fit.size.scale), times[:3], mass, roles=fit.mus.roles)        # imports (scipy.signal) off the clock
     t0 = time.perf_counter()
-    loads = joint_torques(fit.clip, times, mass, roles=fit.mus.roles)
+    loads = joint_torques(fit.clip.scaled(fit.size.scale), times, mass, roles=fit.mus.roles)
     t1 = time.perf_counter()
     act = activations(fit.mus.rig, world_at, loads, fit.clip.parents, fit.character.bind_world, times,
                       scale=fit.size.scale, roles=fit.mus.roles)

@@ -322,7 +322,7 @@ def case(clip: str, character: str, ref: Reference, out: Path) -> dict:
     path = str(ASSETS / "mocap" / "cmu_bvh" / f"{clip}.bvh")
     fit, world_at, mass, times = fit_for(path, str(ASSETS / CHARACTERS[character]) if CHARACTERS[character] else None)
     roles = fit.mus.roles
-    loads = joint_torques(fit.clip, times, mass, roles=roles)
+    loads = joint_torques(fit.clip.scaled(fit.size.scale), times, mass, roles=roles)
     ours = activations(fit.mus.rig, world_at, loads, fit.clip.parents, fit.character.bind_world, times,
                        scale=fit.size.scale, roles=fit.mus.roles)
     world = np.asarray(world_at(times), np.float64)

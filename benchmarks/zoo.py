@@ -6,7 +6,8 @@ in one table (issue 43, part 5).
 For each character under ../shared/assets/characters/ (zoo/*.glb, *.glb, fbx/*.fbx with an animation) and each
 of its cycles (the animations a game loops: Walk, Run, Gallop, Idle*, Flying_Idle, Fast_Flying, Dance; a file's
 only animation when none is so named), plus a CMU run (09_11) retargeted onto every biped (inspect's body plan),
-or the CMU run alone for a character without animations:
+or the CMU run alone for a character without animations; and the characters built for issue 61 (BUILT, written by
+built_jobs from tests/gear_builds.py; --no-built leaves them out; not in the Gallery):
 
     jiggle bake --character FILE --animation NAME --out DIR --formats npz -q
     jiggle compare DIR --no-video -q
@@ -78,6 +79,8 @@ class Job:
     clip_file: str | None = None        # --clip FILE (a retargeted clip)
     zoo: bool = False                   # a zoo/ character
     vigorous: bool = False              # its most vigorous cycle: peak >= 0.3% and chain swing >= 5% asked
+    extra: tuple = ()                   # more bake arguments (a built character's --height)
+    built: bool = False                 # a character built here (built_jobs), not a shared file
 
     @property
     def slug(self) -> str:
@@ -116,6 +119,7 @@ class Row:
     seconds: float | None = None
     vigorous: bool = False
     zoo: bool = False
+    built: bool = False
     passed: bool = False
     fails: list = field(default_factory=list)
     compare_error: str | None = None
@@ -245,6 +249,62 @@ def plan(characters: set[str] | None, quick: bool, cmd: list[str]) -> tuple[list
     return jobs, skipped
 
 
+BUILT = ("BirdBlob", "MushroomBlob", "Soldier", "SoldierTiny", "CesiumManStylised")
+"""The characters built for issue 61 (tests/gear_builds.py), baked beside the shared ones: the wild characters the
+shared zoo lacks (a soft body over a chain of head joints, a creature whose calm cycle swings harder than its vigorous
+one, a Mixamo soldier in gear at real size and in a file a hundred times too small, a rig bound bone by bone)."""
+BUILT_CLIP = ASSETS / "mocap" / "cmu_bvh" / "02_03.bvh"
+
+
+def built_jobs(folder: Path, characters: set[str] | None) -> list[Job]:
+    """The BUILT characters written into `folder` as glb files, and their bakes (all when `characters` is None, else
+    those named, lower case): the blobs on their own cycles (creatures: their most vigorous cycle asked to jiggle
+    visibly), the soldiers on their own CMU 02_03 (the tiny one with its real height), the bone-by-bone CesiumMan
+    on CMU 02_03 retargeted."""
+    want = [n for n in BUILT if characters is None or n.lower() in characters]
+    if not want or not BUILT_CLIP.is_file():
+        return []
+    sys.path.insert(0, str(ROOT / "tests"))
+    import warnings
+
+    from gear_builds import abrupt, bird_blob, mixamo_named, mushroom_blob, soldier
+
+    from jiggle.rig.character.gltf_write import write_character
+    from jiggle.rig.character.load import body_character, load_character
+    from jiggle.rig.motion.mocap import load_clip
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = []
+    if "BirdBlob" in want:
+        character, walk = bird_blob()
+        write_character(character, folder / "BirdBlob.glb", animations={"Walk": walk})
+        jobs.append(Job("BirdBlob", str(folder / "BirdBlob.glb"), "Walk", animation="Walk", zoo=True, vigorous=True,
+                        built=True))
+    if "MushroomBlob" in want:
+        character, clips = mushroom_blob(walk_frames=60, walk=(0.5, 0.1, 0.6, 0.1), run=(0.1, 0.04, 0.05, 0.0))
+        write_character(character, folder / "MushroomBlob.glb", animations=clips)
+        jobs += [Job("MushroomBlob", str(folder / "MushroomBlob.glb"), n, animation=n, zoo=True, vigorous=n == "Run",
+                     built=True) for n in ("Run", "Walk")]
+    if {"Soldier", "SoldierTiny"} & set(want):
+        clip = mixamo_named(load_clip(str(BUILT_CLIP)))
+        man = soldier(abrupt(body_character(clip), list(clip.joint_names)))
+        height = float(np.ptp(np.asarray(man.vertices)[:, 2]))
+        for name, k in (("Soldier", 1.0), ("SoldierTiny", 0.01)):
+            if name in want:
+                write_character(man.scaled(k), folder / f"{name}.glb", animations={"walk": clip.scaled(k)})
+                jobs.append(Job(name, str(folder / f"{name}.glb"), "walk (CMU 02_03)", animation="walk", built=True,
+                                extra=("--height", f"{height:.4f}") if k != 1.0 else ()))
+    cesium = CHARACTERS / "CesiumMan.glb"
+    if "CesiumManStylised" in want and cesium.is_file():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ch = load_character(str(cesium))
+        write_character(abrupt(ch, list(ch.joint_names)), folder / "CesiumManStylised.glb", source=str(cesium),
+                        animations={"walk": load_clip(str(cesium))})
+        jobs.append(Job("CesiumManStylised", str(folder / "CesiumManStylised.glb"), "CMU 02_03 (run)",
+                        clip_file=str(BUILT_CLIP), built=True))
+    return jobs
+
+
 def last_line(text: str, prefix: str | None = None) -> str:
     lines = [ln.strip() for ln in (text or "").splitlines() if ln.strip()]
     if prefix:
@@ -265,8 +325,8 @@ def run_job(job: Job, out_root: Path, cmd: list[str], frames: int | None, activa
     out = out_root / job.slug
     if out.exists():
         shutil.rmtree(out)
-    row = Row(job.character, job.clip, "baked", vigorous=job.vigorous, zoo=job.zoo, out=str(out))
-    args = cmd + ["bake", "--character", job.file, "--out", str(out), "--formats", "npz", "-q"]
+    row = Row(job.character, job.clip, "baked", vigorous=job.vigorous, zoo=job.zoo, built=job.built, out=str(out))
+    args = cmd + ["bake", "--character", job.file, "--out", str(out), "--formats", "npz", "-q", *job.extra]
     if job.animation is not None:
         args += ["--animation", job.animation]
     if job.clip_file is not None:
@@ -650,6 +710,7 @@ def write_gallery(docs: Path, rows: list[Row], meta: dict) -> None:
     for old in list(img_dir.glob("*.gif")) + list(img_dir.glob("*.png")) + list(img_dir.glob("*.webm")) + \
             list(img_dir.glob("*.mp4")):
         old.unlink()                            # the animations and stills of earlier runs
+    rows = [r for r in rows if not r.built]     # the shared characters' page; the built ones are in the results
     shown = {}
     for name in dict.fromkeys(r.character for r in rows):
         mine = [r for r in rows if r.character == name and r.out and (Path(r.out) / "bake.npz").is_file()]
@@ -706,6 +767,8 @@ def main(argv=None) -> int:
                     help="every bake's --activation (default: the bake's own default)")
     ap.add_argument("--results", default=None,
                     help="write RESULTS.md and .json (default: benchmarks/results/zoo; with --quick OUT/zoo)")
+    ap.add_argument("--no-built", action="store_true",
+                    help="leave out the characters built for issue 61 (BUILT: blobs, soldiers, a stylised rig)")
     ap.add_argument("--regallery", action="store_true",
                     help="only write the gallery again from the last run's RESULTS.json and its bakes in --out")
     ap.add_argument("--gallery", default=None,
@@ -729,6 +792,8 @@ def main(argv=None) -> int:
     frames = a.frames or (12 if a.quick else None)
     t0 = time.perf_counter()
     jobs, skipped = plan(chars, a.quick, cmd)
+    if not a.quick and not a.no_built:
+        jobs += built_jobs(out / "built", chars)
     print(f"zoo: {len(jobs)} bakes of {len({j.character for j in jobs})} characters, jobs {a.jobs}", flush=True)
 
     def one(job):

@@ -289,3 +289,84 @@ def bird_blob(height: float = 0.5, frames: int = 30, fps: float = 30.0, joints=(
     walk = Clip(joint_names=names, parents=parents, offsets=rest.offsets, rest_rotations=rest.rest_rotations,
                 rotations=rot, translations=tra, fps=fps, name="Walk")
     return character, walk
+
+
+def surface_of_revolution(profile, around: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of a closed surface of revolution about z: `profile` ((radius, z) pairs, bottom to top,
+    radii > 0) swept `around` steps, closed by a vertex on the axis below the first ring and one above the last."""
+    p = np.asarray(profile, float)
+    ph = 2.0 * np.pi * np.arange(around) / around
+    rings = np.stack([np.outer(p[:, 0], np.cos(ph)).ravel(), np.outer(p[:, 0], np.sin(ph)).ravel(),
+                      np.repeat(p[:, 1], around)], 1)
+    v = np.concatenate([[[0.0, 0.0, p[0, 1]]], rings, [[0.0, 0.0, p[-1, 1]]]])
+    f = [[0, 1 + (j + 1) % around, 1 + j] for j in range(around)]
+    for i in range(len(p) - 1):
+        for j in range(around):
+            a, b = 1 + i * around + j, 1 + i * around + (j + 1) % around
+            f += [[a, b, b + around], [a, b + around, a + around]]
+    top, last = len(v) - 1, 1 + (len(p) - 1) * around
+    f += [[top, last + j, last + (j + 1) % around] for j in range(around)]
+    return v, np.array(f)
+
+
+def mushroom_blob(height: float = 0.6, fps: float = 30.0, walk_frames: int = 20, run_frames: int = 8,
+                  walk=(0.3, 0.06, 0.25, 0.0), run=(0.08, 0.03, 0.05, 0.0)):
+    """(character, {"Walk": clip, "Run": clip}): a mushroom blob as game artists make one (issue 61): an armature
+    root, then Body, Stem and Cap up its middle; one closed surface of revolution (a stem under a wide domed cap)
+    skinned smoothly by height over Body, Stem and Cap. Two cycles of its own: a Walk (the body waddling side to side
+    once a cycle and hopping each step, the cap swinging after it: slow and wide) and a Run (a quick, small
+    shuffle: larger accelerations, so the Run is the cycle that drives its tissue hardest, yet it swings the cap
+    less than the walk does). walk, run : each cycle's (rock radians, hop over the height, the cap's swing
+    radians, lurch: 0 a steady sway, else the sway bunched into a quick lurch to each side this wide)."""
+    from jiggle.rig.character.character import Character, bind_clip
+    from jiggle.rig.character.normals import vertex_normals
+    H = float(height)
+    names = ("Root", "Body", "Stem", "Cap")
+    parents = np.array([-1, 0, 1, 2], np.int32)
+    z = np.array([0.0, 0.1, 0.35, 0.6]) * H
+    bind = np.tile(np.eye(4), (4, 1, 1))
+    bind[:, 2, 3] = z
+    profile = [(0.22 * H, 0.0), (0.26 * H, 0.08 * H), (0.24 * H, 0.25 * H), (0.22 * H, 0.42 * H),
+               (0.45 * H, 0.5 * H), (0.55 * H, 0.6 * H), (0.5 * H, 0.75 * H), (0.36 * H, 0.88 * H),
+               (0.16 * H, 0.97 * H)]
+    V, F = surface_of_revolution(profile, around=18)
+    h = np.clip(np.interp(V[:, 2], z[1:], [0.0, 1.0, 2.0]), 0.0, 2.0)
+    lo = np.floor(np.minimum(h, 1.999)).astype(int)
+    t = h - lo
+    wts = np.zeros((len(V), 3))
+    wts[np.arange(len(V)), lo] = 1.0 - t
+    wts[np.arange(len(V)), lo + 1] = t
+    keep = np.argsort(-wts, axis=1)
+    J = (keep + 1).astype(np.int32)
+    W = np.take_along_axis(wts, keep, axis=1)
+    character = Character(vertices=V, faces=F.astype(np.int32), normals=vertex_normals(V, F), uvs=None,
+                          joint_names=names, parents=parents, bind_world=bind, bind_matrices=bind, joints=J, weights=W,
+                          skeleton=bind_clip(names, parents, bind, name="mushroom"), name="mushroom")
+    rest = character.skeleton
+
+    def cycle(frames, rock, hop, swing, lurch, lag, name):
+        t = np.arange(frames) / fps
+        w = 2.0 * np.pi * fps / frames * t
+        if lurch:       # the sway bunched into a quick lurch to each side (a bump of `lurch` cycles), still between
+            s = np.sin(w) * np.exp(-(np.sin(w / 2.0) ** 2 - 0.5) ** 2 / (2.0 * lurch ** 2))
+            return _mushroom_clip(rest, names, parents, fps, name, rock * s, hop * H * np.abs(s),
+                                  swing * np.roll(s, int(round(lag / (2.0 * np.pi) * frames))))
+        return _mushroom_clip(rest, names, parents, fps, name, rock * np.sin(w), hop * H * np.abs(np.sin(w)),
+                              swing * np.sin(w - lag))
+    return character, {"Walk": cycle(walk_frames, *walk, 1.2, "Walk"), "Run": cycle(run_frames, *run, 0.6, "Run")}
+
+
+def _mushroom_clip(rest, names, parents, fps, name, rock, hop, swing):
+    """The mushroom's clip: per frame the body's rock about y (radians), the root's hop (metres) and the cap's swing
+    about y (radians), each (F,)."""
+    from jiggle.rig.motion import quat
+    from jiggle.rig.motion.clip import Clip
+    F = len(rock)
+    y = np.array([[0.0, 1.0, 0.0]])
+    rot = np.repeat(rest.rest_rotations[None], F, axis=0).copy()
+    tra = np.repeat(rest.offsets[None], F, axis=0).copy()
+    rot[:, 1] = quat.mul(rest.rest_rotations[1][None], quat.from_axis_angle(y, np.asarray(rock)))
+    rot[:, 3] = quat.mul(rest.rest_rotations[3][None], quat.from_axis_angle(y, np.asarray(swing)))
+    tra[:, 0, 2] += hop
+    return Clip(joint_names=names, parents=parents, offsets=rest.offsets, rest_rotations=rest.rest_rotations,
+                rotations=rot, translations=tra, fps=fps, name=name)

@@ -127,6 +127,15 @@ class Clip:
             if not np.all(np.isfinite(getattr(self, k))):
                 raise InputError(f"{k} hold NaN or inf", self.source or None, field=k)
 
+    def scaled(self, factor: float) -> "Clip":
+        """The same clip with every length times `factor` (joint offsets, translations, end offsets; rotations
+        kept): a clip in a file's units at real size (rig.character.real_size.RealSize.scale), for the physics."""
+        if factor == 1.0:
+            return self
+        f = float(factor)
+        return dataclasses.replace(self, offsets=self.offsets * f, translations=self.translations * f,
+                       end_offsets=self.end_offsets * f)
+
     # ------------------------------------------------------------------ sizes and time
     @property
     def num_joints(self) -> int:

@@ -826,7 +826,8 @@ def _activation(req: BakeRequest, fit: Fit, motion: Motion, tissue: Tissue, log
     period = float(clip.duration)
     # a looped bake's times run past the clip: its loads are the cycle's own, at the same phase
     at = np.mod(times, period) if motion.loop.on and period > 0 else np.clip(times, 0.0, period)
-    loads = joint_torques(clip, np.array([0.0, max(period, 1e-6)]), mass, roles=fit.mus.roles)
+    # the physics at the body's real size: its mass is the real body's, so its lengths must be too
+    loads = joint_torques(clip.scaled(fit.size.scale), np.array([0.0, max(period, 1e-6)]), mass, roles=fit.mus.roles)
     act = activations(rig, motion.world_at, loads, clip.parents, fit.character.bind_world, times,
                       scale=fit.size.scale, load_times=at, roles=fit.mus.roles)
     a = np.asarray(act.activation, np.float32)
@@ -1017,7 +1018,7 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
     the character's own most vigorous cycle (its file's animations that loop, _own_cycles, without one-off actions
     and gestures, the one whose goal accelerations over the tissue are largest: _vigour) by _to_motion and
     _to_size, whichever clip is baked, so every clip of a character gets the same tissue and a calmer clip jiggles
-    less. Remembered per file for the process (batch, the viewer). A character with no looping animation of its own (a mesh given a mocap
+    less; then held so that none of its other cycles jiggles more than PEAK_LIMIT (_under_limit). Remembered per file for the process (batch, the viewer). A character with no looping animation of its own (a mesh given a mocap
     clip, a generated body) is tuned on the bake's clip, and the record says so."""
     from jiggle.sim.jiggle.params import MOTION_RATE
     key = _file_key(character_file, mus)
@@ -1026,11 +1027,12 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
         freqs, record = _TISSUE[key]
         log(f"generic tissue: as tuned on {record['tuned_on']} (this character's, remembered)")
         return [replace(j, frequency_hz=f) for j, f in zip(jiggles, freqs)], record
-    best = None
+    best, cycles = None, []
     for name, own, at, ts, _ in _own_cycles(character_file, character, mus, onto):
         words = [w for w in re.split(r"[^a-z]+", name.lower()) if w]
         if any(w.startswith(a) for w in words for a in ACTION_WORDS) or any(w in GESTURE_NAMES for w in words):
             continue
+        cycles.append((name, own, at))
         v = _vigour(mus.rig, at, ts)
         if best is None or v > best[0]:
             best = (v, name, own, at)
@@ -1051,6 +1053,9 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
     jiggles = _to_motion(jiggles, mus, character, ref, kind_drive, ref_at, ref_knots, log)
     if kind_drive == "kinematic":
         jiggles = _to_size(jiggles, skin, settings, character, ref, ref_at, log)
+    if best is not None and len(cycles) > 1:
+        jiggles, held = _under_limit(jiggles, skin, settings, character, [c for c in cycles if c[0] != name], log)
+        record["other_cycles_peak_size"] = held
     if key is not None:
         _TISSUE[key] = ([float(j.frequency_hz) for j in jiggles], record)
     return jiggles, record
@@ -1100,14 +1105,72 @@ def _to_size(jiggles, skin, settings, character, clip, world_at, log) -> list:
     a range's end): the skin's response, not a model of it, since how much of a muscle's swing reaches the skin
     depends on the body (a blob's one fat mass moves its whole skin, a creature's limbs a part of theirs). The
     quasi-static swing goes as 1 / f^2, so f scales by sqrt(peak / target)."""
+    probe = _probe(skin, settings, clip, world_at)
+    if probe is None:
+        return jiggles
+    target = PEAK_SIZE * _body_size(character)
+    for _ in range(PROBE_ROUNDS):
+        peak = probe(jiggles)
+        g = math.sqrt(peak / target)
+        if peak <= 1e-6 * target or abs(g - 1.0) < 0.1:
+            break
+        jiggles = _scaled(jiggles, skin.rig.kinds, g)
+        log(f"generic tissue: {1e3 * peak:.3g} mm on a probe of the clip, for {1e3 * target:.3g} mm "
+            f"({100 * PEAK_SIZE:g}% of the body): goal springs x {g:.2f}")
+    return jiggles
+
+
+PEAK_LIMIT = 1.2 * PEAK_SIZE
+"""No other cycle of the character may jiggle its skin more than this share of its size on a probe (_under_limit):
+the top of the tuning's own band around PEAK_SIZE, well under the zoo's 1.5% for a bake."""
+
+
+def _under_limit(jiggles, skin, settings, character, cycles, log) -> tuple[list, dict]:
+    """(jiggles, peaks): the tissue tuned on the character's most vigorous cycle (_to_size), held so that none of its
+    other `cycles` ((name, clip, world_at) each) jiggles the skin more than PEAK_LIMIT of its size on a probe: a
+    calmer cycle can still swing the tissue harder (a walk whose step is near the tissue's own frequency, where the
+    vigorous cycle's faster shake is not), and no cycle of a character may be damaged by the tissue it is given.
+    Where one does, the goal springs are scaled alike (as _to_size) until the worst is at PEAK_SIZE. peaks : {cycle:
+    its probe's peak over the body's size, with the final springs}."""
+    size = _body_size(character)
+    probes = {name: _probe(skin, settings, clip, at) for name, clip, at in cycles}
+    probes = {n: p for n, p in probes.items() if p is not None}
+    peaks = {n: p(jiggles) for n, p in probes.items()}
+    for _ in range(PROBE_ROUNDS):
+        worst = max(peaks, key=peaks.get, default=None)
+        if worst is None or peaks[worst] <= PEAK_LIMIT * size:
+            break
+        g = math.sqrt(peaks[worst] / (PEAK_SIZE * size))
+        jiggles = _scaled(jiggles, skin.rig.kinds, g)
+        log(f"generic tissue: {100 * peaks[worst] / size:.2f}% of the body on a probe of its {worst}, over "
+            f"{100 * PEAK_LIMIT:g}%: goal springs x {g:.2f}")
+        peaks = {n: p(jiggles) for n, p in probes.items()}
+    return jiggles, {n: round(float(v / size), 5) for n, v in peaks.items()}
+
+
+def _body_size(character) -> float:
+    """The body's size (its rest skin's largest extent), in the file's units."""
+    return float(np.ptp(np.asarray(character.vertices), axis=0).max())
+
+
+def _scaled(jiggles, kinds, g: float) -> list:
+    """`jiggles` with their goal springs' frequency times g, each kept in its kind's MOTION_FREQUENCY_HZ."""
+    from jiggle.sim.jiggle.params import MOTION_FREQUENCY_HZ
+    return [replace(j, frequency_hz=float(np.clip(j.frequency_hz * g, *MOTION_FREQUENCY_HZ.get(
+        k, MOTION_FREQUENCY_HZ["muscle"])))) for j, k in zip(jiggles, kinds)]
+
+
+def _probe(skin, settings, clip, world_at):
+    """The probe bake of `clip` (the bake's stages in one go, without collisions, at PROBE_FPS over its first
+    PROBE_SECONDS), as a function of the jiggles -> the skin's largest jiggle (file units); None for a clip too
+    short to probe."""
     from jiggle.rig.skin.muscle_skin import skin_frames
     from jiggle.sim.jiggle.keyed_solver import make_solver
-    from jiggle.sim.jiggle.params import MOTION_FREQUENCY_HZ
     from jiggle.sim.jiggle.particles import muscle_model
     from jiggle.sim.jiggle.simulate import goals, simulate
     times = np.arange(0.0, min(clip.duration, PROBE_SECONDS) + 1e-9, 1.0 / PROBE_FPS)
     if len(times) < 3:
-        return jiggles
+        return None
     settings = replace(settings, collisions=False)
     rig = skin.rig
     knots = knot_times(times, settings.goal_rate or DEFAULT_GOAL_RATE)
@@ -1115,20 +1178,13 @@ def _to_size(jiggles, skin, settings, character, clip, world_at, log) -> list:
     static = rig.static(world_k, device=settings.device)
     at = np.clip(np.searchsorted(knots, times - 1e-9), 0, len(knots) - 1)       # the frames among the knots
     track = goals(rig, knots, static.cvs, settings)
-    target = PEAK_SIZE * float(np.ptp(np.asarray(character.vertices), axis=0).max())
-    for _ in range(PROBE_ROUNDS):
+
+    def peak(jiggles) -> float:
         model = muscle_model(rig, list(jiggles), settings.device, gravity=settings.gravity)
         dyn, _ = simulate(model, track, times, settings, solver=make_solver(model, jiggles))
         st, fin = skin_frames(skin, world_k[at], (static.cvs[at], dyn), static.curve[at], np.arange(len(times)))
-        peak = float(np.linalg.norm(np.asarray(fin) - np.asarray(st), axis=2).max())
-        g = math.sqrt(peak / target)
-        if peak <= 1e-6 * target or abs(g - 1.0) < 0.1:
-            break
-        jiggles = [replace(j, frequency_hz=float(np.clip(j.frequency_hz * g, *MOTION_FREQUENCY_HZ.get(
-            k, MOTION_FREQUENCY_HZ["muscle"])))) for j, k in zip(jiggles, rig.kinds)]
-        log(f"generic tissue: {1e3 * peak:.3g} mm on a probe of the clip, for {1e3 * target:.3g} mm "
-            f"({100 * PEAK_SIZE:g}% of the body): goal springs x {g:.2f}")
-    return jiggles
+        return float(np.linalg.norm(np.asarray(fin) - np.asarray(st), axis=2).max())
+    return peak
 
 
 def _model_capsules(clip, character, log):

@@ -194,3 +194,31 @@ def test_a_mixamo_soldier_with_vest_and_pouches_walks_without_a_torn_edge(tmp_pa
     assert held["torn_edges_max"] == 0 and held["gradient_max"] <= 1.0
     default = _bake(tmp_path, glb, "default")
     assert default["torn_edges_max"] == 0 and default["gradient_max"] < 0.5
+
+
+@pytest.mark.slow
+def test_the_soldier_in_a_tiny_file_unit_walks_without_a_torn_edge(tmp_path):
+    """The same soldier written a hundred times smaller (a file whose unit is off by a hundred, as an export with a
+    stray unit scale is), baked with its real height given (--height): the gear and the seams hold as at real size,
+    0 torn edges with the default materials and with the soft tissue (E 0.6 kPa) alike; its muscles work exactly
+    as hard (the joint torques are the real body's: the clip's lengths at real size with its real mass; they were
+    taken at the file's loaded size, 1.18x too long, and every activation came out a third higher)."""
+    from gear_builds import abrupt, mixamo_named, soldier
+    from jiggle.rig.character.gltf_write import write_character
+    from jiggle.rig.character.load import body_character
+    from jiggle.rig.motion.mocap import load_clip
+    clip = mixamo_named(load_clip(_asset("mocap", "cmu_bvh", "02_03.bvh")))
+    man = soldier(abrupt(body_character(clip), list(clip.joint_names)))
+    height = float(np.ptp(np.asarray(man.vertices)[:, 2]))
+    work = {}
+    for name, k in (("real", 1.0), ("tiny", 0.01)):
+        glb = tmp_path / f"soldier_{name}.glb"
+        write_character(man.scaled(k), glb, animations={"walk": clip.scaled(k)})
+        for soft in ((), ("--material", "E=0.6kPa")):
+            tag = f"{name}{'_soft' if soft else ''}"
+            worst = _bake(tmp_path, glb, tag, "--height", f"{height:.4f}", *soft)
+            assert worst["torn_edges_max"] == 0, (tag, worst)
+        act = json.loads((tmp_path / name / "bake.json").read_text())["params"]["activation"]["muscles"]
+        work[name] = np.array([act[n]["peak"] for n in sorted(act)])
+    assert work["real"].max() > 0.3
+    np.testing.assert_allclose(work["tiny"], work["real"], atol=0.01)
