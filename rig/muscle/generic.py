@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from jiggle.rig.muscle.template import TUNED_SPRINGS, BoneMusclePair, MuscleTemplate, Template, default_jiggle
+from jiggle.rig.muscle.template import BoneMusclePair, MuscleTemplate, Template, default_jiggle
 
 GENERIC = "generic"
 """The template name that asks for this template (--template generic)."""
@@ -53,8 +53,6 @@ FAT_DEPTH_RADII = 0.15
 """The fat layer's thickness, in the part's radius."""
 THICKNESS_RADII = 0.05
 """A muscle's thinnest fitted radius, in the part's radius."""
-FREQUENCY_RANGE = {"fat": (3.0, 5.0), "muscle": (8.0, 14.0)}
-"""Hz: the goal-spring frequency of each kind of tissue, from its largest part (lowest) to its smallest."""
 
 
 @dataclass(frozen=True)
@@ -206,12 +204,6 @@ def generic_front(character) -> np.ndarray:
     return np.array([0.0, -1.0, 0.0])
 
 
-def _frequency(kind: str, radius: float, radii: list[float]) -> float:
-    """Hz: the kind's range, lowest for its largest part, higher as sqrt(largest / radius) for smaller ones."""
-    lo, hi = FREQUENCY_RANGE[kind]
-    return float(np.clip(lo * np.sqrt(max(radii) / max(radius, 1e-12)), lo, hi))
-
-
 def _muscle_name(label: str, kind: str, taken: set[str]) -> str:
     """A muscle name (letters, digits, _) from a segment label: "Body>Head" fat -> "body_fat"."""
     joint = label.split(">")[0]
@@ -230,15 +222,11 @@ def generic_template(parts: list[Part]) -> tuple[Template, dict[str, int]]:
     whole region, and {muscle name: segment index}. Labels are joint names (a leaf's child label is
     "<joint>>end"), read by rig.muscle.fit through the segments, not through roles."""
     pairs, where, taken = [], {}, set()
-    radii = {k: [p.radius for p in parts if p.kind == k] for k in ("fat", "muscle")}
     for p in parts:
         if p.kind is None:
             continue
-        base = default_jiggle(p.kind)
-        # the springs as given (then tuned to the character's motion, sim.bake.setup), not from the material: a
-        # creature's one soft mass at its inferred real size would be a giant's fat (benchmarks/results/
-        # zoo_materials.md); its material is recorded beside them
-        jiggle = replace(base, **{**TUNED_SPRINGS[p.kind], "frequency_hz": _frequency(p.kind, p.radius, radii[p.kind])})
+        # its kind's material at the character's real size (then held under the limit on its cycles, sim.bake.setup)
+        jiggle = default_jiggle(p.kind)
         name = _muscle_name(p.label, p.kind, taken)
         m = MuscleTemplate(name=name, kind=p.kind, type="single",
                            depth=FAT_DEPTH_RADII * p.radius if p.kind == "fat" else 0.0,

@@ -664,19 +664,21 @@ class Tissue:
 
 def _tissue(req: BakeRequest, inputs: Inputs, body: Body, fit: Fit, timing: Timing, world_at, log,
             timings: dict) -> Tissue:
-    """Step 5, the tissue: the generic template tuned once for the character, its real size, the materials asked
+    """Step 5, the tissue: the generic template's held once for the character, its real size, the materials asked
     for, then the scene's and the command line's parameters over them."""
     from jiggle.rig.muscle.generic import GENERIC
     jiggles, mus = fit.jiggles, fit.mus
-    tissue_from = {"template": os.path.basename(str(fit.template)), "tuned_on": None}
+    tissue_from = {"template": os.path.basename(str(fit.template))}
     if mus.template.name == GENERIC and not fit.idle.all():
-        # one tissue per character: tuned on the character's own most vigorous cycle, whichever clip is baked
+        # one tissue per character: its material at real size, held under the limit on its own cycles
         jiggles, tissue_from = _timed(timings, "tune_s", _character_tissue, jiggles, mus, fit.skin,
                                       timing.solver_settings, fit.character, body.file, body.retarget.onto, fit.clip,
                                       inputs.drive, world_at, timing.knots, log)
     size = fit.size
-    springs = {n: ("material" if "frequency_hz" in m.spec.jiggle.from_material else
-                   "tuned" if tissue_from["tuned_on"] else "template") for n, m in zip(mus.rig.names, mus.muscles)}
+    held = tissue_from.get("held_factor", 1.0)
+    springs = {n: (("material" if held == 1.0 else f"material, held x {held:.3g}")
+                   if "frequency_hz" in m.spec.jiggle.from_material else "template")
+               for n, m in zip(mus.rig.names, mus.muscles)}
     materials_used = {}
     if req.materials:
         jiggles, materials_used = apply_materials(jiggles, mus.rig, req.materials, log, scale=size.scale)
@@ -701,7 +703,8 @@ MATERIAL_RULE = ("each part's goal springs, their damping and its density come f
                  "radius r and rest length L (radius_m and length_m x real_size.scale), frequency_hz = f_fem / "
                  "sqrt(w / (1 - w)) of its belly's goal weight w, damping_ratio so the part rings down with the "
                  "material's ratio. Springs set otherwise (springs_from 'template': the template's own values; "
-                 "'tuned': the generic template's tuning to the character's motion; '--material'; 'overridden': "
+                 "'material, held x G': the generic template's material with every spring G times stiffer, so that "
+                 "no cycle of the character jiggles past the limit (tissue.held_on); '--material'; 'overridden': "
                  "a scene table or the command line) still stand for a material, muscles.NAME.material (E from "
                  "frequency_hz by the same rule inverted)")
 """bake.json's tissue.material_rule: how a part's springs and its material relate."""
@@ -941,8 +944,8 @@ REFERENCE_ANIMATIONS = 48
 ACTION_WORDS = ("attack", "bite", "hit", "death", "die", "dead", "jump", "punch", "kick", "headbutt", "react", "weapon",
                 "shoot", "fall", "land", "throw", "slash", "spawn")
 """Words that make an animation a one-off action (it may return to its start pose, but it is not how the character
-moves): never the tissue's reference, since tuned on it the tissue would be stiffened for the character's harshest
-moment."""
+moves): never one the tissue is held on (_under_limit), since held on it the tissue would be stiffened for the
+character's harshest moment."""
 GESTURE_NAMES = ("yes", "no", "nod", "wave", "shake", "headshake")
 """Whole words that make an animation a gesture (a head shake whips a small body hard, but it is not how the body
 moves): never the reference either."""
@@ -1014,150 +1017,104 @@ def _real_size(character, character_file, mus, onto, height, log):
 
 def _character_tissue(jiggles, mus, skin, settings, character, character_file, onto, clip, drive, world_at, knots,
                       log) -> tuple[list, dict]:
-    """(jiggles, record): the generic template's tissue tuned once for the character, not per clip (issue 49): on
-    the character's own most vigorous cycle (its file's animations that loop, _own_cycles, without one-off actions
-    and gestures, the one whose goal accelerations over the tissue are largest: _vigour) by _to_motion and
-    _to_size, whichever clip is baked, so every clip of a character gets the same tissue and a calmer clip jiggles
-    less; then held so that none of its other cycles jiggles more than PEAK_LIMIT (_under_limit). Remembered per file for the process (batch, the viewer). A character with no looping animation of its own (a mesh given a mocap
-    clip, a generated body) is tuned on the bake's clip, and the record says so."""
-    from jiggle.sim.jiggle.params import MOTION_RATE
+    """(jiggles, record): the generic template's tissue, once for the character, not per clip: each part's material
+    at the character's real size (rig.muscle.generic: fat on the soft core, muscle on the limbs; their goal springs
+    as sim.jiggle.materials gives them), held so that none of the character's own cycles (its file's animations
+    that loop, _own_cycles, without one-off actions and gestures) jiggles the skin more than PEAK_LIMIT of its size
+    on a probe (_under_limit): a creature's soft mass at its real size can swing several percent of its body (the
+    Cat's fat, 3.3% on its Walk; benchmarks/results/zoo_materials.md), which reads as a flap, not a jiggle. Every
+    clip of the character then gets the same tissue, and a calmer clip jiggles less. Remembered per file for the
+    process (batch, the viewer). A character with no looping animation of its own (a mesh given a mocap clip, a
+    generated body) is held on the bake's clip, and the record says so."""
     key = _file_key(character_file, mus)
     key = None if key is None else key + (getattr(skin, "skinning", None),)
     if key is not None and key in _TISSUE:
         freqs, record = _TISSUE[key]
-        log(f"generic tissue: as tuned on {record['tuned_on']} (this character's, remembered)")
+        log(f"generic tissue: as held on {record['held_on']} (this character's, remembered)")
         return [replace(j, frequency_hz=f) for j, f in zip(jiggles, freqs)], record
-    best, cycles = None, []
-    for name, own, at, ts, _ in _own_cycles(character_file, character, mus, onto):
+    cycles = []
+    for name, own, at, _, _ in _own_cycles(character_file, character, mus, onto):
         words = [w for w in re.split(r"[^a-z]+", name.lower()) if w]
         if any(w.startswith(a) for w in words for a in ACTION_WORDS) or any(w in GESTURE_NAMES for w in words):
             continue
         cycles.append((name, own, at))
-        v = _vigour(mus.rig, at, ts)
-        if best is None or v > best[0]:
-            best = (v, name, own, at)
-    if best is not None:
-        vigour, name, ref, ref_at = best
-        ref_knots = np.linspace(0.0, ref.duration, max(int(round(ref.duration * MOTION_RATE)), 2) + 1)
-        record = {"template": "generic", "tuned_on": f"animation {name}",
-                  "why": f"the character's own cycle that drives its tissue hardest (goal acceleration {vigour:.3g} "
-                         "m/s^2 RMS; one-off actions and gestures never): one tissue for every clip of the character, "
-                         "and a calmer "
-                         "clip jiggles less"}
-        kind_drive = "kinematic"
+    if cycles:
+        held_on = "its own cycles: " + ", ".join(n for n, _, _ in cycles)
     else:
-        ref, ref_at, ref_knots, kind_drive = clip, world_at, knots, drive
-        record = {"template": "generic", "tuned_on": "the bake's clip",
-                  "why": "the character has no looping animation of its own to tune on"}
-    log(f"generic tissue: tuned on {record['tuned_on']} ({record['why']})")
-    jiggles = _to_motion(jiggles, mus, character, ref, kind_drive, ref_at, ref_knots, log)
-    if kind_drive == "kinematic":
-        jiggles = _to_size(jiggles, skin, settings, character, ref, ref_at, log)
-    if best is not None and len(cycles) > 1:
-        jiggles, held = _under_limit(jiggles, skin, settings, character, [c for c in cycles if c[0] != name], log)
-        record["other_cycles_peak_size"] = held
+        cycles, held_on = [("the bake's clip", clip, world_at)], "the bake's clip"
+    jiggles, peaks, factor = _under_limit(jiggles, skin, settings, character, cycles, log)
+    record = {"template": "generic", "held_on": held_on, "cycles_peak_size": peaks,
+              "held_factor": round(factor, 4),
+              "why": "each part's material at the character's real size, its goal springs scaled alike (held_factor) "
+                     f"where a cycle of its own would jiggle the skin more than {100 * PEAK_LIMIT:g}% of its size "
+                     "(no cycle may be damaged by its tissue); one tissue for every clip of the character"}
+    log(f"generic tissue: its material at real size" + (f", held x {factor:.2f}" if factor != 1.0 else "") +
+        f" on {held_on}")
     if key is not None:
         _TISSUE[key] = ([float(j.frequency_hz) for j in jiggles], record)
     return jiggles, record
 
 
-def _vigour(rig, world_at, ts: np.ndarray) -> float:
-    """How hard a clip drives the tissue: the RMS over frames of the mean goal acceleration magnitude of the rig's
-    CVs (m/s^2), the drive `world_at` sampled at `ts` (seconds, evenly)."""
-    from jiggle.sim.jiggle.params import motion_accelerations
-    if len(ts) < 3:
-        return 0.0
-    acc = motion_accelerations(rig.static(np.asarray(world_at(ts), np.float64)).cvs, float(ts[1] - ts[0]))
-    return float(np.sqrt(np.mean(np.linalg.norm(acc, axis=2).mean(axis=1) ** 2)))
-
-
-def _to_motion(jiggles, mus, character, clip, drive: str, world_at, knots: np.ndarray, log) -> list:
-    """The generic template's tissue tuned to how the clip moves it (sim.jiggle.params.tune_to_motion), measured on the whole clip sampled at MOTION_RATE (the knots under
-    the physics drive), so neither the output rate nor the frame range changes it."""
-    from jiggle.sim.jiggle.params import MOTION_RATE, motion_accelerations, tune_to_motion
-    if drive == "physics":
-        ts = knots
-    else:
-        ts = np.linspace(0.0, clip.duration, max(int(round(clip.duration * MOTION_RATE)), 2) + 1)
-    dt = float(ts[1] - ts[0]) if len(ts) > 1 else 1.0
-    rig = mus.rig
-    acc = motion_accelerations(rig.static(world_at(ts)).cvs, dt)
-    out, tuned = tune_to_motion(jiggles, rig.kinds, acc, dt, rig.mean_radii(rig.rest_cvs), rig.cv_offsets)
-    for name, (a, b) in tuned.items():
-        log(f"{name}: goal springs {a:.2g} -> {b:.2g} Hz for the clip's motion (the generic template's default)")
-    return out
-
-
 PEAK_SIZE = 0.01
-"""The generic template's tissue is calibrated so that its skin's largest jiggle on the character's most vigorous
-cycle (_character_tissue) is about this share of the body's size (its rest skin's largest extent): visible on a
-blob's hop or a hovering creature, far from a flap; a calmer clip of the character (a walk beside its dance) then
-jiggles less, an idle far less."""
-PROBE_FPS, PROBE_SECONDS, PROBE_ROUNDS = 30.0, 4.0, 2
-"""The calibration's probe bakes: this rate over the clip's first seconds (so neither the bake's rate nor its frame
-range changes the result), this many rounds."""
-
-
-def _to_size(jiggles, skin, settings, character, clip, world_at, log) -> list:
-    """The generic template's goal springs scaled alike (the ratios tune_to_motion found kept, each kind's range
-    MOTION_FREQUENCY_HZ kept) until a probe of the clip (the bake's stages in one go, without collisions, at
-    PROBE_FPS over its first PROBE_SECONDS) jiggles the skin about PEAK_SIZE of the body's size (within 20%, or at
-    a range's end): the skin's response, not a model of it, since how much of a muscle's swing reaches the skin
-    depends on the body (a blob's one fat mass moves its whole skin, a creature's limbs a part of theirs). The
-    quasi-static swing goes as 1 / f^2, so f scales by sqrt(peak / target)."""
-    probe = _probe(skin, settings, clip, world_at)
-    if probe is None:
-        return jiggles
-    target = PEAK_SIZE * _body_size(character)
-    for _ in range(PROBE_ROUNDS):
-        peak = probe(jiggles)
-        g = math.sqrt(peak / target)
-        if peak <= 1e-6 * target or abs(g - 1.0) < 0.1:
-            break
-        jiggles = _scaled(jiggles, skin.rig.kinds, g)
-        log(f"generic tissue: {1e3 * peak:.3g} mm on a probe of the clip, for {1e3 * target:.3g} mm "
-            f"({100 * PEAK_SIZE:g}% of the body): goal springs x {g:.2f}")
-    return jiggles
-
-
+"""Where a cycle would jiggle the skin more than PEAK_LIMIT of the body's size (its rest skin's largest extent), the
+tissue is stiffened until it jiggles about this share (_under_limit): visible on a blob's hop or a hovering
+creature, far from a flap."""
 PEAK_LIMIT = 1.2 * PEAK_SIZE
-"""No other cycle of the character may jiggle its skin more than this share of its size on a probe (_under_limit):
-the top of the tuning's own band around PEAK_SIZE, well under the zoo's 1.5% for a bake."""
+"""No cycle of a character may jiggle its skin more than this share of its size on a probe (_under_limit), well
+under the zoo's 1.5% for a bake."""
+PROBE_FPS, PROBE_SECONDS = 30.0, 4.0
+"""The probe bakes: this rate over the clip's first seconds (so neither the bake's rate nor its frame range changes
+the result)."""
 
 
-def _under_limit(jiggles, skin, settings, character, cycles, log) -> tuple[list, dict]:
-    """(jiggles, peaks): the tissue tuned on the character's most vigorous cycle (_to_size), held so that none of its
-    other `cycles` ((name, clip, world_at) each) jiggles the skin more than PEAK_LIMIT of its size on a probe: a
-    calmer cycle can still swing the tissue harder (a walk whose step is near the tissue's own frequency, where the
-    vigorous cycle's faster shake is not), and no cycle of a character may be damaged by the tissue it is given.
-    Where one does, the goal springs are scaled alike (as _to_size) until the worst is at PEAK_SIZE. peaks : {cycle:
-    its probe's peak over the body's size, with the final springs}."""
+def _under_limit(jiggles, skin, settings, character, cycles, log) -> tuple[list, dict, float]:
+    """(jiggles, peaks, factor): `jiggles` held so that none of `cycles` ((name, clip, world_at) each) jiggles the
+    skin more than PEAK_LIMIT of the body's size on a probe (_probe: the skin's response, not a model of it, since
+    how much of a part's swing reaches the skin depends on the body: a blob's one fat mass moves its whole skin, a
+    creature's limbs a part of theirs). Where one does, every goal spring's frequency is scaled alike by the
+    smallest factor (found within HOLD_STEP, at most HOLD_ROUNDS rounds of probes) at which the worst cycle jiggles
+    no more than PEAK_SIZE: stepped up by sqrt(peak / target) (the quasi-static swing goes as 1 / f^2), at least
+    doubling (a soft part swinging to its reach answers less), then bisected. peaks : {cycle: its probe's peak over
+    the body's size, with the final springs}; factor : the springs' total scale (1: as given)."""
     size = _body_size(character)
     probes = {name: _probe(skin, settings, clip, at) for name, clip, at in cycles}
     probes = {n: p for n, p in probes.items() if p is not None}
-    peaks = {n: p(jiggles) for n, p in probes.items()}
-    for _ in range(PROBE_ROUNDS):
-        worst = max(peaks, key=peaks.get, default=None)
-        if worst is None or peaks[worst] <= PEAK_LIMIT * size:
+
+    def worst(g: float) -> tuple[dict, str | None]:
+        js = [replace(j, frequency_hz=float(j.frequency_hz * g)) for j in jiggles]
+        peaks = {n: p(js) / size for n, p in probes.items()}
+        return peaks, max(peaks, key=peaks.get, default=None)
+    peaks, name = worst(1.0)
+    if name is None or peaks[name] <= PEAK_LIMIT:
+        return jiggles, {n: round(float(v), 5) for n, v in peaks.items()}, 1.0
+    log(f"generic tissue: {100 * peaks[name]:.2f}% of the body on a probe of {name}, over {100 * PEAK_LIMIT:g}%")
+    lo, hi, best, g = 1.0, None, None, 1.0
+    for _ in range(HOLD_ROUNDS):
+        if hi is None:
+            g = lo * max(math.sqrt(peaks[name] / PEAK_SIZE), 2.0)
+        elif hi / lo <= HOLD_STEP:
             break
-        g = math.sqrt(peaks[worst] / (PEAK_SIZE * size))
-        jiggles = _scaled(jiggles, skin.rig.kinds, g)
-        log(f"generic tissue: {100 * peaks[worst] / size:.2f}% of the body on a probe of its {worst}, over "
-            f"{100 * PEAK_LIMIT:g}%: goal springs x {g:.2f}")
-        peaks = {n: p(jiggles) for n, p in probes.items()}
-    return jiggles, {n: round(float(v / size), 5) for n, v in peaks.items()}
+        else:
+            g = math.sqrt(lo * hi)
+        at, top = worst(g)
+        if at[top] <= PEAK_SIZE:
+            hi, best = g, at
+        else:
+            lo, peaks, name = g, at, top
+    if hi is None:                                          # never under: the stiffest tried
+        hi, best = g, at
+    log(f"generic tissue: goal springs x {hi:.2f}: the worst cycle {100 * max(best.values()):.2f}% of the body")
+    return ([replace(j, frequency_hz=float(j.frequency_hz * hi)) for j in jiggles],
+            {n: round(float(v), 5) for n, v in best.items()}, hi)
+
+
+HOLD_STEP, HOLD_ROUNDS = 1.15, 8
+"""_under_limit's search: the springs' factor found within this ratio, in at most this many rounds of probes."""
 
 
 def _body_size(character) -> float:
     """The body's size (its rest skin's largest extent), in the file's units."""
     return float(np.ptp(np.asarray(character.vertices), axis=0).max())
-
-
-def _scaled(jiggles, kinds, g: float) -> list:
-    """`jiggles` with their goal springs' frequency times g, each kept in its kind's MOTION_FREQUENCY_HZ."""
-    from jiggle.sim.jiggle.params import MOTION_FREQUENCY_HZ
-    return [replace(j, frequency_hz=float(np.clip(j.frequency_hz * g, *MOTION_FREQUENCY_HZ.get(
-        k, MOTION_FREQUENCY_HZ["muscle"])))) for j, k in zip(jiggles, kinds)]
 
 
 def _probe(skin, settings, clip, world_at):

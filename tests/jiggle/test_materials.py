@@ -166,8 +166,9 @@ def test_material_on_the_command_line(tmp_path, capsys):
 @pytest.mark.slow
 def test_one_tissue_for_every_clip_of_a_character(tmp_path):
     """The shared Cat (the generic template) baked on its Idle, Walk and Dance: the same goal springs in every
-    bake.json (tuned once, on its most vigorous cycle: the Dance), and the Idle peaks below the Walk, the Walk below
-    the Dance (it was retuned per clip: 1.5 Hz on Idle, 7 on Walk, 11 on Dance)."""
+    bake.json (its fat's material at its real size, held once on all its cycles: stiffened where its Dance would
+    jiggle past the limit), and the Idle peaks below the Walk, the Walk below the Dance (it was retuned per clip:
+    1.5 Hz on Idle, 7 on Walk, 11 on Dance)."""
     from jiggle.sim.app.cli import main
     from jiggle.sim.bake.caches import read_npz
     cat = _asset("characters", "zoo", "Cat.glb")
@@ -180,7 +181,10 @@ def test_one_tissue_for_every_clip_of_a_character(tmp_path):
                      "-q"]) == 0
         p = json.loads((out / "bake.json").read_text())
         params = p.get("params", p)
-        assert params["tissue"]["tuned_on"] == "animation Dance"
+        tissue = params["tissue"]
+        assert tissue["held_on"] == "its own cycles: Dance, Idle, Walk" and tissue["held_factor"] > 1.0
+        assert max(tissue["cycles_peak_size"].values()) <= setup.PEAK_LIMIT
+        assert all(m["springs_from"].startswith("material, held x") for m in params["muscles"].values())
         freqs[clip] = {n: m["frequency"] for n, m in params["muscles"].items()}
         b = read_npz(out / "bake.npz")
         peaks[clip] = float(np.linalg.norm(b.skin_final - b.skin_static, axis=2).max())

@@ -4,8 +4,6 @@
   zoo: a blob's stacked joints are one fat mass, a winged creature's wings get no tissue and its body does;
 - choose_template: auto falls back to the generic template where no plan fits, a named template that does not fit
   is refused with the reason;
-- tune_to_motion: the oscillators it tries against the step response x_max = 2 a / w^2, and its choice does not
-  depend on the unit (accelerations and radii scaled alike give the same frequency);
 - the human template's size: a CesiumMan written at 0.12 of its size bakes the same relative jiggle.
 """
 import json
@@ -20,7 +18,6 @@ from jiggle.rig.character.character import template_scale
 from jiggle.rig.character.load import load_character
 from jiggle.rig.muscle.fit import choose_template, fit_musculature
 from jiggle.rig.muscle.generic import _roundness, _thin_name
-from jiggle.sim.jiggle.params import MOTION_FREQUENCY_HZ, oscillator_peaks
 
 
 def quiet(f, *a, **kw):
@@ -87,35 +84,6 @@ def test_choose_template_falls_back_only_when_asked_for_auto(cat):
     man = quiet(load_character, asset("characters/CesiumMan.glb"))
     assert quiet(choose_template, man).template.name == "human"
     assert quiet(choose_template, man, "generic").template is None
-
-
-def test_oscillator_step_response():
-    # x'' + w^2 x = -a0 from rest (a step of acceleration): x = a0 / w^2 (cos wt - 1), |x| peaks at 2 a0 / w^2
-    dt, a0, f = 1 / 60, 3.0, np.array([2.0, 5.0])
-    acc = np.zeros((120, 1, 3))
-    acc[:, 0, 0] = a0
-    peak = oscillator_peaks(acc, dt, f, [0.0])[:, 0]
-    w = 2 * np.pi * f
-    np.testing.assert_allclose(peak, 2 * a0 / w ** 2, rtol=0.03)
-    damped = oscillator_peaks(acc, dt, f, [0.5])[:, 0]
-    assert (damped < peak).all()                                     # damping takes the overshoot
-
-
-def test_tuned_frequencies_do_not_depend_on_the_unit():
-    from jiggle.sim.jiggle.params import MuscleJiggle, tune_to_motion
-    rng = np.random.default_rng(1)
-    acc = rng.normal(0, 4.0, (90, 80, 3))                            # two muscles of 40 CVs, m/s^2
-    base = [MuscleJiggle(name=n, frequency_hz=4.0, damping_ratio=0.3, goal=np.full(40, 0.5), density=900.0)
-            for n in ("a", "b")]
-    offsets = np.array([0, 40, 80])
-    one, _ = tune_to_motion(base, ["fat", "muscle"], acc, 1 / 60, np.array([0.2, 0.05]), offsets)
-    big, _ = tune_to_motion(base, ["fat", "muscle"], 100 * acc, 1 / 60, np.array([20.0, 5.0]), offsets)
-    assert [j.frequency_hz for j in one] == pytest.approx([j.frequency_hz for j in big])
-    for j, kind in zip(one, ("fat", "muscle")):
-        lo, hi = MOTION_FREQUENCY_HZ[kind]
-        assert lo <= j.frequency_hz <= hi
-    harder, _ = tune_to_motion(base, ["fat", "muscle"], 4 * acc, 1 / 60, np.array([0.2, 0.05]), offsets)
-    assert all(h.frequency_hz >= o.frequency_hz for h, o in zip(harder, one))
 
 
 def test_template_scale():

@@ -400,8 +400,8 @@ class Tuner:
     def default_jiggles(self) -> list[MuscleJiggle]:
         """Each muscle's jiggle before the scene's tables and the global strength: the template's (or the
         kind's; what it leaves to its material, from the material at the bake's real size), what a scene's [jiggle.muscles] tables are written against. The generic template's springs are
-        tuned to the clip by the bake itself (sim.bake.setup.prepare), before the scene's tables, and a scene's bake
-        tunes them alike: its base is the bake's own jiggle (a table's values applied again on it give the same)."""
+        held under the limit by the bake itself (sim.bake.setup.prepare), before the scene's tables, and a scene's bake
+        holds them alike: its base is the bake's own jiggle (a table's values applied again on it give the same)."""
         from jiggle.rig.muscle.generic import GENERIC
         from jiggle.sim.jiggle.materials import default_jiggles
         if self.fitted is not None:
