@@ -664,13 +664,12 @@ class Tissue:
 
 def _tissue(req: BakeRequest, inputs: Inputs, body: Body, fit: Fit, timing: Timing, world_at, log,
             timings: dict) -> Tissue:
-    """Step 5, the tissue: the generic template's held once for the character, its real size, the materials asked
+    """Step 5, the tissue: a creature's held once for the character (HELD_TEMPLATES), its real size, the materials asked
     for, then the scene's and the command line's parameters over them."""
-    from jiggle.rig.muscle.generic import GENERIC
     jiggles, mus = fit.jiggles, fit.mus
     tissue_from = {"template": os.path.basename(str(fit.template))}
-    if mus.template.name == GENERIC and not fit.idle.all():
-        # one tissue per character: its material at real size, held under the limit on its own cycles
+    if mus.template.name in HELD_TEMPLATES and not fit.idle.all():
+        # one tissue per creature: its materials at real size, held under the limit on its own cycles
         jiggles, tissue_from = _timed(timings, "tune_s", _character_tissue, jiggles, mus, fit.skin,
                                       timing.solver_settings, fit.character, body.file, body.retarget.onto, fit.clip,
                                       inputs.drive, world_at, timing.knots, log)
@@ -697,13 +696,18 @@ def _tissue(req: BakeRequest, inputs: Inputs, body: Body, fit: Fit, timing: Timi
     return Tissue(jiggles, settings, size, MappingProxyType(record))
 
 
+HELD_TEMPLATES = ("generic", "quadruped")
+"""The templates whose tissue (each part's material at the character's real size) is held under the limit on the
+character's own cycles (_character_tissue): creatures, whose size and soft mass the human's calibration never saw."""
+
+
 MATERIAL_RULE = ("each part's goal springs, their damping and its density come from its material (muscles.NAME."
                  "springs_from 'material': the template's, rig.muscle.material, at the character's real size) by "
                  "sim.jiggle.materials: f_fem = FEM_C_SLENDER (r / L)^FEM_A sqrt(mu / rho) / r at the part's mean "
                  "radius r and rest length L (radius_m and length_m x real_size.scale), frequency_hz = f_fem / "
                  "sqrt(w / (1 - w)) of its belly's goal weight w, damping_ratio so the part rings down with the "
                  "material's ratio. Springs set otherwise (springs_from 'template': the template's own values; "
-                 "'material, held x G': the generic template's material with every spring G times stiffer, so that "
+                 "'material, held x G': a creature's material (the generic and quadruped templates) with every spring G times stiffer, so that "
                  "no cycle of the character jiggles past the limit (tissue.held_on); '--material'; 'overridden': "
                  "a scene table or the command line) still stand for a material, muscles.NAME.material (E from "
                  "frequency_hz by the same rule inverted)")
@@ -1017,9 +1021,10 @@ def _real_size(character, character_file, mus, onto, height, log):
 
 def _character_tissue(jiggles, mus, skin, settings, character, character_file, onto, clip, drive, world_at, knots,
                       log) -> tuple[list, dict]:
-    """(jiggles, record): the generic template's tissue, once for the character, not per clip: each part's material
-    at the character's real size (rig.muscle.generic: fat on the soft core, muscle on the limbs; their goal springs
-    as sim.jiggle.materials gives them), held so that none of the character's own cycles (its file's animations
+    """(jiggles, record): a creature's tissue (the HELD_TEMPLATES'), once for the character, not per clip: each
+    part's material at the character's real size (the generic template's fat on the soft core and muscle on the
+    limbs, rig.muscle.generic; the quadruped's muscles and fat; their goal springs as sim.jiggle.materials gives
+    them), held so that none of the character's own cycles (its file's animations
     that loop, _own_cycles, without one-off actions and gestures) jiggles the skin more than PEAK_LIMIT of its size
     on a probe (_under_limit): a creature's soft mass at its real size can swing several percent of its body (the
     Cat's fat, 3.3% on its Walk; benchmarks/results/zoo_materials.md), which reads as a flap, not a jiggle. Every
@@ -1030,7 +1035,7 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
     key = None if key is None else key + (getattr(skin, "skinning", None),)
     if key is not None and key in _TISSUE:
         freqs, record = _TISSUE[key]
-        log(f"generic tissue: as held on {record['held_on']} (this character's, remembered)")
+        log(f"tissue: as held on {record['held_on']} (this character's, remembered)")
         return [replace(j, frequency_hz=f) for j, f in zip(jiggles, freqs)], record
     cycles = []
     for name, own, at, _, _ in _own_cycles(character_file, character, mus, onto):
@@ -1043,12 +1048,12 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
     else:
         cycles, held_on = [("the bake's clip", clip, world_at)], "the bake's clip"
     jiggles, peaks, factor = _under_limit(jiggles, skin, settings, character, cycles, log)
-    record = {"template": "generic", "held_on": held_on, "cycles_peak_size": peaks,
+    record = {"template": mus.template.name, "held_on": held_on, "cycles_peak_size": peaks,
               "held_factor": round(factor, 4),
               "why": "each part's material at the character's real size, its goal springs scaled alike (held_factor) "
                      f"where a cycle of its own would jiggle the skin more than {100 * PEAK_LIMIT:g}% of its size "
                      "(no cycle may be damaged by its tissue); one tissue for every clip of the character"}
-    log(f"generic tissue: its material at real size" + (f", held x {factor:.2f}" if factor != 1.0 else "") +
+    log(f"tissue: its material at real size" + (f", held x {factor:.2f}" if factor != 1.0 else "") +
         f" on {held_on}")
     if key is not None:
         _TISSUE[key] = ([float(j.frequency_hz) for j in jiggles], record)
@@ -1072,44 +1077,46 @@ def _under_limit(jiggles, skin, settings, character, cycles, log) -> tuple[list,
     skin more than PEAK_LIMIT of the body's size on a probe (_probe: the skin's response, not a model of it, since
     how much of a part's swing reaches the skin depends on the body: a blob's one fat mass moves its whole skin, a
     creature's limbs a part of theirs). Where one does, every goal spring's frequency is scaled alike by the
-    smallest factor (found within HOLD_STEP, at most HOLD_ROUNDS rounds of probes) at which the worst cycle jiggles
-    no more than PEAK_SIZE: stepped up by sqrt(peak / target) (the quasi-static swing goes as 1 / f^2), at least
-    doubling (a soft part swinging to its reach answers less), then bisected. peaks : {cycle: its probe's peak over
-    the body's size, with the final springs}; factor : the springs' total scale (1: as given)."""
+    smallest factor (found within HOLD_STEP, at most HOLD_ROUNDS probes) at which that cycle jiggles no more than
+    PEAK_SIZE: stepped up by sqrt(peak / target) (the quasi-static swing goes as 1 / f^2), at least doubling (a soft
+    part swinging to its reach answers less), then bisected; the other cycles are probed again at the factor found,
+    and one still over the limit is searched for next. peaks : {cycle: its probe's peak over the body's size, with
+    the final springs}; factor : the springs' total scale (1: as given)."""
     size = _body_size(character)
     probes = {name: _probe(skin, settings, clip, at) for name, clip, at in cycles}
     probes = {n: p for n, p in probes.items() if p is not None}
 
-    def worst(g: float) -> tuple[dict, str | None]:
-        js = [replace(j, frequency_hz=float(j.frequency_hz * g)) for j in jiggles]
-        peaks = {n: p(js) / size for n, p in probes.items()}
-        return peaks, max(peaks, key=peaks.get, default=None)
-    peaks, name = worst(1.0)
-    if name is None or peaks[name] <= PEAK_LIMIT:
-        return jiggles, {n: round(float(v), 5) for n, v in peaks.items()}, 1.0
-    log(f"generic tissue: {100 * peaks[name]:.2f}% of the body on a probe of {name}, over {100 * PEAK_LIMIT:g}%")
-    lo, hi, best, g = 1.0, None, None, 1.0
-    for _ in range(HOLD_ROUNDS):
-        if hi is None:
-            g = lo * max(math.sqrt(peaks[name] / PEAK_SIZE), 2.0)
-        elif hi / lo <= HOLD_STEP:
+    def peak(name: str, g: float) -> float:
+        return probes[name]([replace(j, frequency_hz=float(j.frequency_hz * g)) for j in jiggles]) / size
+    factor = 1.0
+    peaks = {n: peak(n, factor) for n in probes}
+    for _ in range(len(probes)):
+        name = max(peaks, key=peaks.get, default=None)
+        if name is None or peaks[name] <= PEAK_LIMIT:
             break
-        else:
-            g = math.sqrt(lo * hi)
-        at, top = worst(g)
-        if at[top] <= PEAK_SIZE:
-            hi, best = g, at
-        else:
-            lo, peaks, name = g, at, top
-    if hi is None:                                          # never under: the stiffest tried
-        hi, best = g, at
-    log(f"generic tissue: goal springs x {hi:.2f}: the worst cycle {100 * max(best.values()):.2f}% of the body")
-    return ([replace(j, frequency_hz=float(j.frequency_hz * hi)) for j in jiggles],
-            {n: round(float(v), 5) for n, v in best.items()}, hi)
+        log(f"tissue: {100 * peaks[name]:.2f}% of the body on a probe of {name}, over {100 * PEAK_LIMIT:g}%")
+        lo, hi, top = factor, None, peaks[name]
+        for _ in range(HOLD_ROUNDS):
+            if hi is None:
+                g = lo * max(math.sqrt(top / PEAK_SIZE), 2.0)
+            elif hi / lo <= HOLD_STEP:
+                break
+            else:
+                g = math.sqrt(lo * hi)
+            at = peak(name, g)
+            if at <= PEAK_SIZE:
+                hi = g
+            else:
+                lo, top = g, at
+        factor = hi if hi is not None else g                 # never under: the stiffest tried
+        peaks = {n: peak(n, factor) for n in probes}
+        log(f"tissue: goal springs x {factor:.2f}: {name} {100 * peaks[name]:.2f}% of the body")
+    return ([replace(j, frequency_hz=float(j.frequency_hz * factor)) for j in jiggles],
+            {n: round(float(v), 5) for n, v in peaks.items()}, factor)
 
 
 HOLD_STEP, HOLD_ROUNDS = 1.15, 8
-"""_under_limit's search: the springs' factor found within this ratio, in at most this many rounds of probes."""
+"""_under_limit's search: the springs' factor found within this ratio, in at most this many probes of a cycle."""
 
 
 def _body_size(character) -> float:
