@@ -7,7 +7,11 @@ and clip kept, its skin rebound or replaced.
 - plated(character): the skin replaced by what a knight in plate or a wolf of shards is made of: around every
   bone four thin plates (thickness 5% of their width) and a spike (a cone), each a piece of its own bound with
   weight 1 to the bone's joint;
-- slab, cone, offset_shell: the closed meshes they are made of (a box, a cone, a shell over part of a skin).
+- soldier, abrupt, mixamo_named: a Mixamo-named body bound bone by bone in a vest, a belt and pouches;
+- bird_blob, mushroom_blob: the wild blobs of issue 61, built whole (skeleton, skin and their own cycles), also
+  baked by benchmarks/zoo.py;
+- slab, cone, offset_shell, surface_of_revolution: the closed meshes they are made of (a box, a cone, a shell over
+  part of a skin, a profile swept about an axis).
 """
 from __future__ import annotations
 
