@@ -9,7 +9,8 @@ Cases (each with the character's largest fat part and its largest muscle, where 
 - every shared zoo character on its most vigorous cycle (benchmarks/zoo.py's order: Run, Gallop, Fast_Flying, then
   Walk), 2 s of it.
 
-Each case is benchmarks/fem_reference.py's `case`: the bake's own drive, then the last pose held 1.5 s; the FEM
+Each case is benchmarks/fem_reference.py's `case`: the bake's own drive (relaxed tissue: --activation off, as the
+solid has no activation), then the last pose held 1.5 s; the FEM
 (TetGen mesh of the part, Neo-Hookean, Rayleigh damping at its material's ratio, the det F check of sim/fem/step.py)
 and the particles on the same goals, twice: with the bake's default goal springs, and with the springs the part's
 material gives (sim.jiggle.materials.with_material). Per case: peak, ring-down frequency and logarithmic decrement
