@@ -47,8 +47,9 @@ CLOSED_TOLERANCE = 0.01
 """The largest joint displacement between the window's end and start (root travel off), as a share of the
 character's height, of a closed cycle."""
 WARMUP_TOLERANCE_MM = 0.01
-"""The warm-up stops when the state at the cycle's start changes by less than this between two cycles (mm:
-particle positions, and velocities times one frame step)."""
+"""The warm-up stops when the state at the cycle's start changes by less than this between two cycles (mm at the
+character's real size: particle positions, and velocities times one frame step; a file in other units than its real
+size is simulated in the file's, so its changes are scaled by the real size's factor)."""
 WARMUP_MAX_CYCLES = 16
 """Cycles the warm-up runs at most (the first from the quasi-static start)."""
 RELAXATION = 0.3
@@ -272,7 +273,7 @@ def warm_up(setup, model, solver, colliders=None, tissue=None, margin: int = 3,
         _, (x, v) = simulate(model, track, times, s.settings, solver=solver, preroll=0.0, start=state,
                              colliders=coll, contacts={}, tissue=tissue)
         return x, v
-    state, rec = steady_state(cycle, lp, log)
+    state, rec = steady_state(cycle, lp, log, scale=getattr(setup, "real_scale", 1.0))
     solver.stops.zero_()
     return state, rec
 
@@ -292,7 +293,7 @@ def warm_up_fem(setup, fem, colliders=None, margin: int = 3,
     def cycle(state):
         _, end, _ = fem.run(kt, static, times, start=state, cuts=cuts, capsule_ends=ends)
         return end
-    return steady_state(cycle, lp, log)
+    return steady_state(cycle, lp, log, scale=getattr(setup, "real_scale", 1.0))
 
 
 def cycle_knots(setup, margin: int) -> tuple[np.ndarray, np.ndarray]:
@@ -306,10 +307,11 @@ def cycle_knots(setup, margin: int) -> tuple[np.ndarray, np.ndarray]:
     return kt, np.asarray(s.world_at(kt), dtype=np.float64)
 
 
-def steady_state(cycle: Callable, lp: Loop, log: Callable[[str], None] = lambda s: None
+def steady_state(cycle: Callable, lp: Loop, log: Callable[[str], None] = lambda s: None, scale: float = 1.0
                  ) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
     """The fixed point of `cycle` (start state (x, v) or None for the quasi-static start -> the state (x, v) one
-    period later) with the loop's root travel lp.delta taken off, and the warm-up's record (see warm_up)."""
+    period later) with the loop's root travel lp.delta taken off, and the warm-up's record (see warm_up); scale :
+    real metres per simulated metre (the changes are measured at real size)."""
     times = lp.cycle_times
     frame = lp.period / (len(times) - 1)
     shift = np.asarray(lp.delta, np.float32)[None]
@@ -322,7 +324,7 @@ def steady_state(cycle: Callable, lp: Loop, log: Callable[[str], None] = lambda 
             continue
         dx = np.abs(end[0] - state[0]).max(initial=0.0)
         dv = np.abs(end[1] - state[1]).max(initial=0.0) * frame
-        residuals.append(1000.0 * float(max(dx, dv)))
+        residuals.append(1000.0 * float(scale) * float(max(dx, dv)))
         if best is None or residuals[-1] < best[0]:
             best = (residuals[-1], state, len(residuals))
         if residuals[-1] < WARMUP_TOLERANCE_MM:
@@ -335,7 +337,7 @@ def steady_state(cycle: Callable, lp: Loop, log: Callable[[str], None] = lambda 
            "start_from_cycle": used + 1, "converged": bool(change < WARMUP_TOLERANCE_MM),
            "relaxation": relax, "tolerance_mm": WARMUP_TOLERANCE_MM, "max_cycles": WARMUP_MAX_CYCLES,
            "rule": "cycle k simulated from start state s_k; change = max over particles of |x_end - travel - x_start| "
-                   "and |v_end - v_start| x one frame step (mm); s_(k+1) = s_k + relaxation (end - s_k); the bake "
+                   "and |v_end - v_start| x one frame step (mm at real size); s_(k+1) = s_k + relaxation (end - s_k); the bake "
                    "starts from the s_k of the smallest change"}
     log(f"loop warm-up: {rec['cycles']} cycles, the start state repeats within {change:.3g} mm"
         + ("" if rec["converged"] else f" (not below {WARMUP_TOLERANCE_MM:g} mm: the best start of "
