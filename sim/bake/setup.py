@@ -672,7 +672,7 @@ def _tissue(req: BakeRequest, inputs: Inputs, body: Body, fit: Fit, timing: Timi
         # one tissue per creature: its materials at real size, held under the limit on its own cycles
         jiggles, tissue_from = _timed(timings, "tune_s", _character_tissue, jiggles, mus, fit.skin,
                                       timing.solver_settings, fit.character, body.file, body.retarget.onto, fit.clip,
-                                      inputs.drive, world_at, timing.knots, log)
+                                      world_at, log)
     size = fit.size
     held = tissue_from.get("held_factor", 1.0)
     springs = {n: (("material" if held == 1.0 else f"material, held x {held:.3g}")
@@ -1019,13 +1019,13 @@ def _real_size(character, character_file, mus, onto, height, log):
     return size
 
 
-def _character_tissue(jiggles, mus, skin, settings, character, character_file, onto, clip, drive, world_at, knots,
+def _character_tissue(jiggles, mus, skin, settings, character, character_file, onto, clip, world_at,
                       log) -> tuple[list, dict]:
     """(jiggles, record): a creature's tissue (the HELD_TEMPLATES'), once for the character, not per clip: each
     part's material at the character's real size (the generic template's fat on the soft core and muscle on the
     limbs, rig.muscle.generic; the quadruped's muscles and fat; their goal springs as sim.jiggle.materials gives
-    them), held so that none of the character's own cycles (its file's animations
-    that loop, _own_cycles, without one-off actions and gestures) jiggles the skin more than PEAK_LIMIT of its size
+    them), held so that none of the character's own cycles (its file's animations that loop, _own_cycles, without
+    one-off actions and gestures) jiggles the skin more than PEAK_LIMIT of its size
     on a probe (_under_limit): a creature's soft mass at its real size can swing several percent of its body (the
     Cat's fat, 3.3% on its Walk; benchmarks/results/zoo_materials.md), which reads as a flap, not a jiggle. Every
     clip of the character then gets the same tissue, and a calmer clip jiggles less. Remembered per file for the
@@ -1053,7 +1053,7 @@ def _character_tissue(jiggles, mus, skin, settings, character, character_file, o
               "why": "each part's material at the character's real size, its goal springs scaled alike (held_factor) "
                      f"where a cycle of its own would jiggle the skin more than {100 * PEAK_LIMIT:g}% of its size "
                      "(no cycle may be damaged by its tissue); one tissue for every clip of the character"}
-    log(f"tissue: its material at real size" + (f", held x {factor:.2f}" if factor != 1.0 else "") +
+    log("tissue: its material at real size" + (f", held x {factor:.2f}" if factor != 1.0 else "") +
         f" on {held_on}")
     if key is not None:
         _TISSUE[key] = ([float(j.frequency_hz) for j in jiggles], record)
