@@ -195,7 +195,7 @@ def read_gltf_character(path: str | os.PathLike, skin: int = 0, k: int = 4,
         vertices=vertices, faces=faces, normals=normals,
         uvs=np.concatenate(merged.uv) if merged.has_uvs and merged.uv else None,
         joint_names=skel.joint_names, parents=skel.parents, bind_world=bind_world, bind_matrices=bind_m,
-        joints=joints, weights=weights, skeleton=_scaled_clip(skel.to_clip(), s), name=skel.name, source=p,
+        joints=joints, weights=weights, skeleton=skel.to_clip().scaled(s), name=skel.name, source=p,
         meta={"weights": "file", "unit_scale": s, "skin": skel.meta.get("skin", skin), "parts": merged.parts,
               "primitives": merged.prims, **({"spring_bones": springs} if springs else {})},
         maps=assemble(merged.maps, len(vertices), os.path.basename(p)))
@@ -362,10 +362,3 @@ def _unit_normals(nrm: list | None, vertices: np.ndarray, faces: np.ndarray) -> 
         from jiggle.rig.character.normals import vertex_normals
         normals = vertex_normals(vertices, faces)
     return normals
-
-
-def _scaled_clip(clip, s: float):
-    if s == 1.0:
-        return clip
-    from dataclasses import replace
-    return replace(clip, offsets=clip.offsets * s, translations=clip.translations * s)

@@ -248,7 +248,8 @@ FAT_JIGGLE = Jiggle(frequency_hz=None, damping_ratio=None, goal_tendon=0.9, goal
                     spring_frequency_hz=4.0, spring_damping_ratio=0.2, material="fat")
 """The kinds' defaults: their springs, damping and density from their material (rig.muscle.material) at the
 part's real size. TUNED_SPRINGS are the values the templates had before (the comment above gives their sources),
-which the generic template's tuning (sim.bake.setup) and a template that writes them out still use."""
+which a rig built in code without templates (the thesis's simple arm, sim.jiggle.materials.default_jiggles) still
+uses."""
 TUNED_SPRINGS = {"muscle": {"frequency_hz": 11.0, "damping_ratio": 0.5, "density": 1060.0},
                  "fat": {"frequency_hz": 4.0, "damping_ratio": 0.3, "density": 900.0}}
 
